@@ -1,0 +1,32 @@
+"""The project's error hierarchy.
+
+Every error raised on purpose derives from :class:`SoftsensorError`; its message is one line
+that names what is wrong (the file, the dotted config key, the signal). The command line turns
+any ``SoftsensorError`` into ``softsensor: <message>`` on stderr and a non-zero exit status.
+
+    SoftsensorError
+    +-- ConfigError      a config or parameter file is missing, malformed or out of range
+    +-- IngestError      a recorded day, a Modbus read or a lab result cannot be used
+    +-- SolverError      the model could not be solved (the solver's message is kept)
+    +-- EstimationError  the estimator cannot continue (e.g. covariance lost definiteness)
+"""
+
+
+class SoftsensorError(Exception):
+    """Base class of all errors the project raises on purpose."""
+
+
+class ConfigError(SoftsensorError):
+    """A configuration value is missing, of the wrong type or out of range."""
+
+
+class IngestError(SoftsensorError):
+    """Input data (MCAP day, Modbus registers, lab result) cannot be used."""
+
+
+class SolverError(SoftsensorError):
+    """The model could not be solved for the given inputs and parameters."""
+
+
+class EstimationError(SoftsensorError):
+    """The estimator cannot continue."""
