@@ -1,0 +1,564 @@
+"""Recorded days: MCAP files of JSON messages with JSON Schemas (CONTRACT section 2).
+
+Writing: :class:`DayWriter` registers one JSON Schema (encoding ``jsonschema``) and one channel
+(message encoding ``json``) per topic on first use, compresses chunks with zstd and keeps chunks
+small, so a writer that dies loses at most its open chunk. A float NaN in a body is written as
+``null``.
+
+Reading: :func:`read_day` loads a whole day into a :class:`RecordedDay` (scans as a DataFrame of
+SI values, lab results, ground truth when present, and every other topic as decoded bodies);
+:func:`iter_messages` streams ``(topic, log_time_ns, body)`` in log-time order. Every problem
+with the file (missing, not an MCAP, corrupt, truncated, unknown signal, malformed lab body)
+raises :class:`~softsensor.errors.IngestError` with a one-line message naming the file.
+
+Times are nanoseconds since the Unix epoch, UTC, everywhere.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import struct
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+import pandas as pd
+import zstandard
+from mcap.exceptions import InvalidMagic, McapError
+from mcap.reader import NonSeekingReader, SeekingReader
+from mcap.writer import CompressionType, Writer
+
+from softsensor.errors import IngestError
+from softsensor.estimation.base import LabResult
+from softsensor.signals import (
+    HEALTH_STATES,
+    SCAN_SIGNALS,
+    TOPIC_ESTIMATE,
+    TOPIC_HEALTH,
+    TOPIC_LAB,
+    TOPIC_SCAN,
+    TOPIC_TRUTH,
+)
+
+log = logging.getLogger(__name__)
+
+#: Default uncompressed chunk size [bytes]: about 100 scans, so a crash loses minutes, not hours.
+DEFAULT_CHUNK_SIZE = 32 * 1024
+
+#: Non-signal fields a scan body may carry besides the signals (a Zenoh ``time_ns``, a counter).
+SCAN_EXTRA_FIELDS: frozenset[str] = frozenset({"time_ns", "seq", "sequence", "scan_id", "unit"})
+
+#: Columns of :attr:`RecordedDay.labs`.
+LAB_COLUMNS: tuple[str, ...] = ("log_time_ns", "sample_time_ns", "moisture_out", "sample_id")
+
+_NUM_OR_NULL = {"type": ["number", "null"]}
+
+SCHEMAS: dict[str, tuple[str, dict[str, Any]]] = {
+    TOPIC_SCAN: (
+        "softsensor.PlantScan",
+        {
+            "title": "PLC scan (SI units; null = signal could not be read)",
+            "type": "object",
+            "properties": {name: dict(_NUM_OR_NULL, description=unit)
+                           for name, unit in SCAN_SIGNALS.items()},
+            "additionalProperties": True,
+        },
+    ),
+    TOPIC_LAB: (
+        "softsensor.LabResult",
+        {
+            "title": "Laboratory moisture result, logged when it became available",
+            "type": "object",
+            "properties": {
+                "sample_time_ns": {"type": "integer", "description": "ns since epoch, UTC"},
+                "moisture_out": {"type": "number", "description": "kg/kg dry basis"},
+                "sample_id": {"type": "string"},
+            },
+            "required": ["sample_time_ns", "moisture_out", "sample_id"],
+            "additionalProperties": True,
+        },
+    ),
+    TOPIC_ESTIMATE: (
+        "softsensor.Estimate",
+        {
+            "title": "Soft-sensor estimate (SI units)",
+            "type": "object",
+            "properties": {
+                "moisture_out": _NUM_OR_NULL,
+                "moisture_out_std": _NUM_OR_NULL,
+                "moisture_in": _NUM_OR_NULL,
+                "moisture_in_std": _NUM_OR_NULL,
+                "T_dryer_out_model": _NUM_OR_NULL,
+                "T_cyclone_out_model": _NUM_OR_NULL,
+                "lab_updated": {"type": "boolean"},
+            },
+            "required": [
+                "moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
+                "T_dryer_out_model", "T_cyclone_out_model", "lab_updated",
+            ],
+            "additionalProperties": True,
+        },
+    ),
+    TOPIC_HEALTH: (
+        "softsensor.Health",
+        {
+            "title": "Soft-sensor health",
+            "type": "object",
+            "properties": {
+                "status": {"type": "string", "enum": list(HEALTH_STATES)},
+                "detail": {"type": "string"},
+            },
+            "required": ["status", "detail"],
+            "additionalProperties": True,
+        },
+    ),
+}
+
+_PERMISSIVE_SCHEMA = {"type": "object", "additionalProperties": True}
+
+
+# ----------------------------------------------------------------------------------------------
+# JSON encoding
+
+
+def _sanitize(value: Any) -> Any:
+    """Return ``value`` with NaN/inf floats as None and numpy scalars/arrays as Python types."""
+    if isinstance(value, dict):
+        return {str(k): _sanitize(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_sanitize(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [_sanitize(v) for v in value.tolist()]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def encode_body(body: dict[str, Any]) -> bytes:
+    """Encode a message body as JSON bytes; non-finite floats become ``null``."""
+    try:
+        return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
+    except (ValueError, TypeError):
+        return json.dumps(_sanitize(body), allow_nan=False, separators=(",", ":")).encode()
+
+
+# ----------------------------------------------------------------------------------------------
+# Writing
+
+
+class _UnbufferedFile:
+    """A write-only file whose writes reach the OS at once (the MCAP writer writes whole chunks).
+
+    ``mcap.Writer`` keeps any stream that is not an ``io.RawIOBase`` as it is (it would wrap a
+    raw file in a buffer), so every finished chunk is in the OS and survives a SIGKILL.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._f = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
+
+    def write(self, data: bytes) -> int:
+        view = memoryview(data)
+        while view:
+            n = self._f.write(view)
+            view = view[n:]
+        return len(data)
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def flush(self) -> None:
+        pass
+
+    def fsync(self) -> None:
+        os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        self._f.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._f.closed
+
+
+class DayWriter:
+    """Writes one recorded period into an MCAP file.
+
+    Parameters
+    ----------
+    path : str or Path
+        File to create (overwritten if it exists).
+    chunk_size : int
+        Uncompressed size at which a chunk is closed and written [bytes]. A writer that dies
+        loses at most the chunk it has open.
+
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE) -> None:
+        self.path = Path(path)
+        try:
+            self._file = _UnbufferedFile(self.path)
+        except OSError as exc:
+            raise IngestError(f"{self.path}: cannot create MCAP file: {exc.strerror}") from exc
+        self._writer = Writer(self._file, chunk_size=chunk_size,
+                              compression=CompressionType.ZSTD)
+        self._writer.start(profile="", library="softsensor")
+        self._channels: dict[str, int] = {}
+        self._closed = False
+        self.n_messages = 0
+
+    def _channel(self, topic: str) -> int:
+        channel_id = self._channels.get(topic)
+        if channel_id is None:
+            default = (f"softsensor.{topic.strip('/')}", _PERMISSIVE_SCHEMA)
+            name, schema = SCHEMAS.get(topic, default)
+            schema_id = self._writer.register_schema(
+                name=name, encoding="jsonschema", data=json.dumps(schema).encode())
+            channel_id = self._writer.register_channel(
+                topic=topic, message_encoding="json", schema_id=schema_id)
+            self._channels[topic] = channel_id
+        return channel_id
+
+    def write(self, topic: str, log_time_ns: int, body: dict[str, Any]) -> None:
+        """Append one message; ``log_time_ns`` in ns since the epoch, UTC."""
+        if self._closed:
+            raise ValueError(f"{self.path}: write after close")
+        t = int(log_time_ns)
+        self._writer.add_message(self._channel(topic), log_time=t, data=encode_body(body),
+                                 publish_time=t)
+        self.n_messages += 1
+
+    def flush(self) -> None:
+        """Close the open chunk and hand it to the OS (costs compression ratio if done often)."""
+        if not self._closed:
+            self._writer.flush()
+
+    def close(self) -> None:
+        """Finish the file (summary, footer) and close it. Idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def __enter__(self) -> DayWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------------------
+# Decoding bodies (pure)
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def scan_values(body: dict[str, Any], where: str = "scan") -> dict[str, float]:
+    """Signal values of a ``/plant/scan`` body in SI units, NaN for ``null`` or missing.
+
+    Raises :class:`IngestError` naming ``where`` and the signal for a numeric field that is not
+    a known signal (non-signal fields: :data:`SCAN_EXTRA_FIELDS`, names ending in ``_ns``, and
+    non-numeric metadata) or for a signal whose value is not a number or null.
+    """
+    if not isinstance(body, dict):
+        raise IngestError(f"{where}: scan body is {type(body).__name__}, not an object")
+    out = dict.fromkeys(SCAN_SIGNALS, math.nan)
+    for key, value in body.items():
+        if key in out:
+            if value is None:
+                continue
+            if not _is_number(value):
+                raise IngestError(f"{where}: signal {key} has non-numeric value {value!r}")
+            out[key] = float(value)
+        elif key in SCAN_EXTRA_FIELDS or key.endswith("_ns"):
+            continue
+        elif value is None or _is_number(value):
+            raise IngestError(f"{where}: unknown signal {key!r} in /plant/scan")
+    return out
+
+
+def lab_result(body: dict[str, Any], log_time_ns: int | None = None,
+               where: str = "lab") -> LabResult:
+    """A :class:`LabResult` from a ``/plant/lab`` body; :class:`IngestError` if malformed."""
+    if not isinstance(body, dict):
+        raise IngestError(f"{where}: lab body is {type(body).__name__}, not an object")
+    st = body.get("sample_time_ns")
+    if not isinstance(st, int) or isinstance(st, bool):
+        if isinstance(st, float) and st.is_integer():
+            st = int(st)
+        else:
+            raise IngestError(f"{where}: lab field sample_time_ns must be an integer, got {st!r}")
+    mo = body.get("moisture_out")
+    if mo is None:
+        mo = math.nan
+    elif not _is_number(mo):
+        raise IngestError(f"{where}: lab field moisture_out must be a number, got {mo!r}")
+    sid = body.get("sample_id")
+    if sid is None:
+        raise IngestError(f"{where}: lab field sample_id is missing")
+    return LabResult(sample_time_ns=st, moisture_out=float(mo), sample_id=str(sid),
+                     log_time_ns=log_time_ns)
+
+
+# ----------------------------------------------------------------------------------------------
+# Reading
+
+
+#: What the mcap reader raises on a cut or damaged file.
+_READ_ERRORS = (McapError, struct.error, ValueError, EOFError, OSError, zstandard.ZstdError)
+
+
+def _open(path: Path) -> IO[bytes]:
+    try:
+        return open(path, "rb")  # noqa: SIM115 - closed by callers
+    except FileNotFoundError as exc:
+        raise IngestError(f"{path}: no such file") from exc
+    except IsADirectoryError as exc:
+        raise IngestError(f"{path}: is a directory, not an MCAP file") from exc
+    except OSError as exc:
+        raise IngestError(f"{path}: cannot open: {exc.strerror}") from exc
+
+
+def _decode(path: Path, topic: str, encoding: str, log_time: int, data: bytes) -> Any:
+    if encoding != "json":
+        raise IngestError(f"{path}: topic {topic} has message encoding {encoding!r}, not json")
+    try:
+        return json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise IngestError(f"{path}: {topic} message at {log_time} ns is not valid JSON") from exc
+
+
+def _raw_messages(path: Path, topics: list[str] | None, allow_truncated: bool,
+                  on_truncated: Callable[[str], None] | None,
+                  starting_at: int | None = None, ending_before: int | None = None,
+                  ) -> Iterator[tuple[str, int, Any]]:
+    """Yield ``(topic, log_time_ns, body)`` in log-time order; see :func:`iter_messages`."""
+    f = _open(path)
+    with f:
+        try:
+            reader = SeekingReader(f, validate_crcs=True)
+        except _READ_ERRORS as exc:
+            raise IngestError(f"{path}: not an MCAP file (bad magic bytes)") from exc
+        intact = True
+        try:
+            reader.get_summary()
+        except _READ_ERRORS as exc:
+            intact = False
+            reason = ("truncated or corrupt MCAP file "
+                      f"(no valid summary or footer: {type(exc).__name__})")
+            if not allow_truncated:
+                raise IngestError(f"{path}: {reason}") from exc
+        if intact:
+            try:
+                for _schema, channel, msg in reader.iter_messages(
+                        topics=topics, log_time_order=True,
+                        starting_at=starting_at, ending_before=ending_before):
+                    yield channel.topic, msg.log_time, _decode(
+                        path, channel.topic, channel.message_encoding, msg.log_time, msg.data)
+            except _READ_ERRORS as exc:
+                raise IngestError(f"{path}: corrupt MCAP file ({type(exc).__name__}: "
+                                  f"{str(exc).splitlines()[0] if str(exc) else 'bad record'})"
+                                  ) from exc
+            return
+        # Truncated: read linearly every complete message before the cut, then sort.
+        f.seek(0)
+        got: list[tuple[int, int, str, str, bytes]] = []
+        try:
+            for _schema, channel, msg in NonSeekingReader(f, validate_crcs=True).iter_messages(
+                    topics=topics, log_time_order=False,
+                    starting_at=starting_at, ending_before=ending_before):
+                got.append((msg.log_time, len(got), channel.topic, channel.message_encoding,
+                            msg.data))
+        except InvalidMagic as exc:
+            raise IngestError(f"{path}: not an MCAP file (bad magic bytes)") from exc
+        except _READ_ERRORS as exc:
+            log.warning("%s: truncated after %d complete messages (%s: %s)", path, len(got),
+                        type(exc).__name__, exc)
+        if on_truncated is not None:
+            on_truncated(reason)
+        got.sort(key=lambda g: (g[0], g[1]))
+        for t, _i, topic, enc, data in got:
+            yield topic, t, _decode(path, topic, enc, t, data)
+
+
+def iter_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = None,
+                  allow_truncated: bool = False, *, start_ns: int | None = None,
+                  end_ns: int | None = None) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """Stream ``(topic, log_time_ns, body)`` of a recorded day in log-time order.
+
+    ``start_ns`` / ``end_ns`` select the log times ``[start_ns, end_ns)`` [ns since epoch].
+    Scan bodies are checked with :func:`scan_values` and lab bodies with :func:`lab_result`,
+    so an unknown signal raises :class:`IngestError` when its message is reached. A truncated
+    file raises at once unless ``allow_truncated``, in which case every complete message
+    before the cut is yielded (and a warning logged).
+    """
+    p = Path(path)
+    sel = None if topics is None else list(topics)
+    for topic, t, body in _raw_messages(p, sel, allow_truncated, None, start_ns, end_ns):
+        where = f"{p}: {topic} at {t} ns"
+        if topic == TOPIC_SCAN:
+            scan_values(body, where)
+        elif topic == TOPIC_LAB:
+            lab_result(body, t, where)
+        yield topic, t, body
+
+
+@dataclass
+class RecordedDay:
+    """A recorded day loaded into memory.
+
+    Attributes
+    ----------
+    path : Path
+        The MCAP file.
+    scans : pandas.DataFrame
+        One row per ``/plant/scan`` message, index = log time [ns since epoch, int64], one float
+        column per signal of :data:`~softsensor.signals.SCAN_SIGNALS` (SI units), NaN for null
+        or missing.
+    labs : pandas.DataFrame
+        Columns ``log_time_ns``, ``sample_time_ns`` [ns], ``moisture_out`` [kg/kg dry basis],
+        ``sample_id``, sorted by log time.
+    truth : pandas.DataFrame or None
+        Numeric fields of ``/truth/plant`` bodies indexed by log time [ns]; None when absent.
+        Nothing that estimates, calibrates or diagnoses may read it.
+    truncated : bool
+        True when the file was cut short and only the messages before the cut were read.
+    """
+
+    path: Path
+    scans: pd.DataFrame
+    labs: pd.DataFrame
+    truth: pd.DataFrame | None
+    truncated: bool = False
+    messages: dict[str, list[tuple[int, dict[str, Any]]]] = field(default_factory=dict)
+
+    def topic(self, name: str) -> list[tuple[int, dict[str, Any]]]:
+        """Messages of one topic as ``(log_time_ns, body)`` in log-time order ([] if absent)."""
+        return self.messages.get(name, [])
+
+    @property
+    def topics(self) -> list[str]:
+        """Topics present in the day."""
+        return sorted(self.messages)
+
+    def lab_results(self) -> list[LabResult]:
+        """Lab rows as :class:`LabResult` objects, in log-time order."""
+        return [LabResult(int(r.sample_time_ns), float(r.moisture_out), str(r.sample_id),
+                          int(r.log_time_ns)) for r in self.labs.itertuples(index=False)]
+
+    @property
+    def start_ns(self) -> int | None:
+        """First scan log time [ns], None without scans."""
+        return int(self.scans.index[0]) if len(self.scans) else None
+
+    @property
+    def end_ns(self) -> int | None:
+        """Last scan log time [ns], None without scans."""
+        return int(self.scans.index[-1]) if len(self.scans) else None
+
+
+def _scans_frame(times: list[int], rows: list[dict[str, float]]) -> pd.DataFrame:
+    index = pd.Index(np.asarray(times, dtype=np.int64), name="log_time_ns")
+    data = {name: np.fromiter((r[name] for r in rows), dtype=float, count=len(rows))
+            for name in SCAN_SIGNALS}
+    return pd.DataFrame(data, index=index)
+
+
+def _labs_frame(labs: list[LabResult]) -> pd.DataFrame:
+    return pd.DataFrame({
+        "log_time_ns": np.asarray([lab.log_time_ns for lab in labs], dtype=np.int64),
+        "sample_time_ns": np.asarray([lab.sample_time_ns for lab in labs], dtype=np.int64),
+        "moisture_out": np.asarray([lab.moisture_out for lab in labs], dtype=float),
+        "sample_id": pd.Series([lab.sample_id for lab in labs], dtype=str),
+    })
+
+
+def _truth_frame(msgs: list[tuple[int, dict[str, Any]]]) -> pd.DataFrame | None:
+    if not msgs:
+        return None
+    cols: dict[str, list[float]] = {}
+    for i, (_t, body) in enumerate(msgs):
+        for key, v in body.items():
+            if v is None or _is_number(v):
+                col = cols.get(key)
+                if col is None:
+                    col = cols[key] = [math.nan] * len(msgs)
+                col[i] = math.nan if v is None else float(v)
+    index = pd.Index(np.asarray([t for t, _ in msgs], dtype=np.int64), name="log_time_ns")
+    return pd.DataFrame({k: np.asarray(v, dtype=float) for k, v in cols.items()}, index=index)
+
+
+def read_day(path: str | os.PathLike[str], *, topics: Iterable[str] | None = None,
+             allow_truncated: bool = False) -> RecordedDay:
+    """Load a recorded day (CONTRACT section 2).
+
+    Parameters
+    ----------
+    path : str or Path
+        The MCAP file.
+    topics : iterable of str, optional
+        Read only these topics (default: all).
+    allow_truncated : bool
+        Accept a file cut short (writer killed): keep every complete message before the cut and
+        set :attr:`RecordedDay.truncated`. Otherwise such a file raises :class:`IngestError`.
+    """
+    p = Path(path)
+    sel = None if topics is None else list(topics)
+    truncated = False
+
+    def _mark(_reason: str) -> None:
+        nonlocal truncated
+        truncated = True
+
+    scan_t: list[int] = []
+    scan_rows: list[dict[str, float]] = []
+    labs: list[LabResult] = []
+    messages: dict[str, list[tuple[int, dict[str, Any]]]] = {}
+    for topic, t, body in _raw_messages(p, sel, allow_truncated, _mark):
+        where = f"{p}: {topic} at {t} ns"
+        if topic == TOPIC_SCAN:
+            scan_rows.append(scan_values(body, where))
+            scan_t.append(t)
+        elif topic == TOPIC_LAB:
+            labs.append(lab_result(body, t, where))
+        messages.setdefault(topic, []).append((t, body))
+    return RecordedDay(
+        path=p,
+        scans=_scans_frame(scan_t, scan_rows),
+        labs=_labs_frame(labs),
+        truth=_truth_frame(messages.get(TOPIC_TRUTH, [])),
+        truncated=truncated,
+        messages=messages,
+    )
+
+
+__all__ = [
+    "DEFAULT_CHUNK_SIZE",
+    "LAB_COLUMNS",
+    "SCAN_EXTRA_FIELDS",
+    "SCHEMAS",
+    "DayWriter",
+    "RecordedDay",
+    "encode_body",
+    "iter_messages",
+    "lab_result",
+    "read_day",
+    "scan_values",
+]

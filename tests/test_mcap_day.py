@@ -1,0 +1,249 @@
+"""Recorded days: write real MCAP files, read them back, and break them."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from softsensor.errors import IngestError
+from softsensor.recording.mcap_day import (
+    DayWriter,
+    encode_body,
+    iter_messages,
+    read_day,
+    scan_values,
+)
+from softsensor.signals import SCAN_SIGNALS, TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
+
+T0 = 1_750_000_000 * 10**9  # 2025-06-15, ns since epoch
+PERIOD = 10 * 10**9
+
+
+def _scan(i: int) -> dict:
+    body = {name: 300.0 + k + 0.01 * i for k, name in enumerate(SCAN_SIGNALS)}
+    body["time_ns"] = T0 + i * PERIOD
+    return body
+
+
+def _write_day(path: Path, n: int = 600, chunk_size: int = 4096) -> None:
+    with DayWriter(path, chunk_size=chunk_size) as w:
+        for i in range(n):
+            w.write(TOPIC_SCAN, T0 + i * PERIOD, _scan(i))
+            if i % 200 == 100:
+                w.write(TOPIC_LAB, T0 + i * PERIOD + 1,
+                        {"sample_time_ns": T0 + (i - 180) * PERIOD, "moisture_out": 0.1 + i / 1e4,
+                         "sample_id": f"L{i}"})
+            if i % 60 == 0:
+                w.write(TOPIC_HEALTH, T0 + i * PERIOD, {"status": "ok", "detail": "fine"})
+        w.write("/truth/plant", T0, {"moisture_in": 1.0, "note": "x", "T_wall": None})
+        w.write("/truth/plant", T0 + 600 * 10**9, {"moisture_in": 1.1})
+
+
+@pytest.fixture
+def day(tmp_path: Path) -> Path:
+    path = tmp_path / "day.mcap"
+    _write_day(path)
+    return path
+
+
+def test_round_trip(day: Path) -> None:
+    d = read_day(day)
+    assert not d.truncated
+    assert list(d.scans.columns) == list(SCAN_SIGNALS)
+    assert d.scans.index.dtype == np.int64
+    assert len(d.scans) == 600
+    assert d.scans.index[0] == T0 and d.scans.index[-1] == T0 + 599 * PERIOD
+    assert d.scans["T_air_in"].iloc[5] == pytest.approx(300.05)
+    assert list(d.labs.columns) == ["log_time_ns", "sample_time_ns", "moisture_out", "sample_id"]
+    assert list(d.labs["sample_id"]) == ["L100", "L300", "L500"]
+    assert d.labs["log_time_ns"].is_monotonic_increasing
+    assert d.labs["sample_time_ns"].iloc[0] == T0 - 80 * PERIOD
+    assert [lab.sample_id for lab in d.lab_results()] == ["L100", "L300", "L500"]
+    assert len(d.topic(TOPIC_HEALTH)) == 10
+    assert d.topic(TOPIC_HEALTH)[0] == (T0, {"status": "ok", "detail": "fine"})
+    assert d.topic("/nothing") == []
+    assert d.truth is not None
+    assert list(d.truth.index) == [T0, T0 + 600 * 10**9]
+    assert d.truth["moisture_in"].tolist() == [1.0, 1.1]
+    assert "note" not in d.truth.columns
+    assert math.isnan(d.truth["T_wall"].iloc[0])
+    assert d.start_ns == T0
+
+
+def test_topic_selection_and_no_truth(day: Path) -> None:
+    d = read_day(day, topics=[TOPIC_SCAN])
+    assert len(d.scans) == 600 and len(d.labs) == 0 and d.truth is None
+    assert d.topics == [TOPIC_SCAN]
+
+
+def test_nan_and_null(tmp_path: Path) -> None:
+    path = tmp_path / "nan.mcap"
+    with DayWriter(path) as w:
+        w.write(TOPIC_SCAN, T0, {"T_air_in": math.nan, "m_air": None, "T_amb": np.float64(280.0)})
+        w.write(TOPIC_ESTIMATE, T0, {"moisture_out": float("inf"), "x": [1.0, math.nan],
+                                     "n": np.int64(3), "lab_updated": np.bool_(True)})
+    d = read_day(path)
+    row = d.scans.iloc[0]
+    assert math.isnan(row["T_air_in"]) and math.isnan(row["m_air"])
+    assert math.isnan(row["T_dryer_out"])  # missing key
+    assert row["T_amb"] == 280.0
+    (_, est), = d.topic(TOPIC_ESTIMATE)
+    assert est == {"moisture_out": None, "x": [1.0, None], "n": 3, "lab_updated": True}
+    # the raw bytes are strict JSON: null, never NaN
+    with open(path, "rb") as f:
+        raw = [m.data for _, _, m in make_reader(f).iter_messages()]
+    assert b"NaN" not in b"".join(raw) and b"null" in raw[0]
+
+
+def test_encode_body_is_strict_json() -> None:
+    assert json.loads(encode_body({"a": math.nan, "b": {"c": -math.inf}})) == {
+        "a": None, "b": {"c": None}}
+
+
+def test_plain_mcap_reader_sees_jsonschema_and_json(day: Path) -> None:
+    with open(day, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics.message_count > 600
+        assert all(c.compression == "zstd" for c in summary.chunk_indexes)
+        assert len(summary.chunk_indexes) > 5  # small chunks
+        topics = set()
+        for schema, channel, msg in reader.iter_messages():
+            assert schema is not None and schema.encoding == "jsonschema"
+            assert channel.message_encoding == "json"
+            assert json.loads(schema.data)["type"] == "object"
+            json.loads(msg.data)
+            topics.add(channel.topic)
+    assert topics == {TOPIC_SCAN, TOPIC_LAB, TOPIC_HEALTH, "/truth/plant"}
+
+
+def test_iter_messages_in_log_time_order(tmp_path: Path) -> None:
+    path = tmp_path / "order.mcap"
+    with DayWriter(path, chunk_size=256) as w:
+        for t in [5, 3, 9, 1, 7]:
+            w.write(TOPIC_HEALTH, T0 + t, {"status": "ok", "detail": str(t)})
+        w.write(TOPIC_SCAN, T0 + 4, {"T_amb": 280.0})
+    got = list(iter_messages(path))
+    assert [t - T0 for _, t, _ in got] == [1, 3, 4, 5, 7, 9]
+    got = list(iter_messages(path, topics=[TOPIC_HEALTH], start_ns=T0 + 3, end_ns=T0 + 9))
+    assert [b["detail"] for _, _, b in got] == ["3", "5", "7"]
+
+
+def test_truncated_file(day: Path, tmp_path: Path) -> None:
+    data = day.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(IngestError, match=r"cut\.mcap: truncated"):
+        read_day(cut)
+    with pytest.raises(IngestError, match="truncated"):
+        list(iter_messages(cut))
+    d = read_day(cut, allow_truncated=True)
+    assert d.truncated
+    assert 100 < len(d.scans) < 600
+    # every message read is intact and the first ones are all there
+    full = read_day(day)
+    n = len(d.scans)
+    assert d.scans.equals(full.scans.iloc[:n])
+    streamed = list(iter_messages(cut, topics=[TOPIC_SCAN], allow_truncated=True))
+    assert len(streamed) == n
+
+
+def test_cut_just_before_footer(day: Path, tmp_path: Path) -> None:
+    data = day.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:-5])
+    with pytest.raises(IngestError):
+        read_day(cut)
+    d = read_day(cut, allow_truncated=True)
+    assert d.truncated and len(d.scans) == 600
+
+
+def test_not_an_mcap(tmp_path: Path) -> None:
+    bad = tmp_path / "notes.mcap"
+    bad.write_text("T_air_in,m_air\n450,80\n" * 20)
+    with pytest.raises(IngestError, match=r"notes\.mcap: not an MCAP file"):
+        read_day(bad)
+    with pytest.raises(IngestError, match="not an MCAP"):
+        read_day(bad, allow_truncated=True)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(IngestError, match=r"empty\.mcap"):
+        read_day(empty)
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    with pytest.raises(IngestError, match=r"nope\.mcap: no such file"):
+        read_day(tmp_path / "nope.mcap")
+    with pytest.raises(IngestError, match="is a directory"):
+        read_day(tmp_path)
+
+
+def test_corrupt_chunk(day: Path, tmp_path: Path) -> None:
+    with open(day, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[3]
+    data = bytearray(day.read_bytes())
+    mid = chunk.chunk_start_offset + chunk.chunk_length // 2
+    data[mid:mid + 16] = b"\x55" * 16
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(IngestError, match=r"bad\.mcap: corrupt MCAP"):
+        read_day(bad)
+
+
+def test_unknown_signal(tmp_path: Path) -> None:
+    path = tmp_path / "unknown.mcap"
+    with DayWriter(path) as w:
+        w.write(TOPIC_SCAN, T0, {"T_air_in": 450.0, "T_air_inlet": 451.0})
+    with pytest.raises(IngestError, match=r"unknown\.mcap.*unknown signal 'T_air_inlet'"):
+        read_day(path)
+    with pytest.raises(IngestError, match="T_air_inlet"):
+        list(iter_messages(path))
+
+
+def test_non_numeric_signal(tmp_path: Path) -> None:
+    path = tmp_path / "text.mcap"
+    with DayWriter(path) as w:
+        w.write(TOPIC_SCAN, T0, {"T_air_in": "hot"})
+    with pytest.raises(IngestError, match="signal T_air_in has non-numeric value"):
+        read_day(path)
+
+
+def test_extra_fields_allowed() -> None:
+    v = scan_values({"T_amb": 280, "time_ns": 1, "seq": 4, "plc_ts_ns": 3, "source": "modbus"})
+    assert v["T_amb"] == 280.0 and math.isnan(v["m_air"]) and set(v) == set(SCAN_SIGNALS)
+
+
+def test_malformed_lab(tmp_path: Path) -> None:
+    path = tmp_path / "lab.mcap"
+    with DayWriter(path) as w:
+        w.write(TOPIC_LAB, T0, {"sample_time_ns": "yesterday", "moisture_out": 0.1,
+                                "sample_id": "a"})
+    with pytest.raises(IngestError, match=r"lab\.mcap.*sample_time_ns"):
+        read_day(path)
+
+
+def test_writer_flush_makes_data_readable_before_close(tmp_path: Path) -> None:
+    path = tmp_path / "open.mcap"
+    w = DayWriter(path)
+    try:
+        for i in range(10):
+            w.write(TOPIC_SCAN, T0 + i * PERIOD, _scan(i))
+        w.flush()
+        d = read_day(path, allow_truncated=True)
+        assert d.truncated and len(d.scans) == 10
+    finally:
+        w.close()
+    assert not read_day(path).truncated
+    w.close()  # idempotent
+    with pytest.raises(ValueError):
+        w.write(TOPIC_SCAN, T0, {})
+
+
+def test_write_error_names_file(tmp_path: Path) -> None:
+    with pytest.raises(IngestError, match="nodir"):
+        DayWriter(tmp_path / "nodir" / "x.mcap")
