@@ -1,0 +1,9 @@
+"""The pure physics core: humid air, wood, transfer coefficients, dryer tube and cyclone.
+
+No I/O here. :class:`DryerModel` is the front door; :mod:`kernels` holds the compiled cell
+balances, :mod:`mol` the full transient method of lines used as a reference.
+"""
+
+from softsensor.model.dryer import DryerModel, parameter_index
+
+__all__ = ["DryerModel", "parameter_index"]

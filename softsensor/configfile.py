@@ -1,0 +1,102 @@
+"""Typed, validated TOML sections: the one place config files are turned into dataclasses.
+
+Each TOML section maps onto one frozen dataclass. Fields without a default are required;
+unknown keys are rejected; numbers are range-checked from the field's metadata. Every error is
+a one-line :class:`~softsensor.errors.ConfigError` naming the file and the dotted key, e.g.
+``config/dryer1.toml: tube.length must be > 0, got -3``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+import types
+import typing
+from pathlib import Path
+from typing import Any, TypeVar
+
+from softsensor.errors import ConfigError
+
+T = TypeVar("T")
+
+
+def num(default: Any = dataclasses.MISSING, *, gt: float | None = None,
+        ge: float | None = None, lt: float | None = None, le: float | None = None) -> Any:
+    """A dataclass field with bounds checked on load (``gt``/``ge``/``lt``/``le``)."""
+    meta = {k: v for k, v in (("gt", gt), ("ge", ge), ("lt", lt), ("le", le)) if v is not None}
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Read a TOML file; a missing or malformed file is a one-line ConfigError."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"{p}: no such config file")
+    try:
+        with p.open("rb") as f:
+            return tomllib.load(f)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"{p}: malformed TOML: {exc}") from exc
+    except OSError as exc:
+        raise ConfigError(f"{p}: cannot read: {exc.strerror}") from exc
+
+
+def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any:
+    origin = typing.get_origin(typ)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(typ) if a is not type(None)]
+        if value is None:
+            return None
+        typ = args[0]
+    if typ is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: {key} must be true or false, got {value!r}")
+        return value
+    if typ is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{source}: {key} must be an integer, got {value!r}")
+    elif typ is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"{source}: {key} must be a number, got {value!r}")
+        value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"{source}: {key} must be finite, got {value!r}")
+    elif typ is str:
+        if not isinstance(value, str) or not value:
+            raise ConfigError(f"{source}: {key} must be a non-empty string, got {value!r}")
+        return value
+    for op, bound in meta.items():
+        ok = {"gt": value > bound, "ge": value >= bound, "lt": value < bound,
+              "le": value <= bound}[op]
+        if not ok:
+            sym = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[op]
+            raise ConfigError(f"{source}: {key} must be {sym} {bound:g}, got {value!r}")
+    return value
+
+
+def build_section(cls: type[T], table: Any, key: str, source: str) -> T:
+    """Build the frozen dataclass ``cls`` from the TOML ``table`` found at dotted ``key``."""
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [{key}] must be a table, got {type(table).__name__}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = sorted(set(table) - set(fields))
+    if unknown:
+        raise ConfigError(f"{source}: {key}.{unknown[0]} is not a known key "
+                          f"(known: {', '.join(fields)})")
+    values: dict[str, Any] = {}
+    for name, f in fields.items():
+        if name not in table:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise ConfigError(f"{source}: {key}.{name} is missing")
+            continue
+        values[name] = _check_value(table[name], hints[name], f"{key}.{name}", source,
+                                    dict(f.metadata))
+    obj = cls(**values)
+    check = getattr(obj, "check", None)
+    if check is not None:
+        problem = check()
+        if problem:
+            raise ConfigError(f"{source}: {key}.{problem}")
+    return obj

@@ -1,0 +1,235 @@
+"""The dryer model's one front door: steady state, one window, many windows, profiles.
+
+One API serves the virtual plant, calibration, the filter and diagnosis. Every call takes a
+batch: inputs ``u`` of shape ``(..., 8)`` in :data:`softsensor.signals.INPUT_NAMES` order,
+parameters ``theta`` of shape ``(..., 7)`` in :data:`softsensor.plantconfig.PARAMETER_NAMES`
+order, and states of shape ``(..., n_state)`` (the slow wall and shell temperatures, layout in
+:mod:`softsensor.model.geometry`); leading axes broadcast against each other. Outputs have
+shape ``(..., 3)`` in :data:`softsensor.signals.OUTPUT_NAMES` order: ``T_dryer_out`` [K],
+``T_cyclone_out`` [K], ``moisture_out`` [kg/kg]. Outputs of a window are the values at its
+end.
+
+Example
+-------
+>>> from softsensor.model import DryerModel
+>>> m = DryerModel()                              # the reference plant dryer1
+>>> u = m.nominal_inputs()                        # (8,)
+>>> x0, y0 = m.steady_state(u, m.theta0)          # consistent initial state
+>>> x1, y1 = m.step(x0, u, m.theta0)              # one 600 s window
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from softsensor.errors import SolverError
+from softsensor.model import kernels
+from softsensor.model.geometry import N_AUX, Geometry, geometry
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, load_plant_config
+from softsensor.signals import INPUT_NAMES
+
+_STATUS_TEXT = {
+    kernels.NEWTON_FAILED: "the cell balances did not converge",
+    kernels.BAD_INPUT: "inputs or parameters are not physical (non-finite, non-positive flow "
+                       "or parameter)",
+    kernels.STEADY_FAILED: "the steady wall temperatures did not converge",
+}
+
+
+class DryerModel:
+    """The flash dryer tube plus cyclone of one plant (paper section 2).
+
+    Parameters
+    ----------
+    config : PlantConfig, optional
+        Plant configuration; the built-in reference plant ``dryer1`` when omitted.
+    n_d : int, optional
+        Number of tube cells (overrides ``tube.n_cells``), e.g. for grid-convergence studies.
+    wall_substeps : int, optional
+        Crank-Nicolson substeps of the wall per window (overrides ``solver.wall_substeps``).
+    """
+
+    def __init__(self, config: PlantConfig | None = None, *, n_d: int | None = None,
+                 wall_substeps: int | None = None) -> None:
+        self.config = config if config is not None else load_plant_config()
+        self.geometry: Geometry = geometry(self.config, n_d)
+        self.window = float(self.config.solver.window)
+        self.wall_substeps = int(wall_substeps or self.config.solver.wall_substeps)
+        self.theta0 = self.config.parameter_vector()
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def n_state(self) -> int:
+        """Length of a state vector (tube wall cells plus cyclone shell cells)."""
+        return self.geometry.n_state
+
+    def nominal_inputs(self, **overrides: float) -> np.ndarray:
+        """Input vector at the config's nominal operating point, with optional overrides."""
+        nom = self.config.nominal
+        values = {name: getattr(nom, name) for name in INPUT_NAMES}
+        unknown = set(overrides) - set(values)
+        if unknown:
+            raise ValueError(f"unknown input {sorted(unknown)[0]!r}")
+        values.update(overrides)
+        return np.array([values[n] for n in INPUT_NAMES], dtype=float)
+
+    def _prepare(self, *arrays: np.ndarray | None, trailing: tuple[int, ...]):
+        """Broadcast batch axes; return flat (B, n) copies and the batch shape."""
+        arrs = [np.asarray(a, dtype=float) for a in arrays]
+        for a, n in zip(arrs, trailing, strict=True):
+            if a.ndim == 0 or a.shape[-1] != n:
+                raise ValueError(f"expected last axis of length {n}, got shape {a.shape}")
+        batch = np.broadcast_shapes(*(a.shape[:-1] for a in arrs))
+        flat = [np.ascontiguousarray(np.broadcast_to(a, batch + (n,)).reshape(-1, n))
+                for a, n in zip(arrs, trailing, strict=True)]
+        return flat, batch
+
+    def _aux(self, aux: np.ndarray | None) -> np.ndarray:
+        return np.zeros(N_AUX) if aux is None else np.asarray(aux, dtype=float)
+
+    @staticmethod
+    def _check(status: np.ndarray, u: np.ndarray) -> None:
+        bad = np.flatnonzero(status != kernels.OK)
+        if bad.size:
+            b = int(bad[0])
+            detail = ", ".join(f"{n}={v:.6g}" for n, v in zip(INPUT_NAMES, u[b], strict=True))
+            raise SolverError(f"model solve failed for batch member {b}: "
+                              f"{_STATUS_TEXT.get(int(status[b]), 'unknown failure')} ({detail})")
+
+    # ------------------------------------------------------------------ API
+    def steady_state(self, u: np.ndarray, theta: np.ndarray | None = None,
+                     aux: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Consistent initial state: the steady state at constant inputs ``u``.
+
+        Returns ``(state, y)`` with shapes ``(..., n_state)`` and ``(..., 3)``; raises
+        :class:`~softsensor.errors.SolverError` when any member fails.
+        """
+        theta = self.theta0 if theta is None else theta
+        (u2, th2, ax2), batch = self._prepare(u, theta, self._aux(aux),
+                                              trailing=(len(INPUT_NAMES), 7, N_AUX))
+        B = u2.shape[0]
+        states = np.empty((B, self.n_state))
+        y = np.empty((B, 3))
+        status = np.empty(B, dtype=np.int64)
+        kernels.steady_batch(u2, th2, ax2, self.geometry.packed, states, y, status)
+        self._check(status, u2)
+        return states.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
+
+    def step(self, state: np.ndarray, u: np.ndarray, theta: np.ndarray | None = None,
+             aux: np.ndarray | None = None, dt: float | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """Advance ``state`` over one window of ``dt`` seconds (default: the config's window)
+        with inputs ``u`` held constant; returns ``(new_state, y_end)``."""
+        theta = self.theta0 if theta is None else theta
+        dt = self.window if dt is None else float(dt)
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        (x2, u2, th2, ax2), batch = self._prepare(
+            state, u, theta, self._aux(aux), trailing=(self.n_state, len(INPUT_NAMES), 7, N_AUX))
+        B = u2.shape[0]
+        y = np.empty((B, 3))
+        status = np.empty(B, dtype=np.int64)
+        kernels.step_batch(x2, u2, th2, ax2, self.geometry.packed, dt, self.wall_substeps, y,
+                           status)
+        self._check(status, u2)
+        return x2.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
+
+    def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
+                 aux: np.ndarray | None = None, state0: np.ndarray | None = None,
+                 dt: float | None = None, raise_on_failure: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Run windows of piecewise-constant inputs.
+
+        Parameters
+        ----------
+        U : array, shape (..., K, 8)
+            Inputs per window.
+        theta : array, shape (..., 7) or (..., K, 7)
+            Parameters, constant or per window (e.g. a drifting multiplier).
+        aux : array, shape (..., N_AUX) or (..., K, N_AUX), optional
+            Model-extension coefficients (see :mod:`softsensor.model.geometry`).
+        state0 : array, shape (..., n_state), optional
+            Initial state; by default the steady state at the first window's inputs (the
+            paper's "consistent starting vector per trial").
+        raise_on_failure : bool
+            When False, a failed member returns NaN outputs from the failing window on
+            (calibration treats that as an infeasible trial) instead of raising.
+
+        Returns
+        -------
+        Y : array, shape (..., K, 3)
+            Outputs at the end of each window.
+        state : array, shape (..., n_state)
+            State after the last window.
+        """
+        theta = self.theta0 if theta is None else np.asarray(theta, float)
+        U = np.asarray(U, float)
+        if U.ndim < 2 or U.shape[-1] != len(INPUT_NAMES):
+            raise ValueError(f"U must have shape (..., K, {len(INPUT_NAMES)}), got {U.shape}")
+        K = U.shape[-2]
+        if theta.ndim == 1 or theta.shape[-2:-1] != (K,) or theta.ndim < U.ndim:
+            theta = np.expand_dims(theta, -2)
+        aux = self._aux(aux)
+        if aux.ndim == 1 or aux.ndim < U.ndim:
+            aux = np.expand_dims(aux, -2)
+        batch = np.broadcast_shapes(U.shape[:-2], theta.shape[:-2], aux.shape[:-2],
+                                    () if state0 is None else np.shape(state0)[:-1])
+        Ub = np.ascontiguousarray(np.broadcast_to(U, batch + (K, U.shape[-1])).reshape(-1, K, 8))
+        Tb = np.ascontiguousarray(np.broadcast_to(theta, batch + (K, 7)).reshape(-1, K, 7))
+        Ab = np.ascontiguousarray(np.broadcast_to(aux, batch + (K, N_AUX)).reshape(-1, K, N_AUX))
+        B = Ub.shape[0]
+        if state0 is None:
+            states = np.empty((B, self.n_state))
+            y0 = np.empty((B, 3))
+            status = np.empty(B, dtype=np.int64)
+            kernels.steady_batch(np.ascontiguousarray(Ub[:, 0]), np.ascontiguousarray(Tb[:, 0]),
+                                 np.ascontiguousarray(Ab[:, 0]), self.geometry.packed, states,
+                                 y0, status)
+            if raise_on_failure:
+                self._check(status, Ub[:, 0])
+            states[status != kernels.OK] = 350.0
+        else:
+            states = np.ascontiguousarray(
+                np.broadcast_to(np.asarray(state0, float), batch + (self.n_state,))
+                .reshape(-1, self.n_state)).copy()
+            status = np.zeros(B, dtype=np.int64)
+        failed0 = status != kernels.OK
+        dt = self.window if dt is None else float(dt)
+        Y = np.empty((B, K, 3))
+        status2 = np.empty(B, dtype=np.int64)
+        kernels.simulate_batch(states, Ub, Tb, Ab, self.geometry.packed, dt, self.wall_substeps,
+                               Y, status2)
+        Y[failed0] = np.nan
+        status2[failed0] = status[failed0]
+        if raise_on_failure and np.any(status2 != kernels.OK):
+            b = int(np.flatnonzero(status2 != kernels.OK)[0])
+            k = int(np.argmax(np.isnan(Y[b, :, 0])))
+            self._check(status2[b:b + 1], Ub[b, k][None])
+        return Y.reshape(batch + (K, 3)), states.reshape(batch + (self.n_state,))
+
+    def profiles(self, state: np.ndarray, u: np.ndarray,
+                 theta: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """Axial profiles for one state and input vector (no batch).
+
+        Returns arrays over the ``n_d + n_c`` cells (tube first, then cyclone): ``X_f``
+        [kg/kg], ``T_f`` [K], ``Y_a`` [kg/kg], ``T_a`` [K], ``T_w`` [K] (wall, then shell),
+        ``UA_w`` [W/K], and ``x`` [m] (cell centres along the tube; cyclone cells continue
+        past the tube end at unit spacing of their own).
+        """
+        theta = self.theta0 if theta is None else np.asarray(theta, float)
+        state = np.asarray(state, float)
+        u = np.asarray(u, float)
+        prof = np.empty((5, self.n_state))
+        status = kernels.profile_one(np.ascontiguousarray(state), np.ascontiguousarray(u),
+                                     np.ascontiguousarray(theta), self.geometry.packed, prof)
+        self._check(np.array([status]), u[None])
+        dx = self.config.tube.length / self.geometry.n_d
+        x = np.concatenate([(np.arange(self.geometry.n_d) + 0.5) * dx,
+                            self.config.tube.length + np.arange(1, self.geometry.n_c + 1) * dx])
+        return {"X_f": prof[0], "T_f": prof[1], "Y_a": prof[2], "T_a": prof[3],
+                "T_w": state.copy(), "UA_w": prof[4], "x": x}
+
+
+def parameter_index(name: str) -> int:
+    """Position of a Table 1 parameter in a ``theta`` vector."""
+    return PARAMETER_NAMES.index(name)

@@ -1,0 +1,192 @@
+"""Humid-air properties, SI units, vectorised.
+
+The humidity variable is the humidity ratio ``Y`` [kg water / kg dry air] throughout (the
+paper's "specific humidity" ``H_a`` and the contract's ``H_amb`` are humidity ratios too).
+Enthalpies are per kg of dry air and referenced to liquid water and dry air at 0 °C
+(ASHRAE 2017 Fundamentals ch. 1), so that the tube's energy balance closes exactly with the
+fibre enthalpy of :mod:`softsensor.model.wood`.
+
+Every function here is plain numpy arithmetic so that the same source serves array callers and
+the numba kernels (:mod:`softsensor.model.kernels` compiles them); hence ``np.minimum`` and
+``np.maximum`` instead of ``if``.
+
+References
+----------
+[1] ASHRAE Handbook Fundamentals 2017, ch. 1 (Psychrometrics): eqs. 5-6 (saturation pressure,
+    Hyland-Wexler), 20 (humidity ratio), 28 (moist-air volume), 32 (enthalpy).
+[2] Tsilingiris, P.T. (2008), Energy Convers. Manage. 49, 1098-1110: viscosity and thermal
+    conductivity of moist air (Wilke / Mason-Saxena mixing).
+[3] Marrero, T.R., Mason, E.A. (1972), J. Phys. Chem. Ref. Data 1, 3: D_va = 1.87e-10
+    T^2.072 / P [atm] (280-450 K), used for the vapour diffusivity.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba.extending import register_jitable
+
+T0 = 273.15  # K, reference temperature of all enthalpies
+R_DA = 287.042  # J/(kg K), dry air gas constant, ASHRAE 2017 ch. 1
+EPS = 0.621945  # M_w / M_da, ASHRAE 2017 ch. 1 eq. 20
+C_PA = 1006.0  # J/(kg K), dry air, ASHRAE 2017 ch. 1 eq. 32
+C_PV = 1860.0  # J/(kg K), water vapour, ASHRAE 2017 ch. 1 eq. 32
+C_W = 4186.0  # J/(kg K), liquid water
+H_FG0 = 2.501e6  # J/kg, latent heat at 0 °C, ASHRAE 2017 ch. 1 eq. 32
+#: Cap on the saturation pressure relative to total pressure, so that ``Y_s`` stays finite
+#: when wet fibre enters near or above 100 °C (the steam flash at the injection point).
+P_SAT_CAP = 0.95
+
+
+@register_jitable
+def p_sat(T):
+    """Saturation pressure of water vapour over liquid water ``p_ws`` [Pa].
+
+    Hyland-Wexler, ASHRAE 2017 ch. 1 eq. 6 (valid 0 to 200 °C; used to 480 K).
+
+    Parameters
+    ----------
+    T : array_like
+        Temperature [K].
+    """
+    C8, C9, C10 = -5.8002206e3, 1.3914993, -4.8640239e-2
+    C11, C12, C13 = 4.1764768e-5, -1.4452093e-8, 6.5459673
+    return np.exp(C8 / T + C9 + C10 * T + C11 * T * T + C12 * T * T * T + C13 * np.log(T))
+
+
+@register_jitable
+def humidity_ratio(p_w, P):
+    """Humidity ratio ``Y`` [kg/kg] from vapour partial pressure ``p_w`` [Pa], ASHRAE eq. 20."""
+    return EPS * p_w / (P - p_w)
+
+
+@register_jitable
+def vapour_pressure(Y, P):
+    """Vapour partial pressure ``p_w`` [Pa] of air with humidity ratio ``Y`` [kg/kg]."""
+    return P * Y / (EPS + Y)
+
+
+@register_jitable
+def y_sat(T, P):
+    """Humidity ratio of saturated air ``Y_s`` [kg/kg] at ``T`` [K], ``P`` [Pa].
+
+    ASHRAE eq. 20 with ``p_ws`` capped at ``P_SAT_CAP * P`` (see module notes).
+    """
+    pw = np.minimum(p_sat(T), P_SAT_CAP * P)
+    return EPS * pw / (P - pw)
+
+
+@register_jitable
+def relative_humidity(T, Y, P):
+    """Relative humidity ``phi`` [-] of air at ``T`` [K], ``Y`` [kg/kg], ``P`` [Pa].
+
+    Above 100 °C the saturation pressure exceeds ``P``; ``phi`` is then the ratio to the
+    (uncapped) saturation pressure, as the sorption isotherm needs.
+    """
+    return vapour_pressure(Y, P) / p_sat(T)
+
+
+@register_jitable
+def dry_air_density(T, Y, P):
+    """Dry air per volume of moist air ``rho_da`` [kg dry air / m3], ASHRAE eq. 28."""
+    return P / (R_DA * T * (1.0 + 1.607858 * Y))
+
+
+@register_jitable
+def density(T, Y, P):
+    """Moist-air density ``rho`` [kg/m3] (dry air plus vapour), ASHRAE eq. 28.
+
+    Humid air is lighter than dry air at the same ``T`` and ``P``.
+    """
+    return (1.0 + Y) * dry_air_density(T, Y, P)
+
+
+@register_jitable
+def enthalpy(T, Y):
+    """Moist-air enthalpy ``h`` [J / kg dry air], ASHRAE 2017 ch. 1 eq. 32."""
+    t = T - T0
+    return C_PA * t + Y * (H_FG0 + C_PV * t)
+
+
+@register_jitable
+def heat_capacity(Y):
+    """Humid heat ``c_a`` [J / (kg dry air K)] = dh/dT at constant ``Y`` (ASHRAE eq. 32)."""
+    return C_PA + C_PV * Y
+
+
+@register_jitable
+def vapour_enthalpy(T):
+    """Enthalpy of water vapour ``h_v`` [J/kg] at ``T`` [K], same reference as eq. 32."""
+    return H_FG0 + C_PV * (T - T0)
+
+
+@register_jitable
+def latent_heat(T):
+    """Latent heat of vaporisation ``h_fg`` [J/kg] = vapour minus liquid enthalpy at ``T``.
+
+    Linear in ``T`` by construction (consistent with ``C_PV`` and ``C_W``); within 1 % of the
+    IAPWS values over 0 to 150 °C.
+    """
+    return H_FG0 + (C_PV - C_W) * (T - T0)
+
+
+@register_jitable
+def _mole_fraction_vapour(Y):
+    return Y / (EPS + Y)
+
+
+@register_jitable
+def viscosity(T, Y):
+    """Dynamic viscosity of moist air ``mu`` [Pa s].
+
+    Dry air by Sutherland's law, vapour by a linear fit, mixed by Wilke's rule [2].
+    """
+    mu_a = 1.716e-5 * (T / 273.15) ** 1.5 * (273.15 + 110.4) / (T + 110.4)
+    mu_v = 8.02e-6 + 4.0e-8 * (T - 273.15)
+    xv = _mole_fraction_vapour(Y)
+    xa = 1.0 - xv
+    ma, mv = 28.9645, 18.01528
+    phi_av = (1.0 + (mu_a / mu_v) ** 0.5 * (mv / ma) ** 0.25) ** 2 / (8.0 * (1.0 + ma / mv)) ** 0.5
+    phi_va = (1.0 + (mu_v / mu_a) ** 0.5 * (ma / mv) ** 0.25) ** 2 / (8.0 * (1.0 + mv / ma)) ** 0.5
+    return xa * mu_a / (xa + xv * phi_av) + xv * mu_v / (xv + xa * phi_va)
+
+
+@register_jitable
+def conductivity(T, Y):
+    """Thermal conductivity of moist air ``k`` [W/(m K)].
+
+    Dry air by a Sutherland-type law, vapour by a linear fit, mixed with Wilke's weights [2].
+    """
+    k_a = 0.02414 * (T / 273.15) ** 1.5 * (273.15 + 194.4) / (T + 194.4)
+    k_v = 0.0176 + 5.87e-5 * (T - 273.15) + 1.04e-7 * (T - 273.15) ** 2
+    mu_a = 1.716e-5 * (T / 273.15) ** 1.5 * (273.15 + 110.4) / (T + 110.4)
+    mu_v = 8.02e-6 + 4.0e-8 * (T - 273.15)
+    xv = _mole_fraction_vapour(Y)
+    xa = 1.0 - xv
+    ma, mv = 28.9645, 18.01528
+    phi_av = (1.0 + (mu_a / mu_v) ** 0.5 * (mv / ma) ** 0.25) ** 2 / (8.0 * (1.0 + ma / mv)) ** 0.5
+    phi_va = (1.0 + (mu_v / mu_a) ** 0.5 * (ma / mv) ** 0.25) ** 2 / (8.0 * (1.0 + mv / ma)) ** 0.5
+    return xa * k_a / (xa + xv * phi_av) + xv * k_v / (xv + xa * phi_va)
+
+
+@register_jitable
+def vapour_diffusivity(T, P):
+    """Binary diffusion coefficient of water vapour in air ``D_va`` [m2/s] [3]."""
+    return 1.87e-10 * T**2.072 * (101325.0 / P)
+
+
+@register_jitable
+def heat_capacity_mass(T, Y):
+    """Heat capacity per kg of moist air ``c_p`` [J/(kg K)], for Pr and Chilton-Colburn."""
+    return (C_PA + C_PV * Y) / (1.0 + Y)
+
+
+@register_jitable
+def prandtl(T, Y):
+    """Prandtl number of moist air [-]."""
+    return heat_capacity_mass(T, Y) * viscosity(T, Y) / conductivity(T, Y)
+
+
+@register_jitable
+def schmidt(T, Y, P):
+    """Schmidt number ``Sc = mu / (rho D_va)`` [-], the paper's eq. 1."""
+    return viscosity(T, Y) / (density(T, Y, P) * vapour_diffusivity(T, P))

@@ -1,0 +1,504 @@
+"""Compiled kernels of the dryer model: cell balances, the quasi-steady profile, the wall step.
+
+Formulation (see ``shared/MODEL.md`` and the paper's section 2)
+----------------------------------------------------------------
+The tube is ``n_d`` finite volumes, upwind in the flow direction, followed by ``n_c`` lumped
+cyclone cells in series. Each cell has five states: fibre moisture ``X`` and temperature
+``T_f``, air humidity ratio ``Y`` and temperature ``T_a``, wall (or cyclone shell)
+temperature ``T_w``.
+
+Fibre and air cross the tube in about 3 s and the cyclone in a few seconds, while the 6 mm
+steel wall responds over ~10 minutes and inputs change every 600 s window. So the fast states
+sit at their steady profile for the current inputs and wall temperatures, and only the wall
+temperatures are integrated in time. The steady profile of an upwind finite-volume scheme is
+an implicit (backward-Euler) march along the tube: cell ``i`` depends only on cell ``i-1`` and
+its own wall temperature. Per cell, the water balance of fibre plus air gives ``Y`` from ``X``
+exactly and the energy balance of fibre plus air gives ``T_a`` from ``(X, T_f)`` exactly, which
+leaves a 2 x 2 Newton problem in ``(X, T_f)``: the fibre water and fibre energy balances. This
+is the same set of algebraic equations the full method of lines (:mod:`softsensor.model.mol`)
+reaches at steady state, so both agree on the outputs (checked by ``benchmarks/model.py`` and
+``tests/test_model_reference.py``).
+
+Cell balances, per cell (steady state):
+  fibre water   ``m_f (X_in - X) = R``
+  air water     ``m_a (Y - Y_in) = R``
+  fibre energy  ``m_f (h_f,in - h_f) + Q_af - R h_v(T_f) = 0``
+  air energy    ``m_a (h_a,in - h_a) - Q_af - Q_w + R h_v(T_f) = 0``
+with enthalpies from :mod:`humid_air` (ASHRAE eq. 32) and :mod:`wood` (Wood Handbook), so
+water and energy close to round-off when summed over the cells.
+
+Rates (paper eqs. 1 to 3):
+  tube evaporation   ``R = mult_D alpha(X) K_c rho_da a dx (Y_s(T_f) - Y)``     (eq. 2)
+  tube heat          ``Q_af = mult_h h_af a dx (T_a - T_f)``                    (eq. 2)
+  cyclone evap.      ``R = mult_C hm_cyc A_vol V_cell alpha(X) (Y_s(T_f) - Y)``  (eq. 3)
+  cyclone heat       ``Q_af = hc_cyc A_vol V_cell (T_a - T_f)``                 (eq. 3)
+  air to wall        ``Q_w = h_aw pi D dx (T_a - T_w)``, Gnielinski pipe flow
+  wall to ambient    ``Q_out = mult_p h_out pi D_out dx (T_w - T_amb)``, Churchill-Bernstein
+                     plus natural convection and radiation
+  wall conduction    ``mult_k k_w A_cross (T_w,i-1 - 2 T_w,i + T_w,i+1) / dx``, adiabatic ends
+
+Choices where the paper is garbled or silent:
+* The paper's eq. 2 writes the driving force as ``H_f - H_a`` (a fibre moisture minus an air
+  humidity) and divides by ``Qm_fiber``; we use the humidity-ratio difference between
+  saturated air at the fibre temperature and the bulk air, times the dry-air density, so
+  ``K_c rho_da a dx`` is a mass conductance [kg/s] and ``R`` a rate [kg/s].
+* ``a`` is fibre surface per metre of tube: specific surface [m2/kg] times dry fibre per metre
+  ``m_f / v_f``; in the cyclone ``A_vol`` [m2/m3] is the specific surface times the fibre
+  concentration ``m_f rho_da / m_a`` (fibre travels with the gas in the lumped cells).
+* ``K_c`` and ``h_af`` are evaluated at the cell's own air state; the slip velocity and the
+  wall-side coefficient at the air entering the cell (they vary slowly; this keeps ``T_a``
+  explicit in the energy balance). The full method of lines makes the same choice.
+* The inlet air humidity is not measured: the flaps mix hot gas (``hot_gas`` in the config)
+  with ambient air; the mixing fraction follows from ``T_air_in`` by an enthalpy balance, and
+  the injected steam ``m_steam`` (at ``T_fiber_in``) joins the air at the inlet.
+* Outside heat-loss coefficients of the wall are evaluated at the start of each wall substep.
+
+Wall integration: Crank-Nicolson over ``wall_substeps`` substeps of the window, the air
+profile refreshed at every substep (the wall-air coupling is weak: the wall takes ~3 % of the
+air's heat). Tridiagonal systems solved by the Thomas algorithm.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+from numba.extending import register_jitable
+
+from softsensor.model import humid_air as ha
+from softsensor.model import transfer as tr
+from softsensor.model import wood as wd
+from softsensor.model.geometry import (
+    A_FLOW,
+    A_SH_CELL,
+    ALPHA_B,
+    BETA_AMB,
+    C_SH_CELL,
+    C_W_CELL,
+    D,
+    D_CYC,
+    D_FIB,
+    D_OUT,
+    D_P,
+    DX,
+    EMISS,
+    G_COND,
+    H_IN_CYC,
+    N_C,
+    N_D,
+    RHO_FIB,
+    S_SPEC,
+    T_AMB_REF,
+    T_HOT,
+    V_C_CELL,
+    W_CR,
+    W_EQ,
+    WIND,
+    X_CR,
+    X_FSP,
+    Y_HOT,
+    P,
+)
+
+# Input and parameter indices (softsensor.signals.INPUT_NAMES, plantconfig.PARAMETER_NAMES).
+U_TAIR, U_MAIR, U_MFIB, U_TFIB, U_MSTEAM, U_TAMB, U_HAMB, U_XIN = range(8)
+K_D, K_C, K_H, K_K, K_P, K_HM, K_HC = range(7)
+
+# Solver status codes
+OK, NEWTON_FAILED, BAD_INPUT, STEADY_FAILED = 0, 1, 2, 3
+
+_MAX_NEWTON = 60
+
+
+@register_jitable
+def inlet_air(u, geo):
+    """Humidity ratio [kg/kg] and enthalpy [J/kg dry air] of the air entering the tube.
+
+    Hot gas mixed with ambient air to ``T_air_in`` (enthalpy balance gives the mixing
+    fraction), plus the injected steam at ``T_fiber_in``.
+    """
+    T_in, m_a, T_fin, m_st, T_amb, H_amb = (u[U_TAIR], u[U_MAIR], u[U_TFIB], u[U_MSTEAM],
+                                            u[U_TAMB], u[U_HAMB])
+    t_in = T_in - ha.T0
+    hv_in = ha.H_FG0 + ha.C_PV * t_in
+    h_hot = ha.enthalpy(geo[T_HOT], geo[Y_HOT])
+    h_amb = ha.enthalpy(T_amb, H_amb)
+    num = ha.C_PA * t_in + H_amb * hv_in - h_amb
+    den = (h_hot - h_amb) - (geo[Y_HOT] - H_amb) * hv_in
+    f = min(max(num / den, 0.0), 1.0)
+    y_mix = H_amb + f * (geo[Y_HOT] - H_amb)
+    y0 = y_mix + m_st / m_a
+    h0 = ha.enthalpy(T_in, y_mix) + m_st / m_a * ha.vapour_enthalpy(T_fin)
+    return y0, h0
+
+
+@register_jitable
+def inflow_coefficients(kind, Ta, Y, X, m_a, geo):
+    """Slip velocity [m/s] and air-to-wall conductance [W/K] from the air entering a cell."""
+    Pa = geo[P]
+    if kind == 0:
+        rho = ha.density(Ta, Y, Pa)
+        mu = ha.viscosity(Ta, Y)
+        k = ha.conductivity(Ta, Y)
+        cp = ha.heat_capacity_mass(Ta, Y)
+        v_a = m_a * (1.0 + Y) / (rho * geo[A_FLOW])
+        v_s = tr.slip_velocity(geo[D_P], geo[RHO_FIB] * (1.0 + X), rho, mu)
+        Re = rho * v_a * geo[D] / mu
+        h_aw = tr.gnielinski(Re, cp * mu / k) * k / geo[D]
+        return v_s, h_aw * np.pi * geo[D] * geo[DX]
+    return 0.0, geo[H_IN_CYC] * geo[A_SH_CELL]
+
+
+@register_jitable
+def cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo):
+    """Evaporation ``R`` [kg/s] and air-to-fibre heat ``Q_af`` [W] of one cell.
+
+    Tube cells (``kind == 0``): paper eqs. 1-2; cyclone cells: eq. 3. Also returns the hold-ups
+    of dry fibre and dry air [kg] for the transient method of lines.
+    """
+    Pa = geo[P]
+    rho = ha.density(Ta, Y, Pa)
+    rho_da = rho / (1.0 + Y)
+    phi = ha.relative_humidity(Ta, Y, Pa)
+    x_eq = wd.equilibrium_moisture(Ta, phi)
+    alpha = wd.drying_reduction(X, x_eq, geo[X_CR], geo[W_CR], geo[ALPHA_B], geo[W_EQ])
+    dY = ha.y_sat(Tf, Pa) - Y
+    if kind == 0:
+        mu = ha.viscosity(Ta, Y)
+        k = ha.conductivity(Ta, Y)
+        cp = ha.heat_capacity_mass(Ta, Y)
+        Pr = cp * mu / k
+        Sc = mu / (rho * ha.vapour_diffusivity(Ta, Pa))
+        v_a = m_a * (1.0 + Y) / (rho * geo[A_FLOW])
+        v_f = max(v_a - v_s, 0.2 * v_a)
+        Re_f = rho * v_s * geo[D_FIB] / mu
+        h_af = tr.churchill_bernstein(Re_f, Pr) * k / geo[D_FIB]
+        K_c = tr.mass_transfer_coefficient(h_af, rho, cp, Sc, Pr)  # eq. 1
+        a_dx = geo[S_SPEC] * m_f / v_f * geo[DX]
+        R = theta[K_D] * alpha * K_c * rho_da * a_dx * dY  # eq. 2
+        Q = theta[K_H] * h_af * a_dx * (Ta - Tf)
+        M_f = m_f * geo[DX] / v_f
+        M_a = rho_da * geo[A_FLOW] * geo[DX]
+    else:
+        area = geo[S_SPEC] * m_f * rho_da / m_a * geo[V_C_CELL]  # A_vol * V_cell
+        R = theta[K_C] * theta[K_HM] * area * alpha * dY  # eq. 3
+        Q = theta[K_HC] * area * (Ta - Tf)
+        M_a = rho_da * geo[V_C_CELL]
+        M_f = m_f * M_a / m_a
+    return R, Q, M_f, M_a
+
+
+@register_jitable
+def _scaled_norm(F1, F2, m_f):
+    """Squared residual norm with 0.01 kg/kg of moisture weighted like 1 K of fibre."""
+    r1 = F1 / m_f * 100.0
+    r2 = F2 / (m_f * 2000.0)
+    return r1 * r1 + r2 * r2
+
+
+@register_jitable
+def _cell_residual(kind, X, Tf, Xp, Yp, Efp, Etot, Tw, UAw, v_s, m_a, m_f, theta, geo):
+    """Fibre water and fibre energy residuals of a cell given ``(X, T_f)``.
+
+    ``Y`` and ``T_a`` follow from the water and energy balances of fibre plus air.
+    """
+    Y = Yp + m_f / m_a * (Xp - X)
+    hf = wd.enthalpy(X, Tf, geo[X_FSP])
+    # m_a h_a(T_a, Y) + UAw (T_a - T_w) = Etot - m_f h_f, with h_a linear in T_a (eq. 32)
+    t = (Etot - m_f * hf - m_a * Y * ha.H_FG0 + UAw * (Tw - ha.T0)) / (
+        m_a * (ha.C_PA + Y * ha.C_PV) + UAw)
+    Ta = t + ha.T0
+    R, Q, _, _ = cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo)
+    F1 = m_f * (Xp - X) - R
+    F2 = (Efp - m_f * hf) + Q - R * ha.vapour_enthalpy(Tf)
+    return F1, F2, Y, Ta, hf
+
+
+@register_jitable
+def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo):
+    """Steady fibre/air profile through tube and cyclone for given wall temperatures.
+
+    Fills ``Xo, Tfo, Yo, Tao`` [kg/kg, K] and ``UAo`` (air-to-wall conductance, W/K) for all
+    ``n_d + n_c`` cells; returns a status code (``OK`` or ``NEWTON_FAILED``).
+    """
+    n_d = int(geo[N_D])
+    n_c = int(geo[N_C])
+    m_a = u[U_MAIR]
+    m_f = u[U_MFIB]
+    Xp = u[U_XIN]
+    Tfp = u[U_TFIB]
+    Yp, h0 = inlet_air(u, geo)
+    Tap = u[U_TAIR]
+    Efp = m_f * wd.enthalpy(Xp, Tfp, geo[X_FSP])
+    Etot = m_a * h0 + Efp
+    X = Xp
+    Tf = Tfp
+    for i in range(n_d + n_c):
+        kind = 0 if i < n_d else 1
+        Tw_i = Tw[i] if kind == 0 else Tsh[i - n_d]
+        v_s, UAw = inflow_coefficients(kind, Tap, Yp, Xp, m_a, geo)
+        # damped Newton on (X, T_f) with a finite-difference 2 x 2 Jacobian
+        converged = False
+        for _ in range(_MAX_NEWTON):
+            F1, F2, _, _, _ = _cell_residual(kind, X, Tf, Xp, Yp, Efp, Etot, Tw_i, UAw, v_s,
+                                             m_a, m_f, theta, geo)
+            hx = 1e-7 * max(abs(X), 1e-3)
+            ht = 1e-6 * Tf
+            a1, a2, _, _, _ = _cell_residual(kind, X + hx, Tf, Xp, Yp, Efp, Etot, Tw_i, UAw,
+                                             v_s, m_a, m_f, theta, geo)
+            b1, b2, _, _, _ = _cell_residual(kind, X, Tf + ht, Xp, Yp, Efp, Etot, Tw_i, UAw,
+                                             v_s, m_a, m_f, theta, geo)
+            j11 = (a1 - F1) / hx
+            j21 = (a2 - F2) / hx
+            j12 = (b1 - F1) / ht
+            j22 = (b2 - F2) / ht
+            det = j11 * j22 - j12 * j21
+            if det == 0.0 or not np.isfinite(det):
+                break
+            dX = -(F1 * j22 - F2 * j12) / det
+            dT = -(j11 * F2 - j21 * F1) / det
+            # damping: keep the step physical, then backtrack until the scaled residual
+            # (moisture in kg/kg, energy in K of fibre) decreases
+            lam = 1.0
+            if abs(dX) > 0.1:
+                lam = min(lam, 0.1 / abs(dX))
+            if abs(dT) > 15.0:
+                lam = min(lam, 15.0 / abs(dT))
+            norm0 = _scaled_norm(F1, F2, m_f)
+            for _ls in range(30):
+                Xn = X + lam * dX
+                if Xn < 0.0:
+                    lam *= 0.5
+                    continue
+                n1, n2, _, _, _ = _cell_residual(kind, Xn, Tf + lam * dT, Xp, Yp, Efp, Etot,
+                                                 Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+                if _scaled_norm(n1, n2, m_f) < norm0 or norm0 < 1e-26:
+                    break
+                lam *= 0.5
+            X = X + lam * dX
+            Tf = Tf + lam * dT
+            if abs(lam * dX) < 1e-10 * max(X, 1e-2) and abs(lam * dT) < 1e-8:
+                converged = True
+                break
+            if _scaled_norm(F1, F2, m_f) < 1e-24:
+                converged = True
+                break
+        if not converged:
+            return NEWTON_FAILED
+        _, _, Y, Ta, hf = _cell_residual(kind, X, Tf, Xp, Yp, Efp, Etot, Tw_i, UAw, v_s,
+                                         m_a, m_f, theta, geo)
+        Xo[i] = X
+        Tfo[i] = Tf
+        Yo[i] = Y
+        Tao[i] = Ta
+        UAo[i] = UAw
+        Etot -= UAw * (Ta - Tw_i)
+        Xp = X
+        Tfp = Tf
+        Yp = Y
+        Tap = Ta
+        Efp = m_f * hf
+    return OK
+
+
+@register_jitable
+def outside_conductance(T_w, u, theta, aux, geo, kind):
+    """Wall-to-ambient conductance ``mult_p h_out A`` [W/K] of a tube cell or shell cell."""
+    T_amb = u[U_TAMB]
+    H_amb = u[U_HAMB]
+    Pa = geo[P]
+    mu = ha.viscosity(T_amb, H_amb)
+    k = ha.conductivity(T_amb, H_amb)
+    nu = mu / ha.density(T_amb, H_amb, Pa)
+    Pr = ha.heat_capacity_mass(T_amb, H_amb) * mu / k
+    amb = max(1.0 + aux[BETA_AMB] * (T_AMB_REF - T_amb), 0.0)
+    if kind == 0:
+        h = tr.outside_coefficient(T_w, T_amb, geo[D_OUT], geo[WIND], geo[EMISS], k, nu, Pr)
+        return theta[K_P] * amb * h * np.pi * geo[D_OUT] * geo[DX]
+    h = tr.outside_coefficient(T_w, T_amb, geo[D_CYC], geo[WIND], geo[EMISS], k, nu, Pr)
+    return theta[K_P] * amb * h * geo[A_SH_CELL]
+
+
+@register_jitable
+def wall_step(Tw, Tsh, Tao, UAo, u, theta, aux, geo, dt, work):
+    """Advance wall and shell temperatures by ``dt`` [s] with the air profile frozen.
+
+    Crank-Nicolson for ``C dT/dt = UA_w (T_a - T) - UA_out (T - T_amb) + G lap(T)``;
+    ``dt = inf`` solves the steady wall instead. ``work`` is scratch of length >= 4 n_d.
+    """
+    n_d = int(geo[N_D])
+    n_c = int(geo[N_C])
+    T_amb = u[U_TAMB]
+    C = geo[C_W_CELL]
+    G = theta[K_K] * geo[G_COND]
+    steady = not np.isfinite(dt)
+    lo = work[0:n_d]
+    di = work[n_d:2 * n_d]
+    up = work[2 * n_d:3 * n_d]
+    rhs = work[3 * n_d:4 * n_d]
+    for i in range(n_d):
+        Uo = outside_conductance(Tw[i], u, theta, aux, geo, 0)
+        nl = 1.0 if i > 0 else 0.0
+        nr = 1.0 if i < n_d - 1 else 0.0
+        kd = UAo[i] + Uo + G * (nl + nr)  # diagonal of K
+        b = UAo[i] * Tao[i] + Uo * T_amb
+        # K T = diag*T_i - G T_{i-1} - G T_{i+1}
+        KT = kd * Tw[i]
+        if i > 0:
+            KT -= G * Tw[i - 1]
+        if i < n_d - 1:
+            KT -= G * Tw[i + 1]
+        if steady:
+            di[i] = kd
+            lo[i] = -G * nl
+            up[i] = -G * nr
+            rhs[i] = b
+        else:
+            di[i] = C / dt + 0.5 * kd
+            lo[i] = -0.5 * G * nl
+            up[i] = -0.5 * G * nr
+            rhs[i] = C / dt * Tw[i] - 0.5 * KT + b
+    # Thomas algorithm
+    for i in range(1, n_d):
+        m = lo[i] / di[i - 1]
+        di[i] -= m * up[i - 1]
+        rhs[i] -= m * rhs[i - 1]
+    Tw[n_d - 1] = rhs[n_d - 1] / di[n_d - 1]
+    for i in range(n_d - 2, -1, -1):
+        Tw[i] = (rhs[i] - up[i] * Tw[i + 1]) / di[i]
+    Cs = geo[C_SH_CELL]
+    for j in range(n_c):
+        Uo = outside_conductance(Tsh[j], u, theta, aux, geo, 1)
+        UA = UAo[n_d + j]
+        Ta = Tao[n_d + j]
+        if steady:
+            Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + Uo)
+        else:
+            kd = UA + Uo
+            Tsh[j] = ((Cs / dt - 0.5 * kd) * Tsh[j] + UA * Ta + Uo * T_amb) / (Cs / dt + 0.5 * kd)
+
+
+@register_jitable
+def _valid_inputs(u, theta):
+    for v in u:
+        if not np.isfinite(v):
+            return False
+    for v in theta:
+        if not (np.isfinite(v) and v > 0.0):
+            return False
+    return (u[U_MAIR] > 0.0 and u[U_MFIB] > 0.0 and u[U_XIN] >= 0.0 and u[U_MSTEAM] >= 0.0
+            and u[U_HAMB] >= 0.0 and u[U_TAIR] > 250.0 and u[U_TAMB] > 150.0
+            and u[U_TFIB] > 250.0)
+
+
+@register_jitable
+def _step_one(state, u, theta, aux, geo, dt, n_sub, prof, work):
+    """One window for one batch member: substeps of profile + wall; final profile in ``prof``."""
+    n_d = int(geo[N_D])
+    Tw = state[:n_d]
+    Tsh = state[n_d:]
+    Xo, Tfo, Yo, Tao, UAo = prof[0], prof[1], prof[2], prof[3], prof[4]
+    if not _valid_inputs(u, theta):
+        return BAD_INPUT
+    h = dt / n_sub
+    for _ in range(n_sub):
+        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo)
+        if st != OK:
+            return st
+        wall_step(Tw, Tsh, Tao, UAo, u, theta, aux, geo, h, work)
+    return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo)
+
+
+@register_jitable
+def _steady_one(state, u, theta, aux, geo, prof, work):
+    """Steady state of one batch member: profile and steady wall iterated to a fixed point."""
+    n_d = int(geo[N_D])
+    n_c = int(geo[N_C])
+    if not _valid_inputs(u, theta):
+        return BAD_INPUT
+    Tw = state[:n_d]
+    Tsh = state[n_d:]
+    # first guess: wall between the air leaving the tube and ambient
+    guess = 0.75 * 345.0 + 0.25 * u[U_TAMB]
+    for i in range(n_d):
+        Tw[i] = guess
+    for j in range(n_c):
+        Tsh[j] = guess
+    Xo, Tfo, Yo, Tao, UAo = prof[0], prof[1], prof[2], prof[3], prof[4]
+    old = np.empty(n_d + n_c)
+    for _ in range(100):
+        for i in range(n_d + n_c):
+            old[i] = state[i]
+        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo)
+        if st != OK:
+            return st
+        wall_step(Tw, Tsh, Tao, UAo, u, theta, aux, geo, np.inf, work)
+        change = 0.0
+        for i in range(n_d + n_c):
+            change = max(change, abs(state[i] - old[i]))
+        if change < 1e-9:
+            return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo)
+    return STEADY_FAILED
+
+
+@register_jitable
+def _outputs(prof, geo, y):
+    n_d = int(geo[N_D])
+    last = prof.shape[1] - 1
+    y[0] = prof[3, n_d - 1]  # T_dryer_out: air leaving the tube
+    y[1] = prof[3, last]  # T_cyclone_out
+    y[2] = prof[0, last]  # moisture_out: fibre leaving the cyclone
+
+
+@njit(cache=True)
+def steady_batch(u, theta, aux, geo, states, y, status):
+    """Steady states of a batch: ``u`` (B, 8), ``theta`` (B, 7), ``aux`` (B, N_AUX)."""
+    n = states.shape[1]
+    prof = np.empty((5, n))
+    work = np.empty(4 * n)
+    for b in range(u.shape[0]):
+        status[b] = _steady_one(states[b], u[b], theta[b], aux[b], geo, prof, work)
+        _outputs(prof, geo, y[b])
+
+
+@njit(cache=True)
+def step_batch(states, u, theta, aux, geo, dt, n_sub, y, status):
+    """Advance a batch of states (B, n_state) in place by one window of ``dt`` seconds."""
+    n = states.shape[1]
+    prof = np.empty((5, n))
+    work = np.empty(4 * n)
+    for b in range(u.shape[0]):
+        status[b] = _step_one(states[b], u[b], theta[b], aux[b], geo, dt, n_sub, prof, work)
+        _outputs(prof, geo, y[b])
+
+
+@njit(cache=True)
+def simulate_batch(states, U, TH, AUX, geo, dt, n_sub, Y, status):
+    """Run K windows for a batch: ``U`` (B, K, 8), ``TH`` (B, K, 7), ``AUX`` (B, K, N_AUX).
+
+    ``states`` (B, n_state) holds the initial states and is advanced in place; outputs go to
+    ``Y`` (B, K, 3). A member whose solve fails keeps ``status != OK`` and NaN outputs from
+    then on.
+    """
+    n = states.shape[1]
+    prof = np.empty((5, n))
+    work = np.empty(4 * n)
+    for b in range(U.shape[0]):
+        status[b] = OK
+        for k in range(U.shape[1]):
+            st = _step_one(states[b], U[b, k], TH[b, k], AUX[b, k], geo, dt, n_sub, prof, work)
+            if st != OK:
+                status[b] = st
+                for kk in range(k, U.shape[1]):
+                    Y[b, kk, 0] = np.nan
+                    Y[b, kk, 1] = np.nan
+                    Y[b, kk, 2] = np.nan
+                break
+            _outputs(prof, geo, Y[b, k])
+
+
+@njit(cache=True)
+def profile_one(state, u, theta, geo, prof):
+    """The steady profile (5, n_d + n_c) for one state and input: X, T_f, Y, T_a, UA_w."""
+    n_d = int(geo[N_D])
+    return solve_profile(u, theta, geo, state[:n_d], state[n_d:], prof[0], prof[1], prof[2],
+                         prof[3], prof[4])

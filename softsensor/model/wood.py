@@ -1,0 +1,121 @@
+"""Wood-fibre properties: heat capacity, enthalpy, sorption, drying-rate reduction.
+
+Moisture ``X`` is dry basis [kg water / kg dry fibre] (the paper's ``H_f``). Enthalpies are
+per kg of dry fibre, referenced to 0 °C like :mod:`softsensor.model.humid_air`, so that the
+energy balance of a cell closes exactly when written as enthalpy flows.
+
+Choices where the paper is silent
+---------------------------------
+* Heat capacity: Wood Handbook (FPL-GTR-190, 2010) ch. 4 eqs. 4-18 and 4-19, after
+  Dietenberger's compilation: ``c0 = 103.1 + 3.867 T`` [J/(kg K)] for dry wood, liquid water
+  added per kg, plus the wood-water bond adjustment ``A_c = M (b1 + b2 T + b3 M)`` with ``M``
+  in percent, capped at the fibre saturation point.
+* Bound water: differential heat of sorption ``q = 0.4 h_fg0 (1 - X / X_fsp)^2`` below the
+  fibre saturation point (Stanish, Schajer & Kayihan 1986). It enters the enthalpy as
+  ``-Q_s(X)``, the integral of ``q``, so removing bound water costs ``h_fg + q`` without a
+  separate source term.
+* Equilibrium moisture: Hailwood-Horrobin fit of the Wood Handbook eq. 4-5 (SI form). The fit
+  turns negative above about 129 °C, so the temperature is clamped to 110 °C inside it; hot
+  inlet air has a tiny relative humidity there and the clamp changes the EMC by < 0.002.
+* The paper's double-sigmoid reduction ``alpha(H_f)`` (after Pang 2001) is written as the
+  product of two smooth factors: a logistic step from free water (1) to ``bound_fraction``
+  around the critical moisture (spruce MDF fibre: constant rate down to ~1.25 kg/kg, Fritzell
+  et al. 2009), and a tanh ramp that falls to 0 at the equilibrium moisture ``X_eq`` of the
+  surrounding air, so fibre never dries below equilibrium.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba.extending import register_jitable
+
+from softsensor.model.humid_air import C_W, T0
+
+# Wood Handbook (2010) eq. 4-19 coefficients, kJ/(kg K) with M in percent, converted to J.
+_B1, _B2, _B3 = -0.06191e3, 2.36e-4 * 1e3, -1.33e-4 * 1e3
+
+
+@register_jitable
+def _bond_cap(X, X_fsp):
+    return 100.0 * np.minimum(np.maximum(X, 0.0), X_fsp)
+
+
+@register_jitable
+def heat_capacity(X, T, X_fsp):
+    """Moist-fibre heat capacity ``c_f`` [J/(kg dry fibre K)].
+
+    Wood Handbook ch. 4 eqs. 4-18/4-19 (Dietenberger): ``c0 + X c_w + (1 + X) A_c``.
+
+    Parameters
+    ----------
+    X : array_like
+        Moisture, dry basis [kg/kg].
+    T : array_like
+        Temperature [K].
+    X_fsp : float
+        Fibre saturation point [kg/kg].
+    """
+    M = _bond_cap(X, X_fsp)
+    A_c = M * (_B1 + _B2 * T + _B3 * M)
+    return 103.1 + 3.867 * T + X * C_W + (1.0 + X) * A_c
+
+
+@register_jitable
+def sorption_heat(X, X_fsp, h_fg0=2.501e6):
+    """Differential heat of sorption ``q`` [J/kg water] (Stanish et al. 1986)."""
+    r = 1.0 - np.minimum(np.maximum(X, 0.0), X_fsp) / X_fsp
+    return 0.4 * h_fg0 * r * r
+
+
+@register_jitable
+def _sorption_integral(X, X_fsp, h_fg0=2.501e6):
+    """``Q_s(X) = int_0^X q dX`` [J / kg dry fibre]."""
+    r = 1.0 - np.minimum(np.maximum(X, 0.0), X_fsp) / X_fsp
+    return 0.4 * h_fg0 * X_fsp / 3.0 * (1.0 - r * r * r)
+
+
+@register_jitable
+def enthalpy(X, T, X_fsp):
+    """Moist-fibre enthalpy ``h_f`` [J / kg dry fibre], reference 0 °C liquid water.
+
+    ``h_f = int_T0^T c_f dT - Q_s(X)``: the temperature integral of :func:`heat_capacity`
+    minus the bond energy of the bound water (see module notes).
+    """
+    M = _bond_cap(X, X_fsp)
+    t = T - T0
+    tt = 0.5 * (T * T - T0 * T0)
+    dry = 103.1 * t + 3.867 * tt
+    bond = (1.0 + X) * M * (_B1 * t + _B2 * tt + _B3 * M * t)
+    return dry + X * C_W * t + bond - _sorption_integral(X, X_fsp)
+
+
+@register_jitable
+def equilibrium_moisture(T, phi):
+    """Equilibrium moisture content ``X_eq`` [kg/kg] of wood in air at ``T`` [K], ``phi`` [-].
+
+    Hailwood-Horrobin, Wood Handbook (2010) eq. 4-5, SI coefficients; ``T`` clamped to 110 °C
+    and ``phi`` to [0, 0.99] (see module notes).
+    """
+    t = np.minimum(np.maximum(T - T0, 0.0), 110.0)
+    h = np.minimum(np.maximum(phi, 0.0), 0.99)
+    W = 349.0 + 1.29 * t + 0.0135 * t * t
+    K = 0.805 + 0.000736 * t - 0.00000273 * t * t
+    K1 = 6.27 - 0.00938 * t - 0.000303 * t * t
+    K2 = 1.91 + 0.0407 * t - 0.000293 * t * t
+    Kh = K * h
+    M = 1800.0 / W * (Kh / (1.0 - Kh) + (K1 * Kh + 2.0 * K1 * K2 * Kh * Kh)
+                      / (1.0 + K1 * Kh + K1 * K2 * Kh * Kh))
+    return M / 100.0
+
+
+@register_jitable
+def drying_reduction(X, X_eq, X_cr, w_cr, alpha_b, w_eq):
+    """Double-sigmoid reduction of the evaporation rate ``alpha(H_f)`` [-] (paper eq. 2).
+
+    ``alpha = [alpha_b + (1 - alpha_b) s((X - X_cr) / w_cr)] * max(tanh((X - X_eq) / w_eq), 0)``
+    with ``s`` the logistic function: 1 for free water, ``alpha_b`` in the bound-water regime,
+    0 at and below the equilibrium moisture.
+    """
+    s = 1.0 / (1.0 + np.exp(-(X - X_cr) / w_cr))
+    ramp = np.maximum(np.tanh((X - X_eq) / w_eq), 0.0)
+    return (alpha_b + (1.0 - alpha_b) * s) * ramp

@@ -1,0 +1,252 @@
+"""The plant configuration (``config/dryer1.toml``): geometry, fibre, operation, parameters.
+
+One frozen dataclass per TOML section (see :mod:`softsensor.configfile` for the rules). The
+seven calibration parameters of the paper's Table 1 live in ``[parameters.<name>]`` tables with
+their value, bounds and whether the search is log-scaled; a calibrated ``PARAMS.toml`` has the
+same ``[parameters]`` layout and overrides the values (see :func:`load_parameters`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softsensor.configfile import build_section, num, read_toml
+from softsensor.errors import ConfigError
+
+#: The paper's Table 1, in this order everywhere (arrays of parameters use it).
+PARAMETER_NAMES: tuple[str, ...] = (
+    "mult_D", "mult_C", "mult_h", "mult_k", "mult_p", "hm_cyc", "hc_cyc",
+)
+
+
+@dataclass(frozen=True)
+class Unit:
+    name: str = "dryer1"
+
+
+@dataclass(frozen=True)
+class Tube:
+    length: float = num(gt=0)                 # m
+    diameter: float = num(gt=0)               # m, inner
+    wall_thickness: float = num(gt=0)         # m
+    n_cells: int = num(ge=2, le=2000)
+    wall_density: float = num(gt=0)           # kg/m3
+    wall_heat_capacity: float = num(gt=0)     # J/(kg K)
+    wall_conductivity: float = num(gt=0)      # W/(m K)
+    wall_emissivity: float = num(ge=0, le=1)
+
+
+@dataclass(frozen=True)
+class Cyclone:
+    count: int = num(ge=1)
+    diameter: float = num(gt=0)
+    height: float = num(gt=0)
+    volume: float = num(gt=0)                 # m3, all cyclones together
+    n_cells: int = num(ge=1, le=100)
+    shell_thickness: float = num(gt=0)
+    shell_density: float = num(gt=0)
+    shell_heat_capacity: float = num(gt=0)
+    inner_heat_transfer: float = num(gt=0)    # W/(m2 K)
+
+
+@dataclass(frozen=True)
+class Fiber:
+    dry_density: float = num(gt=0)            # kg/m3
+    diameter: float = num(gt=0)               # m
+    length: float = num(gt=0)                 # m
+    specific_surface: float = num(gt=0)       # m2/kg dry fibre
+    saturation_point: float = num(gt=0, lt=1)  # kg/kg
+    critical_moisture: float = num(gt=0)      # kg/kg
+    critical_width: float = num(gt=0)         # kg/kg
+    bound_fraction: float = num(gt=0, le=1)
+    equilibrium_width: float = num(gt=0)      # kg/kg
+
+
+@dataclass(frozen=True)
+class HotGas:
+    temperature: float = num(gt=300, lt=2000)  # K
+    humidity: float = num(ge=0, lt=1)          # kg/kg
+    fraction_min: float = num(ge=0, le=1)
+    fraction_max: float = num(gt=0, le=1)
+
+    def check(self) -> str | None:
+        if self.fraction_max <= self.fraction_min:
+            return (f"fraction_max must be > fraction_min ({self.fraction_min:g}), "
+                    f"got {self.fraction_max:g}")
+        return None
+
+
+@dataclass(frozen=True)
+class Environment:
+    pressure: float = num(gt=5e4, lt=2e5)      # Pa
+    wind_speed: float = num(ge=0, lt=50)       # m/s
+
+
+@dataclass(frozen=True)
+class Nominal:
+    m_fiber: float = num(gt=0)
+    moisture_in: float = num(gt=0, lt=5)
+    m_air: float = num(gt=0)
+    T_air_in: float = num(gt=273.15, lt=1000)
+    T_fiber_in: float = num(gt=273.15, lt=450)
+    m_steam: float = num(ge=0)
+    T_amb: float = num(gt=200, lt=340)
+    H_amb: float = num(ge=0, lt=0.1)
+    T_sp: float = num(gt=273.15, lt=450)
+
+
+@dataclass(frozen=True)
+class Solver:
+    window: float = num(600.0, gt=0)           # s
+    wall_substeps: int = num(4, ge=1, le=1000)
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    value: float = num()
+    low: float = num(gt=0)
+    high: float = num(gt=0)
+    log: bool = True
+
+    def check(self) -> str | None:
+        if self.high <= self.low:
+            return f"high must be > low ({self.low:g}), got {self.high:g}"
+        if not self.low <= self.value <= self.high:
+            return f"value must lie within [{self.low:g}, {self.high:g}], got {self.value:g}"
+        return None
+
+
+@dataclass(frozen=True)
+class Cost:
+    T_dryer_out: float = num(0.003, ge=0)
+    T_cyclone_out: float = num(0.003, ge=0)
+    moisture_out: float = num(5.0, ge=0)
+
+    def weights(self) -> np.ndarray:
+        """Weights of the paper's eq. 4 in ``OUTPUT_NAMES`` order."""
+        return np.array([self.T_dryer_out, self.T_cyclone_out, self.moisture_out])
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    """The whole plant configuration; ``source`` is the file it came from."""
+
+    unit: Unit
+    tube: Tube
+    cyclone: Cyclone
+    fiber: Fiber
+    hot_gas: HotGas
+    environment: Environment
+    nominal: Nominal
+    solver: Solver
+    parameters: dict[str, ParameterSpec]
+    cost: Cost
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+    source: str = "<built-in>"
+
+    def parameter_vector(self) -> np.ndarray:
+        """Parameter values as an array in :data:`PARAMETER_NAMES` order."""
+        return np.array([self.parameters[n].value for n in PARAMETER_NAMES])
+
+    def bounds(self) -> np.ndarray:
+        """(7, 2) array of [low, high] per parameter."""
+        return np.array([[self.parameters[n].low, self.parameters[n].high]
+                         for n in PARAMETER_NAMES])
+
+    def with_parameters(self, values: dict[str, float] | np.ndarray) -> PlantConfig:
+        """A copy with new parameter values (bounds kept); values outside bounds are refused."""
+        if not isinstance(values, dict):
+            values = dict(zip(PARAMETER_NAMES, np.asarray(values, float), strict=True))
+        params = dict(self.parameters)
+        for name, v in values.items():
+            if name not in params:
+                raise ConfigError(f"{self.source}: parameters.{name} is not a parameter")
+            spec = dataclasses.replace(params[name], value=float(v))
+            problem = spec.check()
+            if problem:
+                raise ConfigError(f"{self.source}: parameters.{name}.{problem}")
+            params[name] = spec
+        return dataclasses.replace(self, parameters=params)
+
+
+_SECTIONS = {
+    "unit": Unit, "tube": Tube, "cyclone": Cyclone, "fiber": Fiber, "hot_gas": HotGas,
+    "environment": Environment, "nominal": Nominal, "solver": Solver, "cost": Cost,
+}
+#: Sections owned by other parts of the program (validated there), kept as raw tables.
+EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration")
+
+
+def _parameters(table: Any, source: str) -> dict[str, ParameterSpec]:
+    if not isinstance(table, dict):
+        raise ConfigError(f"{source}: [parameters] must be a table")
+    unknown = sorted(set(table) - set(PARAMETER_NAMES))
+    if unknown:
+        raise ConfigError(f"{source}: parameters.{unknown[0]} is not one of the paper's "
+                          f"Table 1 parameters ({', '.join(PARAMETER_NAMES)})")
+    missing = [n for n in PARAMETER_NAMES if n not in table]
+    if missing:
+        raise ConfigError(f"{source}: parameters.{missing[0]} is missing")
+    return {n: build_section(ParameterSpec, table[n], f"parameters.{n}", source)
+            for n in PARAMETER_NAMES}
+
+
+def plant_config_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantConfig:
+    """Validate a parsed TOML document into a :class:`PlantConfig`."""
+    unknown = sorted(set(data) - set(_SECTIONS) - {"parameters"} - set(EXTRA_SECTIONS))
+    if unknown:
+        raise ConfigError(f"{source}: [{unknown[0]}] is not a known section")
+    kwargs: dict[str, Any] = {}
+    for key, cls in _SECTIONS.items():
+        if key not in data:
+            if key in ("unit", "solver", "cost"):
+                kwargs[key] = cls()
+                continue
+            raise ConfigError(f"{source}: section [{key}] is missing")
+        kwargs[key] = build_section(cls, data[key], key, source)
+    if "parameters" not in data:
+        raise ConfigError(f"{source}: section [parameters] is missing")
+    kwargs["parameters"] = _parameters(data["parameters"], source)
+    extra = {k: data[k] for k in EXTRA_SECTIONS if k in data}
+    return PlantConfig(**kwargs, extra=extra, source=source)
+
+
+def default_config_path() -> Path:
+    """The reference plant's config shipped with the package (a copy of config/dryer1.toml)."""
+    return Path(str(resources.files("softsensor").joinpath("data/dryer1.toml")))
+
+
+def load_plant_config(path: str | Path | None = None) -> PlantConfig:
+    """Load and validate a plant config; ``None`` loads the built-in reference plant."""
+    p = Path(path) if path is not None else default_config_path()
+    return plant_config_from_dict(read_toml(p), str(p))
+
+
+def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
+    """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
+
+    Only ``[parameters.<name>]`` tables are read; each needs a ``value`` within its bounds.
+    """
+    data = read_toml(path)
+    table = data.get("parameters")
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: section [parameters] is missing")
+    values = {}
+    for name, spec in table.items():
+        if name not in PARAMETER_NAMES:
+            raise ConfigError(f"{path}: parameters.{name} is not one of the paper's Table 1 "
+                              f"parameters")
+        if not isinstance(spec, dict) or "value" not in spec:
+            raise ConfigError(f"{path}: parameters.{name}.value is missing")
+        v = spec["value"]
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{path}: parameters.{name}.value must be a number, got {v!r}")
+        values[name] = float(v)
+    cfg = config.with_parameters(values) if values else config
+    return dataclasses.replace(cfg, source=f"{config.source} + {path}")
