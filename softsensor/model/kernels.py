@@ -502,3 +502,21 @@ def profile_one(state, u, theta, geo, prof):
     n_d = int(geo[N_D])
     return solve_profile(u, theta, geo, state[:n_d], state[n_d:], prof[0], prof[1], prof[2],
                          prof[3], prof[4])
+
+
+@njit(cache=True)
+def advance_one(state, u, theta, aux, geo, dt, prof, work, y):
+    """Closed-loop plant step: outputs now (profile at the current wall), then the wall over
+    ``dt`` [s] with that profile frozen. One profile solve per call, for short control steps
+    (tens of seconds) where freezing the air profile over the step is accurate."""
+    n_d = int(geo[N_D])
+    if not _valid_inputs(u, theta):
+        return BAD_INPUT
+    Tw = state[:n_d]
+    Tsh = state[n_d:]
+    st = solve_profile(u, theta, geo, Tw, Tsh, prof[0], prof[1], prof[2], prof[3], prof[4])
+    if st != OK:
+        return st
+    _outputs(prof, geo, y)
+    wall_step(Tw, Tsh, prof[3], prof[4], u, theta, aux, geo, dt, work)
+    return OK

@@ -1,0 +1,271 @@
+"""The virtual plant: the dryer model in closed loop, with disturbances, sensors and a lab.
+
+A PI controller moves ``flap_cmd`` to hold the measured ``T_dryer_out`` at ``T_sp``; the flap
+drive (first-order lag plus rate limit) sets the hot-gas fraction, and the mixing of hot gas
+with ambient air gives the true ``T_air_in``. The plant is the same :class:`DryerModel` the
+estimators use, stepped every ``control_period`` (20 s by default) with its true parameters
+(config values, or a ``PARAMS.toml``), so calibration on its days has a known answer.
+
+Sensors are scanned every ``scan_period`` (10 s) with Gaussian noise (CONTRACT section 6);
+the lab samples the true outlet moisture every 2 to 4 hours and reports it 20 to 90 minutes
+later with lab-grade noise. One effect of :mod:`softsensor.plant.effects` may be hidden in the
+day. The day carries the ground truth on ``/truth/plant`` (every scan) and what was injected on
+``/truth/effect`` (once); nothing that estimates, calibrates or diagnoses may read them.
+
+Random streams are split by purpose (scenario, effect, noise, lab), so the same seed gives
+the same disturbances with and without an effect.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from softsensor.errors import ConfigError, SolverError
+from softsensor.model import DryerModel, kernels
+from softsensor.model.geometry import BETA_AMB, N_AUX
+from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, \
+    mixed_air
+from softsensor.plant.effects import EFFECTS, resolve_effect
+from softsensor.plant.scenario import inlet_moisture_trajectory, make_scenario
+from softsensor.plant.settings import virtual_plant_settings
+from softsensor.plantconfig import PlantConfig
+from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS, TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
+
+#: Default start of a simulated day: 2026-01-05 00:00:00 UTC [ns].
+DEFAULT_START_NS = 1_767_571_200_000_000_000
+TOPIC_TRUTH_EFFECT = "/truth/effect"
+
+
+@dataclass
+class SimulatedDay:
+    """A virtual-plant day in memory (the same frames :func:`read_day` returns).
+
+    ``scans`` is indexed by log time [ns] with one column per scan signal; ``labs`` has
+    ``log_time_ns, sample_time_ns, moisture_out, sample_id``; ``truth`` is indexed like
+    ``scans`` with the true ``moisture_in``, ``moisture_out``, ``T_air_in``, ``T_dryer_out``,
+    ``T_cyclone_out``; ``effect`` says what was injected.
+    """
+
+    scans: pd.DataFrame
+    labs: pd.DataFrame
+    truth: pd.DataFrame
+    effect: dict[str, Any] = field(default_factory=dict)
+
+    def write(self, path: str | Path) -> Path:
+        """Write the day as an MCAP file (CONTRACT section 2); returns the path."""
+        from softsensor.recording.mcap_day import DayWriter  # adapter at the edge
+
+        path = Path(path)
+        start = int(self.scans.index[0])
+        labs = self.labs.sort_values("log_time_ns").to_dict("records")
+        j = 0
+        scan_cols = list(self.scans.columns)
+        scan_vals = self.scans.to_numpy()
+        truth_cols = list(self.truth.columns)
+        truth_vals = self.truth.to_numpy()
+        with DayWriter(path) as w:
+            w.write(TOPIC_TRUTH_EFFECT, start, self.effect)
+            for i, t in enumerate(self.scans.index.to_numpy()):
+                t = int(t)
+                while j < len(labs) and labs[j]["log_time_ns"] <= t:
+                    lab = labs[j]
+                    w.write(TOPIC_LAB, int(lab["log_time_ns"]), {
+                        "sample_time_ns": int(lab["sample_time_ns"]),
+                        "moisture_out": round(float(lab["moisture_out"]), 5),
+                        "sample_id": str(lab["sample_id"])})
+                    j += 1
+                body = {c: (None if math.isnan(v) else round(float(v), 6))
+                        for c, v in zip(scan_cols, scan_vals[i], strict=True)}
+                w.write(TOPIC_SCAN, t, body)
+                w.write(TOPIC_TRUTH, t, {c: round(float(v), 6)
+                                         for c, v in zip(truth_cols, truth_vals[i], strict=True)})
+        return path
+
+
+def _initial_operating_point(model: DryerModel, u: np.ndarray, theta: np.ndarray,
+                             aux: np.ndarray, T_target: float) -> tuple[np.ndarray, float]:
+    """Steady state with ``T_air_in`` such that the true ``T_dryer_out`` equals ``T_target``."""
+    T = float(u[0])
+    for _ in range(30):
+        ua = u.copy()
+        ua[0] = T
+        ub = u.copy()
+        ub[0] = T + 1.0
+        x, y = model.steady_state(np.stack([ua, ub]), theta, aux)
+        gain = y[1, 0] - y[0, 0]
+        dT = float(np.clip((T_target - y[0, 0]) / max(gain, 0.05), -60.0, 60.0))
+        T = float(np.clip(T + dT, 380.0, 700.0))
+        if abs(dT) < 1e-4:
+            break
+    ua = u.copy()
+    ua[0] = T
+    x, _ = model.steady_state(ua, theta, aux)
+    return x, T
+
+
+def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | None = None,
+                 magnitude: float | None = None, start_ns: int = DEFAULT_START_NS
+                 ) -> SimulatedDay:
+    """Run the virtual plant for ``hours`` and return the recorded day.
+
+    Parameters
+    ----------
+    config : PlantConfig
+        Plant and true parameters (``config.parameters``), ``[virtual_plant]`` settings.
+    hours : float
+        Length of the record [h].
+    seed : int
+        Seed of every random stream.
+    effect, magnitude :
+        One effect of :data:`softsensor.plant.effects.EFFECTS` and its magnitude (default
+        magnitude when omitted); ``None`` for a clean day.
+    start_ns : int
+        Time of the first scan [ns since the Unix epoch, UTC].
+    """
+    if not (isinstance(hours, (int, float)) and math.isfinite(hours) and 0 < hours <= 24 * 60):
+        raise ConfigError(f"--hours must be in (0, 1440], got {hours!r}")
+    effect, magnitude = resolve_effect(effect, magnitude)
+    s = virtual_plant_settings(config)
+    rng_scen = np.random.default_rng([seed, 0])
+    rng_eff = np.random.default_rng([seed, 1])
+    rng_noise = np.random.default_rng([seed, 2])
+    rng_lab = np.random.default_rng([seed, 3])
+    sc = make_scenario(config, s, hours, rng_scen)
+    n = len(sc.t)
+    dt = s.control_period
+    model = DryerModel(config)
+    geo = model.geometry.packed
+    theta = np.tile(config.parameter_vector(), (n, 1))
+    aux = np.zeros(N_AUX)
+    moisture_in = sc.moisture_in.copy()
+    bias = {"T_dryer_out": 0.0, "T_cyclone_out": 0.0}
+    info: dict[str, Any] = {"effect": effect or "none", "magnitude": magnitude,
+                            "unit": EFFECTS[effect].unit if effect else "", "seed": seed,
+                            "channel": None,
+                            "parameters": dict(zip(("mult_D", "mult_C", "mult_h", "mult_k",
+                                                    "mult_p", "hm_cyc", "hc_cyc"),
+                                                   map(float, theta[0]), strict=True))}
+    lag_tau = 0.0
+    lab_shift = 0.0
+    if effect == "inlet_moisture":
+        moisture_in = inlet_moisture_trajectory(rng_eff, sc.t, config.nominal.moisture_in,
+                                                magnitude)
+    elif effect == "sensor_bias":
+        channel = str(rng_eff.choice(["T_dryer_out", "T_cyclone_out"]))
+        sign = float(rng_eff.choice([-1.0, 1.0]))
+        bias[channel] = sign * magnitude
+        info.update(channel=channel, sign=sign)
+    elif effect == "fouling_drift":
+        frac = sc.t / sc.t[-1]
+        theta[:, 0] *= 1.0 - magnitude * frac
+        theta[:, 2] *= 1.0 - magnitude * frac
+    elif effect == "input_lag":
+        lag_tau = magnitude * 60.0
+    elif effect == "ambient_heat_loss":
+        aux[BETA_AMB] = magnitude / 10.0
+    elif effect == "lab_delay":
+        lab_shift = float(rng_eff.choice([-1.0, 1.0])) * magnitude * 60.0
+        info.update(sign=float(np.sign(lab_shift)))
+
+    hg = config.hot_gas
+
+    def inputs(k: int, T_air: float) -> np.ndarray:
+        return np.array([T_air, sc.m_air[k], sc.m_fiber[k], sc.T_fiber_in[k], sc.m_steam[k],
+                         sc.T_amb[k], sc.H_amb[k], moisture_in[k]])
+
+    # start in steady state, the loop holding the measured outlet temperature at T_sp
+    u0 = inputs(0, config.nominal.T_air_in)
+    state, T_air = _initial_operating_point(model, u0, theta[0], aux,
+                                            sc.T_sp[0] - bias["T_dryer_out"])
+    f0 = fraction_for_temperature(T_air, hg.temperature, hg.humidity, sc.T_amb[0], sc.H_amb[0])
+    pos0 = float(np.clip((f0 - hg.fraction_min) / (hg.fraction_max - hg.fraction_min) * 100.0,
+                         0.0, 100.0))
+    pid = PIController(s.kp, s.ti)
+    pid.bumpless(pos0, sc.T_sp[0], sc.T_sp[0])
+    drive = FlapDrive(s.actuator_tau, s.actuator_rate, pos0)
+    cmd = pos0
+    T_air_sensor = T_air
+    prof = np.empty((5, model.n_state))
+    work = np.empty(4 * model.n_state)
+    y = np.empty(3)
+    true = np.empty((n, 6))  # T_air_in, T_dryer_out, T_cyclone_out, moisture_out, in, cmd
+    meas_air = np.empty(n)
+    for k in range(n):
+        u = inputs(k, T_air)
+        st = kernels.advance_one(state, u, theta[k], aux, geo, dt, prof, work, y)
+        if st != kernels.OK:
+            detail = ", ".join(f"{a}={b:.5g}" for a, b in zip(INPUT_NAMES, u, strict=True))
+            raise SolverError(f"virtual plant: model failed at t={sc.t[k]:.0f} s ({detail})")
+        true[k] = (T_air, y[0], y[1], y[2], moisture_in[k], cmd)
+        if lag_tau > 0:
+            T_air_sensor += (T_air - T_air_sensor) * (1.0 - math.exp(-dt / lag_tau))
+        else:
+            T_air_sensor = T_air
+        meas_air[k] = T_air_sensor
+        measured = y[0] + bias["T_dryer_out"] + rng_noise.normal(0.0, s.noise_temperature)
+        cmd = pid.update(sc.T_sp[k], measured, dt)
+        pos = drive.update(cmd, dt)
+        frac = hg.fraction_min + (hg.fraction_max - hg.fraction_min) * pos / 100.0
+        nxt = min(k + 1, n - 1)
+        T_air = mixed_air(frac, hg.temperature, hg.humidity, sc.T_amb[nxt], sc.H_amb[nxt])[0]
+
+    # scans every scan_period, holding the plant's last control step
+    per = int(round(dt / s.scan_period)) if dt >= s.scan_period else 1
+    n_scan = int(round(hours * 3600.0 / s.scan_period)) + 1
+    ks = np.minimum(np.arange(n_scan) // per, n - 1)
+    t_scan = start_ns + np.round(np.arange(n_scan) * s.scan_period * 1e9).astype(np.int64)
+    rn = rng_noise.standard_normal((n_scan, len(SCAN_SIGNALS)))
+    nt, nf, nh = s.noise_temperature, s.noise_flow, s.noise_humidity
+    scans = pd.DataFrame({
+        "T_air_in": meas_air[ks] + nt * rn[:, 0],
+        "m_air": sc.m_air[ks] * (1 + nf * rn[:, 1]),
+        "m_fiber": sc.m_fiber[ks] * (1 + nf * rn[:, 2]),
+        "T_fiber_in": sc.T_fiber_in[ks] + nt * rn[:, 3],
+        "m_steam": sc.m_steam[ks] * (1 + nf * rn[:, 4]),
+        "T_amb": sc.T_amb[ks] + nt * rn[:, 5],
+        "H_amb": sc.H_amb[ks] * (1 + nh * rn[:, 6]),
+        "flap_cmd": true[ks, 5],
+        "T_sp": sc.T_sp[ks],
+        "T_dryer_out": true[ks, 1] + bias["T_dryer_out"] + nt * rn[:, 9],
+        "T_cyclone_out": true[ks, 2] + bias["T_cyclone_out"] + nt * rn[:, 10],
+    }, index=pd.Index(t_scan, name="log_time_ns"))
+    truth = pd.DataFrame({
+        "moisture_in": true[ks, 4], "moisture_out": true[ks, 3], "T_air_in": true[ks, 0],
+        "T_dryer_out": true[ks, 1], "T_cyclone_out": true[ks, 2],
+        "m_fiber": sc.m_fiber[ks],
+    }, index=scans.index.copy())
+    labs = _lab_samples(rng_lab, s, hours, start_ns, sc.t, true[:, 3], lab_shift, seed)
+    return SimulatedDay(scans=scans, labs=labs, truth=truth, effect=info)
+
+
+def _lab_samples(rng: np.random.Generator, s, hours: float, start_ns: int, t: np.ndarray,
+                 moisture_out: np.ndarray, shift: float, seed: int) -> pd.DataFrame:
+    """Lab schedule: a sample every 2-4 h, reported 20-90 min later with lab noise.
+
+    With the ``lab_delay`` effect the stamped sample time is off by ``shift`` seconds; the
+    report delay is drawn so that the stamped delay stays within 20-90 minutes.
+    """
+    rows = []
+    end = hours * 3600.0
+    ts = rng.uniform(0.5, 2.0) * 3600.0
+    i = 0
+    while True:
+        delay_lo, delay_hi = s.lab_delay_min, s.lab_delay_max
+        delay = rng.uniform(max(delay_lo, delay_lo + shift), max(delay_lo + shift + 60.0,
+                                                                 delay_hi + min(shift, 0.0)))
+        if ts + delay > end:
+            break
+        value = float(np.interp(ts, t, moisture_out)) + rng.normal(0.0, s.noise_lab)
+        rows.append({"log_time_ns": start_ns + int((ts + delay) * 1e9),
+                     "sample_time_ns": start_ns + int((ts + shift) * 1e9),
+                     "moisture_out": max(value, 0.0), "sample_id": f"S{seed}-{i:03d}"})
+        i += 1
+        ts += rng.uniform(s.lab_interval_min, s.lab_interval_max)
+    return pd.DataFrame(rows, columns=["log_time_ns", "sample_time_ns", "moisture_out",
+                                       "sample_id"])
