@@ -1,0 +1,415 @@
+"""The live bus: Zenoh sessions, a JSON publisher and subscriber helpers (CONTRACT section 3).
+
+Keys are ``plant/<unit>/scan``, ``plant/<unit>/lab``, ``softsensor/<unit>/estimate`` and
+``softsensor/<unit>/health`` (:func:`softsensor.signals.zenoh_key`); payloads are the JSON
+bodies of the matching MCAP topics plus ``time_ns``, the event time [ns since epoch, UTC].
+
+Sessions are configured explicitly (:func:`make_config`): peer mode by default, listening on
+``127.0.0.1`` only, multicast scouting off, optional ``connect`` endpoints (e.g. a router).
+Zenoh runs subscriber callbacks on its own threads; :func:`subscribe` decodes there and calls
+the user's callback, :func:`subscribe_queue` hands messages to an asyncio queue with
+``loop.call_soon_threadsafe``. Nothing uses a FIFO channel that could fill up and stall the
+session. Always close sessions (``with open_session(...) as s:``): a session left open keeps
+the process alive.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from typing import Any, NamedTuple
+
+import zenoh
+
+from softsensor.errors import ConfigError, IngestError
+from softsensor.recording.mcap_day import encode_body
+from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN, zenoh_key
+
+log = logging.getLogger(__name__)
+
+#: Zenoh key kinds (CONTRACT section 3) and the MCAP topic each one is recorded under.
+KIND_TOPIC: dict[str, str] = {
+    "scan": TOPIC_SCAN,
+    "lab": TOPIC_LAB,
+    "estimate": TOPIC_ESTIMATE,
+    "health": TOPIC_HEALTH,
+}
+TOPIC_KIND: dict[str, str] = {topic: kind for kind, topic in KIND_TOPIC.items()}
+KINDS: tuple[str, ...] = tuple(KIND_TOPIC)
+
+MODES: tuple[str, ...] = ("peer", "client", "router")
+DEFAULT_HOST = "127.0.0.1"
+
+
+# ----------------------------------------------------------------------------------------------
+# Configuration and sessions
+
+
+def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT_HOST,
+                listen: Sequence[str] | None = None, connect: Sequence[str] = (),
+                multicast_scouting: bool = False, adminspace: bool = True) -> zenoh.Config:
+    """Build a Zenoh 1.x configuration.
+
+    Parameters
+    ----------
+    mode : {"peer", "client", "router"}
+        Session mode. A ``router`` session routes between ``client`` sessions.
+    port : int or None
+        TCP port to listen on at ``host`` (0 = any free port); ``None`` = do not listen.
+        Ignored when ``listen`` is given; a client never listens.
+    host : str
+        Listen address; loopback by default (a peer would otherwise listen on every interface).
+    listen, connect : sequence of str
+        Explicit endpoints such as ``"tcp/127.0.0.1:7447"``.
+    multicast_scouting : bool
+        Off by default: peers find each other through ``connect`` only.
+    adminspace : bool
+        Expose the read-only admin space (used by :func:`listening_endpoints`).
+    """
+    if mode not in MODES:
+        raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if listen is None:
+        if mode == "client" or port is None:
+            listen = []
+        else:
+            if not 0 <= int(port) <= 65535:
+                raise ConfigError(f"bus.port must be in 0..65535, got {port}")
+            listen = [f"tcp/{host}:{int(port)}"]
+    elif mode == "client" and listen:
+        raise ConfigError("bus.listen must be empty in client mode")
+    if mode == "client" and not connect:
+        raise ConfigError("bus.connect must name a router or peer endpoint in client mode")
+    for ep in [*listen, *connect]:
+        if "/" not in ep:
+            raise ConfigError(f"bus endpoint {ep!r} must look like tcp/127.0.0.1:7447")
+    cfg = zenoh.Config()
+    try:
+        cfg.insert_json5("mode", json.dumps(mode))
+        cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
+        cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+        if adminspace:
+            cfg.insert_json5("adminspace/enabled", "true")
+            cfg.insert_json5("adminspace/permissions", '{"read": true, "write": false}')
+    except zenoh.ZError as exc:  # pragma: no cover - keys above are valid for zenoh 1.x
+        raise ConfigError(f"bus config rejected by zenoh: {exc}") from exc
+    return cfg
+
+
+def open_session(config: zenoh.Config | None = None, **kwargs: Any) -> zenoh.Session:
+    """Open a Zenoh session (use it as a context manager so it is always closed).
+
+    Either pass a :class:`zenoh.Config` or the keyword arguments of :func:`make_config`.
+    A session that cannot open (port taken, no router reachable) raises :class:`ConfigError`.
+    """
+    if config is None:
+        config = make_config(**kwargs)
+    elif kwargs:
+        raise TypeError("pass either a zenoh.Config or make_config() keywords, not both")
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"zenoh session could not open: {first}") from exc
+
+
+def free_port(host: str = DEFAULT_HOST) -> int:
+    """A TCP port on ``host`` that was free a moment ago (for tests and ad-hoc routers)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def listening_endpoints(session: zenoh.Session, timeout: float = 2.0) -> list[str]:
+    """Endpoints the session listens on (e.g. to learn the port chosen for ``port=0``).
+
+    Needs the admin space (``make_config(adminspace=True)``, the default).
+    """
+    zid = str(session.zid())
+    for reply in session.get(f"@/{zid}/*", timeout=timeout):
+        ok = reply.ok
+        if ok is None or str(ok.key_expr).count("/") != 2:
+            continue
+        try:
+            info = json.loads(ok.payload.to_bytes())
+        except ValueError:
+            continue
+        if isinstance(info, dict) and "locators" in info:
+            return [str(loc) for loc in info["locators"]]
+    return []
+
+
+def wait_for_peers(session: zenoh.Session, n: int = 1, timeout: float = 5.0,
+                   *, routers: bool = False) -> bool:
+    """Wait up to ``timeout`` [s] until ``n`` peers (or routers) are connected; True if so."""
+    deadline = time.monotonic() + timeout
+    while True:
+        found = session.info.routers_zid() if routers else session.info.peers_zid()
+        if len(found) >= n:
+            return True
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(0.01)
+
+
+# ----------------------------------------------------------------------------------------------
+# Payloads (pure)
+
+
+def encode_payload(body: dict[str, Any], time_ns: int) -> bytes:
+    """JSON payload of a bus message: ``body`` plus ``time_ns`` [ns since epoch]; NaN -> null."""
+    return encode_body({**body, "time_ns": int(time_ns)})
+
+
+def decode_payload(data: bytes, key: str = "payload") -> dict[str, Any]:
+    """Decode a bus payload into a dict; :class:`IngestError` naming ``key`` if it is not one."""
+    try:
+        body = json.loads(data)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise IngestError(f"{key}: payload is not valid JSON") from exc
+    if not isinstance(body, dict):
+        raise IngestError(f"{key}: payload is a JSON {type(body).__name__}, not an object")
+    return body
+
+
+def kind_of_key(key: str, unit: str = "dryer1") -> str:
+    """Key kind (scan/lab/estimate/health) of a CONTRACT key; :class:`IngestError` otherwise."""
+    for kind in KINDS:
+        if key == zenoh_key(kind, unit):
+            return kind
+    raise IngestError(f"{key}: not a softsensor key of unit {unit!r}")
+
+
+class BusMessage(NamedTuple):
+    """A decoded bus message. ``time_ns`` is the body's event time [ns] (None if absent)."""
+
+    kind: str
+    key: str
+    body: dict[str, Any]
+    time_ns: int | None
+
+    @property
+    def topic(self) -> str:
+        """MCAP topic this message is recorded under."""
+        return KIND_TOPIC[self.kind]
+
+
+def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
+    """Decode a sample's key and payload (pure; :class:`IngestError` if malformed)."""
+    kind = kind_of_key(key, unit)
+    body = decode_payload(data, key)
+    t = body.get("time_ns")
+    if t is not None and (not isinstance(t, int) or isinstance(t, bool)):
+        raise IngestError(f"{key}: time_ns must be an integer, got {t!r}")
+    return BusMessage(kind, key, body, t)
+
+
+# ----------------------------------------------------------------------------------------------
+# Publishing
+
+
+class Publisher:
+    """Publishes JSON bodies on the CONTRACT keys of one unit.
+
+    ``put(kind, body, time_ns)`` adds ``time_ns`` (the event time [ns since epoch]; the wall
+    clock when omitted) and sends the body on ``zenoh_key(kind, unit)``. Close it (or use it as
+    a context manager) to undeclare its Zenoh publishers; the session stays open.
+    """
+
+    def __init__(self, session: zenoh.Session, unit: str = "dryer1",
+                 clock: Callable[[], int] = time.time_ns) -> None:
+        self.session = session
+        self.unit = unit
+        self._clock = clock
+        self._pubs: dict[str, zenoh.Publisher] = {}
+        self.n_published = 0
+
+    def _pub(self, kind: str) -> zenoh.Publisher:
+        pub = self._pubs.get(kind)
+        if pub is None:
+            key = zenoh_key(kind, self.unit)
+            pub = self.session.declare_publisher(
+                key, encoding=zenoh.Encoding.APPLICATION_JSON,
+                congestion_control=zenoh.CongestionControl.BLOCK)
+            self._pubs[kind] = pub
+        return pub
+
+    def declare(self, kinds: Iterable[str] = KINDS) -> None:
+        """Declare the publishers of ``kinds`` now (so subscribers can be matched early)."""
+        for kind in kinds:
+            self._pub(kind)
+
+    def put(self, kind: str, body: dict[str, Any], time_ns: int | None = None) -> None:
+        """Publish ``body`` on the key of ``kind``, with ``time_ns`` [ns since epoch]."""
+        t = self._clock() if time_ns is None else int(time_ns)
+        self._pub(kind).put(encode_payload(body, t))
+        self.n_published += 1
+
+    def matched(self, kind: str) -> bool:
+        """True when some subscriber matches the key of ``kind``."""
+        return bool(self._pub(kind).matching_status)
+
+    def wait_matched(self, kinds: Iterable[str] = KINDS, timeout: float = 5.0,
+                     settle: float = 0.1) -> bool:
+        """Wait up to ``timeout`` [s] until every key of ``kinds`` has a subscriber.
+
+        Zenoh 1.10 reports a match slightly before the route carries data (a put at once is
+        lost about every other time on loopback), so this sleeps ``settle`` [s] after the match.
+        """
+        kinds = list(kinds)
+        deadline = time.monotonic() + timeout
+        while not all(self.matched(k) for k in kinds):
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        time.sleep(settle)
+        return True
+
+    def close(self) -> None:
+        """Undeclare the Zenoh publishers (idempotent)."""
+        pubs, self._pubs = self._pubs, {}
+        for pub in pubs.values():
+            try:
+                pub.undeclare()
+            except zenoh.ZError:  # session already closed
+                pass
+
+    def __enter__(self) -> Publisher:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# ----------------------------------------------------------------------------------------------
+# Subscribing
+
+
+class Subscription:
+    """Zenoh subscribers of one or more keys; :meth:`close` undeclares them all.
+
+    ``n_received`` counts decoded messages, ``n_errors`` malformed payloads and callback
+    failures (each also logged, and passed to ``on_error`` when given).
+    """
+
+    def __init__(self) -> None:
+        self._subs: list[zenoh.Subscriber[None]] = []
+        self._lock = threading.Lock()
+        self.n_received = 0
+        self.n_errors = 0
+
+    def _count(self, ok: bool) -> None:
+        with self._lock:
+            if ok:
+                self.n_received += 1
+            else:
+                self.n_errors += 1
+
+    def close(self) -> None:
+        """Undeclare every subscriber (idempotent)."""
+        subs, self._subs = self._subs, []
+        for sub in subs:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:  # session already closed
+                pass
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def subscribe(session: zenoh.Session, callback: Callable[[BusMessage], None], *,
+              unit: str = "dryer1", kinds: Iterable[str] = KINDS,
+              on_error: Callable[[str, str], None] | None = None) -> Subscription:
+    """Deliver decoded messages of ``kinds`` to ``callback`` (called on a Zenoh thread).
+
+    A malformed payload or an exception in ``callback`` is logged, counted and passed to
+    ``on_error(key, message)``; it never reaches Zenoh.
+    """
+    subscription = Subscription()
+
+    def _error(key: str, msg: str) -> None:
+        subscription._count(False)
+        log.warning("%s", msg if msg.startswith(key) else f"{key}: {msg}")
+        if on_error is not None:
+            try:
+                on_error(key, msg)
+            except Exception:  # noqa: BLE001 - must not escape into zenoh's thread
+                log.exception("on_error callback failed")
+
+    def _on_sample(sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            message = to_message(key, sample.payload.to_bytes(), unit)
+        except IngestError as exc:
+            _error(key, str(exc))
+            return
+        try:
+            callback(message)
+        except Exception as exc:  # noqa: BLE001 - must not escape into zenoh's thread
+            _error(key, f"callback failed: {type(exc).__name__}: {exc}")
+            return
+        subscription._count(True)
+
+    for kind in kinds:
+        key = zenoh_key(kind, unit)
+        subscription._subs.append(session.declare_subscriber(key, _on_sample))
+    return subscription
+
+
+def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
+                    queue: asyncio.Queue[BusMessage], *, unit: str = "dryer1",
+                    kinds: Iterable[str] = KINDS,
+                    on_error: Callable[[str, str], None] | None = None) -> Subscription:
+    """Put decoded messages of ``kinds`` into an asyncio ``queue`` running on ``loop``.
+
+    The hand-off uses ``loop.call_soon_threadsafe``; when a bounded queue is full the message
+    is dropped and counted as an error (Zenoh's thread never blocks on the event loop).
+    """
+    holder: list[Subscription] = []
+
+    def _put(message: BusMessage) -> None:
+        try:
+            queue.put_nowait(message)
+        except asyncio.QueueFull:
+            if holder:
+                holder[0]._count(False)
+            log.warning("%s: asyncio queue full, message dropped", message.key)
+
+    def _callback(message: BusMessage) -> None:
+        if loop.is_closed():
+            raise RuntimeError("event loop is closed")
+        loop.call_soon_threadsafe(_put, message)
+
+    sub = subscribe(session, _callback, unit=unit, kinds=kinds, on_error=on_error)
+    holder.append(sub)
+    return sub
+
+
+__all__ = [
+    "KINDS",
+    "KIND_TOPIC",
+    "TOPIC_KIND",
+    "BusMessage",
+    "Publisher",
+    "Subscription",
+    "decode_payload",
+    "encode_payload",
+    "free_port",
+    "kind_of_key",
+    "listening_endpoints",
+    "make_config",
+    "open_session",
+    "subscribe",
+    "subscribe_queue",
+    "to_message",
+    "wait_for_peers",
+]
