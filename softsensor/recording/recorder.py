@@ -1,0 +1,322 @@
+"""Record everything into MCAP files rotated daily by UTC date.
+
+:class:`Recorder` takes ``(topic, log_time_ns, body)`` from any thread and writes it to
+``<dir>/<unit>-YYYYMMDD.mcap`` for the UTC date of ``log_time_ns`` (``-01``, ``-02``, ... are
+appended when a file of that name exists, so a restart never overwrites a day). Chunks are
+small, zstd compressed and handed to the OS as soon as they are full or ``flush_interval_s``
+after the first message of the chunk, so a recorder killed outright loses at most that much;
+the file then reads with ``read_day(..., allow_truncated=True)``. :meth:`Recorder.close`
+finishes every file (summary, footer), after which it reads normally.
+
+A day's file is kept open until the newest message is ``grace_s`` past its midnight, so a
+message logged a little late still lands in its own day; later stragglers go into the newest
+file (readers sort by log time).
+
+:class:`BusRecorder` subscribes to the four CONTRACT keys of a unit and records each message
+under its MCAP topic (``plant/<unit>/scan`` -> ``/plant/scan``, ...) with ``time_ns`` as the
+log time. ``python -m softsensor.recording.recorder --dir D --connect tcp/127.0.0.1:7447`` runs
+one until SIGTERM or SIGINT, then closes its files cleanly.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterable, Sequence
+from datetime import date, timedelta
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
+from softsensor.errors import SoftsensorError
+from softsensor.recording.mcap_day import DayWriter
+
+log = logging.getLogger(__name__)
+
+NS_PER_DAY = 86_400 * 10**9
+#: Default uncompressed chunk size of recorded files [bytes].
+RECORDER_CHUNK_SIZE = 16 * 1024
+
+
+def utc_date(time_ns: int) -> date:
+    """UTC calendar date of a time in ns since the epoch."""
+    return date(1970, 1, 1) + timedelta(days=time_ns // NS_PER_DAY)
+
+
+def day_file_name(unit: str, day: date, n: int = 0) -> str:
+    """``<unit>-YYYYMMDD.mcap``, or ``<unit>-YYYYMMDD-NN.mcap`` for the n-th file of a day."""
+    stem = f"{unit}-{day:%Y%m%d}"
+    return f"{stem}.mcap" if n == 0 else f"{stem}-{n:02d}.mcap"
+
+
+def _midnight_ns(day: date) -> int:
+    return (day - date(1970, 1, 1)).days * NS_PER_DAY
+
+
+class Recorder:
+    """Thread-safe MCAP recorder with daily rotation by UTC date.
+
+    Parameters
+    ----------
+    directory : str or Path
+        Folder of the day files (created if missing).
+    unit : str
+        Unit name, the prefix of the file names.
+    chunk_size : int
+        Uncompressed chunk size [bytes]; a full chunk is written at once.
+    flush_interval_s : float
+        Longest time a message waits in an open chunk before it is written [s, wall clock].
+        Checked on every write and by :meth:`tick`.
+    grace_s : float
+        How long past midnight (in log time) the previous day's file stays open [s].
+    clock : callable
+        Monotonic clock [s] for the flush interval.
+    """
+
+    def __init__(self, directory: str | os.PathLike[str], unit: str = "dryer1", *,
+                 chunk_size: int = RECORDER_CHUNK_SIZE, flush_interval_s: float = 30.0,
+                 grace_s: float = 600.0, clock: Callable[[], float] = time.monotonic) -> None:
+        self.directory = Path(directory)
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SoftsensorError(f"{self.directory}: cannot create recording folder: "
+                                  f"{exc.strerror}") from exc
+        self.unit = unit
+        self.chunk_size = chunk_size
+        self.flush_interval_s = flush_interval_s
+        self.grace_ns = int(grace_s * 1e9)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._writers: dict[date, DayWriter] = {}
+        self._dirty_since: dict[date, float] = {}
+        self._newest_ns: int | None = None
+        self._closed = False
+        self.paths: list[Path] = []
+        self.n_written = 0
+
+    # -- files
+
+    def _new_path(self, day: date) -> Path:
+        n = 0
+        while (self.directory / day_file_name(self.unit, day, n)).exists():
+            n += 1
+        return self.directory / day_file_name(self.unit, day, n)
+
+    def _writer_for(self, day: date) -> tuple[date, DayWriter]:
+        writer = self._writers.get(day)
+        if writer is not None:
+            return day, writer
+        newest = max(self._writers, default=None)
+        if newest is not None and day < newest:
+            # a straggler for a day already closed: keep it in the newest file
+            log.warning("late message for %s recorded in %s", day, self._writers[newest].path)
+            return newest, self._writers[newest]
+        path = self._new_path(day)
+        writer = DayWriter(path, chunk_size=self.chunk_size)
+        log.info("recording to %s", path)
+        self._writers[day] = writer
+        self.paths.append(path)
+        return day, writer
+
+    def _close_old_days(self) -> None:
+        assert self._newest_ns is not None
+        for day in sorted(self._writers):
+            if self._newest_ns >= _midnight_ns(day) + NS_PER_DAY + self.grace_ns:
+                if day == max(self._writers):
+                    break  # never close the newest file: stragglers need a home
+                self._writers.pop(day).close()
+                self._dirty_since.pop(day, None)
+
+    # -- public API
+
+    def write(self, topic: str, log_time_ns: int, body: dict[str, Any]) -> None:
+        """Record one message; ``log_time_ns`` [ns since epoch, UTC] selects the day file."""
+        t = int(log_time_ns)
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"{self.directory}: recorder is closed")
+            self._newest_ns = t if self._newest_ns is None else max(self._newest_ns, t)
+            day, writer = self._writer_for(utc_date(t))
+            writer.write(topic, t, body)
+            self.n_written += 1
+            self._dirty_since.setdefault(day, self._clock())
+            if len(self._writers) > 1:
+                self._close_old_days()
+            self._flush_due()
+
+    def _flush_due(self) -> None:
+        now = self._clock()
+        for day, since in list(self._dirty_since.items()):
+            if now - since >= self.flush_interval_s:
+                self._writers[day].flush()
+                del self._dirty_since[day]
+
+    def tick(self) -> None:
+        """Write out chunks older than ``flush_interval_s`` (call it periodically when idle)."""
+        with self._lock:
+            if not self._closed:
+                self._flush_due()
+
+    def flush(self) -> None:
+        """Write out every open chunk now."""
+        with self._lock:
+            if self._closed:
+                return
+            for writer in self._writers.values():
+                writer.flush()
+            self._dirty_since.clear()
+
+    def close(self) -> None:
+        """Finish and close every open file (idempotent)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            writers, self._writers = self._writers, {}
+            self._dirty_since.clear()
+        errors = []
+        for writer in writers.values():
+            try:
+                writer.close()
+            except OSError as exc:  # keep closing the others
+                errors.append(f"{writer.path}: {exc}")
+        if errors:
+            raise SoftsensorError("could not close " + "; ".join(errors))
+
+    @property
+    def open_paths(self) -> list[Path]:
+        """Files currently open for writing."""
+        with self._lock:
+            return [w.path for _, w in sorted(self._writers.items())]
+
+    def __enter__(self) -> Recorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class BusRecorder:
+    """Records the CONTRACT keys of ``unit`` from a Zenoh session into a :class:`Recorder`.
+
+    Each message is written under its MCAP topic with its ``time_ns`` as the log time (the
+    receive time when absent), ``time_ns`` itself removed from the body. A background thread
+    calls :meth:`Recorder.tick` every ``tick_s`` seconds so idle chunks are written too.
+    :meth:`close` undeclares the subscribers and stops the thread; it does not close the
+    recorder or the session.
+    """
+
+    def __init__(self, session: zenoh.Session, recorder: Recorder, *, unit: str = "dryer1",
+                 kinds: Iterable[str] = KINDS, tick_s: float = 1.0) -> None:
+        self.recorder = recorder
+        self._stop = threading.Event()
+        self.subscription = subscribe(session, self._on_message, unit=unit, kinds=kinds)
+        self._ticker = threading.Thread(target=self._tick_loop, args=(tick_s,),
+                                        name="recorder-tick", daemon=True)
+        self._ticker.start()
+
+    def _on_message(self, message: BusMessage) -> None:
+        body = dict(message.body)
+        body.pop("time_ns", None)
+        t = message.time_ns if message.time_ns is not None else time.time_ns()
+        self.recorder.write(message.topic, t, body)
+
+    def _tick_loop(self, tick_s: float) -> None:
+        while not self._stop.wait(tick_s):
+            try:
+                self.recorder.tick()
+            except Exception:  # noqa: BLE001 - keep the ticker alive, report it
+                log.exception("recorder tick failed")
+
+    @property
+    def n_received(self) -> int:
+        return self.subscription.n_received
+
+    def close(self) -> None:
+        """Stop recording (idempotent)."""
+        self.subscription.close()
+        self._stop.set()
+        self._ticker.join(timeout=5.0)
+
+    def __enter__(self) -> BusRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def stop_on_signals(stop: threading.Event,
+                    signums: Sequence[int] = (signal.SIGTERM, signal.SIGINT)) -> None:
+    """Make ``signums`` set ``stop`` (main thread only); the main loop then shuts down."""
+    def _handler(signum: int, _frame: object) -> None:
+        log.info("signal %d: stopping", signum)
+        stop.set()
+
+    for signum in signums:
+        signal.signal(signum, _handler)
+
+
+def run(directory: str | os.PathLike[str], *, unit: str = "dryer1",
+        connect: Sequence[str] = (), port: int | None = None, mode: str = "peer",
+        stop: threading.Event | None = None, chunk_size: int = RECORDER_CHUNK_SIZE,
+        flush_interval_s: float = 30.0, ready: Callable[[], None] | None = None) -> int:
+    """Record the bus into ``directory`` until ``stop`` is set; return messages written."""
+    stop = stop or threading.Event()
+    with open_session(mode=mode, port=port, connect=connect) as session, \
+            Recorder(directory, unit, chunk_size=chunk_size,
+                     flush_interval_s=flush_interval_s) as recorder, \
+            BusRecorder(session, recorder, unit=unit):
+        if ready is not None:
+            ready()
+        while not stop.wait(0.2):
+            pass
+        return recorder.n_written
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m softsensor.recording.recorder``: record a unit's keys until SIGTERM/SIGINT."""
+    p = argparse.ArgumentParser(prog="softsensor-recorder", description=main.__doc__)
+    p.add_argument("--dir", required=True, help="folder of the day files")
+    p.add_argument("--unit", default="dryer1")
+    p.add_argument("--connect", action="append", default=[], help="endpoint, repeatable")
+    p.add_argument("--port", type=int, default=None, help="listen on 127.0.0.1:PORT")
+    p.add_argument("--mode", default="peer", choices=("peer", "client"))
+    p.add_argument("--chunk-size", type=int, default=RECORDER_CHUNK_SIZE)
+    p.add_argument("--flush-interval", type=float, default=30.0, help="[s]")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    stop = threading.Event()
+    stop_on_signals(stop)
+    try:
+        n = run(args.dir, unit=args.unit, connect=args.connect, port=args.port, mode=args.mode,
+                stop=stop, chunk_size=args.chunk_size, flush_interval_s=args.flush_interval,
+                ready=lambda: print("recording", flush=True))
+    except SoftsensorError as exc:
+        print(f"softsensor: {exc}", file=sys.stderr)
+        return 2
+    print(f"recorded {n} messages", flush=True)
+    return 0
+
+
+__all__ = [
+    "RECORDER_CHUNK_SIZE",
+    "BusRecorder",
+    "Recorder",
+    "day_file_name",
+    "main",
+    "run",
+    "stop_on_signals",
+    "utc_date",
+]
+
+
+if __name__ == "__main__":
+    sys.exit(main())
