@@ -63,6 +63,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
 
 #: Verbs provided by other packages: (module, function adding the sub-parser).
 _PLUGGED: tuple[tuple[str, str], ...] = (
+    ("softsensor.plant.commands", "add_commands"),
     ("softsensor.calibration.commands", "add_commands"),
     ("softsensor.service.commands", "add_commands"),
     ("softsensor.diagnosis.commands", "add_commands"),

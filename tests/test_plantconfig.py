@@ -94,3 +94,9 @@ def test_parameter_file_overrides_values_within_bounds(tmp_path):
     unknown = _write(tmp_path, "[parameters.mult_X]\nvalue = 1.0\n", "unknown.toml")
     with pytest.raises(ConfigError, match="mult_X is not one of the paper's Table 1"):
         load_parameters(unknown, cfg)
+
+
+def test_packaged_tagmap_is_the_repository_tagmap():
+    from softsensor.ingest.tagmap import DEFAULT_TAGMAP
+
+    assert DEFAULT_TAGMAP.read_text() == (ROOT / "config" / "tagmap_dryer1.toml").read_text()
