@@ -1,0 +1,520 @@
+"""Laboratory results: from the bus and from files dropped in a watched folder.
+
+Two ways in, one check:
+
+* a JSON body on ``plant/<unit>/lab``: ``{"sample_time_ns": int, "moisture_out": float,
+  "sample_id": str}`` (plus ``time_ns``, the time the result became available);
+* a file dropped in a folder: CSV with the header ``sample_time,moisture_out,sample_id``
+  (``sample_time`` ISO-8601, naive = UTC, or ns since the epoch) or JSON (one object or a list
+  of objects with ``sample_time`` or ``sample_time_ns``).
+
+Every entry becomes a :class:`~softsensor.estimation.base.LabResult` (``moisture_out`` in kg/kg
+dry basis) or is refused with a one-line reason: a missing or malformed field, a non-finite
+value, a moisture outside 0..2 kg/kg, a sample time before 2000 (seconds given for ns?) or in
+the future. :class:`LabInput` ignores (and logs) a ``sample_id`` it has seen before.
+
+:class:`LabFolderWatcher` polls the folder (no extra dependency). A file whose entries are all
+usable goes to ``processed/``; a file that cannot be read at all goes to ``rejected/`` with
+``<name>.reason.txt``; a file with some bad entries is processed for the good ones and its bad
+entries are written to ``rejected/`` (same name) with a reason file listing each one, so
+nothing is lost silently. Files still being written (changed within ``settle_s``) wait for the
+next poll.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import logging
+import math
+import os
+import shutil
+import threading
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from softsensor.errors import IngestError
+from softsensor.estimation.base import LabResult
+
+log = logging.getLogger(__name__)
+
+#: Plausible range of a lab moisture result [kg/kg dry basis].
+MOISTURE_RANGE: tuple[float, float] = (0.0, 2.0)
+#: Sample times before this are refused (likely seconds or ms given as ns) [ns since epoch].
+EARLIEST_SAMPLE_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z
+#: How far a sample time may lie after the time its result arrived (clock skew) [ns].
+FUTURE_TOLERANCE_NS = 3600 * 10**9
+CSV_COLUMNS: tuple[str, ...] = ("sample_time", "moisture_out", "sample_id")
+SUFFIXES: tuple[str, ...] = (".csv", ".json")
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+
+# ----------------------------------------------------------------------------------------------
+# Parsing (pure)
+
+
+def parse_sample_time(value: Any, where: str = "lab") -> int:
+    """A sample time [ns since epoch, UTC] from ns (int or digits) or ISO-8601 (naive = UTC)."""
+    if isinstance(value, bool) or value is None:
+        raise IngestError(f"{where}: sample_time {value!r} is not a time")
+    if isinstance(value, float):
+        if not value.is_integer():
+            raise IngestError(f"{where}: sample_time {value!r} is not an integer of ns")
+        value = int(value)
+    if isinstance(value, int):
+        return value
+    if not isinstance(value, str):
+        raise IngestError(f"{where}: sample_time {value!r} is not a time")
+    text = value.strip()
+    if text.lstrip("-").isdigit():
+        return int(text)
+    try:
+        dt = datetime.fromisoformat(text)
+    except ValueError as exc:
+        raise IngestError(
+            f"{where}: sample_time {text!r} is neither ISO-8601 nor ns since the epoch") from exc
+    if dt.tzinfo is None:
+        dt = dt.replace(tzinfo=UTC)
+    delta = dt - _EPOCH
+    return (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+
+
+def _moisture(value: Any, where: str) -> float:
+    raw = value
+    if isinstance(value, bool) or value is None:
+        raise IngestError(f"{where}: moisture_out {value!r} is not a number")
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError as exc:
+            raise IngestError(f"{where}: moisture_out {value!r} is not a number") from exc
+    if not isinstance(value, (int, float)):
+        raise IngestError(f"{where}: moisture_out {value!r} is not a number")
+    x = float(value)
+    if not math.isfinite(x):
+        raise IngestError(f"{where}: moisture_out {raw!r} is not finite")
+    lo, hi = MOISTURE_RANGE
+    if not lo <= x <= hi:
+        raise IngestError(f"{where}: moisture_out {x:g} kg/kg is outside the plausible range "
+                          f"{lo:g}..{hi:g}")
+    return x
+
+
+def _sample_id(value: Any, where: str) -> str:
+    if isinstance(value, bool) or not isinstance(value, (str, int)):
+        raise IngestError(f"{where}: sample_id {value!r} is not a string")
+    text = str(value).strip()
+    if not text:
+        raise IngestError(f"{where}: sample_id is empty")
+    return text
+
+
+def make_lab_result(sample_time: Any, moisture_out: Any, sample_id: Any, *,
+                    log_time_ns: int | None = None, where: str = "lab") -> LabResult:
+    """Validate one entry into a :class:`LabResult`; :class:`IngestError` with the reason.
+
+    ``log_time_ns`` is when the result became available [ns since epoch]; a sample time more
+    than :data:`FUTURE_TOLERANCE_NS` after it is refused.
+    """
+    st = parse_sample_time(sample_time, where)
+    if st < EARLIEST_SAMPLE_NS:
+        raise IngestError(f"{where}: sample_time {st} ns is before 2000 "
+                          "(seconds or ms given instead of ns?)")
+    if log_time_ns is not None and st > log_time_ns + FUTURE_TOLERANCE_NS:
+        raise IngestError(f"{where}: sample_time {st} ns is after the result arrived "
+                          f"({log_time_ns} ns)")
+    return LabResult(sample_time_ns=st, moisture_out=_moisture(moisture_out, where),
+                     sample_id=_sample_id(sample_id, where), log_time_ns=log_time_ns)
+
+
+def lab_from_body(body: dict[str, Any], log_time_ns: int | None = None,
+                  where: str = "lab") -> LabResult:
+    """A :class:`LabResult` from a JSON object (bus body or file entry).
+
+    The sample time is ``sample_time_ns`` or ``sample_time``; ``log_time_ns`` defaults to the
+    body's ``time_ns`` when present.
+    """
+    if not isinstance(body, dict):
+        raise IngestError(f"{where}: lab entry is a JSON {type(body).__name__}, not an object")
+    missing = [k for k in ("moisture_out", "sample_id") if k not in body]
+    if "sample_time_ns" not in body and "sample_time" not in body:
+        missing.insert(0, "sample_time_ns")
+    if missing:
+        raise IngestError(f"{where}: lab entry lacks {', '.join(missing)}")
+    st = body["sample_time_ns"] if "sample_time_ns" in body else body["sample_time"]
+    if log_time_ns is None and isinstance(body.get("time_ns"), int):
+        log_time_ns = body["time_ns"]
+    return make_lab_result(st, body["moisture_out"], body["sample_id"],
+                           log_time_ns=log_time_ns, where=where)
+
+
+def lab_body(lab: LabResult) -> dict[str, Any]:
+    """The ``/plant/lab`` body (CONTRACT section 2) of a lab result."""
+    return {"sample_time_ns": lab.sample_time_ns, "moisture_out": lab.moisture_out,
+            "sample_id": lab.sample_id}
+
+
+@dataclass
+class ParsedFile:
+    """Entries of one lab file: the good ones, and the bad ones with their reasons."""
+
+    results: list[LabResult] = field(default_factory=list)
+    bad: list[tuple[Any, str]] = field(default_factory=list)  # (raw entry, reason)
+
+
+def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
+                  where: str = "lab.csv") -> ParsedFile:
+    """Parse a CSV lab file; :class:`IngestError` if the file as a whole is unusable."""
+    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
+    rows: list[list[str]] = []
+    lines: list[int] = []
+    try:
+        for row in reader:
+            if any(c.strip() for c in row):
+                rows.append(row)
+                lines.append(reader.line_num)
+    except csv.Error as exc:
+        raise IngestError(f"{where} line {reader.line_num}: not CSV ({exc})") from exc
+    if not rows:
+        raise IngestError(f"{where}: empty file")
+    header = [c.strip() for c in rows[0]]
+    cols = {name: i for i, name in enumerate(header)}
+    if "sample_time" not in cols and "sample_time_ns" in cols:
+        cols["sample_time"] = cols["sample_time_ns"]
+    missing = [c for c in CSV_COLUMNS if c not in cols]
+    if missing:
+        raise IngestError(f"{where}: header {','.join(header)!r} lacks {', '.join(missing)} "
+                          f"(expected {','.join(CSV_COLUMNS)})")
+    if len(rows) == 1:
+        raise IngestError(f"{where}: no lab results after the header")
+    out = ParsedFile()
+    for n, row in zip(lines[1:], rows[1:], strict=True):
+        at = f"{where} line {n}"
+        if len(row) != len(header):
+            out.bad.append((row, f"{at}: {len(row)} fields, header has {len(header)}"))
+            continue
+        try:
+            out.results.append(make_lab_result(
+                row[cols["sample_time"]], row[cols["moisture_out"]], row[cols["sample_id"]],
+                log_time_ns=log_time_ns, where=at))
+        except IngestError as exc:
+            out.bad.append((row, str(exc)))
+    return out
+
+
+def parse_lab_json(text: str, *, log_time_ns: int | None = None,
+                   where: str = "lab.json") -> ParsedFile:
+    """Parse a JSON lab file (one object or a list); :class:`IngestError` if unusable."""
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise IngestError(f"{where}: not valid JSON ({exc.args[0] if exc.args else exc})"
+                          ) from exc
+    entries = data if isinstance(data, list) else [data]
+    if not entries:
+        raise IngestError(f"{where}: empty list of lab results")
+    if not isinstance(data, list) and not isinstance(data, dict):
+        raise IngestError(f"{where}: a JSON {type(data).__name__}, not an object or a list")
+    out = ParsedFile()
+    for n, entry in enumerate(entries):
+        at = f"{where} entry {n}" if isinstance(data, list) else where
+        try:
+            out.results.append(lab_from_body(entry, log_time_ns, where=at))
+        except IngestError as exc:
+            out.bad.append((entry, str(exc)))
+    return out
+
+
+def parse_lab_file(path: str | os.PathLike[str], *,
+                   log_time_ns: int | None = None) -> ParsedFile:
+    """Parse a ``.csv`` or ``.json`` lab file; :class:`IngestError` naming the file if unusable."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix not in SUFFIXES:
+        raise IngestError(f"{p.name}: unsupported file type {suffix or '(none)'!r} "
+                          "(expected .csv or .json)")
+    try:
+        text = p.read_bytes().decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise IngestError(f"{p.name}: not UTF-8 text") from exc
+    except OSError as exc:
+        raise IngestError(f"{p.name}: cannot read: {exc.strerror}") from exc
+    parse = parse_lab_csv if suffix == ".csv" else parse_lab_json
+    return parse(text, log_time_ns=log_time_ns, where=p.name)
+
+
+# ----------------------------------------------------------------------------------------------
+# Deduplication and delivery
+
+
+class LabInput:
+    """Checks lab results from any source and hands each new one to ``sink`` once.
+
+    ``submit`` returns ``None`` when the result was delivered, else the reason it was not
+    (a duplicate ``sample_id``). Thread-safe: the bus and the folder watcher may share one.
+    """
+
+    def __init__(self, sink: Callable[[LabResult], None], *,
+                 known_ids: Iterable[str] = (), clock: Callable[[], int] = time.time_ns) -> None:
+        self._sink = sink
+        self._seen: set[str] = set(known_ids)
+        self._lock = threading.Lock()
+        self.clock = clock
+        self.n_accepted = 0
+        self.n_duplicates = 0
+        self.n_rejected = 0
+
+    def seen(self, sample_id: str) -> bool:
+        """True when a result with this ``sample_id`` was delivered (or was known at start)."""
+        with self._lock:
+            return sample_id in self._seen
+
+    def submit(self, lab: LabResult) -> str | None:
+        """Deliver ``lab`` unless its ``sample_id`` was seen; return the reason if not."""
+        with self._lock:
+            if lab.sample_id in self._seen:
+                self.n_duplicates += 1
+                reason = f"duplicate sample_id {lab.sample_id!r} ignored"
+                log.info("lab %s", reason)
+                return reason
+            self._seen.add(lab.sample_id)
+            self.n_accepted += 1
+        try:
+            self._sink(lab)
+        except BaseException:
+            with self._lock:  # not delivered: let a retry through
+                self._seen.discard(lab.sample_id)
+                self.n_accepted -= 1
+            raise
+        return None
+
+    def from_body(self, body: dict[str, Any], log_time_ns: int | None = None,
+                  where: str = "plant/dryer1/lab") -> str | None:
+        """Check and submit a bus body; return ``None`` if delivered, else the reason."""
+        try:
+            lab = lab_from_body(body, log_time_ns, where)
+        except IngestError as exc:
+            with self._lock:
+                self.n_rejected += 1
+            log.warning("%s", exc)
+            return str(exc)
+        if lab.log_time_ns is None:
+            lab = LabResult(lab.sample_time_ns, lab.moisture_out, lab.sample_id, self.clock())
+        return self.submit(lab)
+
+
+# ----------------------------------------------------------------------------------------------
+# Folder watcher
+
+
+@dataclass
+class PollReport:
+    """What one poll of the folder did."""
+
+    accepted: list[LabResult] = field(default_factory=list)
+    duplicates: list[str] = field(default_factory=list)
+    processed: list[Path] = field(default_factory=list)
+    rejected: list[Path] = field(default_factory=list)
+    reasons: list[str] = field(default_factory=list)
+    waiting: list[Path] = field(default_factory=list)
+
+
+def _unique(dest: Path) -> Path:
+    if not dest.exists():
+        return dest
+    for n in range(1, 10_000):
+        cand = dest.with_name(f"{dest.stem}.{n}{dest.suffix}")
+        if not cand.exists():
+            return cand
+    raise IngestError(f"{dest}: too many files of that name")
+
+
+def _dump_bad_entries(suffix: str, bad: list[tuple[Any, str]], header: list[str] | None) -> str:
+    if suffix == ".csv":
+        buf = io.StringIO()
+        w = csv.writer(buf, lineterminator="\n")
+        if header:
+            w.writerow(header)
+        for row, _ in bad:
+            w.writerow(row)
+        return buf.getvalue()
+    return json.dumps([entry for entry, _ in bad], indent=1, default=str) + "\n"
+
+
+class LabFolderWatcher:
+    """Polls ``folder`` for lab files and feeds their entries to a :class:`LabInput`.
+
+    Parameters
+    ----------
+    folder : str or Path
+        Watched folder; ``processed/`` and ``rejected/`` are created inside it.
+    lab_input : LabInput
+        Where accepted entries go (with ``log_time_ns`` = the time the file was taken).
+    poll_s : float
+        Poll period of :meth:`run` / :meth:`start` [s].
+    settle_s : float
+        A file modified less than this long ago, or whose size changed since the last poll,
+        is left for the next poll (it may still be being written) [s].
+    """
+
+    def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
+                 poll_s: float = 2.0, settle_s: float = 1.0) -> None:
+        self.folder = Path(folder)
+        self.processed_dir = self.folder / "processed"
+        self.rejected_dir = self.folder / "rejected"
+        for d in (self.processed_dir, self.rejected_dir):
+            try:
+                d.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise IngestError(f"{d}: cannot create folder: {exc.strerror}") from exc
+        self.lab_input = lab_input
+        self.poll_s = poll_s
+        self.settle_s = settle_s
+        self._sizes: dict[str, int] = {}
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- one poll
+
+    def _candidates(self) -> list[Path]:
+        try:
+            entries = sorted(self.folder.iterdir())
+        except OSError as exc:
+            raise IngestError(f"{self.folder}: cannot list folder: {exc.strerror}") from exc
+        return [p for p in entries if p.is_file() and not p.name.startswith((".", "~"))
+                and not p.name.endswith((".tmp", ".part", ".partial", ".swp"))]
+
+    def _settled(self, path: Path, now: float) -> bool:
+        try:
+            st = path.stat()
+        except FileNotFoundError:
+            return False
+        previous = self._sizes.get(path.name)
+        self._sizes[path.name] = st.st_size
+        return now - st.st_mtime >= self.settle_s and previous in (None, st.st_size)
+
+    def _reject(self, path: Path, reasons: list[str], report: PollReport) -> None:
+        dest = _unique(self.rejected_dir / path.name)
+        shutil.move(str(path), dest)
+        dest.with_name(dest.name + ".reason.txt").write_text("\n".join(reasons) + "\n")
+        report.rejected.append(dest)
+        report.reasons.extend(reasons)
+        for r in reasons:
+            log.warning("lab file rejected: %s", r)
+
+    def _handle(self, path: Path, report: PollReport) -> None:
+        now_ns = self.lab_input.clock()
+        try:
+            parsed = parse_lab_file(path, log_time_ns=now_ns)
+        except IngestError as exc:
+            self._reject(path, [str(exc)], report)
+            return
+        for lab in parsed.results:
+            reason = self.lab_input.submit(lab)
+            if reason is None:
+                report.accepted.append(lab)
+            else:
+                report.duplicates.append(lab.sample_id)
+        if parsed.bad:
+            header = None
+            if path.suffix.lower() == ".csv":
+                text = path.read_text(encoding="utf-8-sig")
+                header = next(csv.reader(io.StringIO(text)), None)
+            bad_path = _unique(self.rejected_dir / path.name)
+            bad_path.write_text(_dump_bad_entries(path.suffix.lower(), parsed.bad, header))
+            reasons = [reason for _, reason in parsed.bad]
+            bad_path.with_name(bad_path.name + ".reason.txt").write_text(
+                f"{len(parsed.bad)} of {len(parsed.bad) + len(parsed.results)} entries "
+                f"rejected; the others were accepted (original in processed/)\n"
+                + "\n".join(reasons) + "\n")
+            report.rejected.append(bad_path)
+            report.reasons.extend(reasons)
+            for r in reasons:
+                log.warning("lab entry rejected: %s", r)
+        dest = _unique(self.processed_dir / path.name)
+        shutil.move(str(path), dest)
+        report.processed.append(dest)
+
+    def poll_once(self, now: float | None = None) -> PollReport:
+        """Handle every settled file in the folder once; ``now`` [s, epoch] for tests."""
+        now = time.time() if now is None else now
+        report = PollReport()
+        candidates = self._candidates()
+        present = {p.name for p in candidates}
+        self._sizes = {k: v for k, v in self._sizes.items() if k in present}
+        for path in candidates:
+            if not self._settled(path, now):
+                report.waiting.append(path)
+                continue
+            self._sizes.pop(path.name, None)
+            try:
+                self._handle(path, report)
+            except OSError as exc:
+                msg = f"{path.name}: cannot move or write: {exc}"
+                report.reasons.append(msg)
+                log.error("%s", msg)
+            except Exception as exc:  # noqa: BLE001 - the sink failed: keep the file, retry
+                msg = f"{path.name}: left for the next poll, delivery failed: {exc}"
+                report.reasons.append(msg)
+                report.waiting.append(path)
+                log.error("%s", msg)
+        return report
+
+    # -- loop
+
+    def run(self, stop: threading.Event | None = None, max_polls: int | None = None) -> None:
+        """Poll every ``poll_s`` until ``stop`` is set (or ``max_polls`` polls were made)."""
+        stop = stop or self._stop
+        polls = 0
+        while not stop.is_set():
+            try:
+                self.poll_once()
+            except IngestError as exc:  # folder vanished: report and keep trying
+                log.error("%s", exc)
+            polls += 1
+            if max_polls is not None and polls >= max_polls:
+                return
+            stop.wait(self.poll_s)
+
+    def start(self) -> LabFolderWatcher:
+        """Poll in a background thread until :meth:`close`."""
+        if self._thread is None:
+            self._stop.clear()
+            self._thread = threading.Thread(target=self.run, name="lab-folder", daemon=True)
+            self._thread.start()
+        return self
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop the background thread (idempotent)."""
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    def __enter__(self) -> LabFolderWatcher:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+__all__ = [
+    "CSV_COLUMNS",
+    "MOISTURE_RANGE",
+    "LabFolderWatcher",
+    "LabInput",
+    "ParsedFile",
+    "PollReport",
+    "lab_body",
+    "lab_from_body",
+    "make_lab_result",
+    "parse_lab_csv",
+    "parse_lab_file",
+    "parse_lab_json",
+    "parse_sample_time",
+]

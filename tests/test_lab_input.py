@@ -1,0 +1,260 @@
+"""Lab results from bus bodies and dropped files: parsing, refusal reasons, the folder watcher."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from softsensor.errors import IngestError
+from softsensor.estimation.base import LabResult
+from softsensor.ingest.lab_input import (
+    LabFolderWatcher,
+    LabInput,
+    lab_body,
+    lab_from_body,
+    make_lab_result,
+    parse_lab_csv,
+    parse_lab_json,
+    parse_sample_time,
+)
+
+T_S = 1_750_000_000  # 2025-06-15T15:06:40Z
+T_NS = T_S * 10**9
+NOW_NS = T_NS + 3600 * 10**9
+OLD = time.time() - 60  # mtime of a settled file [s]
+
+
+def _drop(folder: Path, name: str, text: str, mtime: float = OLD) -> Path:
+    p = folder / name
+    p.write_text(text)
+    os.utime(p, (mtime, mtime))
+    return p
+
+
+@pytest.fixture
+def inbox(tmp_path: Path) -> tuple[LabFolderWatcher, list[LabResult]]:
+    got: list[LabResult] = []
+    lab_input = LabInput(got.append, clock=lambda: NOW_NS)
+    return LabFolderWatcher(tmp_path, lab_input, poll_s=0.05, settle_s=1.0), got
+
+
+# --- pure parsing ---------------------------------------------------------------------------
+
+
+def test_sample_time_forms() -> None:
+    assert parse_sample_time(T_NS) == T_NS
+    assert parse_sample_time(str(T_NS)) == T_NS
+    assert parse_sample_time("2025-06-15T15:06:40Z") == T_NS
+    assert parse_sample_time("2025-06-15T15:06:40") == T_NS
+    assert parse_sample_time("2025-06-15 17:06:40.25+02:00") == T_NS + 250_000_000
+    with pytest.raises(IngestError, match="neither ISO-8601 nor ns"):
+        parse_sample_time("15.06.2025 15:06")
+
+
+@pytest.mark.parametrize("moisture, match", [
+    (-0.01, "outside the plausible range 0..2"),
+    (2.5, "outside the plausible range"),
+    (math.nan, "not finite"),
+    (math.inf, "not finite"),
+    ("0,105", "not a number"),
+    (True, "not a number"),
+    (None, "not a number"),
+])
+def test_bad_moisture(moisture: object, match: str) -> None:
+    with pytest.raises(IngestError, match=match):
+        make_lab_result(T_NS, moisture, "L1", where="x")
+
+
+def test_bad_time_and_id() -> None:
+    with pytest.raises(IngestError, match="before 2000"):
+        make_lab_result(T_S, 0.1, "L1")  # seconds, not ns
+    with pytest.raises(IngestError, match="after the result arrived"):
+        make_lab_result(T_NS + 7200 * 10**9, 0.1, "L1", log_time_ns=T_NS)
+    with pytest.raises(IngestError, match="sample_id is empty"):
+        make_lab_result(T_NS, 0.1, "  ")
+    lab = make_lab_result(T_NS, "0.105", 42, log_time_ns=NOW_NS)
+    assert lab == LabResult(T_NS, 0.105, "42", NOW_NS)
+
+
+def test_bus_body() -> None:
+    body = {"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "L1", "time_ns": NOW_NS}
+    lab = lab_from_body(body)
+    assert lab == LabResult(T_NS, 0.1, "L1", NOW_NS)
+    assert lab_body(lab) == {"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "L1"}
+    with pytest.raises(IngestError, match="plant/dryer1/lab: lab entry lacks sample_time_ns"):
+        lab_from_body({"moisture_out": 0.1, "sample_id": "x"}, where="plant/dryer1/lab")
+
+
+def test_lab_input_dedup_and_reasons() -> None:
+    got: list[LabResult] = []
+    li = LabInput(got.append, known_ids=["OLD"], clock=lambda: NOW_NS)
+    body = {"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "L1"}
+    assert li.from_body(body) is None
+    assert got[0].log_time_ns == NOW_NS  # no time_ns: the arrival time
+    assert "duplicate sample_id 'L1'" in li.from_body(body)
+    assert "duplicate" in li.from_body({**body, "sample_id": "OLD"})
+    assert "moisture_out" in li.from_body({**body, "sample_id": "L2", "moisture_out": 9.0})
+    assert len(got) == 1 and (li.n_accepted, li.n_duplicates, li.n_rejected) == (1, 2, 1)
+
+
+def test_failed_sink_does_not_swallow_the_result() -> None:
+    calls: list[LabResult] = []
+
+    def flaky(lab: LabResult) -> None:
+        calls.append(lab)
+        if len(calls) == 1:
+            raise RuntimeError("estimator busy")
+
+    li = LabInput(flaky)
+    lab = LabResult(T_NS, 0.1, "L1", NOW_NS)
+    with pytest.raises(RuntimeError):
+        li.submit(lab)
+    assert li.submit(lab) is None and len(calls) == 2
+
+
+def test_csv_parsing() -> None:
+    text = ("\ufeffsample_time,moisture_out,sample_id,operator\n"
+            "2025-06-15T15:06:40Z,0.101,A1,jo\n"
+            f"{T_NS + 10**9},0.102,A2,jo\n"
+            "\n"
+            "2025-06-15T16:00:00Z,abc,A3,jo\n"
+            "2025-06-15T16:00:00Z,0.1,A4\n")
+    parsed = parse_lab_csv(text, log_time_ns=NOW_NS, where="day.csv")
+    assert [r.sample_id for r in parsed.results] == ["A1", "A2"]
+    assert parsed.results[1].sample_time_ns == T_NS + 10**9
+    reasons = [r for _, r in parsed.bad]
+    assert reasons[0].startswith("day.csv line 5: moisture_out 'abc' is not a number")
+    assert reasons[1] == "day.csv line 6: 3 fields, header has 4"
+    with pytest.raises(IngestError, match=r"x.csv: header 'time,value' lacks sample_time"):
+        parse_lab_csv("time,value\n1,2\n", where="x.csv")
+    with pytest.raises(IngestError, match="no lab results after the header"):
+        parse_lab_csv("sample_time,moisture_out,sample_id\n", where="x.csv")
+
+
+def test_json_parsing() -> None:
+    one = json.dumps({"sample_time": "2025-06-15T15:06:40Z", "moisture_out": 0.1,
+                      "sample_id": "J1"})
+    assert parse_lab_json(one).results[0].sample_time_ns == T_NS
+    many = json.dumps([{"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "J2"},
+                       {"sample_time_ns": T_NS, "moisture_out": 3.0, "sample_id": "J3"},
+                       "junk"])
+    parsed = parse_lab_json(many, where="m.json")
+    assert [r.sample_id for r in parsed.results] == ["J2"]
+    assert [r for _, r in parsed.bad] == [
+        "m.json entry 1: moisture_out 3 kg/kg is outside the plausible range 0..2",
+        "m.json entry 2: lab entry is a JSON str, not an object",
+    ]
+    with pytest.raises(IngestError, match="m.json: not valid JSON"):
+        parse_lab_json("{", where="m.json")
+    with pytest.raises(IngestError, match="not an object or a list"):
+        parse_lab_json("5", where="m.json")
+
+
+# --- folder watcher -------------------------------------------------------------------------
+
+
+def test_good_files_are_processed(inbox, tmp_path: Path) -> None:
+    watcher, got = inbox
+    _drop(tmp_path, "a.csv", "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,A1\n")
+    _drop(tmp_path, "b.json", json.dumps([{"sample_time_ns": T_NS, "moisture_out": 0.11,
+                                           "sample_id": "B1"}]))
+    report = watcher.poll_once()
+    assert [lab.sample_id for lab in got] == ["A1", "B1"]
+    assert all(lab.log_time_ns == NOW_NS for lab in got)
+    assert sorted(p.name for p in (tmp_path / "processed").iterdir()) == ["a.csv", "b.json"]
+    assert not list((tmp_path / "rejected").iterdir())
+    assert len(report.processed) == 2 and not report.reasons
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["processed", "rejected"]
+
+
+def test_malformed_file_is_rejected_with_reason(inbox, tmp_path: Path) -> None:
+    watcher, got = inbox
+    _drop(tmp_path, "bad.json", "{not json")
+    _drop(tmp_path, "notes.txt", "hello")
+    _drop(tmp_path, "hdr.csv", "when,value\n1,2\n")
+    report = watcher.poll_once()
+    assert got == []
+    rej = tmp_path / "rejected"
+    assert sorted(p.name for p in rej.iterdir()) == [
+        "bad.json", "bad.json.reason.txt", "hdr.csv", "hdr.csv.reason.txt",
+        "notes.txt", "notes.txt.reason.txt"]
+    assert "bad.json: not valid JSON" in (rej / "bad.json.reason.txt").read_text()
+    assert "unsupported file type '.txt'" in (rej / "notes.txt.reason.txt").read_text()
+    assert "lacks sample_time" in (rej / "hdr.csv.reason.txt").read_text()
+    assert (rej / "bad.json").read_text() == "{not json"  # moved intact
+    assert len(report.rejected) == 3
+
+
+def test_partly_bad_file(inbox, tmp_path: Path) -> None:
+    watcher, got = inbox
+    _drop(tmp_path, "mix.csv", "sample_time,moisture_out,sample_id\n"
+          "2025-06-15T15:06:40Z,0.1,M1\n"
+          "2025-06-15T15:06:40Z,nan,M2\n"
+          "2025-06-15T15:06:40Z,5,M3\n")
+    watcher.poll_once()
+    assert [lab.sample_id for lab in got] == ["M1"]
+    assert (tmp_path / "processed" / "mix.csv").exists()
+    bad = (tmp_path / "rejected" / "mix.csv").read_text().splitlines()
+    assert bad == ["sample_time,moisture_out,sample_id", "2025-06-15T15:06:40Z,nan,M2",
+                   "2025-06-15T15:06:40Z,5,M3"]
+    reason = (tmp_path / "rejected" / "mix.csv.reason.txt").read_text()
+    assert "2 of 3 entries rejected" in reason
+    assert "line 3: moisture_out 'nan' is not finite" in reason
+    assert "line 4: moisture_out 5 kg/kg is outside" in reason
+
+
+def test_duplicates_across_files_and_same_name_again(inbox, tmp_path: Path) -> None:
+    watcher, got = inbox
+    text = "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,D1\n"
+    _drop(tmp_path, "d.csv", text)
+    watcher.poll_once()
+    _drop(tmp_path, "d.csv", text + "2025-06-15T16:06:40Z,0.12,D2\n")
+    report = watcher.poll_once()
+    assert [lab.sample_id for lab in got] == ["D1", "D2"]
+    assert report.duplicates == ["D1"]
+    assert sorted(p.name for p in (tmp_path / "processed").iterdir()) == ["d.1.csv", "d.csv"]
+
+
+def test_file_being_written_waits(inbox, tmp_path: Path) -> None:
+    watcher, got = inbox
+    p = _drop(tmp_path, "w.csv", "sample_time,moisture_out,sample_id\n", mtime=time.time())
+    _drop(tmp_path, ".hidden.csv", "x")
+    _drop(tmp_path, "x.csv.part", "x")
+    report = watcher.poll_once()
+    assert report.waiting == [p] and got == []
+    with open(p, "a") as f:
+        f.write("2025-06-15T15:06:40Z,0.1,W1\n")
+    os.utime(p, (OLD, OLD))
+    assert watcher.poll_once().waiting == [p]  # size changed since the last poll
+    watcher.poll_once()
+    assert [lab.sample_id for lab in got] == ["W1"]
+    assert (tmp_path / ".hidden.csv").exists() and (tmp_path / "x.csv.part").exists()
+
+
+def test_background_watcher_is_stoppable(tmp_path: Path) -> None:
+    got: list[LabResult] = []
+    event = threading.Event()
+
+    def sink(lab: LabResult) -> None:
+        got.append(lab)
+        event.set()
+
+    with LabFolderWatcher(tmp_path, LabInput(sink), poll_s=0.02, settle_s=0.0):
+        _drop(tmp_path, "bg.json", json.dumps({"sample_time_ns": T_NS, "moisture_out": 0.1,
+                                               "sample_id": "BG"}))
+        assert event.wait(5.0)
+    t = time.monotonic()
+    watcher = LabFolderWatcher(tmp_path, LabInput(sink), poll_s=10.0)
+    stop = threading.Event()
+    th = threading.Thread(target=watcher.run, args=(stop,))
+    th.start()
+    stop.set()
+    th.join(5.0)
+    assert not th.is_alive() and time.monotonic() - t < 2.0
+    assert [lab.sample_id for lab in got] == ["BG"]
