@@ -1,0 +1,254 @@
+"""Scans to estimator windows: a pure, deterministic accumulator.
+
+Windows are ``period_s`` long (600 s by default) and aligned to multiples of the period since
+the Unix epoch; a window is the half-open interval ``(start, end]``, so a scan stamped exactly
+on a boundary belongs to the window that ends there. For each window the accumulator averages
+the good values (non-null, finite) of every signal of :data:`~softsensor.signals.SCAN_SIGNALS`.
+
+A signal with fewer good values than ``min_fraction`` of the expected scans
+(``period_s / scan_period_s``, 60 by default; 50 % -> 30) gets the mean ``None`` and a reason.
+The window is ``stale`` when fewer scans than that arrived, or when a signal of ``required``
+(by default the measured model inputs) is ``None``; ``Window.reasons`` then also says why under
+the key ``"scans"`` or the signal's name. Windows without any scan (a gap in the data) are
+emitted too, stale, so time keeps advancing for the estimator.
+
+No I/O and no clock: time is whatever the scans (or :meth:`WindowAccumulator.advance`) say.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from softsensor.errors import ConfigError
+from softsensor.estimation.base import Window
+from softsensor.recording.mcap_day import scan_values
+from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
+
+NS = 10**9
+#: Signals without which a window cannot drive the model: the measured inputs.
+MODEL_SIGNALS: tuple[str, ...] = tuple(n for n in INPUT_NAMES if n in SCAN_SIGNALS)
+
+
+@dataclass(frozen=True)
+class WindowSettings:
+    """How scans are grouped and judged.
+
+    Attributes
+    ----------
+    period_s : float
+        Window length [s]; windows end on multiples of it since the epoch.
+    scan_period_s : float
+        Nominal scan period [s].
+    min_fraction : float
+        Fraction of the expected scans (``period_s / scan_period_s``) below which a signal is
+        dropped and the window is stale. [-]
+    required : tuple of str
+        Signals whose absence makes the window stale.
+    """
+
+    period_s: float = 600.0
+    scan_period_s: float = 10.0
+    min_fraction: float = 0.5
+    required: tuple[str, ...] = MODEL_SIGNALS
+
+    def __post_init__(self) -> None:
+        if not (self.period_s > 0 and math.isfinite(self.period_s)):
+            raise ConfigError(f"window.period_s must be > 0, got {self.period_s}")
+        if (self.period_s * NS) % 1:
+            raise ConfigError(f"window.period_s must be a whole number of ns, got {self.period_s}")
+        if not 0 < self.scan_period_s <= self.period_s:
+            raise ConfigError(f"window.scan_period_s must be in (0, period_s], "
+                              f"got {self.scan_period_s}")
+        if not 0 <= self.min_fraction <= 1:
+            raise ConfigError(f"window.min_fraction must be in 0..1, got {self.min_fraction}")
+        unknown = [s for s in self.required if s not in SCAN_SIGNALS]
+        if unknown:
+            raise ConfigError(f"window.required names unknown signal {unknown[0]!r}")
+
+    @property
+    def period_ns(self) -> int:
+        """Window length [ns]."""
+        return int(round(self.period_s * NS))
+
+    @property
+    def expected_scans(self) -> int:
+        """Scans expected in a full window."""
+        return max(1, int(round(self.period_s / self.scan_period_s)))
+
+    @property
+    def min_good(self) -> int:
+        """Fewest good values (and scans) a usable window needs."""
+        return math.ceil(self.min_fraction * self.expected_scans - 1e-9)
+
+
+def window_end(time_ns: int, period_ns: int) -> int:
+    """End [ns] of the aligned window ``(end - period, end]`` holding ``time_ns``."""
+    return -((-time_ns) // period_ns) * period_ns
+
+
+class _Sums:
+    __slots__ = ("n_scans", "values")
+
+    def __init__(self) -> None:
+        self.n_scans = 0
+        self.values: dict[str, list[float]] = {name: [] for name in SCAN_SIGNALS}
+
+
+class WindowAccumulator:
+    """Turns a stream of scans into :class:`~softsensor.estimation.base.Window` objects.
+
+    Parameters
+    ----------
+    settings : WindowSettings
+        Window length, expected scans, thresholds.
+    start_ns : int, optional
+        Emit windows from the one holding ``start_ns + 1`` on (gap windows before the first
+        scan included); by default the first window is the first scan's.
+
+    Feed scans with :meth:`add` (each call returns the windows it completed), let time pass
+    without scans with :meth:`advance`, and end with :meth:`flush`. Scans for a window already
+    emitted are counted in ``n_late`` and dropped.
+    """
+
+    def __init__(self, settings: WindowSettings | None = None, *,
+                 start_ns: int | None = None) -> None:
+        self.settings = settings or WindowSettings()
+        self._period = self.settings.period_ns
+        self._end: int | None = None  # end of the window being filled
+        self._sums = _Sums()
+        self._emitted_end: int | None = None  # end of the last emitted window
+        if start_ns is not None:
+            self._end = window_end(start_ns + 1, self._period)
+        self.n_late = 0
+
+    @property
+    def current_end_ns(self) -> int | None:
+        """End [ns] of the window being filled (None before the first scan)."""
+        return self._end
+
+    def add(self, time_ns: int, body: Mapping[str, Any]) -> list[Window]:
+        """Add one scan (a ``/plant/scan`` body, SI units); return the windows it completed.
+
+        Raises :class:`~softsensor.errors.IngestError` for an unknown signal in ``body``.
+        """
+        t = int(time_ns)
+        values = scan_values(dict(body), where=f"scan at {t} ns")
+        end = window_end(t, self._period)
+        if self._emitted_end is not None and end <= self._emitted_end:
+            self.n_late += 1
+            return []
+        out: list[Window] = []
+        if self._end is None:
+            self._end = end
+        elif end > self._end:
+            out = self._close_until(end - self._period)
+            self._end = end
+        elif end < self._end:  # before a start_ns given explicitly
+            self.n_late += 1
+            return []
+        sums = self._sums
+        sums.n_scans += 1
+        for name, v in values.items():
+            if math.isfinite(v):
+                sums.values[name].append(v)
+        return out
+
+    def advance(self, now_ns: int) -> list[Window]:
+        """Emit every window that ends at or before ``now_ns`` (stale ones for gaps)."""
+        if self._end is None:
+            return []
+        if now_ns < self._end:
+            return []
+        last_end = window_end(int(now_ns), self._period)
+        if last_end > now_ns:
+            last_end -= self._period
+        out = self._close_until(last_end)
+        self._end = last_end + self._period
+        return out
+
+    def flush(self) -> list[Window]:
+        """Emit the window being filled, if it has any scan (end of a recorded day)."""
+        if self._end is None or self._sums.n_scans == 0:
+            return []
+        return self._close_until(self._end)
+
+    def _close_until(self, last_end: int) -> list[Window]:
+        """Close the current window and emit gap windows up to the one ending at ``last_end``."""
+        assert self._end is not None
+        out = [self._build(self._end - self._period, self._end, self._sums)]
+        self._sums = _Sums()
+        end = self._end + self._period
+        while end <= last_end:
+            out.append(self._build(end - self._period, end, _Sums()))
+            end += self._period
+        self._emitted_end = last_end if last_end >= self._end else self._end
+        self._end = end
+        return out
+
+    def _build(self, start: int, end: int, sums: _Sums) -> Window:
+        s = self.settings
+        expected, min_good = s.expected_scans, s.min_good
+        means: dict[str, float | None] = {}
+        n_good: dict[str, int] = {}
+        reasons: dict[str, str] = {}
+        for name in SCAN_SIGNALS:
+            vals = sums.values[name]
+            n_good[name] = len(vals)
+            if vals and len(vals) >= min_good:
+                means[name] = math.fsum(vals) / len(vals)
+            else:
+                means[name] = None
+                reasons[name] = (f"{len(vals)} good values in {sums.n_scans} scans, "
+                                 f"{min_good} of {expected} expected needed")
+        stale = False
+        if sums.n_scans < min_good:
+            stale = True
+            reasons["scans"] = ("no scans (gap in the data)" if sums.n_scans == 0 else
+                                f"{sums.n_scans} scans, {min_good} of {expected} expected needed")
+        missing = [name for name in s.required if means[name] is None]
+        if missing:
+            stale = True
+        return Window(start_ns=start, end_ns=end, means=means, n_scans=sums.n_scans,
+                      n_good=n_good, stale=stale, reasons=reasons)
+
+
+def windows_from_scans(scans: Iterable[tuple[int, Mapping[str, Any]]],
+                       settings: WindowSettings | None = None, *,
+                       start_ns: int | None = None, end_ns: int | None = None) -> list[Window]:
+    """All windows of a sequence of ``(time_ns, body)`` scans in time order.
+
+    The last, partly filled window is included; with ``end_ns`` the windows run up to the one
+    holding ``end_ns`` (stale gap windows included).
+    """
+    acc = WindowAccumulator(settings, start_ns=start_ns)
+    out: list[Window] = []
+    for t, body in scans:
+        out.extend(acc.add(t, body))
+    if end_ns is not None and acc.current_end_ns is not None:
+        out.extend(acc.advance(window_end(end_ns, acc.settings.period_ns)))
+    else:
+        out.extend(acc.flush())
+    return out
+
+
+def windows_from_frame(scans: Any, settings: WindowSettings | None = None, **kwargs: Any,
+                       ) -> list[Window]:
+    """:func:`windows_from_scans` over a ``RecordedDay.scans`` DataFrame (index = ns)."""
+    columns = [c for c in scans.columns if c in SCAN_SIGNALS]
+    rows = ((int(t), dict(zip(columns, vals, strict=True)))
+            for t, vals in zip(scans.index, scans[columns].itertuples(index=False, name=None),
+                               strict=True))
+    return windows_from_scans(rows, settings, **kwargs)
+
+
+__all__ = [
+    "MODEL_SIGNALS",
+    "WindowAccumulator",
+    "WindowSettings",
+    "window_end",
+    "windows_from_frame",
+    "windows_from_scans",
+]
