@@ -124,7 +124,7 @@ def latent_heat(T):
     """Latent heat of vaporisation ``h_fg`` [J/kg] = vapour minus liquid enthalpy at ``T``.
 
     Linear in ``T`` by construction (consistent with ``C_PV`` and ``C_W``); within 1 % of the
-    IAPWS values over 0 to 150 °C.
+    IAPWS-95 values over 0 to 120 °C (1.8 % at 150 °C, 5.6 % at 480 K).
     """
     return H_FG0 + (C_PV - C_W) * (T - T0)
 

@@ -1,0 +1,286 @@
+"""The full transient method of lines: the reference the fast model is checked against.
+
+This is the model "as a first Python implementation of the paper would" write it (paper
+section 2.1: "a large, stiff system of ordinary differential equations solved in Python
+utilizing the Method of Lines", solver BDF): every cell of the tube (``n_d``) and of the
+cyclone (``n_c``) carries all five states, fibre moisture ``X`` [kg/kg] and temperature
+``T_f`` [K], air humidity ratio ``Y`` [kg/kg] and temperature ``T_a`` [K], wall (or cyclone
+shell) temperature ``T_w`` [K], and :func:`scipy.integrate.solve_ivp` (BDF) integrates all
+``5 (n_d + n_c)`` of them over the whole horizon, restarting at every window boundary because
+the inputs are piecewise constant. By default the Jacobian is a dense finite-difference one
+(one right-hand side per state and Jacobian); ``jac="sparse"`` passes the pattern of
+:meth:`StateLayout.sparsity` instead, which groups columns and is much cheaper.
+
+The cell rates are the compiled model's own (:func:`kernels.cell_rates`,
+:func:`kernels.inflow_coefficients`, :func:`kernels.outside_conductance`,
+:func:`kernels.inlet_air`, called here as plain Python), so at steady state both reach the same
+algebraic equations (the :mod:`~softsensor.model.kernels` module docstring lists them); what
+differs is only the time integration: here every state is dynamic, there the fibre and air sit
+at their quasi-steady profile and the wall is stepped by Crank-Nicolson.
+
+Balances of cell ``i`` (inflow from cell ``i-1``, or from the inlet for ``i = 0``), energy in
+enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
+
+  fibre water   ``M_f dX/dt   = m_f (X_in - X) - R``
+  air water     ``M_a dY/dt   = m_a (Y_in - Y) + R``
+  fibre energy  ``M_f dh_f/dt = m_f (h_f,in - h_f) + Q_af - R h_v(T_f)``
+  air energy    ``M_a dh_a/dt = m_a (h_a,in - h_a) - Q_af - UA_w (T_a - T_w) + R h_v(T_f)``
+  wall          ``C_w dT_w/dt = UA_w (T_a - T_w) - UA_out (T_w - T_amb)
+                               + G (T_w,i-1 - 2 T_w,i + T_w,i+1)``  (tube, adiabatic ends)
+  shell         ``C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)``  (cyclone)
+
+with ``dh_f = c_f dT_f + (dh_f/dX) dX`` (``c_f`` from :func:`wood.heat_capacity`, which is
+``dh_f/dT``) and ``dh_a = c_a dT_a + h_v(T_a) dY`` (ASHRAE eq. 32), which turn the energy
+balances into ``dT_f/dt`` and ``dT_a/dt``. ``R``, ``Q_af`` and the hold-ups ``M_f``, ``M_a``
+come from :func:`kernels.cell_rates`; ``G = mult_k k_w A_cross / dx``.
+
+The outside conductance ``UA_out`` is evaluated at the current wall temperature here; the fast
+model evaluates it at the start of each wall substep (one of the small differences the
+comparison measures).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.sparse import lil_matrix
+
+from softsensor.errors import SolverError
+from softsensor.model import humid_air as ha
+from softsensor.model import kernels
+from softsensor.model import wood as wd
+from softsensor.model.dryer import DryerModel
+from softsensor.model.geometry import C_SH_CELL, C_W_CELL, G_COND, N_AUX, X_FSP
+from softsensor.signals import INPUT_NAMES
+
+_FIELDS = ("X", "T_f", "Y", "T_a", "T_w")
+
+
+@dataclass(frozen=True)
+class StateLayout:
+    """Where each state lives in the method-of-lines vector (defined here and nowhere else).
+
+    The vector is field-major: ``[X[0..n-1], T_f[...], Y[...], T_a[...], T_w[...]]`` with
+    ``n = n_d + n_c`` cells, tube first, then cyclone; ``T_w`` of a cyclone cell is its shell.
+    """
+
+    n_d: int
+    n_c: int
+
+    @property
+    def n_cells(self) -> int:
+        return self.n_d + self.n_c
+
+    @property
+    def size(self) -> int:
+        return 5 * self.n_cells
+
+    def field(self, name: str) -> slice:
+        """Slice of one field (``X``, ``T_f``, ``Y``, ``T_a`` or ``T_w``) over all cells."""
+        k = _FIELDS.index(name)
+        return slice(k * self.n_cells, (k + 1) * self.n_cells)
+
+    def index(self, name: str, cell: int) -> int:
+        """Position of field ``name`` of ``cell`` in the vector."""
+        return _FIELDS.index(name) * self.n_cells + cell
+
+    def pack(self, X, T_f, Y, T_a, T_w) -> np.ndarray:
+        """One vector from the five per-cell arrays."""
+        return np.concatenate([np.asarray(a, float) for a in (X, T_f, Y, T_a, T_w)])
+
+    def sparsity(self):
+        """Jacobian pattern (``size x size``, sparse): cell ``i`` depends on itself and on
+        the cell upstream (all five fields), the tube wall also on both wall neighbours."""
+        n = self.n_cells
+        S = lil_matrix((self.size, self.size), dtype=np.int8)
+        for i in range(n):
+            for fa in _FIELDS:
+                row = self.index(fa, i)
+                for fb in _FIELDS:
+                    S[row, self.index(fb, i)] = 1
+                    if i > 0:
+                        S[row, self.index(fb, i - 1)] = 1
+            if i < self.n_d:
+                row = self.index("T_w", i)
+                if i > 0:
+                    S[row, self.index("T_w", i - 1)] = 1
+                if i < self.n_d - 1:
+                    S[row, self.index("T_w", i + 1)] = 1
+        return S.tocsr()
+
+
+def _dh_f_dX(X: float, T_f: float, X_fsp: float) -> float:
+    """``dh_f/dX`` at constant ``T_f`` [J/kg dry fibre per kg/kg], central difference."""
+    h = 1e-6
+    return (wd.enthalpy(X + h, T_f, X_fsp) - wd.enthalpy(X - h, T_f, X_fsp)) / (2.0 * h)
+
+
+class MethodOfLines:
+    """Right-hand side of the full transient model for one plant geometry.
+
+    Parameters
+    ----------
+    model : DryerModel
+        Supplies the geometry (``n_d``, ``n_c``, packed constants) and the consistent start.
+    """
+
+    def __init__(self, model: DryerModel) -> None:
+        self.model = model
+        self.geo = model.geometry.packed
+        self.layout = StateLayout(model.geometry.n_d, model.geometry.n_c)
+        self.nfev = 0
+
+    def rhs(self, t: float, y: np.ndarray, u: np.ndarray, theta: np.ndarray,
+            aux: np.ndarray) -> np.ndarray:
+        """``dy/dt`` for inputs ``u`` (8,), parameters ``theta`` (7,), extension ``aux``."""
+        self.nfev += 1
+        L, geo = self.layout, self.geo
+        n_d, n = L.n_d, L.n_cells
+        X, Tf, Y, Ta, Tw = (y[L.field(f)] for f in _FIELDS)
+        m_a = u[kernels.U_MAIR]
+        m_f = u[kernels.U_MFIB]
+        T_amb = u[kernels.U_TAMB]
+        x_fsp = geo[X_FSP]
+        G = theta[kernels.K_K] * geo[G_COND]
+        dy = np.empty_like(y)
+        dX, dTf, dY, dTa, dTw = (dy[L.field(f)] for f in _FIELDS)
+        # inflow of cell 0: the inlet streams
+        Y_in, h_a_in = kernels.inlet_air(u, geo)
+        X_in = u[kernels.U_XIN]
+        Ta_in = u[kernels.U_TAIR]
+        h_f_in = wd.enthalpy(X_in, u[kernels.U_TFIB], x_fsp)
+        for i in range(n):
+            kind = 0 if i < n_d else 1
+            v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, geo)
+            R, Q, M_f, M_a = kernels.cell_rates(kind, X[i], Tf[i], Y[i], Ta[i], v_s, m_a, m_f,
+                                                theta, geo)
+            h_f = wd.enthalpy(X[i], Tf[i], x_fsp)
+            h_a = ha.enthalpy(Ta[i], Y[i])
+            h_v = ha.vapour_enthalpy(Tf[i])
+            Q_w = UAw * (Ta[i] - Tw[i])
+            dX[i] = (m_f * (X_in - X[i]) - R) / M_f
+            dY[i] = (m_a * (Y_in - Y[i]) + R) / M_a
+            dhf = (m_f * (h_f_in - h_f) + Q - R * h_v) / M_f
+            dha = (m_a * (h_a_in - h_a) - Q - Q_w + R * h_v) / M_a
+            dTf[i] = (dhf - _dh_f_dX(X[i], Tf[i], x_fsp) * dX[i]) / wd.heat_capacity(
+                X[i], Tf[i], x_fsp)
+            dTa[i] = (dha - ha.vapour_enthalpy(Ta[i]) * dY[i]) / ha.heat_capacity(Y[i])
+            U_out = kernels.outside_conductance(Tw[i], u, theta, aux, geo, kind)
+            wall = Q_w - U_out * (Tw[i] - T_amb)
+            if kind == 0:
+                if i > 0:
+                    wall += G * (Tw[i - 1] - Tw[i])
+                if i < n_d - 1:
+                    wall += G * (Tw[i + 1] - Tw[i])
+                dTw[i] = wall / geo[C_W_CELL]
+            else:
+                dTw[i] = wall / geo[C_SH_CELL]
+            X_in, Y_in, Ta_in, h_f_in, h_a_in = X[i], Y[i], Ta[i], h_f, h_a
+        return dy
+
+    def outputs(self, y: np.ndarray) -> np.ndarray:
+        """``(T_dryer_out, T_cyclone_out, moisture_out)`` of a state vector."""
+        L = self.layout
+        return np.array([y[L.index("T_a", L.n_d - 1)], y[L.index("T_a", L.n_cells - 1)],
+                         y[L.index("X", L.n_cells - 1)]])
+
+    def atol(self) -> np.ndarray:
+        """Absolute tolerances per state: 1e-7 kg/kg for moistures, 1e-4 K for temperatures."""
+        L = self.layout
+        a = np.empty(L.size)
+        for f in _FIELDS:
+            a[L.field(f)] = 1e-7 if f in ("X", "Y") else 1e-4
+        return a
+
+
+@dataclass
+class MolResult:
+    """Outcome of :func:`simulate_mol`."""
+
+    Y: np.ndarray          # (K, 3) outputs at the end of each window
+    state: np.ndarray      # full method-of-lines vector after the last window
+    nfev: int              # right-hand side evaluations, including those for Jacobians
+    njev: int              # Jacobian evaluations
+    nlu: int               # LU decompositions
+    seconds: float         # wall-clock time of the integration (start state excluded)
+
+
+def initial_vector(model: DryerModel, u: np.ndarray, theta: np.ndarray,
+                   aux: np.ndarray | None = None, state0: np.ndarray | None = None
+                   ) -> np.ndarray:
+    """Full state from the fast model: its steady state at ``u`` (or ``state0``) and the
+    quasi-steady fibre and air profile for those wall temperatures."""
+    if state0 is None:
+        state0, _ = model.steady_state(u, theta, aux)
+    p = model.profiles(state0, u, theta)
+    return StateLayout(model.geometry.n_d, model.geometry.n_c).pack(
+        p["X_f"], p["T_f"], p["Y_a"], p["T_a"], p["T_w"])
+
+
+def simulate_mol(model: DryerModel, U: np.ndarray, theta: np.ndarray | None = None,
+                 aux: np.ndarray | None = None, y0: np.ndarray | None = None,
+                 dt: float | None = None, jac: str = "dense", rtol: float = 1e-6,
+                 ) -> MolResult:
+    """Integrate the full method of lines over windows of piecewise-constant inputs.
+
+    Parameters
+    ----------
+    model : DryerModel
+        Geometry, window length and the consistent start.
+    U : array, shape (K, 8)
+        Inputs per window, :data:`~softsensor.signals.INPUT_NAMES` order.
+    theta : array, shape (7,) or (K, 7), optional
+        Parameters (default ``model.theta0``).
+    aux : array, shape (N_AUX,), optional
+        Model-extension coefficients (see :mod:`softsensor.model.geometry`).
+    y0 : array, shape (5 (n_d + n_c),), optional
+        Full start vector; by default the fast model's steady state at ``U[0]``.
+    dt : float, optional
+        Window length [s] (default the config's, 600 s).
+    jac : {"dense", "sparse"}
+        Dense finite-difference Jacobian (the straightforward way) or the pattern of
+        :meth:`StateLayout.sparsity`.
+    rtol : float
+        Relative tolerance of BDF; absolute ones from :meth:`MethodOfLines.atol`.
+
+    Raises
+    ------
+    SolverError
+        When BDF fails in a window (with the solver's message) or the inputs are not finite.
+    """
+    U = np.atleast_2d(np.asarray(U, float))
+    if U.shape[-1] != len(INPUT_NAMES) or U.ndim != 2:
+        raise ValueError(f"U must have shape (K, {len(INPUT_NAMES)}), got {U.shape}")
+    K = U.shape[0]
+    theta = model.theta0 if theta is None else np.asarray(theta, float)
+    TH = np.broadcast_to(theta, (K, 7))
+    aux = np.zeros(N_AUX) if aux is None else np.asarray(aux, float)
+    if not (np.all(np.isfinite(U)) and np.all(np.isfinite(TH))):
+        bad = INPUT_NAMES[int(np.flatnonzero(~np.isfinite(U).all(axis=0))[0])] \
+            if not np.all(np.isfinite(U)) else "theta"
+        raise SolverError(f"method of lines: {bad} is not finite")
+    if jac not in ("dense", "sparse"):
+        raise ValueError(f"jac must be 'dense' or 'sparse', got {jac!r}")
+    dt = model.window if dt is None else float(dt)
+    mol = MethodOfLines(model)
+    y = initial_vector(model, U[0], TH[0], aux) if y0 is None else np.asarray(y0, float).copy()
+    sparsity = mol.layout.sparsity() if jac == "sparse" else None
+    atol = mol.atol()
+    Y = np.empty((K, 3))
+    njev = nlu = 0
+    t0 = time.perf_counter()
+    for k in range(K):
+        sol = solve_ivp(mol.rhs, (0.0, dt), y, method="BDF", args=(U[k], TH[k], aux),
+                        rtol=rtol, atol=atol, jac_sparsity=sparsity, t_eval=None)
+        if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
+            raise SolverError(f"method of lines failed in window {k} "
+                              f"(t = {k * dt:.0f} s): {sol.message}")
+        y = sol.y[:, -1].copy()
+        njev += sol.njev
+        nlu += sol.nlu
+        Y[k] = mol.outputs(y)
+    return MolResult(Y=Y, state=y, nfev=mol.nfev, njev=njev, nlu=nlu,
+                     seconds=time.perf_counter() - t0)
