@@ -74,7 +74,6 @@ from softsensor.model.geometry import (
     BETA_AMB,
     C_SH_CELL,
     C_W_CELL,
-    D,
     D_CYC,
     D_FIB,
     D_OUT,
@@ -96,6 +95,7 @@ from softsensor.model.geometry import (
     X_CR,
     X_FSP,
     Y_HOT,
+    D,
     P,
 )
 

@@ -44,7 +44,8 @@ def gnielinski(Re, Pr):
     """Nusselt number of turbulent flow in a smooth pipe [-], ref. [3] (Re > 3000)."""
     Re = np.maximum(Re, 3000.0)
     f = (0.790 * np.log(Re) - 1.64) ** -2
-    return (f / 8.0) * (Re - 1000.0) * Pr / (1.0 + 12.7 * np.sqrt(f / 8.0) * (Pr ** (2.0 / 3.0) - 1.0))
+    return (f / 8.0) * (Re - 1000.0) * Pr / (
+        1.0 + 12.7 * np.sqrt(f / 8.0) * (Pr ** (2.0 / 3.0) - 1.0))
 
 
 @register_jitable

@@ -29,8 +29,7 @@ import pandas as pd
 from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel, kernels
 from softsensor.model.geometry import BETA_AMB, N_AUX
-from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, \
-    mixed_air
+from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
 from softsensor.plant.effects import EFFECTS, resolve_effect
 from softsensor.plant.scenario import inlet_moisture_trajectory, make_scenario
 from softsensor.plant.settings import virtual_plant_settings
