@@ -1,0 +1,114 @@
+"""Steady-state conservation: water and energy close between the dryer inlet and outlet.
+
+At steady state, summing the cell balances of the tube and the cyclone (kernels module
+docstring) must give: water in (fibre plus air) = water out, and enthalpy in = enthalpy out +
+heat through the walls; at a steady wall that heat equals what the walls lose to ambient.
+Enthalpies are recomputed here from the profiles with the property functions, independently
+of how the kernels march.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softsensor.model import DryerModel, kernels
+from softsensor.model import humid_air as ha
+from softsensor.model import wood as wd
+
+POINTS = {
+    "nominal": {},
+    "hot_low_production": {"T_air_in": 520.0, "m_fiber": 5.0},
+    "cold_winter_high_production": {"T_air_in": 460.0, "m_fiber": 7.0, "T_amb": 258.0,
+                                    "H_amb": 0.001},
+    "wet_fibre_summer": {"moisture_in": 1.3, "T_air_in": 545.0, "T_amb": 305.0,
+                         "H_amb": 0.018, "m_air": 90.0},
+}
+
+
+@pytest.fixture(scope="module")
+def model():
+    return DryerModel()
+
+
+def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
+    state, _ = model.steady_state(u, theta, aux)
+    p = model.profiles(state, u, theta)
+    geo = model.geometry.packed
+    x_fsp = model.config.fiber.saturation_point
+    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
+    Y_in, h_a_in = kernels.inlet_air(u, geo)
+    X_in, T_f_in = u[kernels.U_XIN], u[kernels.U_TFIB]
+    last = -1
+    water_in = m_f * X_in + m_a * Y_in
+    water_out = m_f * p["X_f"][last] + m_a * p["Y_a"][last]
+    energy_in = m_f * wd.enthalpy(X_in, T_f_in, x_fsp) + m_a * h_a_in
+    energy_out = (m_f * wd.enthalpy(p["X_f"][last], p["T_f"][last], x_fsp)
+                  + m_a * ha.enthalpy(p["T_a"][last], p["Y_a"][last]))
+    wall_in = float(np.sum(p["UA_w"] * (p["T_a"] - p["T_w"])))
+    aux = np.zeros(1) if aux is None else np.asarray(aux, float)
+    n_d = model.geometry.n_d
+    to_ambient = sum(
+        kernels.outside_conductance(p["T_w"][i], u, theta, aux, geo, 0 if i < n_d else 1)
+        * (p["T_w"][i] - u[kernels.U_TAMB]) for i in range(model.n_state))
+    return dict(water_in=water_in, water_out=water_out, energy_in=energy_in,
+                energy_out=energy_out, wall_in=wall_in, to_ambient=to_ambient,
+                evaporated=m_f * (X_in - p["X_f"][last]), profiles=p)
+
+
+@pytest.mark.parametrize("point", sorted(POINTS))
+def test_water_closes(model, point):
+    b = _budget(model, model.nominal_inputs(**POINTS[point]), model.theta0)
+    assert b["water_out"] == pytest.approx(b["water_in"], rel=1e-6)
+    # the check has teeth: the fibre really dried, the air really took the water
+    assert b["evaporated"] > 0.3 * model.nominal_inputs(**POINTS[point])[kernels.U_MFIB]
+
+
+@pytest.mark.parametrize("point", sorted(POINTS))
+def test_energy_closes_counting_the_wall_heat_loss(model, point):
+    b = _budget(model, model.nominal_inputs(**POINTS[point]), model.theta0)
+    # energy in = energy out + heat through the walls, to 0.5 % of the energy that flows
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(
+        b["wall_in"], abs=5e-3 * b["energy_in"])
+    # in fact to solver round-off: the march conserves enthalpy cell by cell
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(b["wall_in"], rel=1e-6)
+    # the wall loss is real (a bare 55 m tube and two cyclones lose 100 kW to 1 MW) ...
+    assert 1e5 < b["wall_in"] < 1e6
+    # ... and at a steady wall it all leaves to ambient (axial conduction only moves it)
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=1e-6)
+
+
+def test_balances_close_with_other_parameters_and_the_ambient_extension(model):
+    theta = model.theta0 * np.array([2.0, 0.5, 0.5, 3.0, 2.5, 4.0, 0.3])
+    b = _budget(model, model.nominal_inputs(T_amb=265.0), theta, aux=np.array([0.02]))
+    assert b["water_out"] == pytest.approx(b["water_in"], rel=1e-6)
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(b["wall_in"], rel=1e-6)
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=1e-6)
+
+
+def test_each_cell_conserves_water_and_energy(model):
+    # per-cell form: water and enthalpy carried by fibre plus air change only by the heat
+    # that cell gives to its wall
+    u = model.nominal_inputs()
+    b = _budget(model, u, model.theta0)
+    p = b["profiles"]
+    x_fsp = model.config.fiber.saturation_point
+    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
+    water = m_f * p["X_f"] + m_a * p["Y_a"]
+    np.testing.assert_allclose(water, b["water_in"], rtol=1e-9)
+    flow = m_f * wd.enthalpy(p["X_f"], p["T_f"], x_fsp) + m_a * ha.enthalpy(p["T_a"], p["Y_a"])
+    lost = np.cumsum(p["UA_w"] * (p["T_a"] - p["T_w"]))
+    np.testing.assert_allclose(flow + lost, b["energy_in"], rtol=1e-9)
+
+
+def test_physical_profile(model):
+    # air cools and takes up water along the tube; the fibre dries; humid air stays below
+    # saturation; the outlet is in the published MDF-dryer envelope (STACK.md)
+    p = _budget(model, model.nominal_inputs(), model.theta0)["profiles"]
+    n_d = model.geometry.n_d
+    assert np.all(np.diff(p["T_a"][:n_d]) < 0)
+    assert np.all(np.diff(p["Y_a"]) >= 0)
+    assert np.all(np.diff(p["X_f"]) <= 0)
+    assert np.all(p["Y_a"] < ha.y_sat(p["T_a"], model.config.environment.pressure))
+    assert 339.0 < p["T_a"][n_d - 1] < 361.0  # 66 to 88 °C
+    assert 0.06 < p["X_f"][-1] < 0.16
