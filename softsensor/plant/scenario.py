@@ -66,7 +66,7 @@ def make_scenario(cfg: PlantConfig, s: VirtualPlantSettings, hours: float,
 
     def sp_level(state=[nom.T_sp]):  # noqa: B006 - running level across draws
         if rng.random() < s.setpoint_change_probability:
-            state[0] = float(np.clip(nom.T_sp + rng.uniform(-4.0, 4.0), 340.0, 356.0))
+            state[0] = float(np.clip(nom.T_sp + rng.uniform(-1.5, 1.5), 344.0, 352.0))
         return state[0]
 
     T_sp = _ramped_levels(rng, t, 6 * 3600.0, 14 * 3600.0, sp_level, ramp=60.0)
@@ -82,7 +82,7 @@ def make_scenario(cfg: PlantConfig, s: VirtualPlantSettings, hours: float,
                  - 0.15 * np.cos(2 * np.pi * (hour - 15.0) / 24.0), 0.3, 0.95)
     H_amb = np.clip(ha.humidity_ratio(rh * ha.p_sat(T_amb), cfg.environment.pressure),
                     0.0012, 0.019)
-    m_air = nom.m_air * (1.0 + np.clip(0.04 * ornstein_uhlenbeck(rng, n, dt, 2 * 3600.0),
+    m_air = nom.m_air * (1.0 + np.clip(0.03 * ornstein_uhlenbeck(rng, n, dt, 2 * 3600.0),
                                        -0.09, 0.09))
     T_fiber_in = nom.T_fiber_in + 2.0 * ornstein_uhlenbeck(rng, n, dt, 2 * 3600.0)
     m_steam = np.maximum(nom.m_steam * (1.0 + 0.08 * ornstein_uhlenbeck(rng, n, dt, 3600.0)),
@@ -93,12 +93,16 @@ def make_scenario(cfg: PlantConfig, s: VirtualPlantSettings, hours: float,
 
 def inlet_moisture_trajectory(rng: np.random.Generator, t: np.ndarray, nominal: float,
                               magnitude: float) -> np.ndarray:
-    """Inlet moisture with a step of ``+-magnitude`` and a slow drift (effect
-    ``inlet_moisture``), clipped to the range seen on the plant (0.8 to 1.3 kg/kg)."""
+    """Inlet moisture with a step and a slow drift (effect ``inlet_moisture``).
+
+    The step is ``0.7 * magnitude`` and the drift (a slow sine) ``0.3 * magnitude``, so the
+    peak deviation from nominal is ``magnitude`` at most; clipped to the range seen on the
+    plant (0.8 to 1.3 kg/kg).
+    """
     T = t[-1]
     sign = rng.choice([-1.0, 1.0])
     t_step = rng.uniform(0.2, 0.5) * T
-    step = np.where(t >= t_step, sign * magnitude, 0.0)
-    drift = 0.5 * magnitude * np.sin(2 * np.pi * (t / max(T, 1.0)) * rng.uniform(0.7, 1.5)
+    step = np.where(t >= t_step, sign * 0.7 * magnitude, 0.0)
+    drift = 0.3 * magnitude * np.sin(2 * np.pi * (t / max(T, 1.0)) * rng.uniform(0.7, 1.5)
                                      + rng.uniform(0, 2 * np.pi))
     return np.clip(nominal + step + drift, 0.8, 1.3)
