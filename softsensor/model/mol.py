@@ -273,8 +273,13 @@ def simulate_mol(model: DryerModel, U: np.ndarray, theta: np.ndarray | None = No
     njev = nlu = 0
     t0 = time.perf_counter()
     for k in range(K):
-        sol = solve_ivp(mol.rhs, (0.0, dt), y, method="BDF", args=(U[k], TH[k], aux),
-                        rtol=rtol, atol=atol, jac_sparsity=sparsity, t_eval=None)
+        try:
+            sol = solve_ivp(mol.rhs, (0.0, dt), y, method="BDF", args=(U[k], TH[k], aux),
+                            rtol=rtol, atol=atol, jac_sparsity=sparsity)
+        except (ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError) as exc:
+            # e.g. SuperLU's "Factor is exactly singular" on a non-finite Jacobian
+            raise SolverError(f"method of lines failed in window {k} "
+                              f"(t = {k * dt:.0f} s): {exc}") from exc
         if not sol.success or not np.all(np.isfinite(sol.y[:, -1])):
             raise SolverError(f"method of lines failed in window {k} "
                               f"(t = {k * dt:.0f} s): {sol.message}")
