@@ -1,0 +1,102 @@
+"""Estimator checkpoints on disk: written atomically, read with one-line errors.
+
+A checkpoint is one JSON document: ``{"format": "softsensor-checkpoint", "version": 1,
+"saved_at_ns": ..., "unit": ..., "service": <EstimatorService.checkpoint()>}``. It is written
+to ``<path>.tmp`` in the same folder, flushed and fsync'ed, then renamed over ``<path>`` (an
+atomic replace on POSIX), and the folder is fsync'ed; a daemon killed at any moment leaves
+either the previous checkpoint or the new one, never a torn file. Floats go through ``repr``
+in :mod:`json`, so a restored estimator continues bit for bit.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from softsensor.errors import ConfigError
+
+FORMAT = "softsensor-checkpoint"
+VERSION = 1
+
+
+class CheckpointStore:
+    """Reads and atomically writes the checkpoint file at ``path``.
+
+    Attributes
+    ----------
+    n_saved : int
+        Checkpoints written by this store.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.tmp_path = self.path.with_name(self.path.name + ".tmp")
+        self.n_saved = 0
+
+    def load(self) -> dict[str, Any] | None:
+        """The saved document, or None when there is no checkpoint yet.
+
+        Raises :class:`ConfigError` naming the file when it exists but cannot be used.
+        """
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return None
+        except OSError as exc:
+            raise ConfigError(f"{self.path}: cannot read checkpoint: {exc.strerror}") from exc
+        try:
+            doc = json.loads(text)
+        except ValueError as exc:
+            raise ConfigError(f"{self.path}: checkpoint is not valid JSON (delete it or run "
+                              f"with --no-resume)") from exc
+        if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+            raise ConfigError(f"{self.path}: not a softsensor checkpoint")
+        if doc.get("version") != VERSION:
+            raise ConfigError(f"{self.path}: checkpoint version {doc.get('version')!r}, "
+                              f"expected {VERSION}")
+        if not isinstance(doc.get("service"), dict):
+            raise ConfigError(f"{self.path}: checkpoint has no service state")
+        return doc
+
+    def save(self, service_state: dict[str, Any], *, saved_at_ns: int, unit: str) -> None:
+        """Write ``service_state`` atomically (module docstring)."""
+        doc = {"format": FORMAT, "version": VERSION, "saved_at_ns": int(saved_at_ns),
+               "unit": unit, "service": service_state}
+        data = json.dumps(doc, allow_nan=True, separators=(",", ":")).encode()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            with open(self.tmp_path, "wb") as f:
+                f.write(data)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(self.tmp_path, self.path)
+            _fsync_dir(self.path.parent)
+        except OSError as exc:
+            raise ConfigError(f"{self.path}: cannot write checkpoint: {exc.strerror}") from exc
+        self.n_saved += 1
+
+    def discard(self) -> None:
+        """Remove the checkpoint (a fresh start)."""
+        for p in (self.path, self.tmp_path):
+            try:
+                p.unlink()
+            except FileNotFoundError:
+                pass
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems refuse fsync on a directory
+        pass
+    finally:
+        os.close(fd)
+
+
+__all__ = ["CheckpointStore"]

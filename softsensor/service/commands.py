@@ -1,0 +1,160 @@
+"""``softsensor run`` (the daemon) and ``softsensor replay`` (the streaming path, offline).
+
+Both verbs only parse options, load and validate the configuration once, and hand over to
+:class:`~softsensor.service.daemon.Daemon` or
+:func:`~softsensor.service.offline_replay.replay_to_file`. Command-line options override the
+config's ``[service]`` table. Bad input ends in one line on stderr and exit status 2 (the
+error classes of :mod:`softsensor.errors`, printed by :mod:`softsensor.cli`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import sys
+
+from softsensor.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+def _load_config(args: argparse.Namespace):
+    from softsensor.plantconfig import load_parameters, load_plant_config
+
+    cfg = load_plant_config(args.config)
+    if args.params:
+        cfg = load_parameters(args.params, cfg)
+    return cfg
+
+
+def _plc(value: str | None) -> tuple[str | None, int | None]:
+    if value is None:
+        return None, None
+    host, sep, port = value.rpartition(":")
+    if not sep or not host or not port.isdigit():
+        raise ConfigError(f"--plc must look like HOST:PORT, got {value!r}")
+    return host, int(port)
+
+
+# ----------------------------------------------------------------------------------------------
+# run
+
+
+def _run(args: argparse.Namespace) -> int:
+    from softsensor.service.daemon import Daemon, DaemonInfo
+    from softsensor.service.logs import configure_logging
+    from softsensor.service.settings import service_settings
+
+    cfg = _load_config(args)
+    host, port = _plc(args.plc)
+    settings = service_settings(cfg).with_overrides(
+        unit=args.unit, tagmap=args.tagmap, plc_host=host, plc_port=port,
+        data_dir=args.data_dir, checkpoint=args.checkpoint, lab_dir=args.lab_dir,
+        zenoh_mode=args.mode, zenoh_listen=args.listen, zenoh_connect=args.connect,
+        estimator=args.estimator, time_scale=args.time_scale, clock_start=args.clock_start,
+        record=False if args.no_record else None, log_format=args.log_format)
+    configure_logging(settings.log_format)
+    daemon = Daemon(cfg, settings, resume=not args.no_resume)
+
+    def _ready(info: DaemonInfo) -> None:
+        print(f"softsensor run: unit={info.unit} estimator={info.estimator} "
+              f"zenoh={','.join(info.endpoints) or 'none'} plc={info.plc} "
+              f"data_dir={info.data_dir} resumed={str(info.resumed).lower()}", flush=True)
+
+    async def _main() -> None:
+        stop = asyncio.Event()
+        loop = asyncio.get_running_loop()
+        for signum in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(signum, stop.set)  # the handlers only set the flag
+        await daemon.run(stop, ready=_ready)
+
+    asyncio.run(_main())
+    print("softsensor run: stopped", flush=True)
+    return 0
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    from softsensor.estimation.settings import ESTIMATOR_KINDS
+    from softsensor.service.settings import LOG_FORMATS, ZENOH_MODES
+
+    p = sub.add_parser("run", help="the estimator daemon: poll the PLC, estimate, publish, "
+                                   "record (until SIGTERM/SIGINT)")
+    p.add_argument("--config", default=None, help="plant config with a [service] table "
+                                                  "(default: built-in dryer1)")
+    p.add_argument("--params", default=None, help="calibrated parameters (PARAMS.toml)")
+    p.add_argument("--unit", default=None, help="unit name in keys and files")
+    p.add_argument("--tagmap", default=None, help="Modbus tag map TOML")
+    p.add_argument("--plc", default=None, metavar="HOST:PORT", help="PLC endpoint override")
+    p.add_argument("--data-dir", default=None, help="folder of the daily MCAP recordings")
+    p.add_argument("--checkpoint", default=None, help="estimator checkpoint file")
+    p.add_argument("--lab-dir", default=None, help="watched lab drop folder")
+    p.add_argument("--mode", default=None, choices=ZENOH_MODES, help="Zenoh session mode")
+    p.add_argument("--listen", action="append", default=None, metavar="ENDPOINT",
+                   help="Zenoh listen endpoint, repeatable (default tcp/127.0.0.1:7447)")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="Zenoh endpoint to connect to (e.g. a router), repeatable")
+    p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS)
+    p.add_argument("--time-scale", type=float, default=None,
+                   help="clock speed-up for accelerated demos (match plant-server --speed)")
+    p.add_argument("--clock-start", default=None,
+                   help="start of the scaled clock, ISO-8601 or ns (default now)")
+    p.add_argument("--no-record", action="store_true", help="do not record MCAP files")
+    p.add_argument("--no-resume", action="store_true", help="ignore the checkpoint")
+    p.add_argument("--log-format", default=None, choices=LOG_FORMATS)
+    p.set_defaults(func=_run)
+
+
+# ----------------------------------------------------------------------------------------------
+# replay
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from softsensor.bus.replay import parse_rate
+    from softsensor.service.offline_replay import replay_to_file
+    from softsensor.service.settings import service_settings
+
+    parse_rate(args.rate)  # a bad rate fails before anything starts
+    cfg = _load_config(args)
+    settings = service_settings(cfg)
+    if not getattr(args, "verbose", False):
+        for name in ("softsensor.service", "softsensor.estimation", "softsensor.ingest"):
+            logging.getLogger(name).setLevel(logging.WARNING)
+    summary = replay_to_file(args.day, args.out, cfg, estimator=args.estimator, rate=args.rate,
+                             start=args.start, end=args.end,
+                             allow_truncated=args.allow_truncated, settings=settings)
+    print(summary.line(), flush=True)
+    return 0
+
+
+def _add_replay(sub: argparse._SubParsersAction) -> None:
+    from softsensor.estimation.settings import ESTIMATOR_KINDS
+
+    p = sub.add_parser("replay", help="replay a recorded day through Zenoh and the estimator "
+                                      "into one MCAP file")
+    p.add_argument("day", metavar="DAY.mcap", help="recorded day")
+    p.add_argument("--params", default=None,
+                   help="calibrated parameters (PARAMS.toml; default: the config's values)")
+    p.add_argument("--out", required=True, help="MCAP file to write (inputs, estimates, health)")
+    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
+    p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS,
+                   help="estimator (default: the config's estimator.kind, ukf)")
+    p.add_argument("--rate", default="max",
+                   help="speed-up over real time (1 = real time) or 'max' (default)")
+    p.add_argument("--start", default=None, help="first log time, ISO-8601 (UTC) or ns")
+    p.add_argument("--end", default=None, help="end log time (excluded), ISO-8601 or ns")
+    p.add_argument("--allow-truncated", action="store_true",
+                   help="replay the intact part of a truncated file")
+    p.set_defaults(func=_replay)
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register the ``run`` and ``replay`` verbs (called by :mod:`softsensor.cli`)."""
+    _add_run(sub)
+    _add_replay(sub)
+
+
+if __name__ == "__main__":  # pragma: no cover - use the softsensor command
+    from softsensor.cli import main
+    sys.exit(main())

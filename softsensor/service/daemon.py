@@ -1,0 +1,259 @@
+"""The estimator daemon: poller, lab input, estimator and recorder on one Zenoh peer.
+
+``softsensor run --config config/dryer1.toml`` builds a :class:`Daemon` and awaits
+:meth:`Daemon.run` until SIGTERM or SIGINT sets its stop event (the signal handlers do nothing
+else). Inside one process, around one embedded Zenoh session (peer on ``127.0.0.1`` by
+default, optionally connected to a router)::
+
+    ModbusPoller --ScanPublisher--> plant/<unit>/scan ---+--> ServicePipeline (estimator thread)
+    LabFolderWatcher --LabInput---> plant/<unit>/lab  ---+      | estimate, health
+    (other publishers, e.g. a LIMS) plant/<unit>/lab  ---+      v
+                                    softsensor/<unit>/{estimate,health}
+    every key --> BusRecorder --> Recorder: <data_dir>/<unit>-YYYYMMDD.mcap (daily, UTC)
+
+The estimator state is checkpointed after every tick (atomic replace, see
+:mod:`.checkpoint`); a restart resumes from it, and the windows missed while the daemon was down
+are ticked as stale gaps. Logs are one line per event (:mod:`.logs`).
+
+Time: the daemon's clock is a :class:`ScaledClock`. At ``time_scale = 1`` it is the wall
+clock. At ``N > 1`` it runs N times faster from ``clock_start`` (default now; after a restart
+not before the checkpoint's time), the poller polls N times as often and its frozen-value and
+back-off timers run on the same scaled clock, so a daemon follows ``softsensor plant-server
+--speed N`` window for window.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from softsensor.bus.replay import parse_time
+from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
+from softsensor.errors import ConfigError
+from softsensor.estimation.base import LabResult
+from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, lab_body
+from softsensor.ingest.modbus_poller import ModbusPoller
+from softsensor.ingest.tagmap import TagMap, load_tagmap
+from softsensor.plantconfig import PlantConfig
+from softsensor.recording.recorder import BusRecorder, Recorder
+from softsensor.service.checkpoint import CheckpointStore
+from softsensor.service.estimator_service import Output
+from softsensor.service.logs import event
+from softsensor.service.offline_replay import make_service
+from softsensor.service.pipeline import INPUT_KINDS, ScanPublisher, ServicePipeline
+from softsensor.service.settings import ServiceSettings, resolve_estimator_kind, resolve_unit
+
+log = logging.getLogger(__name__)
+
+#: Wall-clock period of the daemon's housekeeping (time passing, recorder, status) [s].
+HOUSEKEEPING_S = 0.1
+
+
+class ScaledClock:
+    """Plant time: ``start_ns + (monotonic() - m0) * scale`` [ns since the epoch, UTC].
+
+    With ``scale == 1`` and no ``start_ns`` it is the wall clock itself.
+    """
+
+    def __init__(self, scale: float = 1.0, start_ns: int | None = None, *,
+                 wall_ns: Callable[[], int] = time.time_ns,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        if not scale > 0:
+            raise ConfigError(f"service.time_scale must be > 0, got {scale!r}")
+        self.scale = float(scale)
+        self._wall = wall_ns
+        self._mono = monotonic
+        self._m0 = monotonic()
+        self.start_ns = int(wall_ns() if start_ns is None else start_ns)
+        self.is_wall = scale == 1.0 and start_ns is None
+
+    def now_ns(self) -> int:
+        """Current plant time [ns]."""
+        if self.is_wall:
+            return self._wall()
+        return self.start_ns + int(round((self._mono() - self._m0) * self.scale * 1e9))
+
+    def monotonic(self) -> float:
+        """Scaled monotonic time [plant s] (for the poller's frozen check and back-off)."""
+        return (self._mono() - self._m0) * self.scale
+
+
+@dataclass
+class DaemonInfo:
+    """What a running daemon reports once it is up."""
+
+    unit: str
+    estimator: str
+    endpoints: list[str]
+    plc: str
+    data_dir: str | None
+    resumed: bool
+    clock_start_ns: int
+
+
+def daemon_tagmap(settings: ServiceSettings, tagmap: TagMap | None = None) -> TagMap:
+    """The tag map with the ``service`` PLC endpoint and a poll period scaled to plant time."""
+    tm = tagmap if tagmap is not None else (
+        load_tagmap(settings.tagmap) if settings.tagmap else load_tagmap())
+    if settings.plc_host is not None or settings.plc_port is not None:
+        tm = tm.with_endpoint(settings.plc_host or tm.modbus.host,
+                              settings.plc_port or tm.modbus.port)
+    if settings.time_scale != 1.0:
+        tm = tm.with_settings(poll_period_s=tm.modbus.poll_period_s / settings.time_scale)
+    return tm
+
+
+class Daemon:
+    """Runs the whole service until a stop event (module docstring).
+
+    Parameters
+    ----------
+    config : PlantConfig
+        Plant config with calibrated parameters.
+    settings : ServiceSettings
+        The ``[service]`` table with command-line overrides applied.
+    tagmap : TagMap, optional
+        Use this tag map instead of ``settings.tagmap`` (tests).
+    resume : bool
+        Continue from the checkpoint when there is one.
+    """
+
+    def __init__(self, config: PlantConfig, settings: ServiceSettings, *,
+                 tagmap: TagMap | None = None, resume: bool = True) -> None:
+        self.config = config
+        self.settings = settings
+        self.unit = resolve_unit(settings, config)
+        self.kind = resolve_estimator_kind(settings, config)
+        self.tagmap = daemon_tagmap(settings, tagmap)
+        self.resume = resume
+        self.store = CheckpointStore(settings.checkpoint)
+        self.pipeline: ServicePipeline | None = None
+        self.poller: ModbusPoller | None = None
+        self.lab_input: LabInput | None = None
+        self.recorder: Recorder | None = None
+        self.clock: ScaledClock | None = None
+        self.info: DaemonInfo | None = None
+
+    def _clock(self, saved_at_ns: int | None) -> ScaledClock:
+        s = self.settings
+        start = parse_time(s.clock_start, "service.clock_start")
+        if s.time_scale != 1.0:
+            start = time.time_ns() if start is None else start
+            if saved_at_ns is not None and saved_at_ns > start:
+                start = saved_at_ns  # accelerated time must not run backwards over a restart
+        return ScaledClock(s.time_scale, start)
+
+    def _on_output(self, out: Output) -> None:
+        b = out.body
+        if out.kind == "estimate":
+            event(log, "tick", window_end_ns=out.time_ns, status=b.get("status"),
+                  moisture_out=b.get("moisture_out"), moisture_out_std=b.get("moisture_out_std"),
+                  moisture_in=b.get("moisture_in"), moisture_in_std=b.get("moisture_in_std"),
+                  lab_updated=b.get("lab_updated"), n_scans=b.get("n_scans"))
+        elif out.kind == "health":
+            event(log, "health", time_ns=out.time_ns, status=b.get("status"),
+                  detail=b.get("detail"))
+
+    async def run(self, stop: asyncio.Event,
+                  ready: Callable[[DaemonInfo], None] | None = None) -> None:
+        """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
+        s = self.settings
+        doc = self.store.load() if self.resume else None
+        service = make_service(self.config, s, self.kind,
+                               self.tagmap.modbus.poll_period_s * s.time_scale)
+        if doc is not None:
+            if doc.get("unit") != self.unit:
+                raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
+                                  f"this daemon runs {self.unit!r} (use --no-resume)")
+            service.restore(doc["service"], where=str(self.store.path))
+            event(log, "resumed", checkpoint=str(self.store.path),
+                  ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
+        self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
+        async with contextlib.AsyncExitStack() as stack:
+            session = open_session(mode=s.zenoh_mode, listen=list(s.listen),
+                                   connect=list(s.connect))
+            stack.callback(session.close)
+            if s.record:
+                self.recorder = Recorder(s.data_dir, self.unit,
+                                         chunk_size=s.chunk_size,
+                                         flush_interval_s=s.flush_interval_s)
+                stack.callback(self.recorder.close)
+                bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS)
+                stack.callback(bus_rec.close)
+            self.pipeline = pipeline = ServicePipeline(
+                session, service, unit=self.unit, checkpoints=self.store,
+                checkpoint_every=s.checkpoint_every, on_output=self._on_output)
+            stack.push_async_callback(asyncio.to_thread, pipeline.close)
+            publisher = Publisher(session, self.unit, clock=clock.now_ns)
+            publisher.declare(INPUT_KINDS)
+            stack.callback(publisher.close)
+
+            def _lab_sink(lab: LabResult) -> None:
+                publisher.put("lab", lab_body(lab), lab.log_time_ns)
+                event(log, "lab", sample_id=lab.sample_id, moisture_out=lab.moisture_out,
+                      sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
+
+            self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
+            if s.lab_dir is not None:
+                watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
+                                           poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
+                                           settle_s=s.lab_settle_s).start()
+                stack.callback(watcher.close)
+            self.poller = poller = ModbusPoller(self.tagmap, ScanPublisher(publisher),
+                                                clock_ns=clock.now_ns,
+                                                monotonic=clock.monotonic)
+            poll_stop = asyncio.Event()
+            poll_task = asyncio.create_task(poller.run(poll_stop), name="modbus-poller")
+
+            async def _stop_poller() -> None:
+                poll_stop.set()
+                try:
+                    await asyncio.wait_for(poll_task, 10.0)
+                except TimeoutError:
+                    log.error("poller did not stop within 10 s")
+
+            stack.push_async_callback(_stop_poller)
+            m = self.tagmap.modbus
+            self.info = DaemonInfo(self.unit, service.kind, listening_endpoints(session),
+                                   f"{m.host}:{m.port}", s.data_dir if s.record else None,
+                                   doc is not None, clock.start_ns)
+            event(log, "started", unit=self.unit, estimator=service.kind,
+                  zenoh=",".join(self.info.endpoints) or "none", plc=self.info.plc,
+                  data_dir=self.info.data_dir, time_scale=s.time_scale,
+                  resumed=self.info.resumed)
+            if ready is not None:
+                ready(self.info)
+            await self._housekeeping(stop, poll_task)
+        event(log, "stopped", ticks=service.stats.ticks, stale_ticks=service.stats.stale_ticks,
+              scans=service.stats.scans, checkpoints=self.store.n_saved)
+
+    async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
+        assert self.pipeline is not None and self.clock is not None
+        next_status = time.monotonic() + self.settings.status_every_s
+        while not stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), HOUSEKEEPING_S)
+            if poll_task.done():
+                exc = poll_task.exception()
+                raise RuntimeError(f"the Modbus poller stopped: {exc!r}")
+            self.pipeline.advance(self.clock.now_ns())
+            if time.monotonic() >= next_status:
+                next_status += self.settings.status_every_s
+                self._status()
+
+    def _status(self) -> None:
+        assert self.pipeline is not None and self.poller is not None
+        st = self.pipeline.service.stats
+        p = self.poller.stats
+        event(log, "status", plc_connected=self.poller.connected, polls=p.scans,
+              read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
+              stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
+              labs_refused=st.labs_refused, checkpoints=self.store.n_saved,
+              recorded=None if self.recorder is None else self.recorder.n_written)
+
+
+__all__ = ["Daemon", "DaemonInfo", "ScaledClock", "daemon_tagmap"]

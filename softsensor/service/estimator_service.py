@@ -1,0 +1,383 @@
+"""The estimator service, sans I/O: scans and lab results in, estimate and health bodies out.
+
+:class:`EstimatorService` owns a :class:`~softsensor.estimation.windowing.WindowAccumulator`
+and an :class:`~softsensor.estimation.base.Estimator`. It never touches a socket, a file or a
+clock: time is whatever the messages say, so the daemon (Zenoh, live), the ``replay`` verb
+(Zenoh, offline) and the tests drive the very same object and get the very same estimates.
+
+Events and what they return (a list of :class:`Output`, in publishing order):
+
+* :meth:`on_scan` (``/plant/scan`` body, time [ns]): adds the scan to its 600 s window; once a
+  scan ``tick_delay_s`` past a window's end has arrived the window is *ticked*: the lab results
+  logged up to the window's end are handed to the estimator, the estimator steps over the window
+  and an ``estimate`` and a ``health`` body are emitted, both stamped with the window's end.
+  Waiting ``tick_delay_s`` makes the order of lab results and ticks a function of the log
+  times alone, so a replay of a recorded day reproduces the live estimates exactly.
+* :meth:`on_lab` (``/plant/lab`` body, log time): checked (:func:`~softsensor.ingest.lab_input.
+  lab_from_body`) and queued until the tick of the window holding its log time.
+* :meth:`advance` (now [ns]): lets time pass without scans (PLC gone and poller silent): windows
+  ``gap_after_s`` past their end are closed (stale) and ticked, and health turns ``stale``.
+* :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
+
+Health (CONTRACT section 2) is emitted at every tick and whenever the input state changes
+between ticks. Its ``status`` is the worse of the last tick's status (the estimator's verdict:
+``ok``, ``degraded`` when its innovations are inconsistent or the model failed, ``stale`` for
+a window with too few good scans) and the input status (``degraded`` while a model input has
+no good value in the latest scan, ``stale`` when no scan came for ``gap_after_s``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from collections import deque
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from softsensor.errors import EstimationError, IngestError, SoftsensorError
+from softsensor.estimation.base import Estimator, LabResult, Window
+from softsensor.estimation.lab_history import (
+    lab_from_json,
+    lab_to_json,
+    window_from_json,
+    window_to_json,
+)
+from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
+from softsensor.ingest.lab_input import lab_from_body
+from softsensor.service.estimators import estimator_kind
+
+log = logging.getLogger(__name__)
+
+NS = 10**9
+#: Health states from best to worst (CONTRACT section 2).
+SEVERITY: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
+_CHECKPOINT_VERSION = 1
+
+
+@dataclass(frozen=True)
+class Output:
+    """A message to publish: key kind (``estimate`` or ``health``), body, time [ns]."""
+
+    kind: str
+    body: dict[str, Any]
+    time_ns: int
+
+
+@dataclass
+class ServiceStats:
+    """Counters of a service's life (also in every health body)."""
+
+    scans: int = 0
+    bad_scans: int = 0
+    ticks: int = 0
+    stale_ticks: int = 0
+    failed_ticks: int = 0
+    lab_updates: int = 0
+    labs_received: int = 0
+    labs_accepted: int = 0
+    labs_refused: int = 0
+
+
+def _worst(a: str, b: str) -> str:
+    return a if SEVERITY[a] >= SEVERITY[b] else b
+
+
+class EstimatorService:
+    """Turns scans and lab results into ticks, estimates and health (module docstring).
+
+    Parameters
+    ----------
+    estimator : Estimator
+        The estimator stepped every window (see :mod:`softsensor.service.estimators`).
+    window : WindowSettings, optional
+        Window length (must equal the model's window), expected scans, thresholds.
+    unit : str
+        Unit name, copied into the bodies.
+    tick_delay_s : float
+        Scan time past a window's end at which the window is ticked [s].
+    gap_after_s : float
+        Silence after which :meth:`advance` closes windows and reports ``stale`` [s].
+    """
+
+    def __init__(self, estimator: Estimator, window: WindowSettings | None = None, *,
+                 unit: str = "dryer1", tick_delay_s: float = 10.0,
+                 gap_after_s: float = 60.0) -> None:
+        self.estimator = estimator
+        self.kind = estimator_kind(estimator)
+        self.window = window or WindowSettings()
+        self.unit = unit
+        self.tick_delay_ns = int(round(tick_delay_s * NS))
+        self.gap_after_ns = int(round(gap_after_s * NS))
+        self.stats = ServiceStats()
+        self._acc = WindowAccumulator(self.window)
+        self._window_scans: list[tuple[int, dict[str, Any]]] = []  # scans of the open window
+        self._ready: deque[Window] = deque()
+        self._labs: list[LabResult] = []  # checked, waiting for their tick (log-time order)
+        self._closed_end: int | None = None  # end of the last window the accumulator closed
+        self._ticked_end: int | None = None
+        self._last_scan: int | None = None
+        self._now: int | None = None
+        self._tick_status: tuple[str, str] | None = None
+        self._input_status: tuple[str, str] = ("stale", "no scan received yet")
+        self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
+        self._published: tuple[str, tuple[str, ...]] | None = None
+        self._last_refusal: str | None = None
+
+    # ------------------------------------------------------------------ events
+    def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
+        """Dispatch a bus message of ``kind`` ``scan`` or ``lab`` (others are ignored)."""
+        if kind == "scan":
+            if time_ns is None:
+                self.stats.bad_scans += 1
+                log.warning("scan without time_ns ignored")
+                return []
+            return self.on_scan(time_ns, body)
+        if kind == "lab":
+            return self.on_lab(body, time_ns)
+        return []
+
+    def on_scan(self, time_ns: int, body: Mapping[str, Any]) -> list[Output]:
+        """Add one ``/plant/scan`` body (SI, null = bad) logged at ``time_ns`` [ns]."""
+        t = int(time_ns)
+        try:
+            closed = self._acc.add(t, body)
+        except IngestError as exc:
+            self.stats.bad_scans += 1
+            log.warning("scan at %d ns ignored: %s", t, exc)
+            return []
+        if closed:
+            self._window_scans = []
+        self._window_scans.append((t, dict(body)))
+        self.stats.scans += 1
+        self._last_scan = t if self._last_scan is None else max(self._last_scan, t)
+        self._now = t if self._now is None else max(self._now, t)
+        self._queue(closed)
+        self._set_input(*self._input_of(body))
+        out = self._drain(self._now - self.tick_delay_ns)
+        return self._with_health_change(out, t)
+
+    def on_lab(self, body: Mapping[str, Any], log_time_ns: int | None) -> list[Output]:
+        """Check one ``/plant/lab`` body logged at ``log_time_ns`` and queue it for its tick."""
+        self.stats.labs_received += 1
+        t = log_time_ns if log_time_ns is not None else self._now
+        try:
+            lab = lab_from_body(dict(body), t, where=f"plant/{self.unit}/lab")
+        except IngestError as exc:
+            self._refuse(str(exc))
+            return []
+        if lab.log_time_ns is None:  # no time anywhere yet: apply with the first tick
+            lab = dataclasses.replace(lab, log_time_ns=0)
+        self._labs.append(lab)
+        self._labs.sort(key=lambda r: (r.log_time_ns, r.sample_id))
+        return []
+
+    def advance(self, now_ns: int) -> list[Output]:
+        """Let time pass to ``now_ns`` [ns] without scans (live only; see module docstring)."""
+        now = int(now_ns)
+        self._now = now if self._now is None else max(self._now, now)
+        closed = self._acc.advance(now - self.gap_after_ns)
+        if closed:
+            self._window_scans = []
+        self._queue(closed)
+        out = self._drain(now - self.gap_after_ns)
+        if self._last_scan is None or now - self._last_scan > self.gap_after_ns:
+            since = ("since start" if self._last_scan is None else
+                     f"for {(now - self._last_scan) / NS:.0f} s")
+            self._set_input("stale", f"no scans {since}", ("no_scans",))
+        return self._with_health_change(out, now)
+
+    def flush(self) -> list[Output]:
+        """Close and tick every window left, the partly filled last one included."""
+        closed = self._acc.flush()
+        if closed:
+            self._window_scans = []
+        self._queue(closed)
+        return self._drain(None)
+
+    # ------------------------------------------------------------------ internals
+    def _queue(self, windows: list[Window]) -> None:
+        for w in windows:
+            self._ready.append(w)
+            self._closed_end = w.end_ns
+
+    def _drain(self, until_ns: int | None) -> list[Output]:
+        """Tick the ready windows that end at or before ``until_ns`` (None: all)."""
+        out: list[Output] = []
+        while self._ready and (until_ns is None or self._ready[0].end_ns <= until_ns):
+            out.extend(self._tick(self._ready.popleft()))
+        return out
+
+    def _tick(self, window: Window) -> list[Output]:
+        due = [lab for lab in self._labs if lab.log_time_ns <= window.end_ns]
+        self._labs = self._labs[len(due):]
+        for lab in due:
+            try:
+                reason = self.estimator.add_lab(lab)
+            except SoftsensorError as exc:
+                reason = f"lab {lab.sample_id!r}: {exc}"
+            if reason is None:
+                self.stats.labs_accepted += 1
+                log.info("lab %s accepted: moisture_out %.4f kg/kg sampled at %d ns",
+                         lab.sample_id, lab.moisture_out, lab.sample_time_ns)
+            else:
+                self._refuse(reason)
+        self._ticked_end = window.end_ns
+        try:
+            body = dict(self.estimator.tick(window))
+        except (SoftsensorError, ArithmeticError, ValueError) as exc:
+            self.stats.failed_ticks += 1
+            detail = f"estimator failed at the window ending {window.end_ns} ns: {exc}"
+            log.error("%s", detail)
+            self._tick_status = ("degraded", detail)
+            return [self._health(window.end_ns)]
+        self.stats.ticks += 1
+        status = str(body.get("status") or ("stale" if window.stale else "ok"))
+        if status not in SEVERITY:
+            status = "degraded"
+        if window.stale:
+            self.stats.stale_ticks += 1
+            status = "stale"
+        if body.get("lab_updated"):
+            self.stats.lab_updates += 1
+        detail = str(body.get("detail") or status)
+        self._tick_status = (status, detail)
+        body.update(unit=self.unit, n_scans=window.n_scans, stale=window.stale)
+        body.setdefault("estimator", self.kind)
+        body.setdefault("window_start_ns", window.start_ns)
+        body.setdefault("window_end_ns", window.end_ns)
+        for key in ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
+                    "T_dryer_out_model", "T_cyclone_out_model"):
+            v = body.get(key)
+            if isinstance(v, float) and not math.isfinite(v):
+                body[key] = None
+        return [Output("estimate", body, window.end_ns), self._health(window.end_ns)]
+
+    def _refuse(self, reason: str) -> None:
+        self.stats.labs_refused += 1
+        self._last_refusal = reason
+        log.warning("lab refused: %s", reason)
+
+    def _input_of(self, body: Mapping[str, Any]) -> tuple[str, str, tuple[str, ...]]:
+        """Input status of one scan: ``degraded`` while a model input has no good value."""
+        missing = []
+        for name in self.window.required:
+            v = body.get(name)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+                missing.append(name)
+        if not missing:
+            return "ok", "every model input read", ()
+        quality = body.get("quality")
+        reasons = quality if isinstance(quality, Mapping) else {}
+        parts = [f"{n} ({reasons[n]})" if n in reasons else n for n in missing]
+        return "degraded", "no good value of " + ", ".join(parts), tuple(missing)
+
+    def _set_input(self, status: str, detail: str, key: tuple[str, ...]) -> None:
+        self._input_status = (status, detail)
+        self._input_key = (status, key)
+
+    def _state_key(self) -> tuple[str, tuple[str, ...]]:
+        tick = self._tick_status[0] if self._tick_status else "stale"
+        return _worst(tick, self._input_key[0]), (tick, *self._input_key[1])
+
+    def _with_health_change(self, out: list[Output], time_ns: int) -> list[Output]:
+        """Append a health body when the state changed since the last one published."""
+        if any(o.kind == "health" for o in out) or self._state_key() == self._published:
+            return out
+        if self._tick_status is None and self._published is None \
+                and self._input_key[0] == "stale":
+            return out  # nothing to say before the first scan
+        return [*out, self._health(time_ns)]
+
+    def _health(self, time_ns: int) -> Output:
+        tick_status, tick_detail = self._tick_status or ("stale", "waiting for the first "
+                                                                  "complete window")
+        in_status, in_detail = self._input_status
+        status = _worst(tick_status, in_status)
+        if status == "ok":
+            detail = tick_detail
+        else:
+            parts = [tick_detail] if tick_status != "ok" else []
+            if in_status != "ok":
+                parts.append(f"input: {in_detail}")
+            detail = "; ".join(parts)
+        self._published = self._state_key()
+        body: dict[str, Any] = {
+            "status": status, "detail": detail, "tick_status": tick_status,
+            "input_status": in_status, "estimator": self.kind, "unit": self.unit,
+            "window_end_ns": self._ticked_end, "last_scan_ns": self._last_scan,
+            "labs_waiting": len(self._labs), "last_lab_refusal": self._last_refusal,
+            **dataclasses.asdict(self.stats),
+        }
+        return Output("health", body, int(time_ns))
+
+    # ------------------------------------------------------------------ checkpoints
+    def checkpoint(self) -> dict[str, Any]:
+        """JSON-able snapshot from which :meth:`restore` continues (estimator included)."""
+        return {
+            "version": _CHECKPOINT_VERSION, "estimator_kind": self.kind, "unit": self.unit,
+            "estimator": self.estimator.checkpoint(), "closed_end_ns": self._closed_end,
+            "ticked_end_ns": self._ticked_end, "last_scan_ns": self._last_scan,
+            "now_ns": self._now, "ready": [window_to_json(w) for w in self._ready],
+            "window_scans": [[t, b] for t, b in self._window_scans],
+            "labs": [lab_to_json(r) for r in self._labs],
+            "tick_status": list(self._tick_status) if self._tick_status else None,
+            "stats": dataclasses.asdict(self.stats),
+        }
+
+    def restore(self, snapshot: Mapping[str, Any], where: str = "checkpoint") -> None:
+        """Continue from :meth:`checkpoint` output, the scans of the open window included.
+
+        Raises :class:`EstimationError` naming ``where`` when the snapshot is of another
+        version or estimator kind, or malformed.
+        """
+        if snapshot.get("version") != _CHECKPOINT_VERSION:
+            raise EstimationError(f"{where}: version {snapshot.get('version')!r}, expected "
+                                  f"{_CHECKPOINT_VERSION}")
+        if snapshot.get("estimator_kind") != self.kind:
+            raise EstimationError(f"{where}: written by estimator "
+                                  f"{snapshot.get('estimator_kind')!r}, this run uses "
+                                  f"{self.kind!r}")
+        try:
+            self.estimator.restore(snapshot["estimator"])
+            closed = snapshot["closed_end_ns"]
+            self._closed_end = None if closed is None else int(closed)
+            ticked = snapshot["ticked_end_ns"]
+            self._ticked_end = None if ticked is None else int(ticked)
+            last = snapshot["last_scan_ns"]
+            self._last_scan = None if last is None else int(last)
+            now = snapshot["now_ns"]
+            self._now = None if now is None else int(now)
+            self._ready = deque(window_from_json(w) for w in snapshot["ready"])
+            self._window_scans = [(int(t), dict(b)) for t, b in snapshot["window_scans"]]
+            self._labs = [lab_from_json(r) for r in snapshot["labs"]]
+            tick = snapshot["tick_status"]
+            self._tick_status = None if tick is None else (str(tick[0]), str(tick[1]))
+            self.stats = ServiceStats(**{k: int(v) for k, v in snapshot["stats"].items()})
+        except EstimationError as exc:
+            raise EstimationError(f"{where}: {exc}") from exc
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise EstimationError(f"{where}: malformed checkpoint ({exc!r})") from exc
+        self._acc = WindowAccumulator(self.window, start_ns=self._closed_end)
+        for t, body in self._window_scans:  # the open window, as it was
+            self._acc.add(t, body)
+
+    # ------------------------------------------------------------------ views
+    @property
+    def now_ns(self) -> int | None:
+        """Latest time seen in a scan or :meth:`advance` [ns]."""
+        return self._now
+
+    @property
+    def ticked_end_ns(self) -> int | None:
+        """End of the last window ticked [ns]."""
+        return self._ticked_end
+
+    @property
+    def late_scans(self) -> int:
+        """Scans that arrived for a window already closed (dropped)."""
+        return self._acc.n_late
+
+
+__all__ = ["SEVERITY", "EstimatorService", "Output", "ServiceStats"]

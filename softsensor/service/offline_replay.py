@@ -1,0 +1,271 @@
+"""The streaming path, offline: a recorded day through Zenoh into one estimates file.
+
+``softsensor replay DAY.mcap --out EST.mcap`` (CONTRACT section 4) runs::
+
+    replay_day(DAY) -> plant session --Zenoh/TCP loopback--> service session
+        -> ServicePipeline (EstimatorService + estimator) -> estimate, health on Zenoh
+        -> BusRecorder -> EST.mcap (the replayed scans and labs, the estimates, the health)
+
+Two Zenoh sessions on 127.0.0.1 (free ports, scouting off) stand for the plant side and the
+daemon, so the bytes cross a real Zenoh link. Estimates are a function of the day alone (the
+service orders lab results and ticks by log time, see :mod:`.estimator_service`): replaying
+the same day twice, or replaying what the daemon recorded live, gives the same estimates.
+
+The summary may compare the estimates with the day's ``/truth/plant`` topic when the virtual
+plant wrote one: for reporting only, the estimator never sees it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softsensor.bus.replay import parse_time, replay_day
+from softsensor.bus.zenoh_bus import (
+    Publisher,
+    listening_endpoints,
+    open_session,
+    wait_for_peers,
+)
+from softsensor.errors import IngestError, SoftsensorError
+from softsensor.estimation.windowing import WindowSettings
+from softsensor.ingest.tagmap import load_tagmap
+from softsensor.plantconfig import PlantConfig
+from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
+from softsensor.recording.recorder import BusRecorder
+from softsensor.service.estimator_service import EstimatorService, Output
+from softsensor.service.estimators import make_estimator
+from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
+from softsensor.service.settings import (
+    ServiceSettings,
+    resolve_estimator_kind,
+    resolve_unit,
+    service_settings,
+)
+from softsensor.signals import TOPIC_SCAN, TOPIC_TRUTH
+
+log = logging.getLogger(__name__)
+
+#: No progress for this long [s, wall] while waiting for the bus is an error.
+STALL_TIMEOUT_S = 60.0
+
+
+class FileRecorder:
+    """One MCAP file for a :class:`~softsensor.recording.recorder.BusRecorder` (no rotation).
+
+    Thread-safe ``write(topic, log_time_ns, body)``; ``tick`` does nothing (the file is
+    finished by :meth:`close`).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], chunk_size: int = DEFAULT_CHUNK_SIZE):
+        self.path = Path(path)
+        self._writer = DayWriter(self.path, chunk_size=chunk_size)
+        self._lock = threading.Lock()
+        self.n_written = 0
+
+    def write(self, topic: str, log_time_ns: int, body: dict[str, Any]) -> None:
+        with self._lock:
+            self._writer.write(topic, log_time_ns, body)
+            self.n_written += 1
+
+    def tick(self) -> None:
+        return None
+
+    def close(self) -> None:
+        with self._lock:
+            self._writer.close()
+
+
+@dataclass
+class ReplaySummary:
+    """What a replay did. Times in ns since the epoch, durations in seconds."""
+
+    day: Path
+    out: Path
+    estimator: str
+    n_replayed: int = 0
+    n_recorded: int = 0
+    ticks: int = 0
+    stale_ticks: int = 0
+    lab_updates: int = 0
+    labs_accepted: int = 0
+    labs_refused: int = 0
+    span_s: float = 0.0
+    wall_s: float = 0.0
+    rmse: dict[str, float] | None = None
+    estimates: list[tuple[int, dict[str, Any]]] = field(default_factory=list, repr=False)
+
+    @property
+    def speedup(self) -> float:
+        """Recorded time span over wall time [-]."""
+        return self.span_s / self.wall_s if self.wall_s > 0 else math.inf
+
+    def line(self) -> str:
+        """The one-paragraph summary the verb prints."""
+        text = (f"replayed {self.day}: {self.n_replayed} messages over {self.span_s / 3600:.1f} "
+                f"h in {self.wall_s:.1f} s ({self.speedup:,.0f}x real time); {self.estimator}: "
+                f"{self.ticks} ticks ({self.stale_ticks} stale), {self.lab_updates} lab "
+                f"updates ({self.labs_accepted} lab results accepted, {self.labs_refused} "
+                f"refused); wrote {self.out} ({self.n_recorded} messages)")
+        if self.rmse:
+            parts = ", ".join(f"{k} {v:.4f}" for k, v in self.rmse.items())
+            text += f"; RMSE against /truth/plant (reporting only): {parts} kg/kg"
+        return text
+
+
+def _wait(cond: Callable[[], bool], progress: Callable[[], int], what: str) -> None:
+    """Wait until ``cond()``; IngestError when ``progress()`` stalls for STALL_TIMEOUT_S."""
+    last = progress()
+    since = time.monotonic()
+    while not cond():
+        time.sleep(0.005)
+        now = progress()
+        if now != last:
+            last, since = now, time.monotonic()
+        elif time.monotonic() - since > STALL_TIMEOUT_S:
+            raise IngestError(f"replay stalled waiting for {what} ({now} so far)")
+
+
+def window_settings(cfg: PlantConfig, settings: ServiceSettings,
+                    scan_period_s: float | None = None) -> WindowSettings:
+    """Window length from ``solver.window``; scan period [s] given or from the tag map."""
+    if scan_period_s is None:
+        tagmap = load_tagmap(settings.tagmap) if settings.tagmap else load_tagmap()
+        scan_period_s = tagmap.modbus.poll_period_s
+    return WindowSettings(period_s=cfg.solver.window,
+                          scan_period_s=min(scan_period_s, cfg.solver.window),
+                          min_fraction=settings.min_good_fraction)
+
+
+def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None = None,
+                 scan_period_s: float | None = None) -> EstimatorService:
+    """The estimator service of ``cfg`` as the daemon builds it (scan period in plant s)."""
+    kind = kind or resolve_estimator_kind(settings, cfg)
+    return EstimatorService(make_estimator(kind, cfg),
+                            window_settings(cfg, settings, scan_period_s),
+                            unit=resolve_unit(settings, cfg),
+                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s)
+
+
+def truth_rmse(day: str | os.PathLike[str], estimates: list[tuple[int, dict[str, Any]]],
+               allow_truncated: bool = False, max_age_s: float = 60.0) -> dict[str, float] | None:
+    """RMSE of ``moisture_out`` and ``moisture_in`` estimates against ``/truth/plant``.
+
+    Each estimate (window end ``t``) is compared with the last truth value at or before ``t``
+    no older than ``max_age_s``. None when the day has no truth. For reporting only.
+    """
+    times: list[int] = []
+    rows: list[tuple[float, float]] = []
+    for _topic, t, body in iter_messages(day, topics=[TOPIC_TRUTH],
+                                         allow_truncated=allow_truncated):
+        mo, mi = body.get("moisture_out"), body.get("moisture_in")
+        times.append(t)
+        rows.append((math.nan if mo is None else float(mo), math.nan if mi is None else float(mi)))
+    if not times:
+        return None
+    tt = np.asarray(times, dtype=np.int64)
+    truth = np.asarray(rows, dtype=float)
+    out: dict[str, float] = {}
+    for j, name in enumerate(("moisture_out", "moisture_in")):
+        err = []
+        for t, body in estimates:
+            v = body.get(name)
+            i = int(np.searchsorted(tt, t, side="right")) - 1
+            if v is None or i < 0 or t - tt[i] > max_age_s * 1e9 or not math.isfinite(truth[i, j]):
+                continue
+            err.append(float(v) - truth[i, j])
+        if err:
+            out[name] = float(np.sqrt(np.mean(np.square(err))))
+    return out or None
+
+
+def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg: PlantConfig,
+                   *, estimator: str | None = None, rate: float | str = "max",
+                   start: int | str | None = None, end: int | str | None = None,
+                   allow_truncated: bool = False, settings: ServiceSettings | None = None,
+                   report_truth: bool = True) -> ReplaySummary:
+    """Replay ``day`` through Zenoh and the estimator service into ``out`` (module docstring).
+
+    Raises :class:`~softsensor.errors.IngestError` naming the file for a missing, corrupt or
+    (without ``allow_truncated``) truncated day; ``out`` is then not left behind.
+    """
+    day, out = Path(day), Path(out)
+    if day.resolve() == out.resolve():
+        raise IngestError(f"{out}: --out must differ from the replayed day")
+    if not day.is_file():
+        raise IngestError(f"{day}: no such file")
+    settings = settings or service_settings(cfg)
+    start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
+    first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,
+                                    start_ns=start_ns, end_ns=end_ns)), None)
+    if first is None:  # also checks, before anything starts, that the file is intact
+        raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
+    service = make_service(cfg, settings, estimator)
+    unit = service.unit
+    summary = ReplaySummary(day=day, out=out, estimator=service.kind)
+
+    def _keep(o: Output) -> None:
+        if o.kind == "estimate":
+            summary.estimates.append((o.time_ns, o.body))
+
+    t0 = time.monotonic()
+    recorder = FileRecorder(out, chunk_size=settings.chunk_size)
+    ok = False
+    try:
+        with open_session(port=0) as svc_session:
+            (endpoint,) = listening_endpoints(svc_session)[:1] or (None,)
+            if endpoint is None:
+                raise SoftsensorError("replay: the service session is not listening")
+            with open_session(port=None, connect=[endpoint]) as plant_session:
+                if not wait_for_peers(plant_session, timeout=10.0):
+                    raise SoftsensorError("replay: the Zenoh sessions did not connect on "
+                                          "loopback within 10 s")
+                bus = BusRecorder(svc_session, recorder, unit=unit)
+                pipeline = ServicePipeline(svc_session, service, unit=unit, on_output=_keep)
+                publisher = Publisher(plant_session, unit)
+                try:
+                    publisher.declare(INPUT_KINDS)
+                    if not publisher.wait_matched(INPUT_KINDS, timeout=10.0):
+                        raise SoftsensorError("replay: no subscriber matched within 10 s")
+                    stats = replay_day(day, publisher.put, rate=rate, start=start_ns,
+                                       end=end_ns, allow_truncated=allow_truncated)
+                    n = stats.n_published
+                    _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
+                          lambda: pipeline.n_in + bus.n_received, "the replayed messages")
+                    pipeline.flush()
+                    _wait(lambda: bus.n_received >= n + pipeline.n_out,
+                          lambda: bus.n_received, "the estimates to be recorded")
+                finally:
+                    publisher.close()
+                    pipeline.close(checkpoint=False)
+                    bus.close()
+        ok = True
+    finally:
+        recorder.close()
+        if not ok:
+            out.unlink(missing_ok=True)
+    summary.wall_s = time.monotonic() - t0
+    s = service.stats
+    summary.n_replayed = stats.n_published
+    summary.n_recorded = recorder.n_written
+    summary.ticks, summary.stale_ticks = s.ticks, s.stale_ticks
+    summary.lab_updates = s.lab_updates
+    summary.labs_accepted, summary.labs_refused = s.labs_accepted, s.labs_refused
+    if stats.first_ns is not None and stats.last_ns is not None:
+        summary.span_s = (stats.last_ns - stats.first_ns) / 1e9
+    if report_truth:
+        summary.rmse = truth_rmse(day, summary.estimates, allow_truncated)
+    return summary
+
+
+__all__ = ["FileRecorder", "ReplaySummary", "make_service", "replay_to_file", "truth_rmse",
+           "window_settings"]

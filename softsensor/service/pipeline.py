@@ -1,0 +1,208 @@
+"""Zenoh wiring of the estimator service: subscribe, step on one thread, publish.
+
+:class:`ServicePipeline` subscribes to ``plant/<unit>/scan`` and ``plant/<unit>/lab`` and hands
+every message, in arrival order, to an :class:`~softsensor.service.estimator_service.
+EstimatorService` running on one worker thread (Zenoh's callback threads only enqueue; a tick
+of the filter takes tens of milliseconds and must not hold them up). What the service returns is
+published on ``softsensor/<unit>/estimate`` and ``softsensor/<unit>/health``; after every
+``checkpoint_every`` ticks the service state is written through a
+:class:`~softsensor.service.checkpoint.CheckpointStore`. The daemon and the ``replay`` verb
+both use this class, so they run the same path.
+
+:class:`ScanPublisher` is the Modbus poller's sink: it publishes each scan on the bus (with the
+poller's per-signal reasons under ``quality`` when a value is bad).
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from softsensor.bus.zenoh_bus import BusMessage, Publisher, subscribe
+from softsensor.errors import SoftsensorError
+from softsensor.service.checkpoint import CheckpointStore
+from softsensor.service.estimator_service import EstimatorService, Output
+from softsensor.service.logs import event
+
+log = logging.getLogger(__name__)
+
+INPUT_KINDS: tuple[str, ...] = ("scan", "lab")
+OUTPUT_KINDS: tuple[str, ...] = ("estimate", "health")
+
+
+class _Call:
+    """A function to run on the worker thread, with a completion event."""
+
+    def __init__(self, fn: Callable[[], Any]) -> None:
+        self.fn = fn
+        self.done = threading.Event()
+        self.result: Any = None
+        self.error: BaseException | None = None
+
+
+_STOP = object()
+
+
+class ServicePipeline:
+    """Runs an :class:`EstimatorService` behind Zenoh (module docstring).
+
+    Parameters
+    ----------
+    session : zenoh.Session
+        Open session; the pipeline declares its subscribers and publishers on it.
+    service : EstimatorService
+        The sans-I/O core (already restored from a checkpoint if resuming).
+    unit : str
+        Unit of the keys.
+    checkpoints : CheckpointStore, optional
+        Where to write the service state; None = never.
+    checkpoint_every : int
+        Ticks between checkpoints.
+    on_output : callable, optional
+        Called on the worker thread with every :class:`Output` after it was published.
+    """
+
+    def __init__(self, session: zenoh.Session, service: EstimatorService, *,
+                 unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
+                 checkpoint_every: int = 1,
+                 on_output: Callable[[Output], None] | None = None) -> None:
+        self.service = service
+        self.unit = unit
+        self.checkpoints = checkpoints
+        self.checkpoint_every = max(1, int(checkpoint_every))
+        self.on_output = on_output
+        self.publisher = Publisher(session, unit)
+        self.publisher.declare(OUTPUT_KINDS)
+        self.n_in = 0  #: scan and lab messages processed
+        self.n_out = 0  #: estimate and health messages published
+        self.n_errors = 0  #: messages whose processing raised
+        self._ticks_unsaved = 0
+        self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
+        self._thread.start()
+        self.subscription = subscribe(session, self._q.put, unit=unit, kinds=INPUT_KINDS)
+        self._closed = False
+
+    # ------------------------------------------------------------------ worker thread
+    def _loop(self) -> None:
+        while True:
+            item = self._q.get()
+            if item is _STOP:
+                return
+            if isinstance(item, _Call):
+                try:
+                    item.result = item.fn()
+                except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                    item.error = exc
+                item.done.set()
+                continue
+            try:
+                self._publish(self.service.on_message(item.kind, item.body, item.time_ns))
+            except Exception:  # noqa: BLE001 - one bad message must not stop the service
+                self.n_errors += 1
+                log.exception("processing %s message failed", item.kind)
+            self.n_in += 1
+
+    def _publish(self, outputs: list[Output]) -> None:
+        for out in outputs:
+            self.publisher.put(out.kind, out.body, out.time_ns)
+            self.n_out += 1
+            if out.kind == "estimate":
+                self._ticks_unsaved += 1
+            if self.on_output is not None:
+                try:
+                    self.on_output(out)
+                except Exception:  # noqa: BLE001 - a logging hook must not stop the service
+                    log.exception("output hook failed")
+        if self._ticks_unsaved >= self.checkpoint_every:
+            self._save()
+
+    def _save(self) -> None:
+        if self.checkpoints is None:
+            self._ticks_unsaved = 0
+            return
+        try:
+            self.checkpoints.save(self.service.checkpoint(),
+                                  saved_at_ns=self.service.now_ns or time.time_ns(),
+                                  unit=self.unit)
+            self._ticks_unsaved = 0
+        except SoftsensorError as exc:
+            event(log, "checkpoint_failed", logging.ERROR, error=str(exc))
+
+    # ------------------------------------------------------------------ public API
+    def call(self, fn: Callable[[], Any], timeout: float = 60.0) -> Any:
+        """Run ``fn`` on the worker thread after every message queued so far; its result."""
+        c = _Call(fn)
+        self._q.put(c)
+        if not c.done.wait(timeout):
+            raise TimeoutError(f"estimator thread did not answer within {timeout:g} s")
+        if c.error is not None:
+            raise c.error
+        return c.result
+
+    def advance(self, now_ns: int) -> None:
+        """Queue a passage of time to ``now_ns`` [ns] (closes windows of a silent PLC)."""
+        self._q.put(_Call(lambda: self._publish(self.service.advance(now_ns))))
+
+    def sync(self, timeout: float = 60.0) -> None:
+        """Wait until every message queued so far has been processed."""
+        self.call(lambda: None, timeout)
+
+    def flush(self, timeout: float = 60.0) -> None:
+        """Tick every window left (end of a recorded day) and publish the results."""
+        self.call(lambda: self._publish(self.service.flush()), timeout)
+
+    def save_checkpoint(self, timeout: float = 60.0) -> None:
+        """Write the checkpoint now (after the queued messages)."""
+        self.call(self._save, timeout)
+
+    def close(self, *, checkpoint: bool = True, timeout: float = 60.0) -> None:
+        """Stop receiving, process what is queued, write a last checkpoint, stop (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        self.subscription.close()
+        try:
+            if checkpoint:
+                self.save_checkpoint(timeout)
+            else:
+                self.sync(timeout)
+        finally:
+            self._q.put(_STOP)
+            self._thread.join(timeout)
+            self.publisher.close()
+
+    def __enter__(self) -> ServicePipeline:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class ScanPublisher:
+    """The poller's sink: publishes each scan on ``plant/<unit>/scan``.
+
+    Bad values are ``null`` in the body (CONTRACT section 2); the poller's reasons go along
+    under ``quality`` (``{signal: "<kind>: detail"}``) when there are any.
+    """
+
+    def __init__(self, publisher: Publisher) -> None:
+        self.publisher = publisher
+        self.n_published = 0
+
+    async def __call__(self, time_ns: int, body: dict[str, float | None],
+                       quality: dict[str, str]) -> None:
+        msg: dict[str, Any] = dict(body)
+        if quality:
+            msg["quality"] = dict(quality)
+        self.publisher.put("scan", msg, time_ns)
+        self.n_published += 1
+
+
+__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "ScanPublisher", "ServicePipeline"]

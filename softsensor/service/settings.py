@@ -1,0 +1,182 @@
+"""Settings of the estimator daemon: the ``[service]`` table of the plant config.
+
+One frozen dataclass validated by :func:`softsensor.configfile.build_section` (unknown keys
+rejected, ranges checked, errors naming ``service.<key>`` and the file). Every field has a
+default, so a plant config without the table runs the daemon on loopback with the packaged tag
+map. Relative paths are taken relative to the working directory of the daemon (``/data`` in
+the container). Command-line options of ``softsensor run`` override single fields
+(:meth:`ServiceSettings.with_overrides`).
+
+Example ``config/dryer1.toml`` fragment::
+
+    [service]
+    data_dir = "recordings"               # daily MCAP files <unit>-YYYYMMDD.mcap
+    checkpoint = "state/checkpoint.json"  # estimator state, rewritten atomically every tick
+    lab_dir = "lab-drop"                  # watched folder for lab CSV/JSON files
+    zenoh_listen = ["tcp/127.0.0.1:7447"]
+    zenoh_connect = []                    # e.g. ["tcp/10.0.0.5:7447"], a router
+    estimator = "ukf"
+    time_scale = 1.0                      # > 1: accelerated demos against plant-server --speed
+
+Time in the daemon is plant time: with ``time_scale = N`` the daemon's clock runs N times
+faster than the wall clock from ``clock_start`` (default: now), the poller polls N times as
+often, and windows of 600 plant seconds last 600 / N wall seconds. Durations below are in
+plant seconds unless they say "wall".
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+from softsensor.configfile import build_section, num
+from softsensor.estimation.settings import ESTIMATOR_KINDS
+from softsensor.plantconfig import PlantConfig
+
+ZENOH_MODES: tuple[str, ...] = ("peer", "client")
+LOG_FORMATS: tuple[str, ...] = ("kv", "json")
+
+
+@dataclass(frozen=True)
+class ServiceSettings:
+    """The ``[service]`` table (module docstring).
+
+    Attributes
+    ----------
+    unit : str or None
+        Unit name in Zenoh keys and file names; default the config's ``unit.name``.
+    tagmap : str or None
+        Modbus tag map (TOML); default the packaged ``tagmap_dryer1.toml``.
+    plc_host, plc_port : str, int or None
+        Override the tag map's ``[modbus]`` endpoint.
+    data_dir : str
+        Folder of the recorded day files.
+    record : bool
+        Record every topic into ``data_dir`` (the recorder).
+    chunk_size : int
+        Uncompressed MCAP chunk size of the recorder [bytes]; bounds what a crash loses.
+    flush_interval_s : float
+        Longest time a recorded message waits in an open chunk [s, wall].
+    checkpoint : str
+        Estimator checkpoint file (JSON, replaced atomically).
+    checkpoint_every : int
+        Write the checkpoint every this many ticks (and at shutdown).
+    lab_dir : str or None
+        Watched lab drop folder (``processed/`` and ``rejected/`` inside); None = no folder.
+    lab_poll_s : float
+        Poll period of the lab folder [s, plant time; at least 0.05 s wall].
+    lab_settle_s : float
+        A lab file changed less than this long ago waits for the next poll [s, wall].
+    zenoh_mode : str
+        ``peer`` (embedded peer, default) or ``client`` (needs ``zenoh_connect``).
+    zenoh_listen, zenoh_connect : list of str
+        Zenoh endpoints; listening on loopback by default, connect e.g. to a router.
+    estimator : str or None
+        ``ukf`` or ``openloop``; default the config's ``estimator.kind``.
+    time_scale : float
+        Speed of the daemon's clock relative to the wall clock [-].
+    clock_start : str or None
+        Start of the scaled clock, ISO-8601 or ns since the epoch (default: now); a restart
+        continues from the checkpoint's time when that is later.
+    min_good_fraction : float
+        Fraction of the expected scans a window needs not to be stale [-].
+    tick_delay_s : float
+        A window is ticked once a scan this much past its end has arrived, so a lab result
+        logged before the window's end is always applied first, live and in replay [s].
+    gap_after_s : float
+        With no scans at all, a window is closed (stale) this long after its end [s].
+    status_every_s : float
+        Period of the daemon's status log line [s, wall].
+    log_format : str
+        ``kv`` (key=value) or ``json``, one line per event.
+    """
+
+    unit: str | None = None
+    tagmap: str | None = None
+    plc_host: str | None = None
+    plc_port: int | None = num(None, ge=1, le=65535)
+    data_dir: str = "recordings"
+    record: bool = True
+    chunk_size: int = num(16 * 1024, ge=1024, le=64 * 1024 * 1024)
+    flush_interval_s: float = num(30.0, gt=0, le=3600)
+    checkpoint: str = "state/checkpoint.json"
+    checkpoint_every: int = num(1, ge=1, le=10_000)
+    lab_dir: str | None = "lab-drop"
+    lab_poll_s: float = num(2.0, gt=0, le=3600)
+    lab_settle_s: float = num(1.0, ge=0, le=3600)
+    zenoh_mode: str = "peer"
+    zenoh_listen: Any = ("tcp/127.0.0.1:7447",)
+    zenoh_connect: Any = ()
+    estimator: str | None = None
+    time_scale: float = num(1.0, gt=0, le=100_000)
+    clock_start: str | None = None
+    min_good_fraction: float = num(0.5, ge=0, le=1)
+    tick_delay_s: float = num(10.0, ge=0, le=3600)
+    gap_after_s: float = num(60.0, gt=0, le=86_400)
+    status_every_s: float = num(60.0, gt=0, le=86_400)
+    log_format: str = "kv"
+
+    def check(self) -> str | None:
+        """Cross-field and list rules (called by ``build_section``); message names the key."""
+        for key in ("zenoh_listen", "zenoh_connect"):
+            value = getattr(self, key)
+            if not isinstance(value, (list, tuple)):
+                return f"{key} must be a list of endpoints, got {value!r}"
+            for ep in value:
+                if not isinstance(ep, str) or "/" not in ep:
+                    return f"{key} entry {ep!r} must look like tcp/127.0.0.1:7447"
+        if self.zenoh_mode not in ZENOH_MODES:
+            return f"zenoh_mode must be one of {', '.join(ZENOH_MODES)}, got {self.zenoh_mode!r}"
+        if self.zenoh_mode == "client" and not self.zenoh_connect:
+            return "zenoh_connect must name a router endpoint when zenoh_mode is client"
+        if self.estimator is not None and self.estimator not in ESTIMATOR_KINDS:
+            return (f"estimator must be one of {', '.join(ESTIMATOR_KINDS)}, "
+                    f"got {self.estimator!r}")
+        if self.log_format not in LOG_FORMATS:
+            return f"log_format must be one of {', '.join(LOG_FORMATS)}, got {self.log_format!r}"
+        if self.clock_start is not None:
+            from softsensor.bus.replay import parse_time
+            from softsensor.errors import ConfigError
+            try:
+                parse_time(self.clock_start, "clock_start")
+            except ConfigError as exc:
+                return str(exc)
+        return None
+
+    @property
+    def listen(self) -> tuple[str, ...]:
+        """Zenoh listen endpoints (none in client mode)."""
+        return () if self.zenoh_mode == "client" else tuple(self.zenoh_listen)
+
+    @property
+    def connect(self) -> tuple[str, ...]:
+        """Zenoh connect endpoints."""
+        return tuple(self.zenoh_connect)
+
+    def with_overrides(self, source: str = "command line", **changes: Any) -> ServiceSettings:
+        """A copy with the non-None ``changes`` applied and validated like the file."""
+        table = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        table.update({k: (list(v) if isinstance(v, tuple) else v)
+                      for k, v in changes.items() if v is not None})
+        table = {k: v for k, v in table.items() if v is not None}
+        return build_section(ServiceSettings, table, "service", source)
+
+
+def service_settings(cfg: PlantConfig) -> ServiceSettings:
+    """The validated ``[service]`` table of ``cfg`` (defaults when absent)."""
+    table = cfg.extra.get("service", {})
+    return build_section(ServiceSettings, table, "service", cfg.source)
+
+
+def resolve_unit(settings: ServiceSettings, cfg: PlantConfig) -> str:
+    """The unit name: ``service.unit``, else the config's ``unit.name``."""
+    return settings.unit or cfg.unit.name
+
+
+def resolve_estimator_kind(settings: ServiceSettings, cfg: PlantConfig) -> str:
+    """The estimator kind: ``service.estimator``, else ``estimator.kind``, else ``ukf``."""
+    if settings.estimator is not None:
+        return settings.estimator
+    from softsensor.estimation.settings import estimator_settings
+    return estimator_settings(cfg).kind
