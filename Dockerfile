@@ -1,0 +1,40 @@
+# softsensor estimator daemon: `softsensor run` (poller, lab input, estimator, recorder on an
+# embedded Zenoh peer). Configuration comes from outside (/config), data goes to /data.
+#
+#   docker build -t softsensor .
+#   docker run -d --name softsensor -v "$PWD/config:/config:ro" -v softsensor-data:/data \
+#       -p 127.0.0.1:7447:7447 softsensor --config /config/dryer1.toml --plc 10.0.0.20:502
+FROM python:3.11-slim
+
+ENV PYTHONDONTWRITEBYTECODE=1 \
+    PYTHONUNBUFFERED=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    NUMBA_CACHE_DIR=/var/cache/softsensor/numba
+
+# an unprivileged user owning only the data, the config copy and the compiled-model cache
+RUN useradd --system --uid 10001 --user-group --home-dir /data --shell /usr/sbin/nologin \
+        softsensor \
+    && mkdir -p /data /config "$NUMBA_CACHE_DIR" \
+    && chown softsensor:softsensor /data /config "$NUMBA_CACHE_DIR"
+
+WORKDIR /opt/softsensor
+COPY pyproject.toml README.md ./
+COPY softsensor ./softsensor
+RUN pip install . && rm -rf /opt/softsensor/build
+
+# the reference plant and its tag map, used when no config is mounted over /config
+COPY --chown=10001:10001 config/dryer1.toml config/tagmap_dryer1.toml /config/
+
+USER softsensor
+# compile the model once at build time, so the daemon starts in seconds
+RUN python -c "from softsensor.model import DryerModel; m = DryerModel(); \
+m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1))"
+
+WORKDIR /data
+VOLUME ["/config", "/data"]
+# Zenoh (tcp); recordings in /data/recordings, checkpoint in /data/state, lab drop in
+# /data/lab-drop (the [service] defaults are relative to the working directory)
+EXPOSE 7447
+ENTRYPOINT ["softsensor", "run"]
+CMD ["--config", "/config/dryer1.toml", "--listen", "tcp/0.0.0.0:7447"]

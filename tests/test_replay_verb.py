@@ -1,0 +1,117 @@
+"""``softsensor replay DAY.mcap --out EST.mcap``: the streaming path offline, via the CLI."""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import pytest
+
+from softsensor.cli import main as cli_main
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_plant_config
+from softsensor.recording.mcap_day import read_day
+from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
+
+H = 3600 * 10**9
+
+
+@pytest.fixture(scope="module")
+def day_file(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("day") / "day.mcap"
+    simulate_day(load_plant_config(), 4.0, 7, "inlet_moisture", 0.2).write(path)
+    return path
+
+
+def replay(capsys, *args: str) -> tuple[int, str, str]:
+    capsys.readouterr()
+    rc = cli_main(["replay", *args])
+    got = capsys.readouterr()
+    return rc, got.out, got.err
+
+
+def test_replay_writes_inputs_estimates_and_health_and_is_deterministic(day_file, tmp_path,
+                                                                        capsys) -> None:
+    rc, out, err = replay(capsys, str(day_file), "--out", str(tmp_path / "a.mcap"))
+    assert rc == 0, err
+    m = re.search(r"ukf: (\d+) ticks \((\d+) stale\), (\d+) lab updates", out)
+    assert m, out
+    ticks, stale, lab_updates = map(int, m.groups())
+    assert ticks == 25 and lab_updates >= 1  # 4 h of 600 s windows, plus the first scan's
+    rmse = re.search(r"RMSE against /truth/plant \(reporting only\): moisture_out ([\d.]+), "
+                     r"moisture_in ([\d.]+) kg/kg", out)
+    assert rmse and float(rmse.group(1)) < 0.03 and float(rmse.group(2)) < 0.1, out
+    day, est = read_day(day_file), read_day(tmp_path / "a.mcap")
+    assert set(est.topics) == {TOPIC_SCAN, TOPIC_LAB, TOPIC_ESTIMATE, TOPIC_HEALTH}
+    assert est.truth is None  # ground truth is never published
+    assert est.scans.equals(day.scans)
+    assert est.labs["sample_id"].tolist() == day.labs["sample_id"].tolist()
+    estimates = est.topic(TOPIC_ESTIMATE)
+    assert len(estimates) == ticks and sum(b["stale"] for _, b in estimates) == stale
+    assert len(est.topic(TOPIC_HEALTH)) >= ticks
+    assert all(b["estimator"] == "ukf" and 0.5 < b["moisture_in"] < 2.0 for _, b in estimates)
+
+    rc, out2, _ = replay(capsys, str(day_file), "--out", str(tmp_path / "b.mcap"),
+                         "--estimator", "ukf")
+    assert rc == 0
+    assert read_day(tmp_path / "b.mcap").topic(TOPIC_ESTIMATE) == estimates
+
+
+def test_time_range_rate_params_and_the_open_loop_estimator(day_file, tmp_path, capsys):
+    start = int(read_day(day_file).scans.index[0]) + H
+    rng = ["--start", str(start), "--end", str(start + H // 2), "--estimator", "openloop"]
+    t0 = time.monotonic()
+    rc, out, err = replay(capsys, str(day_file), "--out", str(tmp_path / "o.mcap"), *rng,
+                          "--rate", "3600")
+    wall = time.monotonic() - t0
+    assert rc == 0, err
+    assert wall >= 0.45  # 30 minutes of the day at 3600 times real time
+    est = read_day(tmp_path / "o.mcap")
+    assert est.scans.index.min() >= start and est.scans.index.max() < start + H // 2
+    base = [b for _, b in est.topic(TOPIC_ESTIMATE)]
+    assert [b["estimator"] for b in base] == ["openloop"] * len(base) and len(base) >= 3
+
+    params = tmp_path / "params.toml"
+    params.write_text("[parameters.mult_p]\nvalue = 2.0\n")
+    rc, _, err = replay(capsys, str(day_file), "--out", str(tmp_path / "p.mcap"), *rng,
+                        "--params", str(params))
+    assert rc == 0, err
+    hot = [b for _, b in read_day(tmp_path / "p.mcap").topic(TOPIC_ESTIMATE)]
+    # twice the heat loss: the model's outlet air is colder
+    assert all(h["T_dryer_out_model"] < b["T_dryer_out_model"] - 0.1
+               for h, b in zip(hot[1:], base[1:], strict=True))
+
+
+def test_bad_input_gives_one_line_and_no_output(day_file, tmp_path, capsys) -> None:
+    data = day_file.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) // 2])
+    corrupt = tmp_path / "corrupt.mcap"
+    mid = len(data) // 3
+    corrupt.write_bytes(data[:mid] + bytes(b ^ 0x5A for b in data[mid:mid + 64])
+                        + data[mid + 64:])
+    params = tmp_path / "bad.toml"
+    params.write_text("[parameters.mult_q]\nvalue = 1.0\n")
+    cases = [
+        ([str(cut)], r"cut\.mcap: truncated or corrupt MCAP file"),
+        ([str(corrupt)], r"corrupt\.mcap: corrupt MCAP file"),
+        ([str(tmp_path / "nope.mcap")], r"nope\.mcap: no such file"),
+        ([str(day_file), "--params", str(tmp_path / "none.toml")], r"none\.toml: no such"),
+        ([str(day_file), "--params", str(params)], r"parameters\.mult_q is not one of"),
+        ([str(day_file), "--rate", "0"], r"rate must be a positive number or 'max'"),
+        ([str(day_file), "--start", "noon"], r"--start must be ns since the epoch or an ISO"),
+    ]
+    out = tmp_path / "out.mcap"
+    for args, pattern in cases:
+        rc, _, err = replay(capsys, *args, "--out", str(out))
+        assert rc == 2, args
+        assert err.count("\n") == 1 and err.startswith("softsensor: "), err
+        assert re.search(pattern, err), err
+        assert not out.exists(), args
+
+    rc, summary, err = replay(capsys, str(cut), "--allow-truncated", "--out", str(out))
+    assert rc == 0, err
+    kept = read_day(out)
+    assert 0 < len(kept.scans) < len(read_day(day_file).scans)
+    assert kept.topic(TOPIC_ESTIMATE)
