@@ -1,0 +1,214 @@
+"""Benchmark: the streaming path (issue 3) end to end, and the daemon's memory.
+
+Prints one JSON document:
+
+* ``replay``: a 48-hour virtual-plant day (17,281 scans plus its lab results) replayed at rate
+  ``max`` through the whole path of ``softsensor replay`` (replayer -> Zenoh over TCP loopback
+  -> estimator service with the UKF -> Zenoh -> recorder -> one MCAP file). ``wall_s`` is the
+  whole call (sessions, estimator construction, replay, estimates, finished file);
+  ``speedup`` is the day's span over it. Targets: at least 10,000 times real time, under 18 s.
+  The UKF's own share is reported as ``estimator_s`` (ticks x mean tick time, measured apart).
+* ``zenoh``: messages per second between two sessions on TCP loopback, raw 200-byte payloads
+  (Zenoh itself) and scan bodies through the project's :class:`Publisher` (JSON encoding
+  included), counted at the receiving subscriber.
+* ``daemon``: ``softsensor run`` as a subprocess following ``softsensor plant-server`` at
+  ``--speed`` (both accelerated the same way) for ``--daemon-seconds``; its peak resident
+  memory (``VmHWM`` of ``/proc/<pid>/status``, read just before SIGTERM) and current RSS,
+  the ticks it made and whether it stopped cleanly. Target: under 300 MB.
+
+The machine is shared: the load average at the start is recorded with the numbers.
+
+Usage::
+
+    python benchmarks/stream.py [--hours 48] [--seed 1] [--daemon-seconds 20] [--speed 600]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+from softsensor.bus.zenoh_bus import (
+    Publisher,
+    listening_endpoints,
+    open_session,
+    subscribe,
+    wait_for_peers,
+)
+from softsensor.estimation.windowing import windows_from_frame
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_plant_config
+from softsensor.recording.mcap_day import read_day
+from softsensor.service.estimators import make_estimator
+from softsensor.service.offline_replay import replay_to_file
+
+SCAN = {"T_air_in": 483.21, "m_air": 82.1, "m_fiber": 6.02, "T_fiber_in": 370.4,
+        "m_steam": 0.501, "T_amb": 283.2, "H_amb": 0.0061, "flap_cmd": 41.3, "T_sp": 348.0,
+        "T_dryer_out": 348.1, "T_cyclone_out": 346.6}
+
+
+def bench_replay(day: Path, out: Path) -> dict:
+    cfg = load_plant_config()
+    t0 = time.perf_counter()
+    s = replay_to_file(day, out, cfg, rate="max", report_truth=False)
+    wall = time.perf_counter() - t0
+    # the estimator alone, on the same windows, for the share of the total
+    est = make_estimator("ukf", cfg)
+    windows = windows_from_frame(read_day(day).scans)
+    est.tick(windows[0])
+    t1 = time.perf_counter()
+    for w in windows[1:]:
+        est.tick(w)
+    per_tick = (time.perf_counter() - t1) / max(len(windows) - 1, 1)
+    return {"hours": round(s.span_s / 3600, 3), "messages": s.n_replayed,
+            "recorded": s.n_recorded, "ticks": s.ticks, "stale_ticks": s.stale_ticks,
+            "lab_updates": s.lab_updates, "wall_s": round(wall, 2),
+            "path_s": round(s.wall_s, 2), "speedup": round(s.span_s / wall),
+            "estimator_s": round(per_tick * s.ticks, 2),
+            "tick_ms": round(per_tick * 1e3, 1),
+            "targets": {"speedup_min": 10_000, "wall_s_max": 18.0},
+            "met": bool(s.span_s / wall >= 10_000 and wall < 18.0)}
+
+
+def _rate(n: int, send, decode: bool) -> float:
+    """Messages per second from one session to another over TCP loopback.
+
+    ``send(tx_session, n)`` publishes ``n`` messages on ``plant/bench/scan``; the receiver
+    counts raw samples, or (``decode``) messages decoded by :func:`subscribe`.
+    """
+    with open_session(port=0) as rx:
+        endpoint = listening_endpoints(rx)
+        with open_session(port=None, connect=endpoint) as tx:
+            assert wait_for_peers(tx, timeout=5.0)
+            count = [0]
+            done = threading.Event()
+
+            def _on(_sample: object) -> None:
+                count[0] += 1
+                if count[0] >= n:
+                    done.set()
+
+            if decode:
+                sub = subscribe(rx, _on, unit="bench", kinds=("scan",))
+            else:
+                sub = rx.declare_subscriber("plant/bench/scan", _on)
+            time.sleep(0.3)  # let the declaration reach the publisher's session
+            t0 = time.perf_counter()
+            send(tx, n)
+            if not done.wait(120.0):
+                raise RuntimeError(f"only {count[0]} of {n} messages arrived")
+            dt = time.perf_counter() - t0
+            (sub.close if decode else sub.undeclare)()
+    return n / dt
+
+
+def bench_zenoh(n: int) -> dict:
+    payload = b"x" * 200
+
+    def raw(tx: zenoh.Session, k: int) -> None:
+        pub = tx.declare_publisher("plant/bench/scan",
+                                   congestion_control=zenoh.CongestionControl.BLOCK)
+        for _ in range(k):
+            pub.put(payload)
+        pub.undeclare()
+
+    def scans(tx: zenoh.Session, k: int) -> None:
+        with Publisher(tx, unit="bench") as p:
+            for i in range(k):
+                p.put("scan", SCAN, 1_767_571_200_000_000_000 + i * 10**10)
+
+    return {"raw_200B_msgs_per_s": round(_rate(n, raw, decode=False)),
+            "scan_json_msgs_per_s": round(_rate(n // 4, scans, decode=False)),
+            "scan_json_decoded_msgs_per_s": round(_rate(n // 4, scans, decode=True))}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _vm(pid: int) -> dict[str, int]:
+    out = {}
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            key, _, value = line.partition(":")
+            if key in ("VmHWM", "VmRSS"):
+                out[key] = int(value.split()[0])  # kB
+    return out
+
+
+def bench_daemon(folder: Path, seconds: float, speed: float) -> dict:
+    port = _free_port()
+    exe = [sys.executable, "-m", "softsensor.cli"]
+    plant = subprocess.Popen([*exe, "plant-server", "--port", str(port), "--hours", "6",
+                              "--speed", str(speed)], stdout=subprocess.PIPE,
+                             stderr=subprocess.DEVNULL, text=True)
+    try:
+        plant.stdout.readline()  # "plant-server: serving ..."
+        daemon = subprocess.Popen(
+            [*exe, "run", "--plc", f"127.0.0.1:{port}", "--time-scale", str(speed),
+             "--clock-start", "2026-01-05T00:00:00Z", "--listen", "tcp/127.0.0.1:0",
+             "--data-dir", str(folder / "rec"), "--checkpoint", str(folder / "ckpt.json"),
+             "--lab-dir", str(folder / "lab")],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        try:
+            daemon.stdout.readline()  # "softsensor run: ..." once it is up
+            time.sleep(seconds)
+            vm = _vm(daemon.pid)
+            daemon.send_signal(signal.SIGTERM)
+            daemon.wait(60)
+        finally:
+            if daemon.poll() is None:
+                daemon.kill()
+                daemon.wait()
+    finally:
+        plant.send_signal(signal.SIGTERM)
+        try:
+            plant.wait(30)
+        except subprocess.TimeoutExpired:
+            plant.kill()
+    ckpt = json.loads((folder / "ckpt.json").read_text())
+    peak = vm["VmHWM"] / 1024
+    return {"run_s": seconds, "speed": speed, "ticks": ckpt["service"]["stats"]["ticks"],
+            "scans": ckpt["service"]["stats"]["scans"], "peak_rss_mb": round(peak, 1),
+            "rss_mb": round(vm["VmRSS"] / 1024, 1), "exit_code": daemon.returncode,
+            "target_mb": 300, "met": bool(peak < 300 and daemon.returncode == 0)}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--hours", type=float, default=48.0)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--zenoh-messages", type=int, default=200_000)
+    p.add_argument("--daemon-seconds", type=float, default=20.0)
+    p.add_argument("--speed", type=float, default=600.0)
+    p.add_argument("--out", default=None, help="also write the JSON here")
+    args = p.parse_args()
+    result: dict = {"load_average": list(os.getloadavg()), "cpus": os.cpu_count()}
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        day = folder / "day.mcap"
+        simulate_day(load_plant_config(), args.hours, args.seed, "inlet_moisture").write(day)
+        result["replay"] = bench_replay(day, folder / "est.mcap")
+        result["zenoh"] = bench_zenoh(args.zenoh_messages)
+        result["daemon"] = bench_daemon(folder, args.daemon_seconds, args.speed)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
