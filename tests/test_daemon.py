@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.bus.zenoh_bus import open_session, subscribe, wait_for_peers
+from softsensor.bus.zenoh_bus import Publisher, free_port, open_session, subscribe, wait_for_peers
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plant.plc_feed import PlantFeed
 from softsensor.plant.plc_server import PlcServer
@@ -149,3 +149,52 @@ def test_daemon_estimates_survives_a_plc_outage_and_replays_identically(day, tmp
     assert set(live) <= set(replayed)
     assert {t: replayed[t] for t in live} == live
     assert summary.lab_updates >= 1 and summary.stale_ticks >= 2
+
+
+def test_daemon_as_a_router_client_without_a_plc(tmp_path):
+    """Client mode through a router (the config's optional router endpoint): with no PLC the
+    daemon keeps running and says why on the health key; a lab result published on the bus by
+    another client (a LIMS) reaches the service and the recording."""
+    cfg = load_plant_config()
+    router_port = free_port()
+    dead_port = free_port()  # nothing listens here
+    router_ep = f"tcp/127.0.0.1:{router_port}"
+    settings = _settings(tmp_path, 1_767_571_200 * 10**9).with_overrides(
+        zenoh_mode="client", zenoh_connect=[router_ep], plc_host="127.0.0.1",
+        plc_port=dead_port)
+    seen: list = []
+    stats: dict = {}
+
+    async def main() -> None:
+        with open_session(mode="router", port=router_port) as _router, \
+                open_session(mode="client", connect=[router_ep]) as lims:
+            daemon = Daemon(cfg, settings)
+            stop = asyncio.Event()
+            task = asyncio.create_task(daemon.run(stop))
+            try:
+                await until(lambda: daemon.pipeline is not None or task.done(), 20, "start")
+                assert daemon.info is not None and daemon.info.endpoints == []
+                sub = subscribe(lims, seen.append, kinds=("health",))
+                await until(lambda: any("not_connected" in m.body["detail"] for m in seen),
+                            20, "a health message naming the missing PLC")
+                with Publisher(lims) as pub:
+                    assert await asyncio.to_thread(pub.wait_matched, ("lab",), 5.0)
+                    sample = daemon.clock.now_ns() - 600 * 10**9
+                    pub.put("lab", {"sample_time_ns": sample, "moisture_out": 0.11,
+                                    "sample_id": "LIMS-1"}, daemon.clock.now_ns())
+                    await until(lambda: daemon.pipeline.service.stats.labs_received == 1, 10,
+                                "the lab result")
+                sub.close()
+            finally:
+                stop.set()
+                await asyncio.wait_for(task, 30)
+            stats["poller"] = daemon.poller.stats
+
+    asyncio.run(asyncio.wait_for(main(), 90))
+    health = [m.body for m in seen]
+    assert health[-1]["status"] == "stale" and health[-1]["input_status"] == "degraded"
+    assert stats["poller"].connects == 0 and stats["poller"].scans > 0
+    (path,) = (tmp_path / "rec").glob("dryer1-*.mcap")
+    rec = read_day(path)
+    assert rec.labs["sample_id"].tolist() == ["LIMS-1"]
+    assert rec.scans[list(rec.scans.columns)].isna().all().all()  # nothing was read
