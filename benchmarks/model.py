@@ -7,7 +7,7 @@ Prints one JSON document:
   (in a fresh process with an empty numba cache, and in this process with the on-disk cache);
 * ``straightforward``: the same input sequence through :func:`softsensor.model.mol.simulate_mol`
   (all five states in every cell, scipy ``solve_ivp`` BDF restarted at every window, dense
-  finite-difference Jacobian) over ``--hours`` hours of it (the whole 48 h takes over an hour,
+  finite-difference Jacobian) over ``--hours`` hours of it (the whole 48 h takes 20 to 60 min,
   so the default runs the first 6 h and says so), and the ratio of the two over that same
   horizon;
 * ``max_abs_diff``: the largest output difference between the two ways (K, K, kg/kg).
@@ -182,7 +182,8 @@ def run(hours: float, seed: int, rtol: float, sparse: bool, repeats: int = 5) ->
         "max_abs_diff_units": {"T_dryer_out": "K", "T_cyclone_out": "K",
                                "moisture_out": "kg/kg"},
         "note": (f"the straightforward way ran over the first {hours:g} h of the 48 h sequence"
-                 " (the whole horizon takes over an hour); speedups compare equal horizons"
+                 " (the whole horizon takes 20 to 60 min depending on the machine's load);"
+                 " speedups compare equal horizons"
                  if hours < HOURS_FULL else "both ways ran over the whole 48 h"),
     }
     if sparse:
@@ -205,7 +206,7 @@ def run(hours: float, seed: int, rtol: float, sparse: bool, repeats: int = 5) ->
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--hours", type=float, default=6.0,
-                    help="horizon of the straightforward way [h] (default 6; 48 takes >1 h)")
+                    help="horizon of the straightforward way [h] (default 6; 48 takes 20-60 min)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--rtol", type=float, default=1e-4,
                     help="BDF relative tolerance of the straightforward way (1e-4 already "
