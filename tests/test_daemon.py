@@ -12,6 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -21,7 +22,7 @@ from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plant.plc_feed import PlantFeed
 from softsensor.plant.plc_server import PlcServer
 from softsensor.plant.simulator import simulate_day
-from softsensor.plantconfig import load_plant_config
+from softsensor.plantconfig import default_config_path, load_plant_config
 from softsensor.recording.mcap_day import read_day
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.daemon import Daemon, DaemonInfo
@@ -51,7 +52,8 @@ def _settings(tmp_path: Path, clock_start: int):
     return service_settings(load_plant_config()).with_overrides(
         data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "state" / "ckpt.json"),
         lab_dir=str(tmp_path / "lab"), zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE,
-        clock_start=str(clock_start), lab_settle_s=0.0, status_every_s=1.0)
+        clock_start=str(clock_start), lab_settle_s=0.0, status_every_s=1.0,
+        tick_delay_s=60.0)  # 0.25 s wall at 240x: labs and ticks never race
 
 
 def test_daemon_estimates_survives_a_plc_outage_and_replays_identically(day, tmp_path):
@@ -198,3 +200,29 @@ def test_daemon_as_a_router_client_without_a_plc(tmp_path):
     rec = read_day(path)
     assert rec.labs["sample_id"].tolist() == ["LIMS-1"]
     assert rec.scans[list(rec.scans.columns)].isna().all().all()  # nothing was read
+
+
+def test_run_refuses_bad_input_in_one_line(tmp_path, capsys):
+    from softsensor.cli import main as cli_main
+    from softsensor.service.estimator_service import EstimatorService
+    from softsensor.service.estimators import make_estimator
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text(default_config_path().read_text() + '\n[service]\nlisten = "x"\n')
+    ckpt = tmp_path / "ckpt.json"
+    CheckpointStore(ckpt).save(
+        EstimatorService(make_estimator("ukf", load_plant_config())).checkpoint(),
+        saved_at_ns=1, unit="dryer1")
+    cases = [
+        (["--config", str(bad)], r"bad\.toml: service\.listen is not a known key"),
+        (["--plc", "localhost"], r"--plc must look like HOST:PORT"),
+        (["--time-scale", "-2"], r"command line: service\.time_scale must be > 0"),
+        (["--checkpoint", str(ckpt), "--estimator", "openloop", "--no-record"],
+         r"ckpt\.json: written by estimator 'ukf', this run uses 'openloop' \(run with "
+         r"--no-resume"),
+    ]
+    for args, pattern in cases:
+        capsys.readouterr()
+        assert cli_main(["run", "--lab-dir", str(tmp_path / "lab"), *args]) == 2, args
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and re.search(pattern, err), err

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 from softsensor.bus.replay import parse_time
 from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, lab_body
 from softsensor.ingest.modbus_poller import ModbusPoller
@@ -169,7 +169,10 @@ class Daemon:
             if doc.get("unit") != self.unit:
                 raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
                                   f"this daemon runs {self.unit!r} (use --no-resume)")
-            service.restore(doc["service"], where=str(self.store.path))
+            try:
+                service.restore(doc["service"], where=str(self.store.path))
+            except EstimationError as exc:
+                raise ConfigError(f"{exc} (run with --no-resume to start afresh)") from exc
             event(log, "resumed", checkpoint=str(self.store.path),
                   ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
         self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
@@ -239,7 +242,7 @@ class Daemon:
                 await asyncio.wait_for(stop.wait(), HOUSEKEEPING_S)
             if poll_task.done():
                 exc = poll_task.exception()
-                raise RuntimeError(f"the Modbus poller stopped: {exc!r}")
+                raise IngestError(f"the Modbus poller stopped: {exc!r}")
             self.pipeline.advance(self.clock.now_ns())
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
