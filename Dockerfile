@@ -2,7 +2,7 @@
 # embedded Zenoh peer). Configuration comes from outside (/config), data goes to /data.
 #
 #   docker build -t softsensor .
-#   docker run -d --name softsensor -v "$PWD/config:/config:ro" -v softsensor-data:/data \
+#   docker run -d --name softsensor -v /etc/softsensor:/config:ro -v softsensor-data:/data \
 #       -p 127.0.0.1:7447:7447 softsensor --config /config/dryer1.toml --plc 10.0.0.20:502
 FROM python:3.11-slim
 
@@ -33,8 +33,10 @@ m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1))"
 
 WORKDIR /data
 VOLUME ["/config", "/data"]
-# Zenoh (tcp); recordings in /data/recordings, checkpoint in /data/state, lab drop in
-# /data/lab-drop (the [service] defaults are relative to the working directory)
+# Zenoh on every interface of the container (publish the port on the host as needed);
+# recordings in /data/recordings, checkpoint in /data/state, lab drop in /data/lab-drop (the
+# [service] defaults are relative to the working directory). Arguments given to `docker run`
+# replace CMD only.
 EXPOSE 7447
-ENTRYPOINT ["softsensor", "run"]
-CMD ["--config", "/config/dryer1.toml", "--listen", "tcp/0.0.0.0:7447"]
+ENTRYPOINT ["softsensor", "run", "--listen", "tcp/0.0.0.0:7447"]
+CMD ["--config", "/config/dryer1.toml"]
