@@ -45,7 +45,7 @@ def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
     energy_in = m_f * wd.enthalpy(X_in, T_f_in, x_fsp) + m_a * h_a_in
     energy_out = (m_f * wd.enthalpy(p["X_f"][last], p["T_f"][last], x_fsp)
                   + m_a * ha.enthalpy(p["T_a"][last], p["Y_a"][last]))
-    wall_in = float(np.sum(p["UA_w"] * (p["T_a"] - p["T_w"])))
+    wall_in = float(np.sum(p["UA_w"] * (p["T_a_wall"] - p["T_w"])))
     aux = np.zeros(1) if aux is None else np.asarray(aux, float)
     n_d = model.geometry.n_d
     to_ambient = sum(
@@ -97,7 +97,7 @@ def test_each_cell_conserves_water_and_energy(model):
     water = m_f * p["X_f"] + m_a * p["Y_a"]
     np.testing.assert_allclose(water, b["water_in"], rtol=1e-9)
     flow = m_f * wd.enthalpy(p["X_f"], p["T_f"], x_fsp) + m_a * ha.enthalpy(p["T_a"], p["Y_a"])
-    lost = np.cumsum(p["UA_w"] * (p["T_a"] - p["T_w"]))
+    lost = np.cumsum(p["UA_w"] * (p["T_a_wall"] - p["T_w"]))
     np.testing.assert_allclose(flow + lost, b["energy_in"], rtol=1e-9)
 
 

@@ -111,17 +111,16 @@ def test_steady_state_is_a_fixed_point_of_simulate(model):
     np.testing.assert_allclose(s_end, s, atol=1e-9)
 
 
-# slow while it fails: numba retries (and fails) the typing of step_batch on every call (~45 s)
-@pytest.mark.slow
-@pytest.mark.xfail(strict=True, raises=Exception,
-                   reason="DryerModel.step hands a read-only broadcast view of the state to "
-                          "the kernel, which writes the new state in place (numba TypingError)")
 def test_step_equals_one_window_of_simulate(model, U):
     s0, _ = model.steady_state(U[0])
     s1, y1 = model.step(s0, U[1])
     Y, s_end = model.simulate(U[1:2], state0=s0)
     np.testing.assert_array_equal(y1, Y[0])
     np.testing.assert_array_equal(s1, s_end)
+    # the caller's state is not modified, and a broadcast (read-only) state works
+    s0_copy = s0.copy()
+    model.step(np.broadcast_to(s0, (2, s0.size)), U[1])
+    np.testing.assert_array_equal(s0, s0_copy)
 
 
 # ------------------------------------------------------------------ errors

@@ -129,6 +129,7 @@ class DryerModel:
         B = u2.shape[0]
         y = np.empty((B, 3))
         status = np.empty(B, dtype=np.int64)
+        x2 = x2.copy()  # the kernel advances states in place; inputs may be read-only views
         kernels.step_batch(x2, u2, th2, ax2, self.geometry.packed, dt, self.wall_substeps, y,
                            status)
         self._check(status, u2)
@@ -145,7 +146,10 @@ class DryerModel:
         U : array, shape (..., K, 8)
             Inputs per window.
         theta : array, shape (..., 7) or (..., K, 7)
-            Parameters, constant or per window (e.g. a drifting multiplier).
+            Parameters, constant or per window (e.g. a drifting multiplier). ``theta`` is read
+            per window when it has as many axes as ``U`` and its second-to-last axis has length
+            ``K``; to run ``B`` parameter sets over one input sequence, give ``U`` a leading
+            batch axis (``U[None]`` with ``theta`` of shape ``(B, 7)``).
         aux : array, shape (..., N_AUX) or (..., K, N_AUX), optional
             Model-extension coefficients (see :mod:`softsensor.model.geometry`).
         state0 : array, shape (..., n_state), optional
@@ -219,7 +223,7 @@ class DryerModel:
         theta = self.theta0 if theta is None else np.asarray(theta, float)
         state = np.asarray(state, float)
         u = np.asarray(u, float)
-        prof = np.empty((5, self.n_state))
+        prof = np.empty((6, self.n_state))
         status = kernels.profile_one(np.ascontiguousarray(state), np.ascontiguousarray(u),
                                      np.ascontiguousarray(theta), self.geometry.packed, prof)
         self._check(np.array([status]), u[None])
@@ -227,7 +231,7 @@ class DryerModel:
         x = np.concatenate([(np.arange(self.geometry.n_d) + 0.5) * dx,
                             self.config.tube.length + np.arange(1, self.geometry.n_c + 1) * dx])
         return {"X_f": prof[0], "T_f": prof[1], "Y_a": prof[2], "T_a": prof[3],
-                "T_w": state.copy(), "UA_w": prof[4], "x": x}
+                "T_w": state.copy(), "UA_w": prof[4], "T_a_wall": prof[5], "x": x}
 
 
 def parameter_index(name: str) -> int:

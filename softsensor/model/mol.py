@@ -29,6 +29,10 @@ enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
                                + G (T_w,i-1 - 2 T_w,i + T_w,i+1)``  (tube, adiabatic ends)
   shell         ``C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)``  (cyclone)
 
+Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`kernels.space_weight` (the box
+scheme in tube cells, ``w = 1/2``; ``w = 1`` in the stirred cyclone cells), including the air
+temperature in ``UA_w (T_a - T_w)`` and the fibre temperature in ``h_v``.
+
 with ``dh_f = c_f dT_f + (dh_f/dX) dX`` (``c_f`` from :func:`wood.heat_capacity`, which is
 ``dh_f/dT``) and ``dh_a = c_a dT_a + h_v(T_a) dY`` (ASHRAE eq. 32), which turn the energy
 balances into ``dT_f/dt`` and ``dT_a/dt``. ``R``, ``Q_af`` and the hold-ups ``M_f``, ``M_a``
@@ -151,16 +155,21 @@ class MethodOfLines:
         Y_in, h_a_in = kernels.inlet_air(u, geo)
         X_in = u[kernels.U_XIN]
         Ta_in = u[kernels.U_TAIR]
-        h_f_in = wd.enthalpy(X_in, u[kernels.U_TFIB], x_fsp)
+        Tf_in = u[kernels.U_TFIB]
+        h_f_in = wd.enthalpy(X_in, Tf_in, x_fsp)
         for i in range(n):
             kind = 0 if i < n_d else 1
+            w = kernels.space_weight(kind)  # box scheme in the tube, stirred tank in cyclone
             v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, geo)
-            R, Q, M_f, M_a = kernels.cell_rates(kind, X[i], Tf[i], Y[i], Ta[i], v_s, m_a, m_f,
-                                                theta, geo)
+            Tf_m = w * Tf[i] + (1.0 - w) * Tf_in
+            Ta_m = w * Ta[i] + (1.0 - w) * Ta_in
+            R, Q, M_f, M_a = kernels.cell_rates(kind, w * X[i] + (1.0 - w) * X_in, Tf_m,
+                                                w * Y[i] + (1.0 - w) * Y_in, Ta_m, v_s, m_a,
+                                                m_f, theta, geo)
             h_f = wd.enthalpy(X[i], Tf[i], x_fsp)
             h_a = ha.enthalpy(Ta[i], Y[i])
-            h_v = ha.vapour_enthalpy(Tf[i])
-            Q_w = UAw * (Ta[i] - Tw[i])
+            h_v = ha.vapour_enthalpy(Tf_m)
+            Q_w = UAw * (Ta_m - Tw[i])
             dX[i] = (m_f * (X_in - X[i]) - R) / M_f
             dY[i] = (m_a * (Y_in - Y[i]) + R) / M_a
             dhf = (m_f * (h_f_in - h_f) + Q - R * h_v) / M_f
@@ -178,7 +187,7 @@ class MethodOfLines:
                 dTw[i] = wall / geo[C_W_CELL]
             else:
                 dTw[i] = wall / geo[C_SH_CELL]
-            X_in, Y_in, Ta_in, h_f_in, h_a_in = X[i], Y[i], Ta[i], h_f, h_a
+            X_in, Y_in, Ta_in, Tf_in, h_f_in, h_a_in = X[i], Y[i], Ta[i], Tf[i], h_f, h_a
         return dy
 
     def outputs(self, y: np.ndarray) -> np.ndarray:
