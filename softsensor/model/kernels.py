@@ -241,12 +241,65 @@ def _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw, UAw, v_s, m_a, 
 
 
 @register_jitable
-def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo):
+def _newton_cell(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, m_f, theta,
+                 geo):
+    """Damped Newton on a cell's outlet ``(X, T_f)`` from the guess ``(X, Tf)``, with a
+    finite-difference 2 x 2 Jacobian and backtracking; returns ``(converged, X, T_f)``."""
+    for _ in range(_MAX_NEWTON):
+        F1, F2, _, _, _, _ = _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot,
+                                            Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+        norm0 = _scaled_norm(F1, F2, m_f)
+        if norm0 < 1e-24:
+            return True, X, Tf
+        hx = 1e-7 * max(abs(X), 1e-3)
+        ht = 1e-6 * Tf
+        a1, a2, _, _, _, _ = _cell_residual(kind, X + hx, Tf, Xp, Tfp, Yp, Tap, Efp,
+                                            Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+        b1, b2, _, _, _, _ = _cell_residual(kind, X, Tf + ht, Xp, Tfp, Yp, Tap, Efp,
+                                            Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+        j11 = (a1 - F1) / hx
+        j21 = (a2 - F2) / hx
+        j12 = (b1 - F1) / ht
+        j22 = (b2 - F2) / ht
+        det = j11 * j22 - j12 * j21
+        if det == 0.0 or not np.isfinite(det):
+            return False, X, Tf
+        dX = -(F1 * j22 - F2 * j12) / det
+        dT = -(j11 * F2 - j21 * F1) / det
+        # damping: keep the step physical, then backtrack until the scaled residual
+        # (moisture in kg/kg, energy in K of fibre) decreases
+        lam = 1.0
+        if abs(dX) > 0.1:
+            lam = min(lam, 0.1 / abs(dX))
+        if abs(dT) > 15.0:
+            lam = min(lam, 15.0 / abs(dT))
+        for _ls in range(30):
+            Xn = X + lam * dX
+            if Xn < 0.0:
+                lam *= 0.5
+                continue
+            n1, n2, _, _, _, _ = _cell_residual(kind, Xn, Tf + lam * dT, Xp, Tfp, Yp, Tap,
+                                                Efp, Etot, Tw_i, UAw, v_s, m_a, m_f,
+                                                theta, geo)
+            if _scaled_norm(n1, n2, m_f) < norm0:
+                break
+            lam *= 0.5
+        X = X + lam * dX
+        Tf = Tf + lam * dT
+        if abs(lam * dX) < 1e-10 * max(X, 1e-2) and abs(lam * dT) < 1e-8:
+            return True, X, Tf
+    return False, X, Tf
+
+
+@register_jitable
+def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, warm=False):
     """Steady fibre/air profile through tube and cyclone for given wall temperatures.
 
     Fills ``Xo, Tfo, Yo, Tao`` [kg/kg, K] and ``UAo`` (air-to-wall conductance, W/K) for all
     ``n_d + n_c`` cells, and ``Tmo``, the air temperature the wall sees (the box-scheme mean
-    in tube cells); returns a status code (``OK`` or ``NEWTON_FAILED``).
+    in tube cells); returns a status code (``OK`` or ``NEWTON_FAILED``). With ``warm``, each
+    cell's Newton starts from the profile already in ``Xo, Tfo`` (the previous solve, e.g.
+    the last wall substep) and falls back to the upstream cell's state if that fails.
     """
     n_d = int(geo[N_D])
     n_c = int(geo[N_C])
@@ -264,53 +317,13 @@ def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo):
         kind = 0 if i < n_d else 1
         Tw_i = Tw[i] if kind == 0 else Tsh[i - n_d]
         v_s, UAw = inflow_coefficients(kind, Tap, Yp, Xp, m_a, geo)
-        # damped Newton on (X, T_f) with a finite-difference 2 x 2 Jacobian
         converged = False
-        for _ in range(_MAX_NEWTON):
-            F1, F2, _, _, _, _ = _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot,
-                                                Tw_i, UAw, v_s, m_a, m_f, theta, geo)
-            hx = 1e-7 * max(abs(X), 1e-3)
-            ht = 1e-6 * Tf
-            a1, a2, _, _, _, _ = _cell_residual(kind, X + hx, Tf, Xp, Tfp, Yp, Tap, Efp,
-                                                Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo)
-            b1, b2, _, _, _, _ = _cell_residual(kind, X, Tf + ht, Xp, Tfp, Yp, Tap, Efp,
-                                                Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo)
-            j11 = (a1 - F1) / hx
-            j21 = (a2 - F2) / hx
-            j12 = (b1 - F1) / ht
-            j22 = (b2 - F2) / ht
-            det = j11 * j22 - j12 * j21
-            if det == 0.0 or not np.isfinite(det):
-                break
-            dX = -(F1 * j22 - F2 * j12) / det
-            dT = -(j11 * F2 - j21 * F1) / det
-            # damping: keep the step physical, then backtrack until the scaled residual
-            # (moisture in kg/kg, energy in K of fibre) decreases
-            lam = 1.0
-            if abs(dX) > 0.1:
-                lam = min(lam, 0.1 / abs(dX))
-            if abs(dT) > 15.0:
-                lam = min(lam, 15.0 / abs(dT))
-            norm0 = _scaled_norm(F1, F2, m_f)
-            for _ls in range(30):
-                Xn = X + lam * dX
-                if Xn < 0.0:
-                    lam *= 0.5
-                    continue
-                n1, n2, _, _, _, _ = _cell_residual(kind, Xn, Tf + lam * dT, Xp, Tfp, Yp, Tap,
-                                                    Efp, Etot, Tw_i, UAw, v_s, m_a, m_f,
-                                                    theta, geo)
-                if _scaled_norm(n1, n2, m_f) < norm0 or norm0 < 1e-26:
-                    break
-                lam *= 0.5
-            X = X + lam * dX
-            Tf = Tf + lam * dT
-            if abs(lam * dX) < 1e-10 * max(X, 1e-2) and abs(lam * dT) < 1e-8:
-                converged = True
-                break
-            if _scaled_norm(F1, F2, m_f) < 1e-24:
-                converged = True
-                break
+        if warm and Xo[i] >= 0.0 and Tfo[i] > 200.0:
+            converged, X, Tf = _newton_cell(kind, Xo[i], Tfo[i], Xp, Tfp, Yp, Tap, Efp, Etot,
+                                            Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+        if not converged:
+            converged, X, Tf = _newton_cell(kind, Xp, Tfp, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i,
+                                            UAw, v_s, m_a, m_f, theta, geo)
         if not converged:
             return NEWTON_FAILED
         _, _, Y, Ta, hf, Tam = _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i,
@@ -431,12 +444,14 @@ def _step_one(state, u, theta, aux, geo, dt, n_sub, prof, work):
     if not _valid_inputs(u, theta):
         return BAD_INPUT
     h = dt / n_sub
-    for _ in range(n_sub):
-        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo)
+    # the first solve starts cold so that a window's result depends only on (state, u); later
+    # substeps start from the previous substep's profile
+    for k in range(n_sub):
+        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, k > 0)
         if st != OK:
             return st
         wall_step(Tw, Tsh, Tmo, UAo, u, theta, aux, geo, h, work)
-    return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo)
+    return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, True)
 
 
 @register_jitable
@@ -456,10 +471,10 @@ def _steady_one(state, u, theta, aux, geo, prof, work):
         Tsh[j] = guess
     Xo, Tfo, Yo, Tao, UAo, Tmo = prof[0], prof[1], prof[2], prof[3], prof[4], prof[5]
     old = np.empty(n_d + n_c)
-    for _ in range(100):
+    for it in range(100):
         for i in range(n_d + n_c):
             old[i] = state[i]
-        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo)
+        st = solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, it > 0)
         if st != OK:
             return st
         wall_step(Tw, Tsh, Tmo, UAo, u, theta, aux, geo, np.inf, work)
@@ -467,7 +482,7 @@ def _steady_one(state, u, theta, aux, geo, prof, work):
         for i in range(n_d + n_c):
             change = max(change, abs(state[i] - old[i]))
         if change < 1e-9:
-            return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo)
+            return solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, True)
     return STEADY_FAILED
 
 
@@ -540,14 +555,15 @@ def profile_one(state, u, theta, geo, prof):
 def advance_one(state, u, theta, aux, geo, dt, prof, work, y):
     """Closed-loop plant step: outputs now (profile at the current wall), then the wall over
     ``dt`` [s] with that profile frozen. One profile solve per call, for short control steps
-    (tens of seconds) where freezing the air profile over the step is accurate."""
+    (tens of seconds) where freezing the air profile over the step is accurate. Newton starts
+    from the profile left in ``prof`` by the previous call (fill it with -1 before the first)."""
     n_d = int(geo[N_D])
     if not _valid_inputs(u, theta):
         return BAD_INPUT
     Tw = state[:n_d]
     Tsh = state[n_d:]
     st = solve_profile(u, theta, geo, Tw, Tsh, prof[0], prof[1], prof[2], prof[3], prof[4],
-                       prof[5])
+                       prof[5], True)
     if st != OK:
         return st
     _outputs(prof, geo, y)

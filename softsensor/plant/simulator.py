@@ -190,7 +190,7 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     drive = FlapDrive(s.actuator_tau, s.actuator_rate, pos0)
     cmd = pos0
     T_air_sensor = T_air
-    prof = np.empty((6, model.n_state))
+    prof = np.full((6, model.n_state), -1.0)  # no previous profile yet
     work = np.empty(4 * model.n_state)
     y = np.empty(3)
     true = np.empty((n, 6))  # T_air_in, T_dryer_out, T_cyclone_out, moisture_out, in, cmd
