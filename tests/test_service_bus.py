@@ -26,7 +26,7 @@ from softsensor.ingest.tagmap import TagMap, load_tagmap, parse_tagmap
 from softsensor.plant.plc_server import NOMINAL_VALUES, PlcServer, constant_values
 from softsensor.recording.mcap_day import read_day
 from softsensor.recording.recorder import BusRecorder, Recorder
-from softsensor.service.pipeline import ScanPublisher
+from softsensor.service.pipeline import InputSubscription, ScanPublisher
 
 DEADLINE = 10.0
 FAST = {"poll_period_s": 0.05, "timeout_s": 0.3, "retries": 0, "reconnect_delay_s": 0.05,
@@ -136,3 +136,30 @@ def test_the_reference_tag_map_arrives_in_si_and_bad_values_carry_their_reason(t
     _assert_si(day.scans.iloc[0].to_dict(), tm, good)
     (_, body), _ = day.topic("/plant/scan")
     assert body["quality"] == {"T_dryer_out": seen[0].body["quality"]["T_dryer_out"]}
+
+
+def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
+    """Scans and lab results put from one session arrive in put order (one subscriber):
+    with a subscriber per key, Zenoh's threads let lab results overtake or lag the scans."""
+    sent = []
+    for i in range(3000):
+        t = 1_767_571_200 * 10**9 + i * 10**10
+        if i % 150 == 75:
+            sent.append(("lab", t, {"sample_time_ns": t - 10**12, "moisture_out": 0.1,
+                                    "sample_id": f"L{i}"}))
+        else:
+            sent.append(("scan", t, {"T_air_in": 480.0 + i % 7}))
+    got = []
+    with open_session(port=0) as rx:
+        endpoint = listening_endpoints(rx)
+        with open_session(port=None, connect=endpoint) as tx:
+            assert wait_for_peers(tx, timeout=DEADLINE)
+            sub = InputSubscription(rx, got.append, "dryer1")
+            with Publisher(tx) as pub:
+                assert pub.wait_matched(("scan", "lab"), timeout=DEADLINE)
+                for kind, t, body in sent:
+                    pub.put(kind, body, t)
+                _wait(lambda: len(got) >= len(sent), "every message")
+            sub.close()
+    assert [(m.kind, m.time_ns) for m in got] == [(k, t) for k, t, _ in sent]
+    assert sub.n_errors == 0 and sub.n_received == len(sent)

@@ -7,9 +7,12 @@
         -> BusRecorder -> EST.mcap (the replayed scans and labs, the estimates, the health)
 
 Two Zenoh sessions on 127.0.0.1 (free ports, scouting off) stand for the plant side and the
-daemon, so the bytes cross a real Zenoh link. Estimates are a function of the day alone (the
-service orders lab results and ticks by log time, see :mod:`.estimator_service`): replaying
-the same day twice, or replaying what the daemon recorded live, gives the same estimates.
+daemon, so the bytes cross a real Zenoh link. Estimates are a function of the day alone: the
+service orders lab results and ticks by log time (see :mod:`.estimator_service`), provided
+each lab result reaches it before the scans logged after it. At rate ``max`` that cannot be
+left to Zenoh's threads, so after publishing a lab result the replayer waits until the
+pipeline has queued it (a few per day, microseconds each). Replaying the same day twice, or
+replaying what the daemon recorded live, gives the same estimates.
 
 The summary may compare the estimates with the day's ``/truth/plant`` topic when the virtual
 plant wrote one: for reporting only, the estimator never sees it.
@@ -236,8 +239,17 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                     publisher.declare(INPUT_KINDS)
                     if not publisher.wait_matched(INPUT_KINDS, timeout=10.0):
                         raise SoftsensorError("replay: no subscriber matched within 10 s")
-                    stats = replay_day(day, publisher.put, rate=rate, start=start_ns,
-                                       end=end_ns, allow_truncated=allow_truncated)
+                    labs_sent = [0]
+
+                    def _sink(kind: str, body: dict[str, Any], time_ns: int) -> None:
+                        publisher.put(kind, body, time_ns)
+                        if kind == "lab":  # the next scan must not overtake it (see below)
+                            labs_sent[0] += 1
+                            _wait(lambda: pipeline.n_labs_received >= labs_sent[0],
+                                  lambda: pipeline.n_labs_received, "a lab result")
+
+                    stats = replay_day(day, _sink, rate=rate, start=start_ns, end=end_ns,
+                                       allow_truncated=allow_truncated)
                     n = stats.n_published
                     _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
                           lambda: pipeline.n_in + bus.n_received, "the replayed messages")

@@ -1,6 +1,7 @@
 """Zenoh wiring of the estimator service: subscribe, step on one thread, publish.
 
-:class:`ServicePipeline` subscribes to ``plant/<unit>/scan`` and ``plant/<unit>/lab`` and hands
+:class:`ServicePipeline` subscribes to ``plant/<unit>/scan`` and ``plant/<unit>/lab`` (one
+subscriber, :class:`InputSubscription`, so one source's messages keep their order) and hands
 every message, in arrival order, to an :class:`~softsensor.service.estimator_service.
 EstimatorService` running on one worker thread (Zenoh's callback threads only enqueue; a tick
 of the filter takes tens of milliseconds and must not hold them up). What the service returns is
@@ -24,8 +25,8 @@ from typing import Any
 
 import zenoh
 
-from softsensor.bus.zenoh_bus import BusMessage, Publisher, subscribe
-from softsensor.errors import SoftsensorError
+from softsensor.bus.zenoh_bus import BusMessage, Publisher, to_message
+from softsensor.errors import IngestError, SoftsensorError
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
@@ -86,8 +87,15 @@ class ServicePipeline:
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
         self._thread.start()
-        self.subscription = subscribe(session, self._q.put, unit=unit, kinds=INPUT_KINDS)
+        self.n_labs_received = 0  #: lab messages received (enqueued) so far
+        self.subscription = InputSubscription(session, self._enqueue, unit)
         self._closed = False
+
+    def _enqueue(self, message: BusMessage) -> None:
+        """Zenoh callback: queue the message for the worker thread (nothing else)."""
+        self._q.put(message)
+        if message.kind == "lab":
+            self.n_labs_received += 1
 
     # ------------------------------------------------------------------ worker thread
     def _loop(self) -> None:
@@ -185,6 +193,47 @@ class ServicePipeline:
         self.close()
 
 
+class InputSubscription:
+    """One Zenoh subscriber on ``plant/<unit>/*`` delivering decoded scan and lab messages.
+
+    A single subscriber, rather than one per key, keeps the messages of one publishing session
+    in the order they were put: Zenoh runs the callbacks of different subscribers on different
+    threads, which can let a lab result overtake (or fall behind) the scans around it.
+    Malformed payloads and other keys are logged and counted in ``n_errors``.
+    """
+
+    def __init__(self, session: zenoh.Session, callback: Callable[[BusMessage], None],
+                 unit: str) -> None:
+        self.unit = unit
+        self.n_received = 0
+        self.n_errors = 0
+        self._callback = callback
+        self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(
+            f"plant/{unit}/*", self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        try:
+            message = to_message(key, sample.payload.to_bytes(), self.unit)
+            if message.kind not in INPUT_KINDS:
+                raise IngestError(f"{key}: not an input key")
+            self._callback(message)
+        except Exception as exc:  # noqa: BLE001 - must not escape into zenoh's thread
+            self.n_errors += 1
+            log.warning("%s", exc)
+            return
+        self.n_received += 1
+
+    def close(self) -> None:
+        """Undeclare the subscriber (idempotent)."""
+        sub, self._sub = self._sub, None
+        if sub is not None:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:  # session already closed
+                pass
+
+
 class ScanPublisher:
     """The poller's sink: publishes each scan on ``plant/<unit>/scan``.
 
@@ -205,4 +254,5 @@ class ScanPublisher:
         self.n_published += 1
 
 
-__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "ScanPublisher", "ServicePipeline"]
+__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "InputSubscription", "ScanPublisher",
+           "ServicePipeline"]
