@@ -1,0 +1,189 @@
+"""Figures a process engineer looks at after a calibration (the paper's Figs. 2 to 6).
+
+Each function writes one PNG (matplotlib, Agg backend, no display needed) and returns its
+path; :func:`write_page` puts the figures and tables on one Markdown page. Times on the axes
+are hours from the start of the shown data; temperatures in °C for reading (the program keeps
+K everywhere else), moisture in kg/kg dry basis.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from optuna.trial import TrialState  # noqa: E402
+
+from softsensor.calibration.dataset import Segment  # noqa: E402
+from softsensor.calibration.identifiability import Sensitivities  # noqa: E402
+from softsensor.model import DryerModel  # noqa: E402
+from softsensor.plantconfig import PARAMETER_NAMES  # noqa: E402
+from softsensor.signals import OUTPUT_NAMES  # noqa: E402
+
+C0 = 273.15
+_UNITS = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": "kg/kg"}
+
+
+def _hours(seg: Segment) -> np.ndarray:
+    return np.arange(1, seg.n_windows + 1) * seg.window / 3600.0
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def sensitivity_figure(sens: Sensitivities, path: str | Path) -> Path:
+    """Fig. 2: eq. 5 sensitivity trajectories of each output to each parameter."""
+    seg = sens.segment
+    t = _hours(seg)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    for c, (ax, name) in enumerate(zip(axes, OUTPUT_NAMES, strict=True)):
+        for i, p in enumerate(PARAMETER_NAMES):
+            ax.plot(t, sens.S[:, c, i], label=p, lw=1.2)
+        unit = "K" if c < 2 else "kg/kg"
+        ax.set_ylabel(f"d {name} / d ln θ [{unit}]")
+        ax.axhline(0.0, color="0.6", lw=0.6)
+        ax.grid(alpha=0.3)
+    axes[0].legend(ncol=4, fontsize=8)
+    axes[0].set_title("Sensitivity trajectories S_i(t) = θ_i ∂y/∂θ_i (eq. 5)")
+    axes[-1].set_xlabel("time [h]")
+    return _save(fig, Path(path))
+
+
+def profile_step_figure(model: DryerModel, theta: np.ndarray, u: np.ndarray,
+                        path: str | Path, steps: Sequence[float] = (-40, -20, 0, 20, 40),
+                        step_for_dynamics: float = 20.0) -> Path:
+    """Fig. 3: the axial temperature profile's response to steps in inlet air temperature.
+
+    Left: steady air and fibre temperature along the tube for ``T_air_in`` stepped by
+    ``steps`` [K] around ``u``. Right: the wall profile and outlet air temperature after a
+    ``step_for_dynamics`` K step, minute by minute (the wall is the slow state).
+    """
+    n_d = model.geometry.n_d
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(12, 4.5))
+    for dT in steps:
+        ui = np.array(u, float)
+        ui[0] += dT
+        x, _ = model.steady_state(ui, theta)
+        prof = model.profiles(x, ui, theta)
+        line, = a1.plot(prof["x"][:n_d], prof["T_a"][:n_d] - C0,
+                        label=f"T_air_in {ui[0] - C0:.0f} °C")
+        a1.plot(prof["x"][:n_d], prof["T_f"][:n_d] - C0, ls="--", color=line.get_color(), lw=0.9)
+    a1.set_xlabel("position along the tube [m]")
+    a1.set_ylabel("temperature [°C] (solid air, dashed fibre)")
+    a1.set_title("Steady axial profile for steps in T_air_in")
+    a1.legend(fontsize=8)
+    a1.grid(alpha=0.3)
+    x0, _ = model.steady_state(u, theta)
+    ui = np.array(u, float)
+    ui[0] += step_for_dynamics
+    minutes = [0, 1, 3, 10, 30]
+    state = x0
+    T_out = [model.profiles(x0, ui, theta)["T_a"][n_d - 1]]
+    shown = {0: x0}
+    for m in range(1, max(minutes) + 1):
+        Y, state = model.simulate(ui[None], theta, state0=state, dt=60.0)
+        T_out.append(float(Y[0, 0]))
+        if m in minutes:
+            shown[m] = state
+    xs = model.profiles(x0, u, theta)["x"][:n_d]
+    for m, st in shown.items():
+        a2.plot(xs, st[:n_d] - C0, label=f"wall, {m} min after")
+    a2.set_xlabel("position along the tube [m]")
+    a2.set_ylabel("wall temperature [°C]")
+    a2.set_title(f"Wall after a +{step_for_dynamics:g} K step in T_air_in")
+    a2.grid(alpha=0.3)
+    a2.legend(fontsize=8, loc="upper right")
+    inset = a2.inset_axes([0.45, 0.12, 0.5, 0.35])
+    inset.plot(np.arange(len(T_out)), np.array(T_out) - C0, color="k")
+    inset.set_xlabel("min", fontsize=7)
+    inset.set_ylabel("T_dryer_out [°C]", fontsize=7)
+    inset.tick_params(labelsize=7)
+    return _save(fig, Path(path))
+
+
+def study_figure(study, importance: Mapping[str, float], path: str | Path) -> Path:
+    """Fig. 4: cost by trial (pruned trials at their last partial cost) and importance."""
+    trials = study.get_trials(deepcopy=False)
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7.5))
+    comp = [(t.number, t.value) for t in trials if t.state == TrialState.COMPLETE]
+    pruned = [(t.number, t.intermediate_values[max(t.intermediate_values)])
+              for t in trials if t.state == TrialState.PRUNED and t.intermediate_values
+              and not t.user_attrs.get("solver_failed")]
+    if comp:
+        n, v = np.array(comp).T
+        a1.semilogy(n, v, "o", ms=3, label="complete")
+        order = np.argsort(n)
+        a1.semilogy(n[order], np.minimum.accumulate(v[order]), "k-", lw=1.5, label="best so far")
+    if pruned:
+        n, v = np.array(pruned).T
+        a1.semilogy(n, v, "x", ms=3, color="0.6", label="pruned (partial cost)")
+    a1.set_xlabel("trial")
+    a1.set_ylabel("cost J (eq. 4)")
+    a1.set_title("Cost by trial")
+    a1.grid(alpha=0.3, which="both")
+    a1.legend(fontsize=8)
+    names = list(importance)
+    a2.barh(names[::-1], [importance[k] for k in names[::-1]])
+    a2.set_xlabel("importance (PED-ANOVA, normalised)")
+    a2.set_title("Parameter importance")
+    return _save(fig, Path(path))
+
+
+def trajectory_figure(segments: Sequence[Segment], Y_models: Sequence[np.ndarray],
+                      path: str | Path, title: str) -> Path:
+    """Figs. 5 and 6: model against measurements, every channel, every segment in a row."""
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
+    offset = 0.0
+    for s, (seg, Y) in enumerate(zip(segments, Y_models, strict=True)):
+        t = _hours(seg) + offset
+        for c, ax in enumerate(axes[:2]):
+            ax.plot(t, seg.Y[:, c] - C0, ".", ms=3, color="tab:blue",
+                    label="measured (600 s mean)" if s == 0 else None)
+            ax.plot(t, Y[:, c] - C0, "-", color="tab:red", lw=1.2,
+                    label="model" if s == 0 else None)
+        lab_t = (seg.lab_time_ns - seg.start_ns) / 3.6e12 + offset
+        axes[2].plot(t, Y[:, 2], "-", color="tab:red", lw=1.2, label="model" if s == 0 else None)
+        axes[2].plot(lab_t, seg.lab_value, "s", ms=5, color="tab:green",
+                     label="lab (at sample time)" if s == 0 else None)
+        offset = t[-1]
+        if s:
+            for ax in axes:
+                ax.axvline(t[0] - seg.window / 3600.0, color="0.5", ls=":")
+    for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
+        ax.set_ylabel(f"{name} [{_UNITS[name]}]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    axes[0].set_title(title)
+    axes[-1].set_xlabel("time [h]")
+    return _save(fig, Path(path))
+
+
+def markdown_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
+    """A Markdown table."""
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(x) for x in r) + " |" for r in rows]
+    return "\n".join(out)
+
+
+def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, str]],
+               name: str = "index.md") -> Path:
+    """A Markdown page of ``(heading, body)`` sections; bodies may embed ``![](fig.png)``."""
+    d = Path(directory)
+    text = [f"# {title}", ""]
+    for heading, body in sections:
+        text += [f"## {heading}", "", body.rstrip(), ""]
+    p = d / name
+    p.write_text("\n".join(text), encoding="utf-8")
+    return p
+
+
+__all__ = ["markdown_table", "profile_step_figure", "sensitivity_figure", "study_figure",
+           "trajectory_figure", "write_page"]

@@ -1,0 +1,114 @@
+"""``PARAMS.toml``: a calibrated parameter set with its bounds and how well it fits.
+
+Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads the
+``[parameters.<name>]`` tables)::
+
+    [parameters.mult_D]        one table per Table 1 parameter
+    value = 0.7012
+    low = 0.01                 the bounds searched
+    high = 5.0
+    log = true
+    verdict = "identifiable"   when an identifiability analysis ran
+
+    [fit]                      eq. 4 cost, trials, seed, data, chosen window(s) and why
+    [fit.rmse]                 per channel: T_dryer_out [K], T_cyclone_out [K],
+                               moisture_out [kg/kg]
+    [fit.weighted_rmse]        WF_m * RMSE_m, the numbers the paper quotes
+    [fit.weights]              the eq. 4 weights used
+    [fit.samples]              samples per channel
+
+Python's standard library reads TOML but does not write it; :func:`dumps` writes the small
+subset used here (tables of numbers, booleans, strings and lists of strings).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from softsensor.configfile import read_toml
+from softsensor.errors import ConfigError
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+
+
+def _value(v: Any, key: str) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, float):
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_value(x, key) for x in v) + "]"
+    raise TypeError(f"{key}: cannot write {type(v).__name__} to TOML")
+
+
+def dumps(doc: Mapping[str, Any], comment: str | None = None) -> str:
+    """TOML text of nested dicts (tables) whose leaves are scalars or lists of scalars."""
+    lines: list[str] = []
+    if comment:
+        lines += [f"# {c}" if c else "#" for c in comment.splitlines()]
+
+    def table(prefix: str, d: Mapping[str, Any]) -> None:
+        scalars = [(k, v) for k, v in d.items() if not isinstance(v, Mapping)]
+        subs = [(k, v) for k, v in d.items() if isinstance(v, Mapping)]
+        if prefix and (scalars or not subs):
+            lines.append("")
+            lines.append(f"[{prefix}]")
+        for k, v in scalars:
+            if v is None:
+                continue
+            lines.append(f"{k} = {_value(v, f'{prefix}.{k}')}")
+        for k, v in subs:
+            table(f"{prefix}.{k}" if prefix else k, v)
+
+    table("", doc)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def params_document(config: PlantConfig, values: Mapping[str, float],
+                    fit: Mapping[str, Any], verdicts: Mapping[str, str] | None = None
+                    ) -> dict[str, Any]:
+    """The PARAMS.toml document for parameter ``values`` and the ``[fit]`` section."""
+    params: dict[str, Any] = {}
+    for name in PARAMETER_NAMES:
+        spec = config.parameters[name]
+        entry: dict[str, Any] = {"value": float(values[name]), "low": float(spec.low),
+                                 "high": float(spec.high), "log": bool(spec.log)}
+        if verdicts and name in verdicts:
+            entry["verdict"] = verdicts[name]
+        params[name] = entry
+    return {"parameters": params, "fit": dict(fit)}
+
+
+def write_params(path: str | Path, document: Mapping[str, Any], comment: str | None = None
+                 ) -> Path:
+    """Write ``document`` as TOML (atomically: a temporary file renamed into place)."""
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise ConfigError(f"{p}: directory {p.parent} does not exist")
+    tmp = p.with_name(p.name + ".tmp")
+    tmp.write_text(dumps(document, comment), encoding="utf-8")
+    tmp.replace(p)
+    return p
+
+
+def read_fit(path: str | Path) -> dict[str, Any]:
+    """The ``[fit]`` section of a PARAMS.toml ({} when absent)."""
+    data = read_toml(path)
+    fit = data.get("fit", {})
+    if not isinstance(fit, dict):
+        raise ConfigError(f"{path}: [fit] must be a table")
+    return fit
+
+
+__all__ = ["dumps", "params_document", "read_fit", "write_params"]

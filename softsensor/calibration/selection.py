@@ -1,0 +1,141 @@
+"""Choosing the calibration window(s) in a long record (the paper's data-selection strategy).
+
+Closed-loop production data carry no deliberate excitation; the paper calibrates on the
+periods with the most *natural variability*. For every candidate window of the requested
+length (stepped by :data:`STEP_HOURS`), each varying signal's standard deviation of its
+600 s means inside the window is divided by its standard deviation over the whole record;
+the window's score is the sum over signals. A signal that moves more in the window than it
+does on average (a production change, a set-point move, the daily ambient swing) adds more
+than 1. Signals: the measured model inputs plus the two outlet temperatures (a set-point move
+only shows there). Signals that do not vary over the record (std below their noise) score 0.
+Candidates with fewer than ``min_labs`` lab samples are skipped: without lab results the
+moisture channel cannot be fitted. Several windows are picked greedily without overlap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from softsensor.calibration.dataset import MEASURED_INPUTS, SCANNED_OUTPUTS, Segment, _iso
+from softsensor.errors import IngestError
+from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+
+#: Candidate windows start every this many hours.
+STEP_HOURS = 1.0
+#: Signals whose variability is scored.
+SCORED_SIGNALS: tuple[str, ...] = MEASURED_INPUTS + SCANNED_OUTPUTS
+#: Below this record-wide std a signal counts as constant (SI units of each signal).
+CONSTANT_BELOW = {"T_air_in": 0.05, "m_air": 1e-3, "m_fiber": 1e-4, "T_fiber_in": 0.05,
+                  "m_steam": 1e-5, "T_amb": 0.05, "H_amb": 1e-6, "T_dryer_out": 0.05,
+                  "T_cyclone_out": 0.05}
+
+
+@dataclass(frozen=True)
+class WindowChoice:
+    """One chosen calibration window and why.
+
+    ``contributions`` holds each signal's std in the window relative to the record's;
+    ``score`` is their sum; ``rank_of`` how many candidates were compared.
+    """
+
+    segment: Segment
+    k0: int
+    k1: int
+    score: float
+    contributions: dict[str, float]
+    n_labs: int
+    rank_of: int
+    median_score: float
+    whole_record: bool
+
+    @property
+    def reason(self) -> str:
+        """One line for the output: which window and why."""
+        span = f"{_iso(self.segment.start_ns)} .. {_iso(self.segment.end_ns)}"
+        if self.whole_record:
+            return (f"whole record {span} ({self.segment.hours:.1f} h, {self.n_labs} lab "
+                    f"samples): not longer than the calibration window")
+        top = sorted(self.contributions.items(), key=lambda kv: -kv[1])[:3]
+        parts = ", ".join(f"{n} {v:.2f}x" for n, v in top)
+        return (f"window {span} ({self.segment.hours:.1f} h, {self.n_labs} lab samples): "
+                f"most natural variability of {self.rank_of} candidates, score "
+                f"{self.score:.2f} (median {self.median_score:.2f}); largest: {parts} "
+                f"their record-wide spread")
+
+
+def _signal_matrix(seg: Segment) -> np.ndarray:
+    """(K, n_signals) 600 s means of :data:`SCORED_SIGNALS`."""
+    cols = [seg.U[:, INPUT_NAMES.index(n)] for n in MEASURED_INPUTS]
+    cols += [seg.Y[:, OUTPUT_NAMES.index(n)] for n in SCANNED_OUTPUTS]
+    return np.stack(cols, axis=1)
+
+
+def variability_scores(seg: Segment, n_windows: int, step: int
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Scores of candidate windows starting at ``0, step, 2 step, ...``.
+
+    Returns ``(starts, contributions (n_candidates, n_signals))``; the score is the row sum.
+    """
+    X = _signal_matrix(seg)
+    ref = np.nanstd(X, axis=0)
+    floor = np.array([CONSTANT_BELOW[n] for n in SCORED_SIGNALS])
+    varying = ref > floor
+    starts = np.arange(0, seg.n_windows - n_windows + 1, step)
+    contrib = np.zeros((len(starts), len(SCORED_SIGNALS)))
+    for i, k in enumerate(starts):
+        s = np.nanstd(X[k:k + n_windows], axis=0)
+        contrib[i] = np.where(varying, np.nan_to_num(s) / np.where(varying, ref, 1.0), 0.0)
+    return starts, contrib
+
+
+def select_windows(seg: Segment, hours: float, count: int = 1, min_labs: int = 3,
+                   min_hours: float = 2.0) -> list[WindowChoice]:
+    """Pick ``count`` non-overlapping windows of ``hours`` with the most natural variability.
+
+    A record not longer than ``hours`` is used whole. Raises :class:`IngestError` when the
+    record is shorter than ``min_hours`` (or ``hours`` if less), has no lab sample at all, or
+    no candidate window has ``min_labs`` lab samples.
+    """
+    n = int(round(hours * 3600.0 / seg.window))
+    min_hours = min(min_hours, hours)
+    if seg.hours < min_hours - 1e-9:
+        raise IngestError(f"{seg.source}: {seg.hours:.2f} h of complete {seg.window:g} s windows "
+                          f"is too short to calibrate (at least {min_hours:g} h)")
+    seg.require_labs(1)
+    if n >= seg.n_windows:
+        return [WindowChoice(segment=seg, k0=0, k1=seg.n_windows, score=float("nan"),
+                             contributions={}, n_labs=len(seg.lab_value), rank_of=1,
+                             median_score=float("nan"), whole_record=True)]
+    step = max(1, int(round(STEP_HOURS * 3600.0 / seg.window)))
+    starts, contrib = variability_scores(seg, n, step)
+    score = contrib.sum(axis=1)
+    labs = np.array([seg.labs_before(k + n) - seg.labs_before(k) for k in starts])
+    usable = labs >= min_labs
+    if not usable.any():
+        raise IngestError(f"{seg.source}: no {hours:g} h window holds {min_labs} lab samples "
+                          f"(the record has {len(seg.lab_value)})")
+    med = float(np.median(score[usable]))
+    chosen: list[WindowChoice] = []
+    taken = np.zeros(seg.n_windows, dtype=bool)
+    order = np.argsort(-np.where(usable, score, -np.inf), kind="stable")
+    for i in order:
+        if len(chosen) >= count or not usable[i]:
+            break
+        k0, k1 = int(starts[i]), int(starts[i]) + n
+        if taken[k0:k1].any():
+            continue
+        taken[k0:k1] = True
+        chosen.append(WindowChoice(
+            segment=seg.slice(k0, k1), k0=k0, k1=k1, score=float(score[i]),
+            contributions=dict(zip(SCORED_SIGNALS, map(float, contrib[i]), strict=True)),
+            n_labs=int(labs[i]), rank_of=int(usable.sum()), median_score=med,
+            whole_record=False))
+    if len(chosen) < count:
+        raise IngestError(f"{seg.source}: only {len(chosen)} non-overlapping {hours:g} h "
+                          f"window(s) with {min_labs} lab samples, {count} requested")
+    return sorted(chosen, key=lambda c: c.k0)
+
+
+__all__ = ["SCORED_SIGNALS", "WindowChoice", "select_windows", "variability_scores"]

@@ -1,0 +1,238 @@
+"""The Optuna study: chunked runs, pruning, failed solves, bounds, resume, two workers on
+one journal file, the polish, the command line's errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+from optuna.trial import TrialState
+
+from softsensor.calibration.chunked_run import ChunkedRun, chunk_bounds, simulate_segments
+from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.optimize import (
+    FAILED_COST,
+    StudySettings,
+    count_trials,
+    data_fingerprint,
+    n_finished,
+    open_storage,
+    open_study,
+    run_trials,
+    search_space,
+)
+from softsensor.calibration.refine import refine
+from softsensor.cli import main as cli_main
+from softsensor.errors import ConfigError
+from softsensor.model import DryerModel
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import PARAMETER_NAMES, load_plant_config
+
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
+         "hm_cyc": 3e-4, "hc_cyc": 50.0}
+
+
+@pytest.fixture(scope="module")
+def config():
+    return load_plant_config()
+
+
+@pytest.fixture(scope="module")
+def model(config):
+    return DryerModel(config)
+
+
+@pytest.fixture(scope="module")
+def day6(config):
+    """A 6 h virtual-plant day with known (non-default) parameters."""
+    return simulate_day(config.with_parameters(TRUTH), 6.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def segment(day6, config):
+    return segment_from_day(day6, config, source="day6")
+
+
+@pytest.fixture(scope="module")
+def day6_file(day6, tmp_path_factory):
+    return day6.write(tmp_path_factory.mktemp("days") / "day6.mcap")
+
+
+def test_chunked_run_continues_the_state_exactly(model, segment, config):
+    """Four chunks with the state passed on give the same outputs as one run; the partial
+    cost after the last chunk is the full cost."""
+    theta = np.stack([model.theta0, np.array(list(TRUTH.values()))])
+    run = ChunkedRun(model, [segment], theta, config.cost.weights(), n_chunks=4)
+    assert list(run.bounds[0]) == list(chunk_bounds(segment.n_windows, 4))
+    costs = []
+    while not run.done:
+        costs.append(run.advance())
+    full = simulate_segments(model, [segment], theta)[0]
+    np.testing.assert_allclose(run.Y[0], full, rtol=1e-10, atol=1e-9)
+    final = run.run()
+    assert [f.cost for f in final] == pytest.approx([costs[-1][0].cost, costs[-1][1].cost])
+    assert len(costs) == 4 and costs[0][0].n["T_dryer_out"] == run.bounds[0][1] == 9
+    assert final[0].n["T_dryer_out"] == segment.n_windows == 36
+    assert list(chunk_bounds(3, 4)) == [0, 1, 2, 3]
+
+
+def test_study_prunes_keeps_bounds_and_starts_from_the_config(model, segment, config):
+    settings = StudySettings(n_trials=24, seed=4, progress=False, n_chunks=4)
+    study, created = open_study(settings, config, data_fingerprint([segment], config))
+    assert created
+    report = run_trials(study, model, [segment], config, settings)
+    trials = study.get_trials()
+    assert n_finished(study) == 24 == report.trials
+    assert trials[0].user_attrs["origin"] == "config"
+    assert trials[0].params == {n: config.parameters[n].value for n in PARAMETER_NAMES}
+    counts = count_trials(study)
+    assert counts["pruned"] == report.pruned > 0 and counts["complete"] == report.complete
+    space = search_space(config)
+    for t in trials:
+        for name, v in t.params.items():
+            assert space[name].low <= v <= space[name].high
+        if t.state == TrialState.PRUNED:
+            assert t.intermediate_values and max(t.intermediate_values) < 3
+        else:
+            assert t.user_attrs["rmse_moisture_out"] > 0
+    assert all(space[n].log for n in PARAMETER_NAMES)
+    assert report.windows_simulated < report.windows_full  # pruning saved model time
+
+
+class _FailingModel:
+    """Wraps a model; members with mult_D < 0.05 fail (NaN) from their second window."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def simulate(self, U, theta, state0=None, raise_on_failure=True, **kw):
+        Y, x = self.model.simulate(U, theta, state0=state0, raise_on_failure=False, **kw)
+        bad = np.atleast_2d(theta)[:, 0] < 0.05
+        Y[bad, 1:] = np.nan
+        return Y, x
+
+
+def test_failed_solves_are_pruned_with_a_high_cost(model, segment, config):
+    settings = StudySettings(n_trials=4, seed=0, progress=False, n_chunks=2)
+    study, _ = open_study(settings, config, "x")
+    study.enqueue_trial({**TRUTH, "mult_D": 0.02})
+    study.enqueue_trial({**TRUTH, "mult_D": 0.03})
+    run_trials(study, _FailingModel(model), [segment], config, settings)
+    failed = [t for t in study.get_trials() if t.user_attrs.get("solver_failed")]
+    assert len(failed) == 2
+    for t in failed:
+        assert t.state == TrialState.PRUNED and t.intermediate_values[0] == FAILED_COST
+    assert study.best_value < 1.0
+
+
+def test_resume_and_data_fingerprint(tmp_path, model, segment, config):
+    url = f"journal:{tmp_path / 'study.log'}"
+    fp = data_fingerprint([segment], config)
+    s1 = StudySettings(n_trials=5, seed=1, storage=url, progress=False, study_name="r")
+    study, created = open_study(s1, config, fp)
+    run_trials(study, model, [segment], config, s1)
+    first = [t.params for t in study.get_trials()]
+    s2 = StudySettings(n_trials=8, seed=1, storage=url, progress=False, study_name="r")
+    study2, created2 = open_study(s2, config, fp)
+    assert created and not created2
+    report = run_trials(study2, model, [segment], config, s2)
+    assert report.trials == 3 and n_finished(study2) == 8
+    assert [t.params for t in study2.get_trials()[:5]] == first
+    with pytest.raises(ConfigError, match="made on other data"):
+        open_study(s2, config, "another")
+    with pytest.raises(ConfigError, match="journal file"):
+        open_storage("study.txt")
+    with pytest.raises(ConfigError, match="does not exist"):
+        open_storage(str(tmp_path / "no" / "s.log"))
+    assert open_storage(f"sqlite:///{tmp_path / 's.db'}") is not None
+
+
+def test_two_workers_share_one_journal_study(tmp_path, day6_file):
+    """Two processes join one study through a journal file; they start together, split the
+    trials, and the trials add up to the study's target."""
+    journal = tmp_path / "shared.log"
+    go = tmp_path / "go"
+    worker = textwrap.dedent(f"""
+        import sys, time, pathlib
+        from softsensor.cli import main  # imports numba and the model before the start
+        import softsensor.model.kernels  # noqa
+        pathlib.Path(sys.argv[1] + ".ready").touch()
+        while not pathlib.Path({str(go)!r}).exists():
+            time.sleep(0.05)
+        sys.exit(main(["calibrate", {str(day6_file)!r}, "--trials", "16", "--quiet",
+                       "--storage", "journal:{journal}", "--study-name", "w",
+                       "--no-polish", "--no-identify", "--seed", "3",
+                       "--out", sys.argv[1]]))
+    """)
+    outs = [tmp_path / f"p{i}.toml" for i in range(2)]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    procs = [subprocess.Popen([sys.executable, "-c", worker, str(o)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=env) for o in outs]
+    deadline = time.time() + 120
+    while not all(Path(str(o) + ".ready").exists() for o in outs):
+        assert time.time() < deadline, "workers did not start"
+        assert all(p.poll() is None for p in procs), procs[0].communicate()
+        time.sleep(0.1)
+    go.touch()
+    results = [p.communicate(timeout=300) for p in procs]
+    for p, (_out, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+    docs = [json.loads(out) for out, _ in results]
+    study = optuna.load_study(study_name="w", storage=open_storage(f"journal:{journal}"))
+    finished = [t for t in study.get_trials() if t.state in (TrialState.COMPLETE,
+                                                             TrialState.PRUNED)]
+    by_worker: dict[int, int] = {}
+    for t in study.get_trials():
+        by_worker[t.user_attrs["worker"]] = by_worker.get(t.user_attrs["worker"], 0) + 1
+    assert 16 <= len(finished) <= 17  # a worker may start one trial as the other fills it
+    assert sum(d["trials_this_process"] for d in docs) == len(study.get_trials())
+    assert sorted(by_worker.values()) == sorted(d["trials_this_process"] for d in docs)
+    assert len(by_worker) == 2 and min(by_worker.values()) >= 3
+    assert all(t.state != TrialState.RUNNING for t in study.get_trials())
+    # the two workers proposed different trials (different sampler seeds)
+    params = [tuple(sorted(t.params.items())) for t in study.get_trials()]
+    assert len(set(params)) == len(params)
+
+
+def test_polish_lowers_the_cost_within_bounds(model, segment, config):
+    start = np.array([0.3, 0.5, 3.0, 1.0, 4.0, 1e-5, 30.0])
+    bounds = config.bounds()
+    bounds[4, 1] = 4.5  # a tight upper bound on mult_p: the polish must respect it
+    r = refine(model, [segment], start, bounds, config.cost.weights())
+    assert r.improved and r.fit.cost < 0.6 * r.start_fit.cost
+    assert np.all(r.theta >= bounds[:, 0]) and np.all(r.theta <= bounds[:, 1])
+    assert r.simulations < 80
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys, config):
+    day = simulate_day(config, 1.5, seed=1)
+    nolab = day.labs.iloc[:0]
+    from softsensor.plant.simulator import SimulatedDay
+
+    path = SimulatedDay(day.scans, nolab, day.truth, day.effect).write(tmp_path / "nolab.mcap")
+    out = tmp_path / "P.toml"
+    cases = [
+        (["calibrate", str(path), "--trials", "3", "--out", str(out)], "too short"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(out), "--window-hours",
+          "1"], "0 lab sample"),
+        (["calibrate", str(tmp_path / "missing.mcap"), "--trials", "3", "--out", str(out)],
+         "missing.mcap"),
+        (["calibrate", str(path), "--trials", "0", "--out", str(out)], "--trials must be"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(tmp_path / "x" / "P.toml")],
+         "does not exist"),
+        (["validate", str(path), "--params", str(tmp_path / "none.toml")], "none.toml"),
+    ]
+    for argv, words in cases:
+        assert cli_main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
+    assert not out.exists()
