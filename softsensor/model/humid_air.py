@@ -7,8 +7,9 @@ Enthalpies are per kg of dry air and referenced to liquid water and dry air at 0
 fibre enthalpy of :mod:`softsensor.model.wood`.
 
 Every function here is plain numpy arithmetic so that the same source serves array callers and
-the numba kernels (:mod:`softsensor.model.kernels` compiles them); hence ``np.minimum`` and
-``np.maximum`` instead of ``if``.
+the numba kernels: ``numba.extending.register_jitable`` leaves them ordinary Python functions
+and compiles them inline where :mod:`softsensor.model.kernels` calls them; hence ``np.minimum``
+and ``np.maximum`` instead of ``if``.
 
 References
 ----------
@@ -135,37 +136,44 @@ def _mole_fraction_vapour(Y):
 
 
 @register_jitable
-def viscosity(T, Y):
-    """Dynamic viscosity of moist air ``mu`` [Pa s].
-
-    Dry air by Sutherland's law, vapour by a linear fit, mixed by Wilke's rule [2].
-    """
+def _component_viscosities(T):
+    """Dry air (Sutherland) and water vapour (linear fit) viscosities [Pa s]."""
     mu_a = 1.716e-5 * (T / 273.15) ** 1.5 * (273.15 + 110.4) / (T + 110.4)
     mu_v = 8.02e-6 + 4.0e-8 * (T - 273.15)
+    return mu_a, mu_v
+
+
+@register_jitable
+def _wilke_mix(T, Y, prop_a, prop_v):
+    """Wilke's mixing rule [2] of a dry-air and a vapour property, weights from viscosity."""
+    mu_a, mu_v = _component_viscosities(T)
     xv = _mole_fraction_vapour(Y)
     xa = 1.0 - xv
     ma, mv = 28.9645, 18.01528
     phi_av = (1.0 + (mu_a / mu_v) ** 0.5 * (mv / ma) ** 0.25) ** 2 / (8.0 * (1.0 + ma / mv)) ** 0.5
     phi_va = (1.0 + (mu_v / mu_a) ** 0.5 * (ma / mv) ** 0.25) ** 2 / (8.0 * (1.0 + mv / ma)) ** 0.5
-    return xa * mu_a / (xa + xv * phi_av) + xv * mu_v / (xv + xa * phi_va)
+    return xa * prop_a / (xa + xv * phi_av) + xv * prop_v / (xv + xa * phi_va)
+
+
+@register_jitable
+def viscosity(T, Y):
+    """Dynamic viscosity of moist air ``mu`` [Pa s].
+
+    Dry air by Sutherland's law, vapour by a linear fit, mixed by Wilke's rule [2].
+    """
+    mu_a, mu_v = _component_viscosities(T)
+    return _wilke_mix(T, Y, mu_a, mu_v)
 
 
 @register_jitable
 def conductivity(T, Y):
     """Thermal conductivity of moist air ``k`` [W/(m K)].
 
-    Dry air by a Sutherland-type law, vapour by a linear fit, mixed with Wilke's weights [2].
+    Dry air by a Sutherland-type law, vapour by a quadratic fit, mixed with Wilke's weights [2].
     """
     k_a = 0.02414 * (T / 273.15) ** 1.5 * (273.15 + 194.4) / (T + 194.4)
     k_v = 0.0176 + 5.87e-5 * (T - 273.15) + 1.04e-7 * (T - 273.15) ** 2
-    mu_a = 1.716e-5 * (T / 273.15) ** 1.5 * (273.15 + 110.4) / (T + 110.4)
-    mu_v = 8.02e-6 + 4.0e-8 * (T - 273.15)
-    xv = _mole_fraction_vapour(Y)
-    xa = 1.0 - xv
-    ma, mv = 28.9645, 18.01528
-    phi_av = (1.0 + (mu_a / mu_v) ** 0.5 * (mv / ma) ** 0.25) ** 2 / (8.0 * (1.0 + ma / mv)) ** 0.5
-    phi_va = (1.0 + (mu_v / mu_a) ** 0.5 * (ma / mv) ** 0.25) ** 2 / (8.0 * (1.0 + mv / ma)) ** 0.5
-    return xa * k_a / (xa + xv * phi_av) + xv * k_v / (xv + xa * phi_va)
+    return _wilke_mix(T, Y, k_a, k_v)
 
 
 @register_jitable
