@@ -217,8 +217,10 @@ class DryerModel:
 
         Returns arrays over the ``n_d + n_c`` cells (tube first, then cyclone): ``X_f``
         [kg/kg], ``T_f`` [K], ``Y_a`` [kg/kg], ``T_a`` [K], ``T_w`` [K] (wall, then shell),
-        ``UA_w`` [W/K], and ``x`` [m] (cell centres along the tube; cyclone cells continue
-        past the tube end at unit spacing of their own).
+        ``UA_w`` [W/K], ``T_a_wall`` [K] (the air temperature the wall sees, the cell's
+        mean in the tube's box scheme: wall heat is ``UA_w (T_a_wall - T_w)``), and ``x``
+        [m] (cell centres along the tube; cyclone cells continue past the tube end at unit
+        spacing of their own).
         """
         theta = self.theta0 if theta is None else np.asarray(theta, float)
         state = np.asarray(state, float)
