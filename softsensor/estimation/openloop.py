@@ -1,0 +1,174 @@
+"""The open-loop estimator: the calibrated model fed the measured inputs, nothing else.
+
+Each tick steps :class:`~softsensor.model.DryerModel` over the window with the window's measured
+inputs and the config's nominal inlet moisture (``nominal.moisture_in``, 1.0 kg/kg for
+``dryer1``): the paper's validation set-up, and the baseline the filter must beat. It has no
+feedback, so it cannot know its own error: the standard deviations it reports are a fixed prior
+from the config (``estimator.openloop_moisture_in_std``, ``estimator.openloop_moisture_out_std``),
+not an estimate. Lab results are validated like the filter's (range, duplicates) but do not
+change the estimate; the next tick reports how far the model was from the lab at the sample
+time (``lab_residual``), which is what a process engineer checks first.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+
+from softsensor.errors import EstimationError, SoftsensorError
+from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.lab_history import LabBook, lab_problem
+from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.estimation.ukf import WindowModel
+from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
+from softsensor.plantconfig import PlantConfig
+from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+
+log = logging.getLogger(__name__)
+
+_MO = OUTPUT_NAMES.index("moisture_out")
+_CHECKPOINT_VERSION = 1
+
+
+class OpenLoopEstimator:
+    """The calibrated model run open loop with the nominal inlet moisture (module docstring).
+
+    Parameters
+    ----------
+    config : PlantConfig
+        Plant configuration with calibrated parameter values.
+    settings : EstimatorSettings, optional
+        Overrides the config's ``[estimator]`` table.
+    model : WindowModel, optional
+        The model (default ``DryerModel(config)``).
+    """
+
+    kind = "openloop"
+
+    def __init__(self, config: PlantConfig, settings: EstimatorSettings | None = None,
+                 model: WindowModel | None = None) -> None:
+        if model is None:
+            from softsensor.model import DryerModel
+            model = DryerModel(config)
+        self.config = config
+        self.settings = settings if settings is not None else estimator_settings(config)
+        self.model = model
+        self.theta = np.asarray(model.theta0, float)
+        self.window_s = float(model.window)
+        self.moisture_in = float(config.nominal.moisture_in)
+        self._hold = InputHold(np.array([getattr(config.nominal, n) for n in INPUT_NAMES],
+                                        float))
+        self._wall: np.ndarray | None = None
+        self._last_end: int | None = None
+        #: (start_ns, end_ns, moisture_out) of the kept ticks, for lab residuals
+        self._outputs: list[tuple[int, int, float]] = []
+        self._labs = LabBook()
+        self._residuals: list[tuple[str, float]] = []
+
+    def tick(self, window: Window) -> dict[str, Any]:
+        """Step the model over ``window`` and return the estimate body."""
+        if self._last_end is not None and window.end_ns <= self._last_end:
+            raise EstimationError(f"window ending at {window.end_ns} ns is not after the last "
+                                  f"tick ({self._last_end} ns)")
+        self._last_end = window.end_ns
+        u, held = self._hold.inputs(window)
+        u[MOISTURE_IN] = self.moisture_in
+        y = np.full(3, np.nan)
+        detail = ""
+        try:
+            if self._wall is None:
+                self._wall = self.model.steady_state(u, self.theta)[0]
+            Y, wall = self.model.simulate(u[None, :], self.theta, state0=self._wall)
+            self._wall, y = wall, Y[0]
+        except SoftsensorError as exc:
+            detail = f"model solve failed: {exc}"
+        self._outputs.append((window.start_ns, window.end_ns, float(y[_MO])))
+        keep = self.settings.history_ticks(self.window_s)
+        del self._outputs[:-keep]
+        self._labs.prune(self._outputs[0][0])
+        for lab in self._labs.take_due(window.end_ns):
+            self._residual(lab)
+        residuals, self._residuals = self._residuals, []
+        if window.stale:
+            status, detail = "stale", "stale window: open-loop model stepped on held inputs"
+        elif detail:
+            status = "degraded"
+        else:
+            status, detail = "ok", "open-loop model (no feedback); standard deviations are a " \
+                                   "fixed prior"
+            if held:
+                detail += f"; holding last value of {', '.join(held)}"
+        return {
+            "moisture_out": _num(y[_MO]),
+            "moisture_out_std": self.settings.openloop_moisture_out_std,
+            "moisture_in": self.moisture_in,
+            "moisture_in_std": self.settings.openloop_moisture_in_std,
+            "T_dryer_out_model": _num(y[0]),
+            "T_cyclone_out_model": _num(y[1]),
+            "lab_updated": False,
+            "lab_residual": {sid: r for sid, r in residuals},
+            "status": status,
+            "detail": detail,
+            "window_start_ns": int(window.start_ns),
+            "window_end_ns": int(window.end_ns),
+            "estimator": self.kind,
+        }
+
+    def add_lab(self, lab: LabResult) -> str | None:
+        """Validate ``lab`` (it never changes the open-loop estimate); reason when refused."""
+        problem = lab_problem(lab, self.settings)
+        if problem:
+            log.warning("%s; rejected", problem)
+            return problem
+        if self._labs.is_duplicate(lab):
+            return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
+        self._labs.remember(lab)
+        if self._outputs and lab.sample_time_ns <= self._outputs[0][0]:
+            return (f"lab {lab.sample_id!r}: sample time is older than the kept history "
+                    f"({self.settings.history_hours:g} h); skipped")
+        if self._last_end is None or lab.sample_time_ns > self._last_end:
+            self._labs.add_pending(lab)
+        else:
+            self._residual(lab)
+        return None
+
+    def _residual(self, lab: LabResult) -> None:
+        for start, end, mo in self._outputs:
+            if start < lab.sample_time_ns <= end and math.isfinite(mo):
+                self._residuals.append((lab.sample_id, lab.moisture_out - mo))
+                return
+
+    def checkpoint(self) -> dict[str, Any]:
+        """JSON-able snapshot: wall state, held inputs, recent outputs, labs."""
+        return {"kind": self.kind, "version": _CHECKPOINT_VERSION,
+                "wall": None if self._wall is None else self._wall.tolist(),
+                "hold": self._hold.last.tolist(), "last_end": self._last_end,
+                "outputs": [[a, b, _num(c)] for a, b, c in self._outputs],
+                "labs": self._labs.to_json(),
+                "residuals": [list(r) for r in self._residuals]}
+
+    def restore(self, snapshot: dict[str, Any]) -> None:
+        """Continue from :meth:`checkpoint` output; EstimationError if it does not fit."""
+        if snapshot.get("kind") != self.kind or snapshot.get("version") != _CHECKPOINT_VERSION:
+            raise EstimationError(f"checkpoint is of kind {snapshot.get('kind')!r} version "
+                                  f"{snapshot.get('version')!r}, expected {self.kind!r} "
+                                  f"version {_CHECKPOINT_VERSION}")
+        try:
+            wall = snapshot["wall"]
+            self._wall = None if wall is None else np.array(wall, float)
+            self._hold = InputHold(np.array(snapshot["hold"], float))
+            last = snapshot["last_end"]
+            self._last_end = None if last is None else int(last)
+            self._outputs = [(int(a), int(b), math.nan if c is None else float(c))
+                             for a, b, c in snapshot["outputs"]]
+            self._labs = LabBook.from_json(snapshot["labs"])
+            self._residuals = [(str(a), float(b)) for a, b in snapshot["residuals"]]
+        except (KeyError, TypeError, ValueError) as exc:
+            raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
+
+
+def _num(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None

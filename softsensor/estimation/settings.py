@@ -1,0 +1,141 @@
+"""Estimator settings: the optional ``[estimator]`` table of the plant config.
+
+One frozen dataclass, validated on load by :func:`softsensor.configfile.build_section` (unknown
+keys rejected, ranges checked, errors naming ``estimator.<key>``). Every field has a default, so
+a config without the table works. Random-walk intensities are given per square root of an hour
+(a physical rate a process engineer can judge); the filter scales them to its window:
+``q_window = q_hour * sqrt(window / 3600 s)``.
+
+Example ``config/dryer1.toml`` fragment::
+
+    [estimator]
+    kind = "ukf"
+    moisture_in_walk = 0.05        # kg/kg per sqrt(h)
+    history_hours = 8.0
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from softsensor.configfile import build_section, num
+from softsensor.plantconfig import PlantConfig
+
+#: Estimator kinds the service can build (see :func:`softsensor.estimation.registry.build`).
+ESTIMATOR_KINDS: tuple[str, ...] = ("ukf", "openloop")
+
+
+@dataclass(frozen=True)
+class EstimatorSettings:
+    """Tuning of the estimators (``[estimator]`` in the plant config). SI units.
+
+    Attributes
+    ----------
+    kind : str
+        Estimator the service runs: ``"ukf"`` (default) or ``"openloop"``.
+    moisture_in_std0 : float
+        Prior standard deviation of the inlet fibre moisture at start-up. [kg/kg]
+    moisture_in_walk : float
+        Random-walk intensity of the inlet moisture. [kg/kg / sqrt(h)]
+    moisture_in_adapt : float
+        Temperature innovations more than this many standard deviations along what an inlet
+        moisture change would do widen its prior (a step; covariance matching, see
+        :meth:`softsensor.estimation.ukf.UkfEstimator._match_covariance`). [-]
+    moisture_in_min, moisture_in_max : float
+        Range the model is evaluated in; sigma points outside it are clipped. [kg/kg]
+    moisture_out_bias_std0 : float
+        Prior standard deviation of the additive outlet-moisture model bias. [kg/kg]
+    moisture_out_bias_walk : float
+        Random-walk intensity of that bias. [kg/kg / sqrt(h)]
+    moisture_out_bias_adapt : float
+        A lab result more than this many standard deviations from the estimate (given the
+        tick's temperatures) widens the bias prior so its innovation becomes one standard
+        deviation (covariance matching, as for the inlet moisture). [-]
+    T_air_in_error_std : float
+        Effective error of the window's ``T_air_in`` as the model sees it: white, redrawn
+        every window. It stands for what a window mean of the inputs cannot carry (the loop
+        moves the air temperature within the window; the model is nonlinear), and lets the
+        filter explain a common-mode temperature mismatch by the heat input, which leaves the
+        outlet moisture nearly unchanged, rather than by the inlet moisture, which does not. [K]
+    temperature_sensor_std : float
+        Noise of one temperature scan; a window mean of ``n`` good scans has
+        ``temperature_sensor_std / sqrt(n)``. [K]
+    temperature_model_std : float
+        Model error of a window's outlet temperatures, added in quadrature. [K]
+    lab_std : float
+        Noise of one lab moisture result (CONTRACT section 6). [kg/kg]
+    lab_sample_std : float
+        Short-term variation of the outlet moisture around its window mean, which a grab
+        sample sees and a window estimate does not (the outlet loop moves the air temperature
+        every few seconds); added to ``lab_std`` in quadrature. [kg/kg]
+    lab_min, lab_max : float
+        Physically possible lab results; outside is rejected as corrupt. [kg/kg]
+    lab_gate : float
+        A lab result further than this many standard deviations of its innovation from the
+        estimate at its sample time is rejected as an outlier. [-]
+    history_hours : float
+        Estimator history kept to apply late lab results; older samples are skipped. [h]
+    consistency_ticks : int
+        Ticks in the chi-square consistency window of the innovations. [-]
+    consistency_alpha : float
+        False-alarm probability of that test per window. [-]
+    sigma_alpha, sigma_beta, sigma_kappa : float
+        Van der Merwe scaled sigma points (filterpy ``MerweScaledSigmaPoints``).
+    openloop_moisture_in_std, openloop_moisture_out_std : float
+        Fixed standard deviations the open-loop estimator reports (a prior, not an estimate:
+        the open-loop model has no feedback to learn its error from). [kg/kg]
+    """
+
+    kind: str = "ukf"
+    moisture_in_std0: float = num(0.15, gt=0, lt=2)
+    moisture_in_walk: float = num(0.01, ge=0, lt=2)
+    moisture_in_adapt: float = num(3.0, gt=0)
+    moisture_in_min: float = num(0.3, gt=0, lt=5)
+    moisture_in_max: float = num(2.5, gt=0, lt=5)
+    moisture_out_bias_std0: float = num(0.0002, gt=0, lt=1)
+    moisture_out_bias_walk: float = num(0.00002, ge=0, lt=1)
+    moisture_out_bias_adapt: float = num(3.0, gt=0)
+    T_air_in_error_std: float = num(0.25, gt=0, lt=50)
+    temperature_sensor_std: float = num(0.5, gt=0, lt=20)
+    temperature_model_std: float = num(0.02, ge=0, lt=20)
+    lab_std: float = num(0.003, gt=0, lt=1)
+    lab_sample_std: float = num(0.004, ge=0, lt=1)
+    lab_min: float = num(0.0, ge=0, lt=5)
+    lab_max: float = num(0.6, gt=0, le=5)
+    lab_gate: float = num(6.0, gt=0)
+    history_hours: float = num(8.0, gt=0, le=240)
+    consistency_ticks: int = num(12, ge=1, le=10000)
+    consistency_alpha: float = num(1e-3, gt=0, lt=1)
+    sigma_alpha: float = num(1.0, gt=0, le=10)
+    sigma_beta: float = num(2.0, ge=0)
+    sigma_kappa: float = num(1.0, ge=0)
+    openloop_moisture_in_std: float = num(0.15, gt=0, lt=2)
+    openloop_moisture_out_std: float = num(0.05, gt=0, lt=1)
+
+    def check(self) -> str | None:
+        """Cross-field rules (called by ``build_section``); the message names the key."""
+        if self.kind not in ESTIMATOR_KINDS:
+            return f"kind must be one of {', '.join(ESTIMATOR_KINDS)}, got {self.kind!r}"
+        if self.moisture_in_max <= self.moisture_in_min:
+            return (f"moisture_in_max must be > moisture_in_min ({self.moisture_in_min:g}), "
+                    f"got {self.moisture_in_max:g}")
+        if self.lab_max <= self.lab_min:
+            return f"lab_max must be > lab_min ({self.lab_min:g}), got {self.lab_max:g}"
+        return None
+
+    def walk_per_window(self, walk_per_sqrt_hour: float, window_s: float) -> float:
+        """Random-walk standard deviation over one window of ``window_s`` seconds. [kg/kg]"""
+        return walk_per_sqrt_hour * math.sqrt(window_s / 3600.0)
+
+    def history_ticks(self, window_s: float) -> int:
+        """Number of windows of ``window_s`` seconds the history keeps (at least 2)."""
+        return max(2, int(math.ceil(self.history_hours * 3600.0 / window_s)))
+
+
+def estimator_settings(cfg: PlantConfig) -> EstimatorSettings:
+    """The validated ``[estimator]`` table of ``cfg``, or the defaults when it has none."""
+    table = cfg.extra.get("estimator")
+    if table is None:
+        return EstimatorSettings()
+    return build_section(EstimatorSettings, table, "estimator", cfg.source)
