@@ -7,9 +7,11 @@ different ticks are independent. Over a window of ticks, ``sum NIS_k`` is then c
 ``sum m_k`` degrees of freedom (Bar-Shalom, Li and Kirubarajan 2001, "Estimation with
 Applications to Tracking and Navigation", section 5.4.2). Health turns ``degraded`` when that
 sum exceeds the upper ``1 - alpha`` quantile: the innovations are larger than the filter
-believes, i.e. the model, its parameters or a sensor is off. The detail names the channel
-whose normalised innovations are furthest from zero on average, with the sign, so a reader
-sees e.g. "T_cyclone_out reads 2.1 sigma above the model".
+believes, i.e. the model, its parameters or a sensor is off. The detail gives each channel's
+mean normalised innovation (measurement minus model, in standard deviations), largest first,
+e.g. "T_dryer_out -4.4, T_cyclone_out +4.3": one outlet temperature sensor off by a constant
+shows as the two channels pulling apart (the inlet moisture moves the model to split the
+difference, so which of the two is off needs the lab or a diagnosis).
 """
 
 from __future__ import annotations
@@ -73,10 +75,10 @@ def chi_square_test(window: Sequence[Innovation], alpha: float) -> Verdict:
     for i in window:
         for name, v in i.normalised.items():
             channels.setdefault(name, []).append(v)
-    worst, mean = max(((n, float(np.mean(v))) for n, v in channels.items()),
-                      key=lambda t: abs(t[1]))
-    side = "above" if mean > 0 else "below"
+    means = sorted(((n, float(np.mean(v))) for n, v in channels.items()),
+                   key=lambda t: -abs(t[1]))
+    per_channel = ", ".join(f"{n} {m:+.1f}" for n, m in means)
     return Verdict("degraded",
                    f"innovations inconsistent: NIS {total:.1f} > {limit:.1f} over "
-                   f"{len(window)} ticks ({dof} dof, chi-square alpha {alpha:g}); {worst} reads "
-                   f"{abs(mean):.1f} sigma {side} the model on average", total, dof, limit)
+                   f"{len(window)} ticks ({dof} dof, chi-square alpha {alpha:g}); mean "
+                   f"measurement - model in sigma: {per_channel}", total, dof, limit)

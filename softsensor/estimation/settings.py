@@ -65,10 +65,12 @@ class EstimatorSettings:
         Model error of a window's outlet temperatures, added in quadrature. [K]
     lab_std : float
         Noise of one lab moisture result (CONTRACT section 6). [kg/kg]
-    lab_sample_std : float
-        Short-term variation of the outlet moisture around its window mean, which a grab
-        sample sees and a window estimate does not (the outlet loop moves the air temperature
-        every few seconds); added to ``lab_std`` in quadrature. [kg/kg]
+    moisture_out_jitter_std : float
+        Short-term variation of the outlet moisture around its window mean: the outlet loop
+        moves the air temperature every few seconds, and a 600 s window cannot follow it
+        (0.004 kg/kg on the virtual plant). A grab sample sees it, so it adds to ``lab_std``;
+        and it is part of the uncertainty of the outlet moisture *at* the tick, so it adds to
+        the reported ``moisture_out_std`` (``moisture_out_window_std`` leaves it out). [kg/kg]
     lab_min, lab_max : float
         Physically possible lab results; outside is rejected as corrupt. [kg/kg]
     lab_gate : float
@@ -100,7 +102,7 @@ class EstimatorSettings:
     temperature_sensor_std: float = num(0.5, gt=0, lt=20)
     temperature_model_std: float = num(0.02, ge=0, lt=20)
     lab_std: float = num(0.003, gt=0, lt=1)
-    lab_sample_std: float = num(0.004, ge=0, lt=1)
+    moisture_out_jitter_std: float = num(0.004, ge=0, lt=1)
     lab_min: float = num(0.0, ge=0, lt=5)
     lab_max: float = num(0.6, gt=0, le=5)
     lab_gate: float = num(6.0, gt=0)

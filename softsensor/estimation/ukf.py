@@ -42,10 +42,11 @@ State choice (numbers for ``dryer1`` at its nominal point, ``DryerModel`` of 202
 
 Measurements: ``T_dryer_out`` and ``T_cyclone_out`` window means every tick, variance
 ``sensor_std² / n_good + model_std²``; ``moisture_out`` (model + bias) for each lab result,
-variance ``lab_std² + lab_sample_std²`` (a grab sample sees the outlet moisture's jitter
-within the window, 0.004 kg/kg on the virtual plant). Measurement sizes vary, so each filterpy
-``update()`` gets its own ``hx`` and a full-size ``R`` (STACK.md). The model outputs of all
-sigma points come from one batched model call before the update; ``hx`` only looks them up.
+variance ``lab_std² + moisture_out_jitter_std²`` (a grab sample sees the outlet moisture's
+jitter within the window, 0.004 kg/kg on the virtual plant). Measurement sizes vary, so
+each filterpy ``update()`` gets its own ``hx`` and a full-size ``R`` (STACK.md). The model
+outputs of all sigma points come from one batched model call before the update; ``hx`` only
+looks them up.
 
 Late lab results
 ----------------
@@ -64,6 +65,11 @@ posterior mean at the window's end), ``moisture_in``, their standard deviations,
 temperatures, the normalised innovation squared ``nis`` (``nu^T S^-1 nu``) with ``nis_dof``, and
 ``status``/``detail`` for the health topic: ``stale`` for a stale window (predict only),
 ``degraded`` when the innovations fail the chi-square test of :mod:`.consistency`.
+``moisture_out_std`` is the uncertainty of the outlet moisture *at the tick*: the window
+estimate's (``moisture_out_window_std``) plus the short-term jitter a window cannot follow
+(``estimator.moisture_out_jitter_std``), so its 95 % interval is the one to hold a grab sample
+or an instantaneous truth against. ``notes`` lists covariance-matching events (a step of the
+inlet moisture, a lab that moved the bias).
 """
 
 from __future__ import annotations
@@ -364,7 +370,7 @@ class UkfEstimator:
         if mean is None or std is None:
             return None, 0
         s = self.settings
-        z = (lab.moisture_out - mean) / math.sqrt(std**2 + s.lab_std**2 + s.lab_sample_std**2)
+        z = (lab.moisture_out - mean) / math.sqrt(std**2 + s.lab_std**2)
         if abs(z) > s.lab_gate:
             return (f"lab {lab.sample_id!r}: moisture_out {lab.moisture_out:g} kg/kg is "
                     f"{abs(z):.1f} sigma from the estimate {mean:.4f} at its sample time "
@@ -529,7 +535,7 @@ class UkfEstimator:
         for lab in labs:
             rows.append(_MO)
             values.append(lab.moisture_out)
-            var.append(self.settings.lab_std**2 + self.settings.lab_sample_std**2)
+            var.append(self.settings.lab_std**2 + self.settings.moisture_out_jitter_std**2)
             names.append("moisture_out (lab)")
         return rows, np.array(values, float), np.diag(var), names
 
@@ -537,6 +543,7 @@ class UkfEstimator:
               y_var: np.ndarray, detail: str) -> dict[str, Any]:
         """The estimate body of one tick (``lab_updated`` is set by :meth:`tick`)."""
         window = rec.window
+        jitter = self.settings.moisture_out_jitter_std
         recent = [r.innovation for r in self._history if r.window.end_ns < window.end_ns]
         recent = recent[max(0, len(recent) - (self.settings.consistency_ticks - 1)):]
         verdict = chi_square_test([*recent, rec.innovation], self.settings.consistency_alpha)
@@ -554,7 +561,8 @@ class UkfEstimator:
         inn = rec.innovation
         return {
             "moisture_out": _num(y_mean[_MO]),
-            "moisture_out_std": _num(math.sqrt(max(y_var[_MO], 0.0))),
+            "moisture_out_std": _num(math.sqrt(max(y_var[_MO], 0.0) + jitter**2)),
+            "moisture_out_window_std": _num(math.sqrt(max(y_var[_MO], 0.0))),
             "moisture_in": float(x[X_IN]),
             "moisture_in_std": float(math.sqrt(P[X_IN, X_IN])),
             "moisture_out_bias": float(x[X_BIAS]),

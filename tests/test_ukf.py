@@ -1,0 +1,410 @@
+"""The UKF virtual sensor on a linear plant: oracle, late labs, robustness, health, restart.
+
+A linear stand-in for the dryer model (:class:`LinearDryer`, derivatives of ``DryerModel`` at
+the nominal point) makes every test fast and lets a plain linear Kalman filter serve as the
+oracle: for linear models the unscented transform is exact, so the UKF must reproduce the KF to
+round-off (filterpy's own test idea, STYLE.md). The tests on virtual-plant days with the real
+model are in ``tests/test_ukf_virtual_plant.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from softsensor.errors import ConfigError, EstimationError
+from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.consistency import Innovation, chi_square_test
+from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.estimation.ukf import X_BIAS, X_IN, X_TA, UkfEstimator
+from softsensor.plantconfig import load_plant_config
+from softsensor.signals import SCAN_SIGNALS
+
+W_NS = 600 * 10**9
+T0_NS = 1_767_571_200_000_000_000
+CFG = load_plant_config()
+
+#: d(T_dryer_out, T_cyclone_out, moisture_out) / d(moisture_in, T_air_in) near the nominal point
+#: of dryer1 (the real model: -28 K, 0.32 K/K; moisture 0.63, -0.003 per K).
+A = np.array([[-28.0, 0.32], [-27.0, 0.31], [0.63, -0.0031]])
+Y0 = np.array([347.8, 346.4, 0.10])
+U0 = CFG.nominal
+
+
+class LinearDryer:
+    """Linear stand-in for ``DryerModel`` with the same call signatures (one dummy wall state).
+
+    ``mo_offset`` shifts the outlet moisture (a plant whose kinetics differ from the model's).
+    """
+
+    window = 600.0
+    theta0 = CFG.parameter_vector()
+
+    def __init__(self, mo_offset: float = 0.0) -> None:
+        self.mo_offset = mo_offset
+
+    def outputs(self, U: np.ndarray) -> np.ndarray:
+        U = np.asarray(U, float)
+        dx = U[..., 7] - U0.moisture_in
+        dt = U[..., 0] - U0.T_air_in
+        y = Y0 + dx[..., None] * A[:, 0] + dt[..., None] * A[:, 1]
+        y[..., 2] += self.mo_offset
+        return y
+
+    def steady_state(self, u, theta=None):
+        u = np.asarray(u, float)
+        return np.full(u.shape[:-1] + (1,), 400.0), self.outputs(u)
+
+    def simulate(self, U, theta=None, aux=None, state0=None, dt=None, raise_on_failure=True):
+        U = np.asarray(U, float)
+        return self.outputs(U), np.full(U.shape[:-2] + (1,), 400.0)
+
+
+def window(k: int, T_air_in: float, T_out: tuple[float, float] | None, stale: bool = False,
+           **means: float | None) -> Window:
+    """Window ``k`` of a test day with nominal inputs except ``T_air_in`` and ``means``."""
+    m: dict[str, float | None] = dict.fromkeys(SCAN_SIGNALS, None)
+    m.update({n: float(getattr(U0, n)) for n in ("m_air", "m_fiber", "T_fiber_in", "m_steam",
+                                                  "T_amb", "H_amb", "T_sp")})
+    m.update(T_air_in=T_air_in, flap_cmd=50.0)
+    if T_out is not None:
+        m.update(T_dryer_out=T_out[0], T_cyclone_out=T_out[1])
+    m.update(means)
+    return Window(T0_NS + k * W_NS, T0_NS + (k + 1) * W_NS, m, 60,
+                  {n: (60 if v is not None else 0) for n, v in m.items()}, stale)
+
+
+def synthetic_day(n: int, seed: int, x_in=None, T_air_noise: float = 0.25,
+                  plant: LinearDryer | None = None):
+    """Windows and true outputs of a linear plant whose inlet moisture follows ``x_in(k)``."""
+    plant = plant or LinearDryer()
+    rng = np.random.default_rng(seed)
+    x_in = x_in or (lambda k: 1.0 + 0.05 * math.sin(k / 40.0))
+    wins, truth = [], []
+    for k in range(n):
+        Ta = 485.0 + 5.0 * math.sin(k / 17.0)
+        u = np.array([Ta + rng.normal(0, T_air_noise), 82.0, 6.0, 370.0, 0.5, 283.15, 0.006,
+                      x_in(k)])
+        y = plant.outputs(u)
+        meas = y[:2] + rng.normal(0.0, 0.5 / math.sqrt(60.0), 2)
+        wins.append(window(k, Ta, (float(meas[0]), float(meas[1]))))
+        truth.append((x_in(k), float(y[2])))
+    return wins, np.array(truth)
+
+
+def lab(k: int, value: float, sid: str, delay_ticks: float = 0.0, frac: float = 0.5) -> LabResult:
+    """Lab result sampled in window ``k`` (at ``frac`` of it), logged ``delay_ticks`` later."""
+    t = T0_NS + k * W_NS + int(frac * W_NS)
+    return LabResult(t, value, sid, t + int(delay_ticks * W_NS))
+
+
+def make(**overrides) -> UkfEstimator:
+    """A UKF on the linear model with default settings except ``overrides``."""
+    return UkfEstimator(CFG, dataclasses.replace(EstimatorSettings(), **overrides),
+                        model=LinearDryer())
+
+
+NO_ADAPT = {"moisture_in_adapt": 1e9, "moisture_out_bias_adapt": 1e9, "lab_gate": 1e9}
+
+
+# ---------------------------------------------------------------------------------- oracle
+def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
+    """UKF = KF to round-off (UT exact for linear maps), including the reported moisture_out."""
+    s = dataclasses.replace(EstimatorSettings(), **NO_ADAPT)
+    est = UkfEstimator(CFG, s, model=LinearDryer())
+    wins, truth = synthetic_day(30, seed=3)
+    labs = {7: lab(7, truth[7, 1] + 0.004, "L1"), 19: lab(19, truth[19, 1] - 0.003, "L2")}
+    # Kalman filter of x = (moisture_in, T_air_in error, bias) with F = diag(1, 0, 1)
+    q = [s.walk_per_window(s.moisture_in_walk, 600.0) ** 2, s.T_air_in_error_std**2,
+         s.walk_per_window(s.moisture_out_bias_walk, 600.0) ** 2]
+    x = np.array([CFG.nominal.moisture_in, 0.0, 0.0])
+    P = np.diag([s.moisture_in_std0**2, s.T_air_in_error_std**2, s.moisture_out_bias_std0**2])
+    F, Q = np.diag([1.0, 0.0, 1.0]), np.diag(q)
+    Hfull = np.array([[A[0, 0], A[0, 1], 0.0], [A[1, 0], A[1, 1], 0.0], [A[2, 0], A[2, 1], 1.0]])
+    r_T = s.temperature_sensor_std**2 / 60 + s.temperature_model_std**2
+    r_L = s.lab_std**2 + s.moisture_out_jitter_std**2
+    for k, w in enumerate(wins):
+        if k in labs:
+            est.add_lab(labs[k])            # sampled in this window: applied at its tick
+        body = est.tick(w)
+        x, P = F @ x, F @ P @ F.T + Q
+        u = np.array([w.means["T_air_in"], 82, 6, 370, 0.5, 283.15, 0.006, 0.0])
+        c = LinearDryer().outputs(np.r_[u[:7], CFG.nominal.moisture_in]) - \
+            Hfull[:, 0] * CFG.nominal.moisture_in
+        rows = [0, 1] + ([2] if k in labs else [])
+        z = np.array([w.means["T_dryer_out"], w.means["T_cyclone_out"]]
+                     + ([labs[k].moisture_out] if k in labs else []))
+        H = Hfull[rows]
+        R = np.diag([r_T, r_T] + ([r_L] if k in labs else []))
+        S = H @ P @ H.T + R
+        K = P @ H.T @ np.linalg.inv(S)
+        nu = z - (H @ x + c[rows])
+        x, P = x + K @ nu, P - K @ S @ K.T
+        assert body["moisture_in"] == pytest.approx(x[0], abs=1e-9)
+        assert body["moisture_in_std"] == pytest.approx(math.sqrt(P[0, 0]), rel=1e-7)
+        assert body["moisture_out_bias"] == pytest.approx(x[2], abs=1e-10)
+        mo = Hfull[2] @ x + c[2]
+        mo_var = Hfull[2] @ P @ Hfull[2]
+        assert body["moisture_out"] == pytest.approx(mo, abs=1e-10)
+        assert body["moisture_out_window_std"] == pytest.approx(math.sqrt(mo_var), rel=1e-6)
+        assert body["moisture_out_std"] == pytest.approx(
+            math.sqrt(mo_var + s.moisture_out_jitter_std**2), rel=1e-6)
+        assert body["T_dryer_out_model"] == pytest.approx(Hfull[0] @ x + c[0], abs=1e-8)
+        assert body["nis"] == pytest.approx(float(nu @ np.linalg.solve(S, nu)), rel=1e-6)
+        assert body["nis_dof"] == len(rows)
+    assert np.allclose(est._state.P, P, rtol=1e-6, atol=1e-14)
+
+
+def test_filter_tracks_the_inlet_moisture_of_a_linear_plant():
+    est = make()
+    wins, truth = synthetic_day(150, seed=1)
+    errs = [est.tick(w)["moisture_in"] - t for w, t in zip(wins, truth[:, 0], strict=True)]
+    assert np.sqrt(np.mean(np.square(errs[10:]))) < 0.01
+
+
+def test_a_step_of_the_inlet_moisture_is_taken_at_once_without_degrading_health():
+    est = make()
+    wins, truth = synthetic_day(60, seed=2, x_in=lambda k: 1.0 if k < 30 else 1.12)
+    bodies = [est.tick(w) for w in wins]
+    assert abs(bodies[30]["moisture_in"] - 1.12) < 0.01     # the step's own tick
+    assert any("inlet moisture" in n for n in bodies[30]["notes"])
+    assert all(b["status"] == "ok" for b in bodies[1:])
+    # without covariance matching the random walk takes many ticks
+    slow = make(moisture_in_adapt=1e9)
+    late = [slow.tick(w)["moisture_in"] for w in wins]
+    assert abs(late[30] - 1.12) > 0.03
+
+
+# ---------------------------------------------------------------------------------- lab results
+def run(est: UkfEstimator, wins, deliveries: dict[int, list[LabResult]]) -> list[dict]:
+    """Tick ``wins``; deliver ``deliveries[k]`` just before tick ``k``."""
+    out = []
+    for k, w in enumerate(wins):
+        for r in deliveries.get(k, []):
+            est.add_lab(r)
+        out.append(est.tick(w))
+    return out
+
+
+def test_late_lab_gives_the_same_estimate_as_an_on_time_one():
+    wins, truth = synthetic_day(40, seed=4)
+    samples = [lab(10, truth[10, 1] + 0.005, "A"), lab(20, truth[20, 1] - 0.006, "B")]
+    on_time = run(make(), wins, {10: [samples[0]], 20: [samples[1]]})
+    late = run(make(), wins, {15: [samples[0]], 29: [samples[1]]})   # 50 and 90 min late
+    none = run(make(), wins, {})
+    assert late[-1] == on_time[-1]                           # bit for bit
+    assert late[15]["lab_updated"] and not late[14]["lab_updated"]
+    assert late[15]["moisture_out"] != none[15]["moisture_out"]     # the lab did change it
+    assert late[12]["moisture_out"] == none[12]["moisture_out"]     # published before arrival
+
+
+def test_out_of_order_labs_give_the_same_estimate_as_in_order():
+    wins, truth = synthetic_day(40, seed=5)
+    a, b = lab(8, truth[8, 1] + 0.004, "A"), lab(14, truth[14, 1] - 0.005, "B")
+    in_order = run(make(), wins, {18: [a], 19: [b]})
+    swapped = run(make(), wins, {18: [b], 19: [a]})
+    together = run(make(), wins, {19: [b, a]})
+    assert in_order[-1] == swapped[-1] == together[-1]
+
+
+def test_duplicate_sample_id_is_ignored():
+    wins, truth = synthetic_day(30, seed=6)
+    est = make()
+    run(est, wins[:12], {})
+    first = lab(8, truth[8, 1] + 0.004, "A")
+    assert est.add_lab(first) is None
+    reason = est.add_lab(dataclasses.replace(first, moisture_out=first.moisture_out + 0.02))
+    assert reason is not None and "duplicate" in reason and "'A'" in reason
+    assert est.add_lab(first) is not None
+    once = make()
+    run(once, wins[:12], {})
+    once.add_lab(first)
+    assert run(est, wins[12:], {})[-1] == run(once, wins[12:], {})[-1]
+
+
+@pytest.mark.parametrize("value, words", [
+    (float("nan"), "not a finite number"),
+    (-0.02, "outside the possible range"),
+    (1.7, "outside the possible range"),
+])
+def test_corrupted_lab_values_are_rejected_with_a_reason_and_change_nothing(value, words):
+    wins, truth = synthetic_day(20, seed=7)
+    est, ref = make(), make()
+    run(est, wins[:10], {})
+    run(ref, wins[:10], {})
+    reason = est.add_lab(lab(5, value, "X"))
+    assert reason is not None and words in reason and "'X'" in reason
+    assert run(est, wins[10:], {}) == run(ref, wins[10:], {})
+    # the corrected result under the same id is still accepted
+    assert est.add_lab(lab(5, truth[5, 1], "X")) is None
+
+
+def test_lab_sampled_after_it_was_logged_is_rejected():
+    est = make()
+    bad = LabResult(T0_NS + 5 * W_NS, 0.1, "T", T0_NS + 4 * W_NS)
+    assert "after the result was logged" in est.add_lab(bad)
+
+
+def test_lab_older_than_the_history_is_skipped_with_a_reason():
+    wins, truth = synthetic_day(20, seed=8)
+    est, ref = make(history_hours=1.0, consistency_ticks=6), \
+        make(history_hours=1.0, consistency_ticks=6)
+    run(est, wins[:15], {})
+    run(ref, wins[:15], {})
+    reason = est.add_lab(lab(2, truth[2, 1] + 0.01, "OLD"))
+    assert reason is not None and "older than the kept history" in reason
+    assert run(est, wins[15:], {}) == run(ref, wins[15:], {})
+
+
+def test_a_lone_outlier_is_refused_and_a_second_on_the_same_side_taken():
+    wins, truth = synthetic_day(40, seed=9)
+    est = make()
+    run(est, wins[:20], {})
+    r1 = est.add_lab(lab(12, truth[12, 1] + 0.08, "O1"))
+    assert r1 is not None and "outlier" in r1
+    assert est.add_lab(lab(16, truth[16, 1] + 0.08, "O2")) is None
+    body = est.tick(wins[20])
+    assert body["moisture_out_bias"] > 0.05                  # covariance matching took it
+    assert any("bias" in n for n in body["notes"])
+
+
+def test_bias_state_takes_a_model_offset_from_two_labs():
+    plant = LinearDryer(mo_offset=0.03)
+    wins, truth = synthetic_day(60, seed=10, plant=plant)
+    est = make()
+    bodies = run(est, wins, {12: [lab(8, truth[8, 1], "A")], 30: [lab(25, truth[25, 1], "B")]})
+    assert abs(bodies[-1]["moisture_out"] - truth[-1, 1]) < 0.006
+    assert abs(bodies[-1]["moisture_out_bias"] - 0.03) < 0.006
+    assert abs(bodies[-1]["moisture_in"] - truth[-1, 0]) < 0.01   # inlet stays with the T
+
+
+# ---------------------------------------------------------------------------------- robustness
+def test_stale_window_predicts_without_update():
+    wins, _ = synthetic_day(12, seed=11)
+    est = make()
+    before = run(est, wins[:10], {})[-1]
+    stale = dataclasses.replace(wins[10], stale=True, reasons={"scans": "12 scans"})
+    body = est.tick(stale)
+    assert body["status"] == "stale" and "12 scans" in body["detail"]
+    assert body["nis"] is None and body["nis_dof"] == 0
+    assert body["moisture_in"] == before["moisture_in"]
+    walk = EstimatorSettings().walk_per_window(EstimatorSettings().moisture_in_walk, 600.0)
+    assert body["moisture_in_std"] == pytest.approx(math.hypot(before["moisture_in_std"], walk))
+    assert est.tick(wins[11])["status"] == "ok"
+
+
+def test_missing_temperature_and_input_are_handled():
+    wins, _ = synthetic_day(10, seed=12)
+    est = make()
+    run(est, wins[:8], {})
+    w = window(8, 485.0, None, T_dryer_out=347.8, m_fiber=None)
+    body = est.tick(w)
+    assert body["nis_dof"] == 1                       # only T_dryer_out
+    assert "holding last value of m_fiber" in body["detail"]
+
+
+def test_window_out_of_order_is_refused():
+    wins, _ = synthetic_day(3, seed=13)
+    est = make()
+    est.tick(wins[1])
+    with pytest.raises(EstimationError, match="not after the last tick"):
+        est.tick(wins[0])
+
+
+def test_covariance_stays_symmetric_positive_definite_over_30_days():
+    n = 30 * 144
+    rng = np.random.default_rng(14)
+    steps = np.where(rng.random(n) < 0.003, rng.choice([-0.1, 0.1], n), 0.0)
+    x_in = np.clip(1.0 + np.cumsum(rng.normal(0, 0.003, n) + steps), 0.8, 1.3)
+    wins, truth = synthetic_day(n, seed=14, x_in=lambda k: float(x_in[k]))
+    est = make()
+    deliveries = {k: [lab(k - 5, truth[k - 5, 1] + rng.normal(0, 0.003), f"L{k}")]
+                  for k in range(20, n, 18)}
+    worst = np.inf
+    for k, w in enumerate(wins):
+        for r in deliveries.get(k, []):
+            est.add_lab(r)
+        body = est.tick(w)
+        P = est._state.P
+        assert np.array_equal(P, P.T)
+        worst = min(worst, float(np.linalg.eigvalsh(P)[0]))
+        assert math.isfinite(body["moisture_out"])
+    assert worst > 0
+    assert abs(body["moisture_in"] - x_in[-1]) < 0.02
+
+
+# ---------------------------------------------------------------------------------- health
+def test_one_temperature_sensor_off_turns_health_degraded_naming_it():
+    wins, _ = synthetic_day(40, seed=15)
+    biased = [dataclasses.replace(w, means={**w.means,
+                                            "T_cyclone_out": w.means["T_cyclone_out"] + 1.5})
+              if k >= 20 else w for k, w in enumerate(wins)]
+    bodies = run(make(), biased, {})
+    assert all(b["status"] == "ok" for b in bodies[1:20])
+    assert bodies[-1]["status"] == "degraded"
+    detail = bodies[-1]["detail"]
+    assert "T_cyclone_out +" in detail and "T_dryer_out -" in detail
+
+
+def test_chi_square_test_false_alarm_rate_matches_alpha():
+    rng = np.random.default_rng(16)
+    alarms = 0
+    for _ in range(4000):
+        window_ = [Innovation(float(rng.chisquare(2)), 2, {"T": 0.0}) for _ in range(12)]
+        alarms += chi_square_test(window_, 0.01).status == "degraded"
+    assert 0.006 < alarms / 4000 < 0.015
+    assert chi_square_test([], 0.01).status == "ok"
+
+
+# ---------------------------------------------------------------------------------- restart
+def test_restart_from_checkpoint_continues_the_same_estimate():
+    wins, truth = synthetic_day(40, seed=17)
+    deliveries = {12: [lab(9, truth[9, 1] + 0.004, "A")],
+                  20: [lab(21, truth[21, 1], "P")],        # sampled after the checkpoint
+                  25: [lab(17, truth[17, 1] - 0.004, "B")]}
+    straight = run(make(), wins, deliveries)
+    first = make()
+    run(first, wins[:20], {k: v for k, v in deliveries.items() if k < 20})
+    first.add_lab(deliveries[20][0])                    # pending across the restart
+    snap = json.loads(json.dumps(first.checkpoint(), allow_nan=False))
+    second = make()
+    second.restore(snap)
+    assert second.add_lab(deliveries[12][0]) is not None     # duplicates remembered
+    rest = run(second, wins[20:], {k - 20: v for k, v in deliveries.items() if k > 20})
+    assert rest == straight[20:]
+
+
+def test_restore_refuses_a_foreign_checkpoint():
+    est = make()
+    with pytest.raises(EstimationError, match="kind 'openloop'"):
+        est.restore({"kind": "openloop", "version": 1})
+    snap = make().checkpoint()
+    snap["state"]["x"] = [1.0, 0.0]
+    with pytest.raises(EstimationError, match="shapes"):
+        est.restore(snap)
+
+
+# ---------------------------------------------------------------------------------- settings
+def test_settings_default_without_estimator_table_and_validated_with_one():
+    assert estimator_settings(CFG) == EstimatorSettings()
+    good = dataclasses.replace(CFG, extra={"estimator": {"moisture_in_walk": 0.02}})
+    assert estimator_settings(good).moisture_in_walk == 0.02
+    for table, words in [({"moisture_in_wlak": 0.1}, "estimator.moisture_in_wlak is not a known"),
+                         ({"lab_std": -1.0}, "estimator.lab_std must be > 0"),
+                         ({"kind": "kalman"}, "estimator.kind must be one of ukf, openloop"),
+                         ({"lab_min": 0.5, "lab_max": 0.2}, "estimator.lab_max must be >")]:
+        bad = dataclasses.replace(CFG, extra={"estimator": table})
+        with pytest.raises(ConfigError, match=words.replace(".", r"\.")):
+            estimator_settings(bad)
+    with pytest.raises(ConfigError, match="consistency_ticks"):
+        UkfEstimator(dataclasses.replace(CFG, extra={"estimator": {"history_hours": 1.0}}),
+                     model=LinearDryer())
+
+
+def test_state_layout_keeps_the_bias_last():
+    """Covariance matching of the bias relies on it being the last state (module docstring)."""
+    assert (X_IN, X_TA, X_BIAS) == (0, 1, 2)
