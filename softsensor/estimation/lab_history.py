@@ -1,4 +1,4 @@
-"""Late lab results: validation, duplicates, and the JSON form of windows and lab results.
+"""Late lab results: validation, duplicates, the tick history they are applied to, and JSON.
 
 A lab result logged at ``log_time_ns`` describes the fibre at ``sample_time_ns``, tens of
 minutes earlier. The estimators keep a history of their ticks so that such a result can be
@@ -9,7 +9,9 @@ This module holds what does not depend on the filter:
   taken after the result was logged);
 * :class:`LabBook`: the sample ids already seen (a duplicate is ignored) and the results whose
   sample time lies after the last tick (applied when their window arrives);
-* JSON round trips of :class:`~softsensor.estimation.base.Window` and
+* :class:`TickRecord`: one tick of the history (window, inputs, filter state at its start,
+  lab results applied there, what it produced) and :class:`FilterState`;
+* JSON round trips of all of these, :class:`~softsensor.estimation.base.Window` and
   :class:`~softsensor.estimation.base.LabResult` for checkpoints. Floats go through ``repr`` in
   :mod:`json`, so a round trip is exact and a restored estimator continues bit for bit.
 """
@@ -20,7 +22,10 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.consistency import Innovation
 from softsensor.estimation.settings import EstimatorSettings
 
 
@@ -128,3 +133,49 @@ def window_from_json(data: dict[str, Any]) -> Window:
                   n_good={k: int(v) for k, v in data["n_good"].items()},
                   stale=bool(data["stale"]), reasons={k: str(v) for k, v in
                                                       data["reasons"].items()})
+
+
+@dataclass
+class FilterState:
+    """Mean ``x`` and covariance ``P`` of the filter state, and the mean wall state."""
+
+    x: np.ndarray
+    P: np.ndarray
+    wall: np.ndarray | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"x": self.x.tolist(), "P": self.P.tolist(),
+                "wall": None if self.wall is None else self.wall.tolist()}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> FilterState:
+        return cls(np.array(d["x"], float), np.array(d["P"], float),
+                   None if d["wall"] is None else np.array(d["wall"], float))
+
+
+@dataclass
+class TickRecord:
+    """One tick of the history: what is needed to re-run it, and what it produced."""
+
+    window: Window
+    u: np.ndarray
+    held: list[str]
+    start: FilterState
+    labs: list[LabResult] = field(default_factory=list)
+    body: dict[str, Any] = field(default_factory=dict)
+    innovation: Innovation = field(default_factory=Innovation)
+
+    def to_json(self) -> dict[str, Any]:
+        inn = self.innovation
+        return {"window": window_to_json(self.window), "u": self.u.tolist(),
+                "held": list(self.held), "start": self.start.to_json(),
+                "labs": [lab_to_json(r) for r in self.labs], "body": self.body,
+                "innovation": {"nis": inn.nis, "dof": inn.dof, "normalised": inn.normalised}}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> TickRecord:
+        inn = d["innovation"]
+        return cls(window_from_json(d["window"]), np.array(d["u"], float), list(d["held"]),
+                   FilterState.from_json(d["start"]), [lab_from_json(r) for r in d["labs"]],
+                   dict(d["body"]), Innovation(float(inn["nis"]), int(inn["dof"]),
+                                               dict(inn["normalised"])))

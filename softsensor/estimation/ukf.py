@@ -76,7 +76,6 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
@@ -85,14 +84,7 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
 from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
-from softsensor.estimation.lab_history import (
-    LabBook,
-    lab_from_json,
-    lab_problem,
-    lab_to_json,
-    window_from_json,
-    window_to_json,
-)
+from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.window_inputs import (
     MOISTURE_IN,
@@ -128,52 +120,6 @@ class WindowModel(Protocol):
                  ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-@dataclass
-class FilterState:
-    """Mean ``x`` and covariance ``P`` of the filter state, and the mean wall state."""
-
-    x: np.ndarray
-    P: np.ndarray
-    wall: np.ndarray | None
-
-    def to_json(self) -> dict[str, Any]:
-        return {"x": self.x.tolist(), "P": self.P.tolist(),
-                "wall": None if self.wall is None else self.wall.tolist()}
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> FilterState:
-        return cls(np.array(d["x"], float), np.array(d["P"], float),
-                   None if d["wall"] is None else np.array(d["wall"], float))
-
-
-@dataclass
-class TickRecord:
-    """One tick of the history: what is needed to re-run it, and what it produced."""
-
-    window: Window
-    u: np.ndarray
-    held: list[str]
-    start: FilterState
-    labs: list[LabResult] = field(default_factory=list)
-    body: dict[str, Any] = field(default_factory=dict)
-    innovation: Innovation = field(default_factory=Innovation)
-
-    def to_json(self) -> dict[str, Any]:
-        inn = self.innovation
-        return {"window": window_to_json(self.window), "u": self.u.tolist(),
-                "held": list(self.held), "start": self.start.to_json(),
-                "labs": [lab_to_json(r) for r in self.labs], "body": self.body,
-                "innovation": {"nis": inn.nis, "dof": inn.dof, "normalised": inn.normalised}}
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> TickRecord:
-        inn = d["innovation"]
-        return cls(window_from_json(d["window"]), np.array(d["u"], float), list(d["held"]),
-                   FilterState.from_json(d["start"]), [lab_from_json(r) for r in d["labs"]],
-                   dict(d["body"]), Innovation(float(inn["nis"]), int(inn["dof"]),
-                                               dict(inn["normalised"])))
-
-
 class _SigmaLookup:
     """``hx`` for filterpy: returns the precomputed measurement of each sigma point in turn.
 
@@ -193,7 +139,8 @@ class _SigmaLookup:
 
 
 class UkfEstimator:
-    """Unscented Kalman filter of inlet moisture and outlet-moisture bias (module docstring).
+    """Unscented Kalman filter of the inlet moisture, an effective ``T_air_in`` error and the
+    outlet-moisture bias (module docstring).
 
     Parameters
     ----------
