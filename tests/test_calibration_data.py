@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from softsensor.calibration.cost import evaluate_fit, model_at_labs, residuals
+from softsensor.calibration.cost import ModelRun, evaluate_fit, residuals
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.params_file import dumps, params_document, read_fit, write_params
 from softsensor.calibration.selection import select_windows
@@ -90,17 +90,28 @@ def test_missing_input_windows_hold_the_last_value_and_outputs_drop_out(config):
 
 def test_labs_are_aligned_to_sample_time_not_log_time(config):
     labs = [(T0 + 5000 * NS, T0 + 1500 * NS, 0.11),   # logged late, sampled in window 2
-            (T0 + 7000 * NS, T0 + 6000 * NS, 0.12),
+            (T0 + 7000 * NS, T0 + 6000 * NS, 0.12),   # sampled exactly at a window end
             (T0 + 9000 * NS, T0 + 99999 * NS, 0.13)]  # sampled after the record: dropped
-    seg = segment_from_day(make_day(2.0, config, labs=labs), config)
+    day = make_day(2.0, config, labs=labs, step_at_h=1350 / 3600)
+    seg = segment_from_day(day, config)
     np.testing.assert_array_equal(seg.lab_time_ns, [T0 + 1500 * NS, T0 + 6000 * NS])
-    np.testing.assert_allclose(seg.lab_position(), [1500 / 600 - 1, 6000 / 600 - 1])
-    # model moisture rising 0.01 per window: interpolated at 1500 s = 1.5 windows after end 0
-    Y = np.zeros((seg.n_windows, 3))
-    Y[:, 2] = 0.1 + 0.01 * np.arange(seg.n_windows)
-    np.testing.assert_allclose(model_at_labs(Y, seg), [0.115, 0.19])
-    # a batch of two model runs gives two rows
-    assert model_at_labs(np.stack([Y, Y]), seg).shape == (2, 2)
+    np.testing.assert_array_equal(seg.lab_window, [2, 9])
+    np.testing.assert_allclose(seg.lab_offset, [300.0, 600.0])
+    # inputs at the sample time: the 120 s of scans before it (production already up),
+    # while window 2 averages 5.0 and 6.8
+    j = INPUT_NAMES.index("m_fiber")
+    assert seg.lab_U[0, j] == pytest.approx(6.8) and seg.U[2, j] < 6.8
+    assert seg.lab_U[0, INPUT_NAMES.index("moisture_in")] == config.nominal.moisture_in
+    # a scan gap at the sample time: the window mean is used
+    scans = day.scans.copy()
+    t = scans.index.to_numpy()
+    scans.loc[(t > T0 + 1300 * NS) & (t <= T0 + 1500 * NS), "m_fiber"] = np.nan
+    seg2 = segment_from_day(RecordedDay(day.path, scans, day.labs, None), config)
+    assert seg2.lab_U[0, j] == pytest.approx(seg2.U[2, j])
+    # residuals compare each lab with the model's value at its sample time
+    run = ModelRun.single(np.zeros((seg.n_windows, 3)), np.array([0.1, 0.125]))
+    np.testing.assert_allclose(residuals(run, seg)[2], [[0.01, -0.005]])
+    assert residuals(run, seg, upto=9)[2].shape == (1, 1)  # second sample ends window 9
 
 
 def test_no_window_and_missing_signal_are_one_line_errors(config):
@@ -121,25 +132,31 @@ def test_eq4_cost_by_hand(config):
     Y = np.empty((seg.n_windows, 3))
     Y[:, 0] = seg.Y[:, 0] + 2.0                     # 2 K off everywhere
     Y[:, 1] = seg.Y[:, 1] + np.where(np.arange(seg.n_windows) % 2, 1.0, -1.0)
-    Y[:, 2] = 0.13                                  # 0.03 kg/kg off at the lab sample
-    fit = evaluate_fit([Y], [seg], config.cost.weights())[0]
+    Y[:, 2] = 0.0
+    run = ModelRun.single(Y, np.array([0.13]))      # 0.03 kg/kg off at the lab sample
+    fit = evaluate_fit([run], [seg], config.cost.weights())[0]
     assert fit.n == {"T_dryer_out": 6, "T_cyclone_out": 6, "moisture_out": 1}
     assert fit.rmse["T_dryer_out"] == pytest.approx(2.0)
     assert fit.rmse["T_cyclone_out"] == pytest.approx(1.0)
     assert fit.rmse["moisture_out"] == pytest.approx(0.03)
     assert fit.cost == pytest.approx(0.003 * 2.0 + 0.003 * 1.0 + 5.0 * 0.03)
     # partial cost over the first window: the lab (sampled at 1200 s) is not yet in
-    part = evaluate_fit([Y], [seg], config.cost.weights(), upto=[1])[0]
+    part = evaluate_fit([run], [seg], config.cost.weights(), upto=[1])[0]
     assert part.n["moisture_out"] == 0 and part.n["T_dryer_out"] == 1
     assert part.cost == pytest.approx(0.003 * 2.0 + 0.003 * 1.0)
     # two segments pool their samples before the root mean square
-    two = evaluate_fit([Y, Y], [seg, seg], config.cost.weights())[0]
+    two = evaluate_fit([run, run], [seg, seg], config.cost.weights())[0]
     assert two.n["T_dryer_out"] == 12 and two.cost == pytest.approx(fit.cost)
     # a failed model run (NaN) is an infinite cost, not a small one
     bad = Y.copy()
     bad[3, 0] = np.nan
-    assert evaluate_fit([bad], [seg], config.cost.weights())[0].cost == math.inf
-    assert [r.shape for r in residuals(np.stack([Y, Y]), seg)] == [(2, 6), (2, 6), (2, 1)]
+    assert evaluate_fit([ModelRun.single(bad, np.array([0.13]))], [seg],
+                        config.cost.weights())[0].cost == math.inf
+    both = ModelRun(np.stack([Y, Y]), np.array([[0.13], [0.1]]))
+    assert [r.shape for r in residuals(both, seg)] == [(2, 6), (2, 6), (2, 1)]
+    assert [f.rmse["moisture_out"] for f in evaluate_fit([both], [seg],
+                                                         config.cost.weights())] == \
+        pytest.approx([0.03, 0.0])
 
 
 def _labs_every(hours: float, every_h: float):

@@ -77,7 +77,9 @@ def test_chunked_run_continues_the_state_exactly(model, segment, config):
     while not run.done:
         costs.append(run.advance())
     full = simulate_segments(model, [segment], theta)[0]
-    np.testing.assert_allclose(run.Y[0], full, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(run.runs[0].Y, full.Y, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(run.runs[0].lab, full.lab, rtol=1e-10, atol=1e-12)
+    assert full.lab.shape == (2, len(segment.lab_value)) and np.isfinite(full.lab).all()
     final = run.run()
     assert [f.cost for f in final] == pytest.approx([costs[-1][0].cost, costs[-1][1].cost])
     assert len(costs) == 4 and costs[0][0].n["T_dryer_out"] == run.bounds[0][1] == 9

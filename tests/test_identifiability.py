@@ -9,7 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from softsensor.calibration.cost import evaluate_fit, model_at_labs
+from softsensor.calibration.chunked_run import simulate_segments
+from softsensor.calibration.cost import evaluate_fit
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.identifiability import (
     Sensitivities,
@@ -51,7 +52,7 @@ def short_segment(model: DryerModel, hours: float = 4.0, seed: int = 0) -> Segme
     seg = Segment("synthetic", T0, 600.0, U, np.column_stack([Y[:, :2], np.full(K, np.nan)]),
                   lab_t.astype(np.int64), np.zeros(len(lab_t)), tuple(f"L{i}" for i in
                                                                      range(len(lab_t))))
-    lab = model_at_labs(Y, seg)
+    lab = simulate_segments(model, [seg], model.theta0)[0].lab[0]
     return Segment(seg.source, T0, 600.0, U, seg.Y, seg.lab_time_ns, lab, seg.lab_id)
 
 
@@ -67,7 +68,8 @@ def test_sensitivities_match_independent_forward_differences(model):
         Y1, _ = model.simulate(seg.U, up)
         fd = (Y1 - sens.Y) / h  # theta_i dy/dtheta_i, one-sided
         np.testing.assert_allclose(sens.S[:, :, i], fd, rtol=2e-2, atol=1e-6 * np.abs(fd).max())
-        fd_lab = (model_at_labs(Y1, seg) - model_at_labs(sens.Y, seg)) / h
+        lab1 = simulate_segments(model, [seg], up)[0].lab[0]
+        fd_lab = (lab1 - sens.lab) / h
         np.testing.assert_allclose(sens.S_lab[:, i], fd_lab, rtol=2e-2, atol=1e-9)
     # relative sensitivities are S / mean(y)
     np.testing.assert_allclose(sens.relative[:, 1, 0], sens.S[:, 1, 0] / sens.Y[:, 1].mean())
@@ -140,6 +142,7 @@ class LinearModel:
     y0: np.ndarray         # (3,)
 
     def simulate(self, U, theta, raise_on_failure=True, **_):
+        """Outputs of every window; the state is irrelevant (returned as None)."""
         U = np.asarray(U)
         theta = np.atleast_2d(theta)
         z = np.log(theta / self.theta_ref)  # (B, 7)
@@ -173,12 +176,12 @@ def test_displacement_test_on_a_linear_model(config):
                   0.11 + 0.003 * np.array([1.0, -1.0, 1.0, -1.0]), tuple("abcd"))
     sens = sensitivities(lm, seg, ref)
     np.testing.assert_allclose(sens.S[:, :, 0], np.broadcast_to(G[:, 0], (K, 3)), rtol=1e-6)
-    Y_fit = lm.simulate(U, ref)[0][0]
-    fit = evaluate_fit([Y_fit], [seg], config.cost.weights())[0]
+    run_fit = simulate_segments(lm, [seg], ref)[0]
+    fit = evaluate_fit([run_fit], [seg], config.cost.weights())[0]
     noise = np.array([0.1, 0.1, 0.003])
     tested = np.zeros(7, dtype=bool)
     tested[[0, 2, 4]] = True
-    disp = displacement_test(lm, [seg], ref, [sens], fit, [Y_fit], config.cost.weights(),
+    disp = displacement_test(lm, [seg], ref, [sens], fit, [run_fit], config.cost.weights(),
                              noise, config.bounds(), tested)
     assert np.isnan(disp.z_up[[1, 3, 5, 6]]).all()
     assert abs(disp.z(0)) < 1e-6 and abs(disp.z(2)) < 1e-6  # compensated exactly

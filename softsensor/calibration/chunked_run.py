@@ -8,7 +8,10 @@ next chunk's ``state0``, and the partial cost (eq. 4 over the windows simulated 
 reported after each chunk. Members that are pruned are simply not simulated any further.
 
 Every member starts from the steady state at its segment's first-window inputs and its own
-parameters: the paper's "per trial" consistent initial state. A member whose solve fails gets
+parameters: the paper's "per trial" consistent initial state. Lab samples are evaluated at
+their sample time (:mod:`.dataset`): the run is split at the start of every window holding a
+sample, and from the state there one short step to the sample time with the sample's inputs
+gives the model's ``moisture_out``. A member whose solve fails gets
 NaN outputs and an infinite cost (it is never raised: a bad corner of the search box is a bad
 trial, not an error).
 """
@@ -19,7 +22,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from softsensor.calibration.cost import Fit, evaluate_fit
+from softsensor.calibration.cost import Fit, ModelRun, evaluate_fit
 from softsensor.calibration.dataset import Segment
 from softsensor.model import DryerModel
 
@@ -29,6 +32,45 @@ def chunk_bounds(n_windows: int, n_chunks: int) -> np.ndarray:
     chunks (fewer when the segment has fewer windows than chunks)."""
     n = max(1, min(int(n_chunks), int(n_windows)))
     return np.unique(np.round(np.linspace(0, n_windows, n + 1)).astype(int))
+
+
+def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k1: int,
+                  state0: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Windows ``k0 .. k1-1`` of ``seg`` for parameter sets ``theta`` (B, 7).
+
+    ``state0`` (B, n_state) is the state at the start of window ``k0`` (None: the steady
+    state at that window's inputs). Returns ``Y`` (B, k1-k0, 3), the model's
+    ``moisture_out`` at the lab samples whose window lies in the span (B, n_labs), and the
+    end state (B, n_state). Failed members give NaN, never an exception. Where the model
+    cannot be solved at a sample's own inputs but can at its window's (the cell Newton of
+    the model does not converge from every state), the window's inputs are used for it.
+    """
+    theta = np.atleast_2d(np.asarray(theta, float))
+    B = theta.shape[0]
+    in_span = np.flatnonzero((seg.lab_window >= k0) & (seg.lab_window < k1))
+    cuts = sorted({k0, k1, *(int(w) for w in seg.lab_window[in_span] if w > k0)})
+    Y = np.empty((B, k1 - k0, 3))
+    lab = np.full((B, in_span.size), np.nan)
+    state = state0
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        for j, li in enumerate(in_span):
+            if seg.lab_window[li] == a:
+                # a lab sample in window a: one step from the window's start to its time
+                dt = float(seg.lab_offset[li])
+                y, _ = model.simulate(seg.lab_U[li][None, None], theta, state0=state, dt=dt,
+                                      raise_on_failure=False)
+                lab[:, j] = y[:, 0, 2]
+                bad = np.flatnonzero(np.isnan(lab[:, j]))
+                if bad.size:  # the sample-time inputs failed: the window's inputs instead
+                    y, _ = model.simulate(seg.U[a][None, None], theta[bad], dt=dt,
+                                          state0=None if state is None else state[bad],
+                                          raise_on_failure=False)
+                    lab[bad, j] = y[:, 0, 2]
+        # U gets a leading batch axis so theta (B, 7) is read as constant parameters
+        Yp, state = model.simulate(seg.U[a:b][None], theta, state0=state,
+                                   raise_on_failure=False)
+        Y[:, a - k0:b - k0] = Yp
+    return Y, lab, state
 
 
 class ChunkedRun:
@@ -57,7 +99,8 @@ class ChunkedRun:
         self.n_steps = max(len(b) - 1 for b in self.bounds)
         self.alive = np.ones(B, dtype=bool)
         self.failed = np.zeros(B, dtype=bool)
-        self.Y = [np.full((B, s.n_windows, 3), np.nan) for s in self.segments]
+        self.runs = [ModelRun(np.full((B, s.n_windows, 3), np.nan),
+                              np.full((B, len(s.lab_value)), np.nan)) for s in self.segments]
         self.states: list[np.ndarray | None] = [None] * len(self.segments)
         self.step_index = 0
 
@@ -84,15 +127,16 @@ class ChunkedRun:
                 continue
             k0, k1 = int(b[c]), int(b[c + 1])
             state0 = None if self.states[s] is None else self.states[s][live]
-            # U gets a leading batch axis so theta (B, 7) is read as constant parameters
-            Y, x_end = self.model.simulate(seg.U[k0:k1][None], self.theta[live],
-                                           state0=state0, raise_on_failure=False)
-            self.Y[s][live, k0:k1] = Y
+            Y, lab, x_end = simulate_span(self.model, seg, self.theta[live], k0, k1, state0)
+            run = self.runs[s]
+            run.Y[live, k0:k1] = Y
+            span = (seg.lab_window >= k0) & (seg.lab_window < k1)
+            run.lab[np.ix_(live, np.flatnonzero(span))] = lab
             if self.states[s] is None:
                 self.states[s] = np.full((self.theta.shape[0], x_end.shape[-1]), np.nan)
             self.states[s][live] = x_end
-            failed = live[np.isnan(Y).any(axis=(1, 2))]
-            self.failed[failed] = True
+            bad = np.isnan(Y).any(axis=(1, 2)) | np.isnan(lab).any(axis=1)
+            self.failed[live[bad]] = True
         self.alive[self.failed] = False
         self.step_index += 1
         return self.partial(live)
@@ -103,7 +147,8 @@ class ChunkedRun:
         if members.size == 0:
             return {}
         upto = self._upto(self.step_index - 1)
-        fits = evaluate_fit([Y[members] for Y in self.Y], self.segments, self.weights, upto)
+        fits = evaluate_fit([r.member(members) for r in self.runs], self.segments,
+                            self.weights, upto)
         return {int(m): f for m, f in zip(members, fits, strict=True)}
 
     def drop(self, member: int) -> None:
@@ -114,20 +159,19 @@ class ChunkedRun:
         """Run every remaining chunk without pruning; return the full-horizon fits."""
         while not self.done:
             self.advance()
-        return evaluate_fit(self.Y, self.segments, self.weights)
+        return evaluate_fit(self.runs, self.segments, self.weights)
 
 
 def simulate_segments(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray
-                      ) -> list[np.ndarray]:
-    """Model outputs ``(B, K_s, 3)`` (or ``(K_s, 3)`` for one ``theta`` of shape (7,)) on every
-    segment, each from the steady state at its first window; NaN where the solve failed."""
-    theta = np.asarray(theta, float)
-    one = theta.ndim == 1
+                      ) -> list[ModelRun]:
+    """Model outputs on every segment for ``theta`` (7,) or (B, 7), each from the steady
+    state at its first window; NaN where the solve failed. Always with a batch axis."""
+    theta = np.atleast_2d(np.asarray(theta, float))
     out = []
     for seg in segments:
-        Y, _ = model.simulate(seg.U[None], np.atleast_2d(theta), raise_on_failure=False)
-        out.append(Y[0] if one else Y)
+        Y, lab, _ = simulate_span(model, seg, theta, 0, seg.n_windows, None)
+        out.append(ModelRun(Y, lab))
     return out
 
 
-__all__ = ["ChunkedRun", "chunk_bounds", "simulate_segments"]
+__all__ = ["ChunkedRun", "chunk_bounds", "simulate_segments", "simulate_span"]

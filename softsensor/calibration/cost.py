@@ -4,8 +4,8 @@
 
 over the channels ``T_dryer_out`` and ``T_cyclone_out`` [K] (window means, one sample per
 window with enough good scans) and ``moisture_out`` [kg/kg] (lab samples, the model
-interpolated to each sample's *sample* time). The weights ``WF_m`` come from the config's
-``[cost]`` table (0.003 per kelvin channel, 5.0 for moisture, as in the paper).
+evaluated at each sample's *sample* time, see :mod:`.dataset`). The weights ``WF_m`` come
+from the config's ``[cost]`` table (0.003 per kelvin channel, 5.0 for moisture, as in the paper).
 
 Several segments (days or selected windows) pool their samples per channel before the root
 mean square, so a channel's RMSE is over all its samples. A *partial* cost over the first
@@ -54,50 +54,52 @@ def weighted_rmse(fit: Fit, weights: np.ndarray) -> dict[str, float]:
                                                                strict=True)}
 
 
-def model_at_labs(Y_model: np.ndarray, seg: Segment) -> np.ndarray:
-    """Model ``moisture_out`` at the lab sample times [kg/kg].
+@dataclass(frozen=True)
+class ModelRun:
+    """Model outputs on one segment for a batch of parameter sets.
 
-    ``Y_model`` has shape ``(..., K, 3)``: outputs at the end of each window. Linear
-    interpolation between window ends; a sample inside the first window takes the first
-    window's value.
+    Attributes
+    ----------
+    Y : ndarray, shape (B, K, 3)
+        Outputs at the end of each window.
+    lab : ndarray, shape (B, L)
+        ``moisture_out`` at each lab sample time [kg/kg] (see :mod:`.dataset`).
     """
-    Y_model = np.asarray(Y_model)
-    pos = seg.lab_position()
-    k = np.arange(Y_model.shape[-2], dtype=float)
-    m = Y_model[..., 2]
-    if m.ndim == 1:
-        return np.interp(pos, k, m)
-    flat = m.reshape(-1, m.shape[-1])
-    out = np.stack([np.interp(pos, k, row) for row in flat])
-    return out.reshape(m.shape[:-1] + (len(pos),))
+
+    Y: np.ndarray
+    lab: np.ndarray
+
+    @classmethod
+    def single(cls, Y: np.ndarray, lab: np.ndarray) -> ModelRun:
+        """A run of one parameter set: ``Y`` (K, 3), ``lab`` (L,)."""
+        return cls(np.asarray(Y)[None], np.asarray(lab)[None])
+
+    def member(self, b: int | np.ndarray) -> ModelRun:
+        """Batch member(s) ``b`` (an int keeps a batch axis of one)."""
+        idx = np.atleast_1d(b)
+        return ModelRun(self.Y[idx], self.lab[idx])
+
+    @property
+    def failed(self) -> np.ndarray:
+        """(B,) True where the solve failed (NaN outputs)."""
+        return np.isnan(self.Y).any(axis=(1, 2)) | np.isnan(self.lab).any(axis=1)
 
 
-def residuals(Y_model: np.ndarray, seg: Segment, upto: int | None = None
-              ) -> list[np.ndarray]:
+def residuals(run: ModelRun, seg: Segment, upto: int | None = None) -> list[np.ndarray]:
     """Measured minus model, per channel, over the first ``upto`` windows (default all).
 
-    Returns three arrays (``T_dryer_out``, ``T_cyclone_out`` window residuals [K], and
-    ``moisture_out`` lab residuals [kg/kg]), each of shape ``(..., n_m)``, where ``Y_model``
-    of shape ``(..., K', 3)`` holds at least ``upto`` windows. Windows without a measurement
-    are left out.
+    Returns three arrays of shape ``(B, n_m)``: ``T_dryer_out`` and ``T_cyclone_out`` window
+    residuals [K] (windows without a measurement left out) and ``moisture_out`` lab
+    residuals [kg/kg] for the samples taken by the end of window ``upto - 1``.
     """
-    Y_model = np.asarray(Y_model)
     k = seg.n_windows if upto is None else int(upto)
     out = []
     for c in range(2):
         meas = seg.Y[:k, c]
         ok = np.isfinite(meas)
-        out.append(meas[ok] - Y_model[..., :k, c][..., ok])
+        out.append(meas[ok] - run.Y[:, :k, c][:, ok])
     n_lab = seg.labs_before(k)
-    if n_lab == 0:
-        out.append(np.zeros(Y_model.shape[:-2] + (0,)))
-    else:
-        pos = seg.lab_position()[:n_lab]
-        kk = np.arange(k, dtype=float)
-        m = Y_model[..., :k, 2]
-        flat = m.reshape(-1, k)
-        at = np.stack([np.interp(pos, kk, row) for row in flat]).reshape(m.shape[:-1] + (n_lab,))
-        out.append(seg.lab_value[:n_lab] - at)
+    out.append(seg.lab_value[:n_lab] - run.lab[:, :n_lab])
     return out
 
 
@@ -124,20 +126,16 @@ def fit_from_residuals(res: Sequence[Sequence[np.ndarray]], weights: np.ndarray)
     return fits
 
 
-def evaluate_fit(Y_models: Sequence[np.ndarray], segments: Sequence[Segment],
+def evaluate_fit(runs: Sequence[ModelRun], segments: Sequence[Segment],
                  weights: np.ndarray, upto: Sequence[int] | None = None) -> list[Fit]:
-    """Eq. 4 for model outputs ``Y_models[s]`` of shape ``(B, K_s, 3)`` (or ``(K_s, 3)``).
+    """Eq. 4 for every batch member of ``runs[s]`` (one per segment).
 
     ``upto[s]`` limits segment ``s`` to its first windows (partial cost for pruning).
     """
-    res = []
-    for s, (Y, seg) in enumerate(zip(Y_models, segments, strict=True)):
-        Y = np.asarray(Y)
-        if Y.ndim == 2:
-            Y = Y[None]
-        res.append(residuals(Y, seg, None if upto is None else upto[s]))
+    res = [residuals(run, seg, None if upto is None else upto[s])
+           for s, (run, seg) in enumerate(zip(runs, segments, strict=True))]
     return fit_from_residuals(res, np.asarray(weights, float))
 
 
-__all__ = ["Fit", "evaluate_fit", "fit_from_residuals", "model_at_labs", "residuals",
+__all__ = ["Fit", "ModelRun", "evaluate_fit", "fit_from_residuals", "residuals",
            "weighted_rmse"]

@@ -8,8 +8,15 @@ controller moves ``T_air_in`` inside a window, and the model run on the window-m
 matches the window-mean outputs several times better than the end-of-window samples (the fast
 states sit at their quasi-steady profile; see :mod:`softsensor.model.kernels`).
 
-Lab results are aligned to their *sample* time, not to the time the result was logged: the
-model's ``moisture_out`` is interpolated linearly between window ends at each sample time.
+Lab results are aligned to their *sample* time, not to the time the result was logged. The
+fibre in a lab sample left the cyclone at that instant, a few seconds after it entered the
+tube; the fast states follow the inputs within seconds, so the model is evaluated *at the
+sample time*: the wall state at the start of the sample's window, stepped to the sample time,
+with the inputs averaged over the :data:`LAB_SPAN` seconds of scans before it (``lab_U``).
+The closed loop moves ``T_air_in`` within a window (about 0.7 K r.m.s. on the virtual
+plant), so this halves the model-to-lab error compared with interpolating window-mean
+outputs (0.0036 against 0.0064 kg/kg at the true parameters of a 48 h virtual-plant day,
+lab noise 0.003).
 
 ``moisture_in`` is not measured; the open-loop model uses the config's ``nominal.moisture_in``.
 
@@ -20,6 +27,7 @@ Only complete windows inside the record are used.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +48,10 @@ SCANNED_OUTPUTS: tuple[str, ...] = OUTPUT_NAMES[:2]
 MIN_GOOD_SHARE = 0.5
 #: Nominal PLC scan period [s] (CONTRACT section 1).
 SCAN_PERIOD = 10.0
+#: Scans before a lab sample time averaged into its inputs [s].
+LAB_SPAN = 120.0
+#: Good scans of a signal needed in that span; fewer: the window mean is used.
+LAB_MIN_SCANS = 3
 NS = 1_000_000_000
 
 
@@ -67,6 +79,13 @@ class Segment:
         Lab ``moisture_out`` [kg/kg dry basis].
     lab_id : tuple of str
         Lab sample ids.
+    lab_U : ndarray, shape (L, 8), optional
+        Model inputs at each sample time (scans of the last :data:`LAB_SPAN` s); by default
+        the inputs of the sample's window.
+    lab_window : ndarray of int, shape (L,)
+        Window holding each sample time (derived).
+    lab_offset : ndarray, shape (L,)
+        Seconds from that window's start to the sample time, at least 1 (derived).
     """
 
     source: str
@@ -77,6 +96,18 @@ class Segment:
     lab_time_ns: np.ndarray
     lab_value: np.ndarray
     lab_id: tuple[str, ...]
+    lab_U: np.ndarray | None = None
+    lab_window: np.ndarray = dataclasses.field(init=False, repr=False)
+    lab_offset: np.ndarray = dataclasses.field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        w_ns = self.window_ns
+        rel = np.asarray(self.lab_time_ns, dtype=np.int64) - self.start_ns
+        win = np.clip((rel - 1) // w_ns, 0, max(self.n_windows - 1, 0)).astype(np.int64)
+        object.__setattr__(self, "lab_window", win)
+        object.__setattr__(self, "lab_offset", np.maximum((rel - win * w_ns) / NS, 1.0))
+        if self.lab_U is None:
+            object.__setattr__(self, "lab_U", np.asarray(self.U)[win].reshape(-1, self.U.shape[1]))
 
     @property
     def n_windows(self) -> int:
@@ -99,10 +130,6 @@ class Segment:
         """End time of every window [ns]: the time of the model's output for that window."""
         return self.start_ns + self.window_ns * np.arange(1, self.n_windows + 1, dtype=np.int64)
 
-    def lab_position(self) -> np.ndarray:
-        """Lab sample times in units of windows after the first window's end (for interp)."""
-        return (self.lab_time_ns - self.start_ns) / self.window_ns - 1.0
-
     def labs_before(self, k: int) -> int:
         """Number of lab samples taken no later than the end of window ``k - 1``."""
         end = self.start_ns + k * self.window_ns
@@ -119,7 +146,8 @@ class Segment:
             source=f"{self.source.split('[')[0]}[{_iso(start)} .. {_iso(end)}]",
             start_ns=start, window=self.window, U=self.U[k0:k1], Y=self.Y[k0:k1],
             lab_time_ns=self.lab_time_ns[keep], lab_value=self.lab_value[keep],
-            lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k))
+            lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k),
+            lab_U=self.lab_U[keep])
 
     def require_labs(self, minimum: int = 1) -> None:
         """Refuse a segment without enough lab samples to fit ``moisture_out``."""
@@ -154,6 +182,27 @@ def window_means(scans: pd.DataFrame, start_ns: int, window_ns: int, n_windows: 
         with np.errstate(invalid="ignore", divide="ignore"):
             means[:, j] = np.where(counts[:, j] > 0, sums / np.maximum(counts[:, j], 1), np.nan)
     return means, counts
+
+
+def lab_inputs(scans: pd.DataFrame, lab_time_ns: np.ndarray, U: np.ndarray, start_ns: int,
+               window_ns: int, span: float = LAB_SPAN) -> np.ndarray:
+    """Model inputs at each lab sample time: means of the scans in ``(t - span, t]``; a
+    signal with fewer than :data:`LAB_MIN_SCANS` good scans there takes its window mean."""
+    t = scans.index.to_numpy(dtype=np.int64)
+    vals = scans[list(MEASURED_INPUTS)].to_numpy(dtype=float)
+    out = np.empty((len(lab_time_ns), U.shape[1]))
+    for i, ts in enumerate(lab_time_ns):
+        k = int(np.clip((ts - start_ns - 1) // window_ns, 0, len(U) - 1))
+        out[i] = U[k]
+        lo, hi = np.searchsorted(t, [ts - int(span * NS), ts], side="right")
+        block = vals[lo:hi]
+        good = np.isfinite(block)
+        n = good.sum(axis=0)
+        with np.errstate(invalid="ignore"):
+            mean = np.where(good, block, 0.0).sum(axis=0) / np.maximum(n, 1)
+        use = n >= LAB_MIN_SCANS
+        out[i, :len(MEASURED_INPUTS)][use] = mean[use]
+    return out
 
 
 def _hold(values: np.ndarray) -> np.ndarray:
@@ -215,9 +264,10 @@ def segment_from_day(day: RecordedDay, config: PlantConfig, *, window: float | N
     keep = (lt > start) & (lt <= start + n * w_ns) & np.isfinite(lv)
     order = np.argsort(lt[keep], kind="stable")
     ids = np.asarray(labs["sample_id"].to_numpy(dtype=object))[keep][order]
-    return Segment(source=src, start_ns=start, window=window, U=U, Y=Y,
-                   lab_time_ns=lt[keep][order], lab_value=lv[keep][order],
-                   lab_id=tuple(str(i) for i in ids))
+    lab_t = lt[keep][order]
+    return Segment(source=src, start_ns=start, window=window, U=U, Y=Y, lab_time_ns=lab_t,
+                   lab_value=lv[keep][order], lab_id=tuple(str(i) for i in ids),
+                   lab_U=lab_inputs(scans, lab_t, U, start, w_ns))
 
 
 def load_segment(path: str | Path, config: PlantConfig) -> Segment:
@@ -230,6 +280,7 @@ __all__ = [
     "MEASURED_INPUTS",
     "SCANNED_OUTPUTS",
     "Segment",
+    "lab_inputs",
     "load_segment",
     "segment_from_day",
     "window_means",

@@ -18,6 +18,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from optuna.trial import TrialState  # noqa: E402
 
+from softsensor.calibration.cost import ModelRun  # noqa: E402
 from softsensor.calibration.dataset import Segment  # noqa: E402
 from softsensor.calibration.identifiability import Sensitivities  # noqa: E402
 from softsensor.model import DryerModel  # noqa: E402
@@ -137,12 +138,13 @@ def study_figure(study, importance: Mapping[str, float], path: str | Path) -> Pa
     return _save(fig, Path(path))
 
 
-def trajectory_figure(segments: Sequence[Segment], Y_models: Sequence[np.ndarray],
+def trajectory_figure(segments: Sequence[Segment], runs: Sequence[ModelRun],
                       path: str | Path, title: str) -> Path:
     """Figs. 5 and 6: model against measurements, every channel, every segment in a row."""
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
     offset = 0.0
-    for s, (seg, Y) in enumerate(zip(segments, Y_models, strict=True)):
+    for s, (seg, run) in enumerate(zip(segments, runs, strict=True)):
+        Y = run.Y[0]
         t = _hours(seg) + offset
         for c, ax in enumerate(axes[:2]):
             ax.plot(t, seg.Y[:, c] - C0, ".", ms=3, color="tab:blue",
@@ -153,6 +155,8 @@ def trajectory_figure(segments: Sequence[Segment], Y_models: Sequence[np.ndarray
         axes[2].plot(t, Y[:, 2], "-", color="tab:red", lw=1.2, label="model" if s == 0 else None)
         axes[2].plot(lab_t, seg.lab_value, "s", ms=5, color="tab:green",
                      label="lab (at sample time)" if s == 0 else None)
+        axes[2].plot(lab_t, run.lab[0], "x", ms=6, color="tab:red",
+                     label="model at sample time" if s == 0 else None)
         offset = t[-1]
         if s:
             for ax in axes:

@@ -58,8 +58,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.calibration.cost import Fit, model_at_labs
+from softsensor.calibration.cost import Fit, ModelRun
 from softsensor.calibration.dataset import Segment
+from softsensor.errors import SolverError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
@@ -90,6 +91,8 @@ class Sensitivities:
     S_lab : ndarray (L, 7)
         ``d moisture_out / d ln(theta_i)`` at the lab sample times [kg/kg].
     segment : Segment
+    lab : ndarray (L,)
+        Model ``moisture_out`` at the lab sample times at ``theta``.
     """
 
     theta: np.ndarray
@@ -97,6 +100,7 @@ class Sensitivities:
     S: np.ndarray
     S_lab: np.ndarray
     segment: Segment
+    lab: np.ndarray | None = None
 
     @property
     def relative(self) -> np.ndarray:
@@ -114,19 +118,42 @@ class Sensitivities:
 
 def sensitivities(model: DryerModel, segment: Segment, theta: np.ndarray,
                   step: float = SENSITIVITY_STEP) -> Sensitivities:
-    """Eq. 5 by central differences in ``ln(theta)``: one batched simulate of 15 members."""
+    """Eq. 5 by central differences in ``ln(theta)``: one batched simulate of 15 members.
+
+    Where one perturbed member's solve fails, that parameter falls back to the one-sided
+    difference of the other; both failing, or the nominal member failing, is a
+    :class:`~softsensor.errors.SolverError`.
+    """
     theta = np.asarray(theta, float)
     n = theta.size
     members = np.tile(theta, (2 * n + 1, 1))
     for i in range(n):
         members[1 + 2 * i, i] *= np.exp(step)
         members[2 + 2 * i, i] *= np.exp(-step)
-    Y, _ = model.simulate(segment.U[None], members)
-    S = np.stack([(Y[1 + 2 * i] - Y[2 + 2 * i]) / (2 * step) for i in range(n)], axis=-1)
-    lab = model_at_labs(Y, segment)  # (2n+1, L)
-    S_lab = np.stack([(lab[1 + 2 * i] - lab[2 + 2 * i]) / (2 * step) for i in range(n)],
-                     axis=-1)
-    return Sensitivities(theta=theta, Y=Y[0], S=S, S_lab=S_lab, segment=segment)
+    from softsensor.calibration.chunked_run import simulate_segments
+
+    run = simulate_segments(model, [segment], members)[0]
+    Y, lab = run.Y, run.lab  # (2n+1, K, 3), (2n+1, L)
+    ok = ~run.failed
+    if not ok[0]:
+        at = ", ".join(f"{k}={v:.4g}" for k, v in zip(PARAMETER_NAMES, theta, strict=True))
+        raise SolverError(f"{segment.source}: the model fails at the parameters analysed "
+                          f"({at})")
+    S = np.empty(Y.shape[1:] + (n,))
+    S_lab = np.empty((lab.shape[-1], n))
+    for i in range(n):
+        up, dn = 1 + 2 * i, 2 + 2 * i
+        if ok[up] and ok[dn]:
+            a, b, h = up, dn, 2 * step
+        elif ok[up] or ok[dn]:
+            a, b, h = (up, 0, step) if ok[up] else (0, dn, step)
+        else:
+            raise SolverError(f"{segment.source}: the model fails on both sides of "
+                              f"{PARAMETER_NAMES[i]} = {theta[i]:.4g} (+-{step:g} in ln)")
+        S[..., i] = (Y[a] - Y[b]) / h
+        S_lab[:, i] = (lab[a] - lab[b]) / h
+    return Sensitivities(theta=theta, Y=Y[0], S=S, S_lab=S_lab, segment=segment,
+                         lab=lab[0])
 
 
 def weighted_fim(sens: Sequence[Sensitivities], weights: np.ndarray, sigma: float = 1.0
@@ -221,7 +248,7 @@ class Identifiability:
         return out
 
 
-def noise_from_fit(fit: Fit, segments: Sequence[Segment], Y_models: Sequence[np.ndarray]
+def noise_from_fit(fit: Fit, segments: Sequence[Segment], runs: Sequence[ModelRun]
                    ) -> np.ndarray:
     """Per-channel noise for the statistical FIM: the fit's RMSE, inflated for serially
     correlated window residuals by ``sqrt((1 + rho) / (1 - rho))`` (module docstring)."""
@@ -229,8 +256,8 @@ def noise_from_fit(fit: Fit, segments: Sequence[Segment], Y_models: Sequence[np.
     for c, name in enumerate(OUTPUT_NAMES):
         s = float(fit.rmse[name]) if np.isfinite(fit.rmse[name]) else 0.0
         if c < 2:
-            rho = np.mean([lag1_autocorrelation(seg.Y[:, c] - Y[:, c])
-                           for seg, Y in zip(segments, Y_models, strict=True)])
+            rho = np.mean([lag1_autocorrelation(seg.Y[:, c] - run.Y[0, :, c])
+                           for seg, run in zip(segments, runs, strict=True)])
             rho = float(np.clip(rho, 0.0, 0.95))
             s *= np.sqrt((1 + rho) / (1 - rho))
         noise[c] = max(s, (0.01, 0.01, 1e-4)[c])  # floors: 0.01 K, 1e-4 kg/kg
@@ -276,7 +303,7 @@ def eq4_weights(fit: Fit, weights: np.ndarray) -> np.ndarray:
 
 
 def displacement_test(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
-                      sens: Sequence[Sensitivities], fit: Fit, Y_models: Sequence[np.ndarray],
+                      sens: Sequence[Sensitivities], fit: Fit, runs0: Sequence[ModelRun],
                       weights: np.ndarray, noise: np.ndarray, bounds: np.ndarray,
                       tested: np.ndarray, within: float = WITHIN) -> DisplacementTest:
     """Move each ``tested`` parameter by ``x (1 +- within)`` along the linearised eq. 4
@@ -316,13 +343,12 @@ def displacement_test(model: DryerModel, segments: Sequence[Segment], theta: np.
             where.append((i, sign))
     d_up, d_dn = np.full(n, np.nan), np.full(n, np.nan)
     if members:
-        Ys = simulate_segments(model, segments, np.exp(np.array(members)))
-        fits = evaluate_fit(Ys, segments, weights)
-        fit0 = evaluate_fit(Y_models, segments, weights)[0]
+        runs = simulate_segments(model, segments, np.exp(np.array(members)))
+        fits = evaluate_fit(runs, segments, weights)
+        fit0 = evaluate_fit(runs0, segments, weights)[0]
         var = np.zeros(len(members))
-        res0 = [residuals(np.asarray(Yf)[None], seg) for Yf, seg in zip(Y_models, segments,
-                                                                         strict=True)]
-        res1 = [residuals(Y, seg) for Y, seg in zip(Ys, segments, strict=True)]
+        res0 = [residuals(r, seg) for r, seg in zip(runs0, segments, strict=True)]
+        res1 = [residuals(r, seg) for r, seg in zip(runs, segments, strict=True)]
         for c, name in enumerate(OUTPUT_NAMES):
             n_c, R0 = fit0.n[name], fit0.rmse[name]
             if not n_c or not R0 > 0:

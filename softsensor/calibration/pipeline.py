@@ -20,7 +20,7 @@ import numpy as np
 import optuna
 
 from softsensor.calibration.chunked_run import simulate_segments
-from softsensor.calibration.cost import Fit, evaluate_fit, weighted_rmse
+from softsensor.calibration.cost import Fit, ModelRun, evaluate_fit, weighted_rmse
 from softsensor.calibration.dataset import Segment, load_segment
 from softsensor.calibration.identifiability import (
     Identifiability,
@@ -90,7 +90,7 @@ class CalibrationResult:
     choices: list[WindowChoice]
     study: optuna.Study
     settings: StudySettings
-    Y_models: list[np.ndarray]
+    runs: list[ModelRun]
     tpe_best: dict[str, Any]
     config_fit: Fit | None
     refinement: Refinement | None
@@ -174,19 +174,19 @@ class CalibrationResult:
 
 def identify_segments(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
                       config: PlantConfig, fit: Fit | None = None,
-                      Y_models: Sequence[np.ndarray] | None = None
+                      runs: Sequence[ModelRun] | None = None
                       ) -> tuple[Identifiability, list[Sensitivities]]:
     """Sensitivities on every segment and the identifiability analysis at ``theta``."""
     weights = config.cost.weights()
-    if Y_models is None:
-        Y_models = simulate_segments(model, segments, theta)
+    if runs is None:
+        runs = simulate_segments(model, segments, theta)
     if fit is None:
-        fit = evaluate_fit(Y_models, segments, weights)[0]
+        fit = evaluate_fit(runs, segments, weights)[0]
     sens = [sensitivities(model, seg, theta) for seg in segments]
-    noise = noise_from_fit(fit, segments, Y_models)
+    noise = noise_from_fit(fit, segments, runs)
     informed = analyse(sens, weights, noise, config.bounds())
     tested = np.array([v.verdict != "not identifiable" for v in informed.verdicts])
-    disp = displacement_test(model, segments, theta, sens, fit, Y_models, weights, noise,
+    disp = displacement_test(model, segments, theta, sens, fit, runs, weights, noise,
                              config.bounds(), tested)
     return analyse(sens, weights, noise, config.bounds(), disp), sens
 
@@ -222,20 +222,20 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
                 params=dict(zip(PARAMETER_NAMES, map(float, theta), strict=True)),
                 distributions=search_space(config), value=refinement.fit.cost,
                 user_attrs={"origin": "refine", "simulations": refinement.simulations}))
-    Y_models = simulate_segments(model, segments, theta)
-    fit = evaluate_fit(Y_models, segments, config.cost.weights())[0]
+    runs = simulate_segments(model, segments, theta)
+    fit = evaluate_fit(runs, segments, config.cost.weights())[0]
     config_fit = evaluate_fit(simulate_segments(model, segments, model.theta0), segments,
                               config.cost.weights())[0]
     ident = importance = sens = None
     if identify:
         t2 = time.perf_counter()
-        ident, sens = identify_segments(model, segments, theta, config, fit, Y_models)
+        ident, sens = identify_segments(model, segments, theta, config, fit, runs)
         importance = parameter_importance(study)
         timings["identify"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     return CalibrationResult(
         config=config, theta=theta, fit=fit, segments=list(segments), choices=list(choices),
-        study=study, settings=settings, Y_models=Y_models, tpe_best=tpe_best,
+        study=study, settings=settings, runs=runs, tpe_best=tpe_best,
         config_fit=config_fit, refinement=refinement, identifiability=ident,
         importance=importance, sensitivities=sens, timings=timings, trials_here=report.trials,
         pruned_here=report.pruned)
@@ -248,7 +248,7 @@ class ValidationResult:
     fit: Fit
     weighted: dict[str, float]
     segment: Segment
-    Y_model: np.ndarray
+    run: ModelRun
     calibration_cost: float | None
 
     @property
@@ -271,9 +271,9 @@ def validate(segment: Segment, config: PlantConfig, calibration_cost: float | No
     segment.require_labs(1)
     model = model or DryerModel(config)
     Y = simulate_segments(model, [segment], config.parameter_vector())[0]
-    fit = evaluate_fit([Y], [segment], config.cost.weights())[0]
+    fit = evaluate_fit([Y], [segment], config.cost.weights())[0]  # one member
     return ValidationResult(fit=fit, weighted=weighted_rmse(fit, config.cost.weights()),
-                            segment=segment, Y_model=Y, calibration_cost=calibration_cost)
+                            segment=segment, run=Y, calibration_cost=calibration_cost)
 
 
 __all__ = [

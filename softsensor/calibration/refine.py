@@ -26,12 +26,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from softsensor.calibration.chunked_run import simulate_segments
-from softsensor.calibration.cost import Fit, evaluate_fit, residuals
+from softsensor.calibration.cost import Fit, ModelRun, evaluate_fit, residuals
 from softsensor.calibration.dataset import Segment
 from softsensor.model import DryerModel
 
 #: Forward-difference step in ln(theta).
 FD_STEP = 1e-3
+#: Residual entry standing for a failed model solve.
+FAILED_RESIDUAL = 1e6
 #: A parameter is polished when its weighted sensitivity column norm is at least this
 #: fraction of the largest one.
 ACTIVE_FRACTION = 1e-3
@@ -73,32 +75,44 @@ class _Problem:
         z[..., self.active] = za
         return z
 
-    def _vector(self, Ys: list[np.ndarray]) -> np.ndarray:
-        """Stacked weighted residuals for outputs ``Ys[s]`` of shape (B, K, 3) -> (B, n)."""
+    def _vector(self, runs: list[ModelRun]) -> np.ndarray:
+        """Stacked weighted residuals of a batch of runs (one per segment) -> (B, n)."""
         parts = []
-        for Y, seg in zip(Ys, self.segments, strict=True):
-            res = residuals(Y, seg)
+        for run, seg in zip(runs, self.segments, strict=True):
+            res = residuals(run, seg)
             parts += [self.scale[c] * res[c] for c in range(3)]
         return np.concatenate(parts, axis=-1)
 
     def run(self, Za: np.ndarray) -> np.ndarray:
+        """Weighted residuals (B, n) at active entries ``Za``; NaN rows where the model
+        failed."""
         Z = self.full(np.atleast_2d(Za))
-        Ys = simulate_segments(self.model, self.segments, np.exp(Z))
+        runs = simulate_segments(self.model, self.segments, np.exp(Z))
         self.simulations += Z.shape[0]
-        E = self._vector(Ys)
-        return np.where(np.isfinite(E), E, 1e6)
+        E = self._vector(runs)
+        E[~np.isfinite(E).all(axis=1)] = np.nan
+        return E
 
     def fun(self, z: np.ndarray) -> np.ndarray:
         key = z.tobytes()
         if key not in self._cache:
-            self._cache = {key: self.run(z)[0]}
+            e = self.run(z)[0]
+            # a failed solve: a residual far above any real one, so the step is refused
+            self._cache = {key: np.where(np.isfinite(e), e, FAILED_RESIDUAL)}
         return self._cache[key]
 
     def jac(self, z: np.ndarray) -> np.ndarray:
+        """Forward differences; a column whose forward member fails uses the backward
+        difference, and is zero when both fail (the parameter cannot move there)."""
         e0 = self.fun(z)
-        Z = z[None, :] + FD_STEP * np.eye(z.size)
-        E = self.run(Z)
-        return ((E - e0[None, :]) / FD_STEP).T
+        E = self.run(z[None, :] + FD_STEP * np.eye(z.size))
+        J = (E - e0[None, :]) / FD_STEP
+        bad = np.flatnonzero(np.isnan(E).any(axis=1))
+        if bad.size:
+            Eb = self.run(z[None, :] - FD_STEP * np.eye(z.size)[bad])
+            J[bad] = (e0[None, :] - Eb) / FD_STEP
+            J[np.isnan(J).any(axis=1)] = 0.0
+        return J.T
 
 
 def _rmse_ratio(a: float, b: float) -> float:
@@ -144,7 +158,9 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
         scale = _scale(best_fit, weights, floor)
         if p == 0:
             probe = _Problem(model, segments, scale, best_z, all_on)
-            probe._cache = {best_z.tobytes(): np.nan_to_num(probe._vector(Y_start)[0], nan=1e6)}
+            e_start = probe._vector(Y_start)[0]
+            probe._cache = {best_z.tobytes(): np.where(np.isfinite(e_start), e_start,
+                                                       FAILED_RESIDUAL)}
             norms = np.linalg.norm(probe.jac(best_z), axis=0)
             sims += probe.simulations
             active = norms >= ACTIVE_FRACTION * norms.max()

@@ -100,7 +100,7 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
                      + ("n/a" if result.config_fit is None else f"{result.config_fit.cost:.4g}")))
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
-    figures.trajectory_figure(result.segments, result.Y_models, d / "fig5_calibration.png",
+    figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",
                               "Calibration: model at the calibrated parameters vs measurements")
     sections.append(("Calibration trajectories (Fig. 5)", "![](fig5_calibration.png)"))
     figures.study_figure(result.study, result.importance or {}, d / "fig4_study.png")
@@ -141,7 +141,7 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
 def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path
                     ) -> Path:
     d = _dir(directory)
-    figures.trajectory_figure([result.segment], [result.Y_model], d / "fig6_validation.png",
+    figures.trajectory_figure([result.segment], [result.run], d / "fig6_validation.png",
                               "Validation: calibrated model vs an independent day")
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     sections = [
