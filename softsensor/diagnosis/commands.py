@@ -1,0 +1,174 @@
+"""``softsensor diagnose``: argument parsing, calibration on CAL, REPORT.json and the page.
+
+    softsensor diagnose --calibrate-on CAL.mcap DAY.mcap --json REPORT.json [--report DIR]
+    softsensor diagnose --params PARAMS.toml DAY.mcap --json REPORT.json [--report DIR]
+
+With ``--calibrate-on`` the paper's calibration (:func:`softsensor.calibration.pipeline.
+calibrate`: the Optuna TPE study, then the Gauss-Newton polish) runs on CAL with ``--trials``
+trials (default :data:`DEFAULT_TRIALS`: TPE finds the basin in a few dozen trials and the
+polish does the rest; the paper's 200 trials take minutes more for little gain) on its
+``--window-hours`` window with the most natural variability. With ``--params`` the parameter
+file is used as it is, and its ``[fit] rmse`` (written by ``softsensor calibrate``), when
+present, gives the noise-level floors of :mod:`.problem`.
+
+REPORT.json (CONTRACT section 5) is written to ``--json`` and printed on stdout; progress goes
+to stderr. Every error is a one-line :class:`~softsensor.errors.SoftsensorError`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softsensor.errors import ConfigError
+from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
+from softsensor.signals import OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+
+#: Optuna trials of the calibration on CAL (before the local polish).
+DEFAULT_TRIALS = 40
+#: Calibration window taken from CAL. [h]
+DEFAULT_CAL_WINDOW_HOURS = 48.0
+
+
+def _jsonable(x: Any) -> Any:
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.bool_):
+        return bool(x)
+    return x
+
+
+def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("day", metavar="DAY.mcap", help="recorded day to diagnose")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--calibrate-on", metavar="CAL.mcap", default=None,
+                     help="recorded day to calibrate the model on first")
+    src.add_argument("--params", metavar="PARAMS.toml", default=None,
+                     help="use these calibrated parameters instead of calibrating")
+    p.add_argument("--json", required=True, metavar="REPORT.json", help="report file to write")
+    p.add_argument("--report", default=None, metavar="DIR",
+                   help="write a page with PNG figures to DIR")
+    p.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
+                   help=f"Optuna trials of the calibration on CAL (default {DEFAULT_TRIALS})")
+    p.add_argument("--seed", type=int, default=0, help="TPE seed of the calibration")
+    p.add_argument("--window-hours", type=float, default=DEFAULT_CAL_WINDOW_HOURS,
+                   help="calibration window taken from CAL [h] (default "
+                        f"{DEFAULT_CAL_WINDOW_HOURS:g})")
+    p.add_argument("--save-params", default=None, metavar="PARAMS.toml",
+                   help="also write the parameters calibrated on CAL here")
+    p.add_argument("--fit-fraction", type=float, default=None,
+                   help="share of DAY the extensions are fitted on (default 0.6)")
+    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
+
+
+def _check_paths(args: argparse.Namespace) -> None:
+    for name in ("day", "calibrate_on", "params"):
+        v = getattr(args, name)
+        if v is not None and not Path(v).is_file():
+            flag = "DAY" if name == "day" else "--" + name.replace("_", "-")
+            raise ConfigError(f"{flag} {v}: no such file")
+    for flag, v in (("--json", args.json), ("--save-params", args.save_params)):
+        if v is not None and not Path(v).resolve().parent.is_dir():
+            raise ConfigError(f"{flag} {v}: directory {Path(v).resolve().parent} does not exist")
+    if args.trials < 1:
+        raise ConfigError(f"--trials must be >= 1, got {args.trials}")
+    if args.fit_fraction is not None and not 0.3 <= args.fit_fraction <= 0.8:
+        raise ConfigError(f"--fit-fraction must be within [0.3, 0.8], got {args.fit_fraction}")
+
+
+def diagnose_main(args: argparse.Namespace) -> int:
+    """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
+    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
+    from softsensor.recording.mcap_day import read_day
+
+    _check_paths(args)
+    cfg = load_plant_config(args.config)
+    t0 = time.perf_counter()
+    calibration: dict[str, Any]
+    if args.params:
+        cfg = load_parameters(args.params, cfg)
+        from softsensor.calibration.params_file import read_fit
+
+        fit = read_fit(args.params)
+        rmse = fit.get("rmse") if isinstance(fit.get("rmse"), dict) else None
+        calibration = {"params_file": str(args.params), "rmse": rmse}
+    else:
+        cfg, calibration = _calibrate(cfg, args)
+        rmse = calibration["rmse"]
+    t_cal = time.perf_counter() - t0
+    day = read_day(args.day, topics=[TOPIC_SCAN, TOPIC_LAB])
+    d = diagnose(cfg, day, calibration_rmse=rmse, source=str(args.day),
+                 fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION)
+    doc = d.to_json()
+    calibration["seconds"] = round(t_cal, 2)
+    doc["calibration"] = calibration
+    doc["timings_s"]["calibration"] = round(t_cal, 2)
+    if args.report:
+        from softsensor.diagnosis.report import write_report
+
+        doc["report"] = str(write_report(d, args.report, doc))
+    text = json.dumps(_jsonable(doc), indent=2)
+    Path(args.json).write_text(text + "\n", encoding="utf-8")
+    print(text)
+    print(f"diagnose: {args.day}: cause {doc['cause']}"
+          + (f" on {doc['channel']}" if doc.get("channel") else "")
+          + f", held-out gain {doc['gain']:+.3f}", file=sys.stderr)
+    return 0
+
+
+def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
+    """Run the calibration pipeline on ``--calibrate-on``; the calibrated config and a
+    summary for the report."""
+    import optuna
+
+    from softsensor.calibration.optimize import StudySettings
+    from softsensor.calibration.pipeline import DataSelection, calibrate, load_segments
+
+    if not args.window_hours > 0:
+        raise ConfigError(f"--window-hours must be > 0, got {args.window_hours}")
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    segments, choices = load_segments([args.calibrate_on], cfg,
+                                      DataSelection(window_hours=args.window_hours))
+    for c in choices:
+        print(f"diagnose: calibrate: {c.reason}", file=sys.stderr)
+    settings = StudySettings(n_trials=args.trials, seed=args.seed, progress=False)
+    result = calibrate(segments, cfg, settings, choices=choices, identify=False)
+    cal_cfg = cfg.with_parameters(result.theta)
+    if args.save_params:
+        from softsensor.calibration.params_file import params_document, write_params
+
+        write_params(args.save_params, params_document(cfg, result.params, result.fit_section()),
+                     "Calibrated by `softsensor diagnose --calibrate-on` (paper eq. 4).")
+    summary = {
+        "day": str(args.calibrate_on), "trials": args.trials, "seed": args.seed,
+        "cost": result.fit.cost,
+        "rmse": {n: result.fit.rmse[n] for n in OUTPUT_NAMES},
+        "params": dict(zip(PARAMETER_NAMES, map(float, result.theta), strict=True)),
+        "windows": [ch.segment.source for ch in choices],
+    }
+    return cal_cfg, summary
+
+
+def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register ``diagnose`` on the ``softsensor`` parser."""
+    p = sub.add_parser("diagnose", help="find what the calibrated model gets wrong on a day")
+    add_diagnose_arguments(p)
+    p.set_defaults(func=diagnose_main)
+
+
+__all__ = ["add_commands", "add_diagnose_arguments", "diagnose_main"]

@@ -1,0 +1,191 @@
+"""Diagnose a recorded day: residuals, evidence, fitted extensions, held-out verdict.
+
+:func:`diagnose` runs the whole of issue 6 on one day with an already calibrated config:
+
+1. cut the day into model windows (:mod:`.windows`) and split it into a fit part and a
+   held-out part (:func:`~.problem.choose_split`, 60 % by default, moved so that both parts
+   hold lab results);
+2. run the calibrated model on the day (the baseline) and compute the residual statistics of
+   every channel (:mod:`.residuals`);
+3. fit every extension of :data:`~.extensions.EXTENSIONS` on the fit part and score it on the
+   held-out part (:mod:`.verdict`);
+4. name the cause and write the evidence (:mod:`.evidence`).
+
+The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
+(:meth:`Diagnosis.to_json`) and feeds the report page (:mod:`.report`). Nothing here reads the
+ground truth a simulated day may carry.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
+from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted
+from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Problem, choose_split
+from softsensor.diagnosis.residuals import channel_stats, lab_stats
+from softsensor.diagnosis.verdict import Score, Verdict, score, structured, verdict
+from softsensor.diagnosis.windows import DayLike, DayWindows, day_windows
+from softsensor.estimation.settings import estimator_settings
+from softsensor.model import DryerModel
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES
+
+log = logging.getLogger(__name__)
+
+_M_IN = INPUT_NAMES.index("moisture_in")
+
+
+@dataclass
+class Diagnosis:
+    """Everything one diagnosis produced."""
+
+    problem: Problem
+    summary: ResidualSummary
+    fitted: dict[str, Fitted]
+    scores: dict[str, Score]
+    verdict: Verdict
+    sigma: np.ndarray
+    timings: dict[str, float] = field(default_factory=dict)
+    source: str = "day"
+
+    @property
+    def cause(self) -> str:
+        return self.verdict.cause
+
+    @property
+    def winner(self) -> Fitted | None:
+        w = self.verdict.winner
+        return None if w is None else self.fitted[w.cause]
+
+    def to_json(self) -> dict[str, Any]:
+        """REPORT.json (CONTRACT section 5) plus the project's extra fields."""
+        v = self.verdict
+        win = v.winner
+        any_score = next(iter(self.scores.values()))
+        base = any_score.baseline
+        ext = win.extended if win is not None else base
+        p = self.problem
+        ranking = []
+        for cause, weight, sc in v.ranking:
+            fitted = self.fitted.get(cause) if sc is not None else None
+            entry: dict[str, Any] = {
+                "cause": cause, "score": round(float(weight), 6),
+                "evidence": evidence_text(cause, self.summary, fitted, sc, v.structure)}
+            if sc is not None and fitted is not None:
+                entry.update({
+                    "eligible": sc.eligible, "gain": _num(sc.gain),
+                    "penalised_loglik_gain": _num(sc.penalised),
+                    "loglik_gain": {k: _num(x) for k, x in sc.loglik.items()},
+                    "params": {k: _num(x) for k, x in fitted.params.items()},
+                    "channel": fitted.channel})
+            ranking.append(entry)
+        split = p.split
+        out: dict[str, Any] = {
+            "cause": v.cause,
+            "ranking": ranking,
+            "channel": win.channel if win is not None and win.cause == "sensor_bias" else None,
+            "baseline_rmse": {k: _num(x) for k, x in base.rmse.items()},
+            "extended_rmse": {k: _num(x) for k, x in ext.rmse.items()},
+            "baseline_cost": _num(base.cost),
+            "extended_cost": _num(ext.cost),
+            "gain": _num(1.0 - ext.cost / base.cost if base.cost > 0 else 0.0),
+            "day": self.source,
+            "extension": None if win is None else {
+                "cause": win.cause, "params": {k: _num(x) for k, x in
+                                               self.fitted[win.cause].params.items()},
+                "description": self.fitted[win.cause].description},
+            "held_out": {
+                "fit_windows": split.k_fit, "held_out_windows": p.windows.n_windows - split.k_fit,
+                "fit_labs": int(split.lab_fit.sum()), "held_out_labs": int(split.lab_held.sum()),
+                "split_time_ns": split.split_ns, "note": split.note,
+                "samples": dict(base.n)},
+            "noise_levels": {k: _num(x) for k, x in zip(OUTPUT_NAMES, self.sigma, strict=True)},
+            "structure": v.structure,
+            "parameters": {k: _num(x) for k, x in zip(PARAMETER_NAMES, p.theta, strict=True)},
+            "timings_s": {k: round(x, 2) for k, x in self.timings.items()},
+        }
+        return out
+
+
+def _num(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else float(x)
+
+
+def _signature(model: DryerModel, windows: DayWindows, theta: np.ndarray) -> np.ndarray:
+    """Steady output change per +0.1 kg/kg of inlet moisture at the day's mean inputs."""
+    u = windows.U.mean(axis=0)
+    U = np.stack([u, u])
+    U[1, _M_IN] += 0.1
+    _, y = model.steady_state(U, theta)
+    return y[1] - y[0]
+
+
+def summarise(problem: Problem) -> ResidualSummary:
+    """Baseline residual statistics of the whole day (:mod:`.residuals`)."""
+    w = problem.windows
+    r = problem.residuals(problem.baseline)
+    chans = [channel_stats(name, r.T[:, c], w, problem.sigma[c])
+             for c, name in enumerate(KELVIN_CHANNELS)]
+    lab = lab_stats(r.lab, w, problem.baseline.Y[:, 2])
+    ok = np.isfinite(r.T).all(axis=1)
+    a, b = r.T[ok, 0], r.T[ok, 1]
+    corr = float(np.corrcoef(a, b)[0, 1]) if ok.sum() > 3 and a.std() > 0 and b.std() > 0 \
+        else 0.0
+    da = a - a.mean()
+    ratio = float(da @ (b - b.mean()) / (da @ da)) if float(da @ da) > 0 else 0.0
+    sig = _signature(problem.model, w, problem.theta)
+    return ResidualSummary(chans, lab, problem.sigma, sig, ratio, corr)
+
+
+def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, float] | None = None,
+             fit_fraction: float = DEFAULT_FIT_FRACTION,
+             extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
+             model: DryerModel | None = None) -> Diagnosis:
+    """Diagnose ``day`` with the calibrated ``config`` (module docstring).
+
+    Parameters
+    ----------
+    config : PlantConfig
+        Plant config carrying the calibrated parameter values.
+    day : RecordedDay or SimulatedDay
+        The day to diagnose (``scans`` and ``labs``; ground truth is never read).
+    calibration_rmse : dict, optional
+        Per-channel RMSE of the calibrated model on its calibration data (``[fit] rmse`` of a
+        PARAMS.toml): a floor under each channel's noise level (:mod:`.verdict`).
+    fit_fraction : float
+        Share of the windows the extensions are fitted on.
+    """
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    model = model if model is not None else DryerModel(config)
+    windows = day_windows(day, config, source)
+    split = choose_split(windows, fit_fraction)
+    lab_std = estimator_settings(config).lab_std
+    floor = None
+    if calibration_rmse:
+        floor = np.array([_num(calibration_rmse.get(n)) or 0.0 for n in OUTPUT_NAMES], float)
+    problem = Problem(config, model, windows, split, model.theta0, lab_std, floor)
+    sigma = problem.sigma
+    summary = summarise(problem)
+    timings["baseline"] = time.perf_counter() - t0
+    fitted: dict[str, Fitted] = {}
+    scores: dict[str, Score] = {}
+    for ext in extensions:
+        t1 = time.perf_counter()
+        f = ext.fit(problem)
+        fitted[f.cause] = f
+        scores[f.cause] = score(problem, f)
+        timings[f.cause] = time.perf_counter() - t1
+        log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
+                  scores[f.cause].penalised)
+    struct = structured(summary.channels, summary.lab, sigma)
+    v = verdict(list(scores.values()), struct)
+    timings["total"] = time.perf_counter() - t0
+    return Diagnosis(problem, summary, fitted, scores, v, sigma, timings, source)

@@ -1,0 +1,172 @@
+"""The diagnosis page (``softsensor diagnose --report DIR``): PNG figures and a Markdown page.
+
+* ``residuals.png``: baseline residuals of every channel over the day (window means for the
+  temperatures, lab results at their stamped sample times), with the winning extension's
+  residuals on top and the fit/held-out split marked;
+* ``trajectories.png``: measurements, the calibrated model and the model with the winning
+  extension;
+* ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
+  gain of every extension, eligible ones highlighted;
+* ``index.md``: the verdict, the evidence table and the figures (the same page layout as the
+  calibration report, :func:`softsensor.calibration.figures.write_page`).
+
+Temperatures on the axes are in °C for reading; the program keeps K everywhere else.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from softsensor.calibration.figures import markdown_table, write_page  # noqa: E402
+from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
+from softsensor.errors import ConfigError  # noqa: E402
+from softsensor.signals import OUTPUT_NAMES  # noqa: E402
+
+C0 = 273.15
+_UNITS = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
+
+
+def _save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def residual_figure(d: Diagnosis, path: Path) -> Path:
+    """Residuals per channel, baseline and winning extension, split marked."""
+    p = d.problem
+    w = p.windows
+    t = w.hours
+    t_split = t[p.split.k_fit - 1]
+    base = p.residuals(p.baseline)
+    win = d.winner
+    ext = p.residuals(win.prediction) if win is not None else None
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
+    for c, ax in enumerate(axes[:2]):
+        ax.plot(t, base.T[:, c], ".", ms=3, color="tab:red", label="calibrated model")
+        if ext is not None:
+            ax.plot(t, ext.T[:, c], ".", ms=3, color="tab:blue",
+                    label=f"with {win.cause} extension")
+        for s in (1, -1):
+            ax.axhline(s * 2 * d.sigma[c], color="0.6", ls=":", lw=0.8)
+    axes[2].plot(w.lab_hours, base.lab, "s", ms=5, color="tab:red", label="calibrated model")
+    if ext is not None:
+        axes[2].plot(w.lab_hours, ext.lab, "o", ms=4, color="tab:blue",
+                     label=f"with {win.cause} extension")
+    for s in (1, -1):
+        axes[2].axhline(s * 2 * d.sigma[2], color="0.6", ls=":", lw=0.8)
+    for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
+        ax.axvline(t_split, color="k", ls="--", lw=1, label="fit | held out")
+        ax.axhline(0.0, color="0.3", lw=0.6)
+        ax.set_ylabel(f"{name} residual [{_UNITS[name]}]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    axes[0].set_title(f"Measured minus model; dotted: 2 noise levels; verdict: {d.cause}")
+    axes[-1].set_xlabel("time from the first scan [h]")
+    return _save(fig, path)
+
+
+def trajectory_figure(d: Diagnosis, path: Path) -> Path:
+    """Measurements, calibrated model and extended model."""
+    p = d.problem
+    w = p.windows
+    t = w.hours
+    win = d.winner
+    fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
+    for c, ax in enumerate(axes[:2]):
+        ax.plot(t, w.Y[:, c] - C0, ".", ms=3, color="0.4", label="measured (600 s mean)")
+        ax.plot(t, p.baseline.Y[:, c] - C0, "-", lw=1.1, color="tab:red",
+                label="calibrated model")
+        if win is not None:
+            ax.plot(t, win.prediction.Y[:, c] - C0, "-", lw=1.1, color="tab:blue",
+                    label=f"with {win.cause} extension")
+    t_mid = t - 0.5 * w.window_s / 3600.0
+    axes[2].plot(w.lab_hours, w.lab_value, "s", ms=5, color="tab:green",
+                 label="lab (stamped sample time)")
+    axes[2].plot(t_mid, p.baseline.Y[:, 2], "-", lw=1.1, color="tab:red",
+                 label="calibrated model")
+    if win is not None:
+        axes[2].plot(t_mid, win.prediction.Y[:, 2], "-", lw=1.1, color="tab:blue",
+                     label=f"with {win.cause} extension")
+    units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": "kg/kg"}
+    for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
+        ax.axvline(t[p.split.k_fit - 1], color="k", ls="--", lw=1)
+        ax.set_ylabel(f"{name} [{units[name]}]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="best")
+    axes[0].set_title("Trajectories before and after the winning extension "
+                      "(dashed: fit | held out)")
+    axes[-1].set_xlabel("time from the first scan [h]")
+    return _save(fig, path)
+
+
+def gain_figure(d: Diagnosis, path: Path) -> Path:
+    """Held-out gain and penalised log-likelihood gain per extension."""
+    causes = list(d.scores)
+    sc = [d.scores[c] for c in causes]
+    colors = ["tab:green" if s.eligible else "0.6" for s in sc]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    axes[0].barh(causes, [s.gain for s in sc], color=colors)
+    axes[0].axvline(0.0, color="k", lw=0.8)
+    axes[0].set_xlabel("held-out gain = 1 - extended cost / baseline cost")
+    pen = np.array([s.penalised for s in sc])
+    axes[1].barh(causes, np.sign(pen) * np.log10(1.0 + np.abs(pen)), color=colors)
+    axes[1].axvline(np.log10(1.0 + 5.0), color="k", ls="--", lw=0.8)
+    axes[1].set_xlabel("penalised log-likelihood gain, sign * log10(1 + |P|) (dashed: 5)")
+    axes[1].set_yticks([])
+    for ax in axes:
+        ax.grid(alpha=0.3, axis="x")
+    fig.suptitle(f"Extensions on the held-out part (green: eligible); verdict: {d.cause}")
+    return _save(fig, path)
+
+
+def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None) -> Path:
+    """Write the figures and ``index.md`` into ``directory`` (created); returns the page."""
+    out = Path(directory)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"--report {out}: cannot create the directory: {exc.strerror}") \
+            from exc
+    doc = report if report is not None else d.to_json()
+    residual_figure(d, out / "residuals.png")
+    trajectory_figure(d, out / "trajectories.png")
+    gain_figure(d, out / "gain.png")
+    rows = [[r["cause"], f"{r['score']:.3f}",
+             "" if r.get("gain") is None else f"{r['gain']:+.3f}",
+             "" if r.get("penalised_loglik_gain") is None
+             else f"{r['penalised_loglik_gain']:+.1f}",
+             r["evidence"].replace("|", "/")] for r in doc["ranking"]]
+    table = markdown_table(["cause", "score", "held-out gain", "penalised log-lik. gain",
+                            "evidence"], rows)
+    rm = markdown_table(["channel", "baseline RMSE", "extended RMSE"],
+                        [[n, _fmt(doc["baseline_rmse"][n]), _fmt(doc["extended_rmse"][n])]
+                         for n in OUTPUT_NAMES])
+    verdict = (f"**Cause: `{doc['cause']}`**"
+               + (f" on `{doc['channel']}`" if doc.get("channel") else "")
+               + f". Held-out cost (paper eq. 4) {doc['baseline_cost']:.4f} -> "
+               f"{doc['extended_cost']:.4f}, gain {doc['gain']:+.3f}. "
+               f"{doc['held_out']['note']}.")
+    if doc.get("extension"):
+        verdict += f" Extension: {doc['extension']['description']}."
+    if doc.get("structure"):
+        verdict += f" Baseline residuals structured: {doc['structure']}."
+    sections = [
+        ("Verdict", verdict + "\n\n" + rm),
+        ("Evidence", table),
+        ("Residuals per channel", "![residuals](residuals.png)"),
+        ("Trajectories before and after the extension", "![trajectories](trajectories.png)"),
+        ("Held-out gain of every extension", "![gain](gain.png)"),
+    ]
+    return write_page(out, f"Diagnosis of {doc.get('day', 'the day')}", sections)
+
+
+def _fmt(v: float | None) -> str:
+    return "n/a" if v is None else f"{v:.4g}"

@@ -1,0 +1,248 @@
+"""Scoring the fitted extensions, and naming the cause.
+
+Every extension was fitted on the fit part of the day (:mod:`.extensions`). :func:`score`
+measures, with each channel's noise level ``s_c`` (:attr:`Problem.sigma
+<softsensor.diagnosis.problem.Problem.sigma>`):
+
+* held-out numbers, on the windows and lab results after the split only (the extension never
+  saw them): per channel the RMSE of the baseline and of the extension and the paper's cost
+  (eq. 4, weights from the config's ``[cost]``) of each,
+  ``gain = 1 - extended_cost / baseline_cost`` (CONTRACT section 5), and per channel the
+  Gaussian log-likelihood gain ``dL_c = (SSE_base,c - SSE_ext,c) / (2 s_c^2)``;
+* the penalised held-out gain ``P = sum_c dL_c - k`` for ``k`` fitted parameters (Akaike's
+  criterion on held-out data, ``P = -(AIC_ext - AIC_base) / 2``), which ranks the extensions;
+* significance: the likelihood-ratio statistic of the fit part plus twice the held-out
+  ``dL``, compared with chi-square with ``k`` degrees of freedom (the fit-part statistic is
+  the weighted least-squares drop of the fit; the held-out part adds what the extension
+  predicts on data it never saw, and subtracts when it predicts worse);
+* size: the largest reduction of a channel's RMSE over the whole day.
+
+The temperature channels' log-likelihoods are discounted by ``n_eff / n`` of the residuals
+the extension leaves (:func:`discount`): what it leaves structured (calibration error)
+carries less independent information than white noise, so an extension that explains a small
+slice of a structured residual is not taken for a cause.
+
+An extension is *eligible* (:func:`verdict`) when
+
+1. it is significant: ``p < ALPHA`` (0.001);
+2. it predicts the held-out part better: ``sum_c dL_c > 0``;
+3. it makes no channel worse: no channel's held-out ``dL_c`` falls by more than ``WORSE``
+   (3) while being a material share (``WORSE_SHARE``, 10 %) of what the extension gains on
+   the others, or while that channel's held-out RMSE grows by more than ``WORSE_GROWTH``
+   (50 %). A real cause explains every channel it touches; an extension that buys better
+   temperatures with a worse other temperature or lab moisture (the inlet-moisture filter
+   absorbing a sensor offset, a fouling trend or calibration error) explains something else;
+4. it matters: some channel's RMSE over the day falls by at least ``MIN_RELATIVE`` (25 %).
+
+The held-out ``gain`` is reported, not required: eq. 4 weighs 0.003 per K and 5.0 per kg/kg,
+so with a model accurate to a tenth of a kelvin the cost is mostly the RMSE of the three to
+five held-out lab results, whose noise (0.004 kg/kg) can outweigh a real cause's effect on
+them (an ambient heat loss that moves the outlet moisture by 0.001 kg/kg). A cause identified
+by the temperatures keeps its name; its gain says what it buys under the paper's cost.
+
+The cause is the eligible extension with the largest ``P``. Without one the day is
+``unexplained`` when the baseline residuals are clearly structured (:func:`structured`) and
+``none`` otherwise. Scores in the ranking are Akaike weights ``exp(P_c) / sum exp(P_j)`` over
+the eligible extensions and the unextended model (``P = 0``); an ineligible extension scores 0.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from softsensor.calibration.cost import fit_from_residuals
+from softsensor.diagnosis.extensions import Fitted
+from softsensor.diagnosis.problem import Prediction, Problem
+from softsensor.diagnosis.residuals import ChannelStats, LabStats, lag1
+from softsensor.signals import OUTPUT_NAMES
+
+#: Significance level of the fit-part likelihood-ratio test.
+ALPHA = 1e-3
+#: A channel whose held-out log-likelihood falls by more than this ...
+WORSE = 3.0
+#: ... and by more than this share of the summed gains of the channels that improve is made
+#: worse.
+WORSE_SHARE = 0.1
+#: A channel whose held-out log-likelihood falls by more than ``WORSE`` and whose held-out
+#: RMSE grows by more than this share is made worse too (the few lab results weigh little in
+#: the log-likelihood sum, but a lab RMSE that doubles is a wrong extension).
+WORSE_GROWTH = 0.5
+#: Smallest held-out RMSE reduction, on the channel it helps most, that an eligible
+#: extension must bring: an improvement nobody would notice is not a cause.
+MIN_RELATIVE = 0.25
+#: Baseline residuals with an RMSE above this many noise levels on a channel ...
+STRUCTURE_RATIO = 2.0
+#: ... and a Ljung-Box p value below this are clearly structured.
+STRUCTURE_P = 1e-3
+#: Fewest lab results for the lab channel alone to show structure.
+MIN_LABS_STRUCTURE = 4
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """Held-out RMSE per channel and eq. 4 cost of one prediction."""
+
+    n: dict[str, int]
+    rmse: dict[str, float]
+    cost: float
+
+
+@dataclass(frozen=True)
+class Score:
+    """An extension scored on the fit part and the held-out part (module docstring)."""
+
+    cause: str
+    channel: str | None
+    n_params: int
+    baseline: HeldOut
+    extended: HeldOut
+    gain: float
+    loglik: dict[str, float]
+    penalised: float
+    worse: tuple[str, ...]
+    lr: float
+    p_value: float
+    relative: dict[str, float]
+
+    @property
+    def held_out_loglik(self) -> float:
+        """Held-out log-likelihood gain summed over the channels (not penalised)."""
+        return float(sum(self.loglik.values()))
+
+    @property
+    def best_relative(self) -> float:
+        """Largest whole-day RMSE reduction over the channels (0 when none improves)."""
+        vals = [v for v in self.relative.values() if math.isfinite(v)]
+        return max([0.0, *vals])
+
+    @property
+    def eligible(self) -> bool:
+        return (self.p_value < ALPHA and self.held_out_loglik > 0.0
+                and not self.worse and self.best_relative >= MIN_RELATIVE)
+
+    def why_not(self) -> str | None:
+        """Why the extension is not eligible, in words (None when it is)."""
+        reasons = []
+        if not self.p_value < ALPHA:
+            reasons.append(f"not significant (likelihood ratio {self.lr:.1f}, "
+                           f"p = {self.p_value:.2g} >= {ALPHA:g})")
+        if not self.held_out_loglik > 0.0:
+            reasons.append(f"held-out log-likelihood does not improve "
+                           f"({self.held_out_loglik:+.1f})")
+        if self.worse:
+            reasons.append("it makes " + ", ".join(
+                f"{c} worse (log-likelihood {self.loglik[c]:+.1f})" for c in self.worse))
+        if self.best_relative < MIN_RELATIVE:
+            reasons.append(f"no channel's RMSE over the day falls by {MIN_RELATIVE:.0%} "
+                           f"(best {self.best_relative:.1%})")
+        return "; ".join(reasons) if reasons else None
+
+
+def held_out(problem: Problem, pred: Prediction) -> tuple[HeldOut, list[np.ndarray]]:
+    """Held-out RMSE per channel and eq. 4 cost of ``pred``; also the residual arrays."""
+    parts = problem.held_out_part(pred)
+    fit = fit_from_residuals([[p[None] for p in parts]], problem.config.cost.weights())[0]
+    return HeldOut(dict(fit.n), dict(fit.rmse), float(fit.cost)), parts
+
+
+def discount(r: np.ndarray) -> float:
+    """Share of independent information in a residual series, ``n_eff / n``.
+
+    ``(1 - rho) / (1 + rho)`` with ``rho`` its lag-1 autocorrelation (clipped to
+    ``[0, 0.95]``): white residuals count fully; residuals an extension leaves structured
+    (calibration error it does not explain) count as fewer independent samples, as in the
+    effective sample size of :mod:`.residuals`.
+    """
+    rho = min(max(lag1(r), 0.0), 0.95)
+    return (1.0 - rho) / (1.0 + rho)
+
+
+def _loglik(base: list[np.ndarray], ext: list[np.ndarray], sigma: np.ndarray) -> np.ndarray:
+    """Per-channel log-likelihood gains, temperature channels discounted (:func:`discount`)."""
+    out = np.empty(len(OUTPUT_NAMES))
+    for c in range(len(OUTPUT_NAMES)):
+        d = (np.sum(base[c] ** 2) - np.sum(ext[c] ** 2)) / (2.0 * sigma[c] ** 2)
+        out[c] = d * (discount(ext[c]) if c < 2 else 1.0)
+    return out
+
+
+def score(problem: Problem, fitted: Fitted) -> Score:
+    """Score ``fitted``: fit-part significance and held-out numbers (module docstring)."""
+    sigma = problem.sigma
+    base, rb = held_out(problem, problem.baseline)
+    ext, re = held_out(problem, fitted.prediction)
+    ll = _loglik(rb, re, sigma)
+    loglik = {name: float(ll[c]) for c, name in enumerate(OUTPUT_NAMES)}
+    gain = 1.0 - ext.cost / base.cost if base.cost > 0 else 0.0
+    limit = max(WORSE, WORSE_SHARE * float(np.clip(ll, 0.0, None).sum()))
+    grown = {n: base.n[n] > 0 and base.rmse[n] > 0
+             and ext.rmse[n] > (1.0 + WORSE_GROWTH) * base.rmse[n] for n in OUTPUT_NAMES}
+    worse = tuple(c for c in OUTPUT_NAMES
+                  if loglik[c] < -limit or (loglik[c] < -WORSE and grown[c]))
+    lr_fit = 2.0 * float(_loglik(problem.fit_part(problem.baseline),
+                                 problem.fit_part(fitted.prediction), sigma).sum())
+    lr = max(lr_fit + 2.0 * float(ll.sum()), 0.0)
+    p_value = float(chi2_dist.sf(lr, fitted.n_params))
+    relative = {}
+    fb, fe = problem.fit_part(problem.baseline), problem.fit_part(fitted.prediction)
+    for c, n in enumerate(OUTPUT_NAMES):
+        sb = float(np.sum(fb[c] ** 2) + np.sum(rb[c] ** 2))
+        se = float(np.sum(fe[c] ** 2) + np.sum(re[c] ** 2))
+        relative[n] = 1.0 - math.sqrt(se / sb) if sb > 0 else float("nan")
+    return Score(fitted.cause, fitted.channel, fitted.n_params, base, ext, float(gain), loglik,
+                 float(ll.sum() - fitted.n_params), worse, float(lr), p_value, relative)
+
+
+def structured(stats: list[ChannelStats], lab: LabStats, sigma: np.ndarray) -> str | None:
+    """Why the baseline residuals are clearly structured (None when they are not).
+
+    A temperature channel whose RMSE exceeds ``STRUCTURE_RATIO`` noise levels with a
+    Ljung-Box p value below ``STRUCTURE_P``, or lab residuals (at least
+    ``MIN_LABS_STRUCTURE``) with an RMSE above ``STRUCTURE_RATIO`` lab noise levels.
+    """
+    out = []
+    for c, s in enumerate(stats):
+        if s.rmse > STRUCTURE_RATIO * sigma[c] and s.ljung_box_p < STRUCTURE_P:
+            out.append(f"{s.channel} residual RMSE {s.rmse:.2f} K is {s.rmse / sigma[c]:.1f} "
+                       f"noise levels and not white (Ljung-Box p = {s.ljung_box_p:.1e})")
+    if lab.n >= MIN_LABS_STRUCTURE and lab.rmse > STRUCTURE_RATIO * sigma[2]:
+        out.append(f"lab moisture residual RMSE {lab.rmse:.4f} kg/kg is "
+                   f"{lab.rmse / sigma[2]:.1f} noise levels")
+    return "; ".join(out) if out else None
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The named cause, the ranking order and each entry's score."""
+
+    cause: str
+    winner: Score | None
+    ranking: list[tuple[str, float, Score | None]]
+    structure: str | None
+
+
+def verdict(scores: list[Score], structure: str | None) -> Verdict:
+    """Name the cause from the held-out scores (module docstring).
+
+    ``ranking`` lists ``(cause, score, Score or None)``: the eligible extensions by ``P``,
+    then the unextended model (``none``, or ``unexplained`` when the residuals are
+    structured and no extension is eligible), then the rest by ``P``.
+    """
+    eligible = sorted((s for s in scores if s.eligible), key=lambda s: -s.penalised)
+    rest = sorted((s for s in scores if not s.eligible), key=lambda s: -s.penalised)
+    top = max([0.0] + [s.penalised for s in eligible])
+    weights = [math.exp(s.penalised - top) for s in eligible]
+    w_none = math.exp(-top)
+    total = sum(weights) + w_none
+    winner = eligible[0] if eligible else None
+    base_cause = "none" if winner is not None or structure is None else "unexplained"
+    ranking: list[tuple[str, float, Score | None]] = [
+        (s.cause, w / total, s) for s, w in zip(eligible, weights, strict=True)]
+    ranking.append((base_cause, w_none / total, None))
+    ranking += [(s.cause, 0.0, s) for s in rest]
+    cause = winner.cause if winner is not None else base_cause
+    return Verdict(cause, winner, ranking, structure)

@@ -1,0 +1,239 @@
+"""Diagnosis building blocks: windows, residual statistics, extension fits, verdict rules, CLI.
+
+The hidden-effect tests (a virtual-plant day per cause) are in
+``tests/test_diagnosis_effects.py``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from softsensor.diagnosis.extensions import (
+    AirSensorLag,
+    LabTimeShift,
+    SensorOffset,
+    TransferDrift,
+)
+from softsensor.diagnosis.problem import Problem, choose_split
+from softsensor.diagnosis.residuals import (
+    change_point,
+    channel_stats,
+    cross_correlation,
+    lab_stats,
+    ljung_box,
+)
+from softsensor.diagnosis.verdict import ALPHA, HeldOut, Score, verdict
+from softsensor.diagnosis.windows import day_windows, lab_model_values
+from softsensor.errors import IngestError
+from softsensor.model import DryerModel
+from softsensor.plant.simulator import SimulatedDay, simulate_day
+from softsensor.plantconfig import load_plant_config
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_plant_config()
+
+
+@pytest.fixture(scope="module")
+def model(cfg):
+    return DryerModel(cfg)
+
+
+@pytest.fixture(scope="module")
+def day(cfg):
+    return simulate_day(cfg, 14.0, seed=5)
+
+
+def _problem(cfg, model, day):
+    w = day_windows(day, cfg)
+    return Problem(cfg, model, w, choose_split(w, min_labs=1), model.theta0, 0.003)
+
+
+# ---------------------------------------------------------------------------- windows
+def test_windows_are_scan_means_and_edges_follow_t_air_in(cfg, day):
+    w = day_windows(day, cfg)
+    assert w.n_windows == 84  # 14 h of 600 s windows
+    s = day.scans
+    t0 = s.index[0]
+    k = 10
+    sel = s[(s.index > t0 + k * 600e9) & (s.index <= t0 + (k + 1) * 600e9)]
+    assert len(sel) == 60
+    np.testing.assert_allclose(w.U[k, 0], sel.T_air_in.mean())
+    np.testing.assert_allclose(w.Y[k], sel[["T_dryer_out", "T_cyclone_out"]].mean())
+    assert np.all(w.U[:, -1] == cfg.nominal.moisture_in)
+    near = s[np.abs(s.index - (t0 + k * 600e9)) <= 60e9].T_air_in.mean()
+    np.testing.assert_allclose(w.air_edges[k], near)
+    assert np.all(np.diff(w.lab_time_ns) > 0) and len(w.lab_value) == len(day.labs)
+
+
+def test_windows_hold_missing_inputs_and_refuse_bad_days(cfg, day):
+    scans = day.scans.copy()
+    scans.iloc[601:721, scans.columns.get_loc("m_air")] = np.nan  # windows 10 and 11
+    w = day_windows(SimulatedDay(scans, day.labs, day.truth), cfg)
+    assert w.held["m_air"] == 2 and w.U[10, 1] == w.U[9, 1] == w.U[11, 1]
+    with pytest.raises(IngestError, match="signal T_cyclone_out is missing"):
+        day_windows(SimulatedDay(scans.drop(columns="T_cyclone_out"), day.labs, day.truth),
+                    cfg, "x.mcap")
+    with pytest.raises(IngestError, match="x.mcap: 2.0 h of scans"):
+        day_windows(SimulatedDay(scans.iloc[:721], day.labs, day.truth), cfg, "x.mcap")
+
+
+def test_lab_values_stand_at_window_centres():
+    end = np.array([600, 1200, 1800], dtype=np.int64) * 1_000_000_000
+    y = np.array([0.1, 0.2, 0.4])
+    t = np.array([300, 900, 1200, 2000], dtype=float) * 1e9
+    np.testing.assert_allclose(lab_model_values(end, y, 600.0, t), [0.1, 0.2, 0.3, 0.4])
+
+
+# ---------------------------------------------------------------------------- statistics
+def test_ljung_box_tells_white_from_correlated():
+    rng = np.random.default_rng(0)
+    e = rng.standard_normal(300)
+    ar = np.empty(300)
+    ar[0] = e[0]
+    for i in range(1, 300):
+        ar[i] = 0.6 * ar[i - 1] + e[i]
+    assert ljung_box(e)[1] > 0.01
+    assert ljung_box(ar)[1] < 1e-10
+
+
+def test_change_point_and_cross_correlation_find_what_was_put_in():
+    rng = np.random.default_rng(1)
+    hours = np.arange(1, 201) / 6.0
+    r = 0.1 * rng.standard_normal(200)
+    r[120:] += 1.0
+    h, shift, t = change_point(r, hours)
+    assert h == pytest.approx(hours[119]) and shift == pytest.approx(1.0, abs=0.05) and t > 20
+    x = rng.standard_normal(200)
+    y = np.concatenate([[0.0, 0.0], x[:-2]]) + 0.1 * rng.standard_normal(200)
+    cc = cross_correlation(y, x)
+    assert cc.lag == 2 and cc.corr > 0.95
+
+
+def test_channel_and_lab_statistics_on_a_clean_day(cfg, model, day):
+    p = _problem(cfg, model, day)
+    r = p.residuals(p.baseline)
+    st = channel_stats("T_dryer_out", r.T[:, 0], p.windows, p.sigma[0])
+    # a clean day with the plant's own parameters: residuals are the noise of a window mean
+    # (0.5 K / sqrt(60) = 0.065 K) plus a little model discretisation
+    assert st.rmse < 0.15 and abs(st.t_mean) < 4 and st.structure_ratio < 1.5
+    lab = lab_stats(r.lab, p.windows, p.baseline.Y[:, 2])
+    assert lab.rmse < 0.008 and abs(lab.best_shift_min) <= 90
+
+
+# ---------------------------------------------------------------------------- extensions
+def test_sensor_offset_recovers_an_offset_on_the_right_channel(cfg, model, day):
+    scans = day.scans.copy()
+    scans["T_cyclone_out"] += 2.5
+    p = _problem(cfg, model, SimulatedDay(scans, day.labs, day.truth))
+    f = SensorOffset().fit(p)
+    assert f.channel == "T_cyclone_out"
+    assert f.params["offset_K"] == pytest.approx(2.5, abs=0.05)
+    assert f.fit_chi2 < 0.01 * p.baseline_chi2
+
+
+def test_lab_time_shift_recovers_a_wrong_stamp(cfg, model, day):
+    labs = day.labs.copy()
+    p0 = _problem(cfg, model, day)
+    # make the outlet moisture move: labs report the model's own values, stamped 40 min late
+    w = p0.windows
+    true_t = labs.sample_time_ns.to_numpy(float)
+    labs["moisture_out"] = lab_model_values(w.end_ns, p0.baseline.Y[:, 2], w.window_s, true_t)
+    labs["sample_time_ns"] = labs.sample_time_ns + int(40 * 60e9)
+    p = _problem(cfg, model, SimulatedDay(day.scans, labs, day.truth))
+    f = LabTimeShift().fit(p)
+    moved = np.abs(np.gradient(p.baseline.Y[:, 2])).max() > 1e-4
+    assert moved
+    assert f.params["shift_min"] == pytest.approx(-40.0, abs=1.0)
+
+
+def test_transfer_drift_and_lag_fits_find_their_own_model(cfg, model, day):
+    """Data made by the extended model itself: the fit must recover the parameter."""
+    p0 = _problem(cfg, model, day)
+    drift = TransferDrift()
+    Y = p0.simulate(p0.windows.U, drift.theta(p0, 0.3))
+    scans = day.scans.copy()
+    # replace the measured temperatures by the drifting model's, window by window
+    w = p0.windows
+    k = np.clip((scans.index.to_numpy() - w.start_ns - 1) // int(600e9), 0, w.n_windows - 1)
+    for c, name in enumerate(("T_dryer_out", "T_cyclone_out")):
+        scans[name] = Y[k, c] + (scans[name].to_numpy() - p0.baseline.Y[k, c])
+    labs = day.labs.copy()
+    t = labs.sample_time_ns.to_numpy(float)
+    labs["moisture_out"] = (labs.moisture_out - p0.baseline.lab
+                            + lab_model_values(w.end_ns, Y[:, 2], w.window_s, t))
+    p = _problem(cfg, model, SimulatedDay(scans, labs, day.truth))
+    f = drift.fit(p)
+    assert f.params["loss_by_end"] == pytest.approx(0.3, abs=0.03)
+    lag = AirSensorLag()
+    f0 = lag.fit(p0)
+    assert f0.params["tau_min"] < 2.0  # the clean day has no lag to find
+
+
+# ---------------------------------------------------------------------------- verdict rules
+def _score(cause, penalised, gain=0.1, p=1e-6, worse=(), channel=None, rel=0.5):
+    h = HeldOut({"T_dryer_out": 10, "T_cyclone_out": 10, "moisture_out": 3},
+                {"T_dryer_out": 1.0, "T_cyclone_out": 1.0, "moisture_out": 0.01}, 0.1)
+    return Score(cause, channel, 1, h, h, gain, {"T_dryer_out": penalised + 1,
+                                                 "T_cyclone_out": 0.0, "moisture_out": 0.0},
+                 penalised, tuple(worse), 30.0, p,
+                 {"T_dryer_out": rel, "T_cyclone_out": 0.0, "moisture_out": float("nan")})
+
+
+def test_verdict_names_the_best_eligible_extension():
+    v = verdict([_score("fouling_drift", 50.0), _score("inlet_moisture", 80.0, rel=0.1),
+                 _score("ambient_heat_loss", 20.0), _score("sensor_bias", 90.0,
+                                                           worse=("T_dryer_out",))], None)
+    assert v.cause == "fouling_drift"
+    assert [c for c, _, _ in v.ranking][:3] == ["fouling_drift", "ambient_heat_loss", "none"]
+    scores = dict((c, s) for c, s, _ in v.ranking)
+    assert scores["fouling_drift"] > 0.99 and scores["inlet_moisture"] == 0.0
+    assert sum(s for _, s, _ in v.ranking) == pytest.approx(1.0)
+
+
+def test_verdict_none_or_unexplained_without_an_eligible_extension():
+    weak = [_score("lab_delay", 3.0, p=0.5), _score("input_lag", -3.0)]
+    assert verdict(weak, None).cause == "none"
+    assert verdict(weak, "T_dryer_out residual RMSE 3 noise levels").cause == "unexplained"
+    assert not _score("x", 9.0, p=2 * ALPHA).eligible
+    assert "not significant" in _score("x", 9.0, p=2 * ALPHA).why_not()
+    assert "falls by 25%" in _score("x", 9.0, rel=0.2).why_not()
+    assert _score("x", 9.0, gain=-0.05).eligible  # the gain is reported, not required
+
+
+# ---------------------------------------------------------------------------- CLI
+def _cli(*args):
+    return subprocess.run([sys.executable, "-m", "softsensor.cli", *args],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_cli_refuses_bad_input_with_one_line(tmp_path):
+    r = _cli("diagnose", "--params", str(tmp_path / "missing.toml"), str(tmp_path / "d.mcap"),
+             "--json", str(tmp_path / "r.json"))
+    assert r.returncode == 2 and "no such file" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    r = _cli("diagnose", str(tmp_path / "d.mcap"), "--json", str(tmp_path / "r.json"))
+    assert r.returncode == 2 and "--calibrate-on" in r.stderr
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not an mcap file")
+    params = tmp_path / "p.toml"
+    params.write_text("[parameters.mult_D]\nvalue = 1.0\n")
+    r = _cli("diagnose", "--params", str(params), str(bad), "--json", str(tmp_path / "r.json"))
+    assert r.returncode == 2 and str(bad) in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_problem_split_keeps_labs_on_both_sides(cfg, day):
+    w = day_windows(day, cfg)
+    s = choose_split(w, min_labs=2)
+    assert s.lab_fit.sum() >= 2 and s.lab_held.sum() >= 2
+    assert 0.5 * w.n_windows <= s.k_fit <= 0.7 * w.n_windows
+    assert np.all(w.lab_time_ns[s.lab_fit] < s.split_ns)
+    assert dataclasses.is_dataclass(s) and isinstance(pd.Timestamp(s.split_ns), pd.Timestamp)
