@@ -36,6 +36,7 @@ from softsensor.plantconfig import (
     load_parameters,
     load_plant_config,
 )
+from softsensor.signals import OUTPUT_NAMES
 
 
 def _jsonable(x: Any) -> Any:
@@ -204,6 +205,10 @@ def identify_main(args: argparse.Namespace) -> int:
         "fim_eigenvalues": ident.eigenvalues.tolist(),
         "fim_eigenvectors": ident.eigenvectors.tolist(),
         "correlation": ident.correlation.tolist(), "noise": ident.noise.tolist(),
+        "relative_sensitivity_mean_abs": {
+            out: dict(zip(PARAMETER_NAMES, map(float, np.mean(np.concatenate(
+                [np.abs(s.relative[:, c, :]) for s in sens]), axis=0)), strict=True))
+            for c, out in enumerate(OUTPUT_NAMES)},
         "weakest_directions": ident.weakest_directions(2),
         "importance": importance,
     }

@@ -34,6 +34,8 @@ from softsensor.model import DryerModel
 FD_STEP = 1e-3
 #: Residual entry standing for a failed model solve.
 FAILED_RESIDUAL = 1e6
+#: RMSE floors that keep the re-weighting finite on a perfect fit: 0.01 K, 1e-4 kg/kg.
+RMSE_FLOOR = np.array([0.01, 0.01, 1e-4])
 #: A parameter is polished when its weighted sensitivity column norm is at least this
 #: fraction of the largest one.
 ACTIVE_FRACTION = 1e-3
@@ -53,7 +55,7 @@ class Refinement:
     improved: bool
 
 
-class _Problem:
+class WeightedResiduals:
     """Weighted residuals and their Jacobian in the active entries of ``z = ln(theta)`` (the
     others stay at ``z_fixed``), with a cache so that the Jacobian at a point reuses the
     residual simulation there."""
@@ -122,7 +124,9 @@ def _rmse_ratio(a: float, b: float) -> float:
     return max(a / b, b / a)
 
 
-def _scale(fit: Fit, weights: np.ndarray, floor: np.ndarray) -> np.ndarray:
+def irls_scale(fit: Fit, weights: np.ndarray, floor: np.ndarray = RMSE_FLOOR) -> np.ndarray:
+    """Per-channel residual scale ``sqrt(WF_m / (RMSE_m N_m))`` of the re-weighted problem
+    at ``fit`` (module docstring), RMSEs floored at ``floor``."""
     out = []
     for c, name in enumerate(fit.rmse):
         n = max(fit.n[name], 1)
@@ -149,15 +153,14 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
     z = np.clip(np.log(np.asarray(theta0, float)), lo, hi)
     Y_start = simulate_segments(model, segments, np.exp(z)[None])
     start = evaluate_fit(Y_start, segments, weights)[0]
-    # RMSE floors keep the weights finite on a perfect fit: 0.01 K, 1e-4 kg/kg
-    floor = np.array([0.01, 0.01, 1e-4])
+    floor = RMSE_FLOOR
     best_z, best_fit, sims = z, start, 1
     all_on = np.ones(z.size, dtype=bool)
     done = 0
     for p in range(int(passes)):
-        scale = _scale(best_fit, weights, floor)
+        scale = irls_scale(best_fit, weights, floor)
         if p == 0:
-            probe = _Problem(model, segments, scale, best_z, all_on)
+            probe = WeightedResiduals(model, segments, scale, best_z, all_on)
             e_start = probe._vector(Y_start)[0]
             probe._cache = {best_z.tobytes(): np.where(np.isfinite(e_start), e_start,
                                                        FAILED_RESIDUAL)}
@@ -166,7 +169,7 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
             active = norms >= ACTIVE_FRACTION * norms.max()
             if not active.any():
                 break
-        prob = _Problem(model, segments, scale, best_z, active)
+        prob = WeightedResiduals(model, segments, scale, best_z, active)
         if p == 0:
             prob._cache = {best_z[active].tobytes(): probe.fun(best_z)}
         sol = least_squares(prob.fun, best_z[active], jac=prob.jac,
@@ -188,4 +191,4 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
                       passes=done, improved=best_fit.cost < start.cost)
 
 
-__all__ = ["FD_STEP", "Refinement", "refine"]
+__all__ = ["FD_STEP", "Refinement", "WeightedResiduals", "irls_scale", "refine"]

@@ -74,7 +74,7 @@ def identifiability_sections(ident: Identifiability, config: PlantConfig,
            f"channel noise {noise} (calibration RMSE, inflated for serial correlation) and a "
            "weak prior spanning the Table 1 bounds; 'post./prior sd' near 1 means the data "
            "add nothing. 'eq. 4 s.e.': the standard error of the eq. 4 estimator read off "
-           "non-linear model runs with the parameter moved 15 % and the others compensating "
+           "non-linear model runs with the parameter moved 15 % and the others re-fitted "
            "(worse side); at most 5 % (15 % = three standard errors) means identifiable."),
         ("Weighted Fisher information (paper's Table 3 form, ln θ)",
          matrix_table(ident.fim)
