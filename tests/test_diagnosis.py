@@ -184,7 +184,8 @@ def _score(cause, penalised, gain=0.1, p=1e-6, worse=(), channel=None, rel=0.5):
     return Score(cause, channel, 1, h, h, gain, {"T_dryer_out": penalised + 1,
                                                  "T_cyclone_out": 0.0, "moisture_out": 0.0},
                  penalised, tuple(worse), 30.0, p,
-                 {"T_dryer_out": rel, "T_cyclone_out": 0.0, "moisture_out": float("nan")})
+                 {"T_dryer_out": rel, "T_cyclone_out": 0.0, "moisture_out": float("nan")},
+                 {"T_dryer_out": 3.0, "T_cyclone_out": 0.0, "moisture_out": float("nan")})
 
 
 def test_verdict_names_the_best_eligible_extension():
@@ -199,7 +200,7 @@ def test_verdict_names_the_best_eligible_extension():
 
 
 def test_verdict_none_or_unexplained_without_an_eligible_extension():
-    weak = [_score("lab_delay", 3.0, p=0.5), _score("input_lag", -3.0)]
+    weak = [_score("lab_delay", 3.0, p=0.5), _score("input_lag", -5.0)]
     assert verdict(weak, None).cause == "none"
     assert verdict(weak, "T_dryer_out residual RMSE 3 noise levels").cause == "unexplained"
     assert not _score("x", 9.0, p=2 * ALPHA).eligible

@@ -7,8 +7,9 @@
    hold lab results);
 2. run the calibrated model on the day (the baseline) and compute the residual statistics of
    every channel (:mod:`.residuals`);
-3. fit every extension of :data:`~.extensions.EXTENSIONS` on the fit part and score it on the
-   held-out part (:mod:`.verdict`);
+3. fit every plausible extension of :data:`~.extensions.EXTENSIONS` on the fit part and score
+   it on the held-out part (:mod:`.verdict`); only the costly inlet-moisture filter is skipped
+   when the residuals rule it out (:func:`implausible`);
 4. name the cause and write the evidence (:mod:`.evidence`).
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
@@ -54,6 +55,7 @@ class Diagnosis:
     sigma: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
     source: str = "day"
+    skipped: dict[str, str] = field(default_factory=dict)
 
     @property
     def cause(self) -> str:
@@ -80,12 +82,16 @@ class Diagnosis:
                 "evidence": evidence_text(cause, self.summary, fitted, sc, v.structure)}
             if sc is not None and fitted is not None:
                 entry.update({
-                    "eligible": sc.eligible, "gain": _num(sc.gain),
+                    "eligible": bool(sc.eligible), "gain": _num(sc.gain),
                     "penalised_loglik_gain": _num(sc.penalised),
                     "loglik_gain": {k: _num(x) for k, x in sc.loglik.items()},
                     "params": {k: _num(x) for k, x in fitted.params.items()},
                     "channel": fitted.channel})
             ranking.append(entry)
+        for cause, reason in self.skipped.items():
+            ranking.append({"cause": cause, "score": 0.0, "eligible": False,
+                            "evidence": evidence_text(cause, self.summary, None, None)
+                            + f". Not fitted: {reason}"})
         split = p.split
         out: dict[str, Any] = {
             "cause": v.cause,
@@ -144,6 +150,35 @@ def summarise(problem: Problem) -> ResidualSummary:
     return ResidualSummary(chans, lab, problem.sigma, sig, ratio, corr)
 
 
+#: The inlet-moisture filter is fitted only when both temperature residuals exceed this many
+#: noise levels ...
+INLET_MIN_STRUCTURE = 2.0
+#: ... and move together at least this closely.
+INLET_MIN_CORRELATION = 0.8
+
+
+def implausible(cause: str, summary: ResidualSummary) -> str | None:
+    """Why the residuals rule ``cause`` out before any fit (None: fit it).
+
+    Only the inlet-moisture filter is gated, being the one costly fit (a UKF run per tried
+    intensity, about two thirds of a diagnosis). Under closed loop an inlet-moisture change
+    shows in both outlet temperatures at once: with measured ``T_air_in`` the model misses
+    the evaporation load in both (on virtual-plant days with the effect, both residuals exceed
+    10 noise levels with correlation 0.99). Residuals at noise level, or on one channel only,
+    leave nothing for the filter to track.
+    """
+    if cause != "inlet_moisture":
+        return None
+    d, c = summary.channels
+    ratios = (d.structure_ratio, c.structure_ratio)
+    if min(ratios) < INLET_MIN_STRUCTURE or summary.corr_dry_cyc < INLET_MIN_CORRELATION:
+        return (f"an inlet-moisture change moves both outlet temperatures together; here their "
+                f"residuals are {ratios[0]:.1f} and {ratios[1]:.1f} noise levels (needed: "
+                f"{INLET_MIN_STRUCTURE:g}) with correlation {summary.corr_dry_cyc:+.2f} "
+                f"(needed: {INLET_MIN_CORRELATION:g})")
+    return None
+
+
 def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, float] | None = None,
              fit_fraction: float = DEFAULT_FIT_FRACTION,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
@@ -177,7 +212,12 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
     timings["baseline"] = time.perf_counter() - t0
     fitted: dict[str, Fitted] = {}
     scores: dict[str, Score] = {}
+    skipped: dict[str, str] = {}
     for ext in extensions:
+        reason = implausible(ext.cause, summary)
+        if reason is not None:
+            skipped[ext.cause] = reason
+            continue
         t1 = time.perf_counter()
         f = ext.fit(problem)
         fitted[f.cause] = f
@@ -188,4 +228,4 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
     struct = structured(summary.channels, summary.lab, sigma)
     v = verdict(list(scores.values()), struct)
     timings["total"] = time.perf_counter() - t0
-    return Diagnosis(problem, summary, fitted, scores, v, sigma, timings, source)
+    return Diagnosis(problem, summary, fitted, scores, v, sigma, timings, source, skipped)

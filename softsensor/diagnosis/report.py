@@ -118,8 +118,8 @@ def gain_figure(d: Diagnosis, path: Path) -> Path:
     axes[0].set_xlabel("held-out gain = 1 - extended cost / baseline cost")
     pen = np.array([s.penalised for s in sc])
     axes[1].barh(causes, np.sign(pen) * np.log10(1.0 + np.abs(pen)), color=colors)
-    axes[1].axvline(np.log10(1.0 + 5.0), color="k", ls="--", lw=0.8)
-    axes[1].set_xlabel("penalised log-likelihood gain, sign * log10(1 + |P|) (dashed: 5)")
+    axes[1].axvline(0.0, color="k", lw=0.8)
+    axes[1].set_xlabel("penalised held-out log-likelihood gain P, sign * log10(1 + |P|)")
     axes[1].set_yticks([])
     for ax in axes:
         ax.grid(alpha=0.3, axis="x")

