@@ -218,7 +218,7 @@ class DryerModel:
         Returns arrays over the ``n_d + n_c`` cells (tube first, then cyclone): ``X_f``
         [kg/kg], ``T_f`` [K], ``Y_a`` [kg/kg], ``T_a`` [K], ``T_w`` [K] (wall, then shell),
         ``UA_w`` [W/K], ``T_a_wall`` [K] (the air temperature the wall sees, the cell's
-        mean in the tube's box scheme: wall heat is ``UA_w (T_a_wall - T_w)``), and ``x``
+        weighted state in the tube's theta scheme: wall heat is ``UA_w (T_a_wall - T_w)``), and ``x``
         [m] (cell centres along the tube; cyclone cells continue past the tube end at unit
         spacing of their own).
         """

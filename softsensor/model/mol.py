@@ -29,8 +29,8 @@ enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
                                + G (T_w,i-1 - 2 T_w,i + T_w,i+1)``  (tube, adiabatic ends)
   shell         ``C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)``  (cyclone)
 
-Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`kernels.space_weight` (the box
-scheme in tube cells, ``w = 1/2``; ``w = 1`` in the stirred cyclone cells), including the air
+Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`kernels.space_weight` (a
+theta scheme along the tube, ``w = 0.6``; ``w = 1`` in the stirred cyclone cells), including the air
 temperature in ``UA_w (T_a - T_w)`` and the fibre temperature in ``h_v``.
 
 with ``dh_f = c_f dT_f + (dh_f/dX) dX`` (``c_f`` from :func:`wood.heat_capacity`, which is
@@ -159,7 +159,7 @@ class MethodOfLines:
         h_f_in = wd.enthalpy(X_in, Tf_in, x_fsp)
         for i in range(n):
             kind = 0 if i < n_d else 1
-            w = kernels.space_weight(kind)  # box scheme in the tube, stirred tank in cyclone
+            w = kernels.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
             v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, geo)
             Tf_m = w * Tf[i] + (1.0 - w) * Tf_in
             Ta_m = w * Ta[i] + (1.0 - w) * Ta_in
