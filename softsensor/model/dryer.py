@@ -217,8 +217,8 @@ class DryerModel:
 
         Returns arrays over the ``n_d + n_c`` cells (tube first, then cyclone): ``X_f``
         [kg/kg], ``T_f`` [K], ``Y_a`` [kg/kg], ``T_a`` [K], ``T_w`` [K] (wall, then shell),
-        ``UA_w`` [W/K], ``T_a_wall`` [K] (the air temperature the wall sees, the cell's
-        weighted state in the tube's theta scheme: wall heat is ``UA_w (T_a_wall - T_w)``), and ``x``
+        ``UA_w`` [W/K], ``T_a_wall`` [K] (the air temperature the wall sees, the weighted
+        state of the tube's theta scheme: wall heat is ``UA_w (T_a_wall - T_w)``), and ``x``
         [m] (cell centres along the tube; cyclone cells continue past the tube end at unit
         spacing of their own).
         """
