@@ -154,14 +154,11 @@ def test_lab_time_shift_recovers_a_wrong_stamp(cfg, model, day):
     assert f.params["shift_min"] == pytest.approx(-40.0, abs=1.0)
 
 
-def test_transfer_drift_and_lag_fits_find_their_own_model(cfg, model, day):
-    """Data made by the extended model itself: the fit must recover the parameter."""
-    p0 = _problem(cfg, model, day)
-    drift = TransferDrift()
-    Y = p0.simulate(p0.windows.U, drift.theta(p0, 0.3))
-    scans = day.scans.copy()
-    # replace the measured temperatures by the drifting model's, window by window
+def _replace_outputs(day, p0, Y):
+    """``day`` with its temperatures and labs moved from the baseline model to outputs ``Y``
+    (the day's own noise kept): data made by an extended model."""
     w = p0.windows
+    scans = day.scans.copy()
     k = np.clip((scans.index.to_numpy() - w.start_ns - 1) // int(600e9), 0, w.n_windows - 1)
     for c, name in enumerate(("T_dryer_out", "T_cyclone_out")):
         scans[name] = Y[k, c] + (scans[name].to_numpy() - p0.baseline.Y[k, c])
@@ -169,12 +166,31 @@ def test_transfer_drift_and_lag_fits_find_their_own_model(cfg, model, day):
     t = labs.sample_time_ns.to_numpy(float)
     labs["moisture_out"] = (labs.moisture_out - p0.baseline.lab
                             + lab_model_values(w.end_ns, Y[:, 2], w.window_s, t))
-    p = _problem(cfg, model, SimulatedDay(scans, labs, day.truth))
-    f = drift.fit(p)
-    assert f.params["loss_by_end"] == pytest.approx(0.3, abs=0.03)
+    return SimulatedDay(scans, labs, day.truth)
+
+
+def test_each_parametric_fit_recovers_its_own_model(cfg, model, day):
+    """Data made by the extended model itself: each fit must recover its parameter, and on
+    the clean day find (almost) nothing."""
+    from softsensor.diagnosis.extensions import AmbientHeatLoss
+    from softsensor.model.geometry import BETA_AMB, N_AUX
+
+    p0 = _problem(cfg, model, day)
+    drift = TransferDrift()
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(p0.windows.U,
+                                                                   drift.theta(p0, 0.3))))
+    assert drift.fit(p).params["loss_by_end"] == pytest.approx(0.3, abs=0.02)
     lag = AirSensorLag()
-    f0 = lag.fit(p0)
-    assert f0.params["tau_min"] < 2.0  # the clean day has no lag to find
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(lag.inputs(p0, 8.0))))
+    assert lag.fit(p).params["tau_min"] == pytest.approx(8.0, abs=0.5)
+    aux = np.zeros(N_AUX)
+    aux[BETA_AMB] = 0.06
+    amb = AmbientHeatLoss()
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(p0.windows.U, aux=aux)))
+    assert amb.fit(p).params["beta_amb_per_K"] == pytest.approx(0.06, abs=0.006)
+    clean = [lag.fit(p0).params["tau_min"], drift.fit(p0).params["loss_by_end"],
+             amb.fit(p0).params["beta_amb_per_K"]]
+    assert clean[0] < 2.0 and abs(clean[1]) < 0.05 and abs(clean[2]) < 0.01
 
 
 # ---------------------------------------------------------------------------- verdict rules

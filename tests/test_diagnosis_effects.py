@@ -10,10 +10,12 @@ diagnose --calibrate-on`` command; the ``slow`` case draws a fresh seed on every
 the variable is a number, calibrates once on a clean day of a plant whose true parameters
 are away from the config's, and diagnoses 24 days across all causes.
 
-Why the per-cause seeds are fixed by default: the named cause is right on every one of 100+
-random days we ran, but the held-out *gain* of a weak ambient heat loss is decided by three
-to five held-out lab results (eq. 4 weighs 5.0 per kg/kg against 0.003 per K) and comes out
-negative on roughly one day in eight (``softsensor.diagnosis.verdict``).
+Why the per-cause seeds are fixed by default: over 150 random virtual-plant days (true or
+calibrated parameters) the named cause was right on about 97 % and clean days were named
+``none`` on all but one, but the held-out *gain* of an ambient heat loss (and now and then of
+an input lag or lab delay) is decided by three to seven held-out lab results (eq. 4 weighs
+5.0 per kg/kg against 0.003 per K) and came out negative on about one day in ten
+(``softsensor.diagnosis.verdict``); a test that fails one run in ten teaches nothing.
 """
 
 from __future__ import annotations
@@ -34,7 +36,12 @@ from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 
 HOURS = 48.0
+SLOW_HOURS = 30.0
 CASES = ("none", *EFFECTS)
+#: True parameters of the slow case's plant, away from the config's (as in
+#: ``benchmarks/calibrate.py``): the calibration must find them.
+SHIFTED = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
+           "hm_cyc": 3e-4, "hc_cyc": 50.0}
 
 
 #: Base seed of the per-cause cases when ``SOFTSENSOR_DIAG_SEED`` is unset (``random`` draws
@@ -151,14 +158,16 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
 
 @pytest.mark.slow
 def test_randomised_days_are_named_correctly(cfg, tmp_path):
-    """24 random days (3 per cause, 6 clean), one calibration on a random clean 48 h day:
-    at least 90 % named right and at most one false alarm (a clean day given a cause)."""
+    """24 random days (3 per cause, 6 clean) of a plant with shifted true parameters, one
+    calibration (40 trials and the polish) on a clean 48 h day of it: at least 90 % named
+    right and at most one false alarm (a clean day given a cause)."""
     from softsensor.calibration.dataset import segment_from_day
     from softsensor.calibration.optimize import StudySettings
     from softsensor.calibration.pipeline import calibrate
 
     base = SLOW_SEED
-    cal_day = simulate_day(cfg, 48.0, base)
+    plant = cfg.with_parameters(SHIFTED)
+    cal_day = simulate_day(plant, 48.0, base)
     seg = segment_from_day(cal_day, cfg, source="cal")
     res = calibrate([seg], cfg, StudySettings(n_trials=40, seed=0, progress=False),
                     identify=False)
@@ -168,13 +177,14 @@ def test_randomised_days_are_named_correctly(cfg, tmp_path):
     for i, cause in enumerate(cases):
         seed = base + 1 + i
         mag = draw(cause, seed)
-        day = simulate_day(cfg, HOURS, seed, None if cause == "none" else cause, mag)
+        day = simulate_day(plant, SLOW_HOURS, seed, None if cause == "none" else cause, mag)
         rep = diagnose(cal_cfg, day, calibration_rmse=res.fit.rmse).to_json()
         wrong = check(cause, day, rep)
         wrong = [w for w in wrong if "gain" not in w]  # the slow case counts names
-        results.append((cause, rep["cause"], wrong, replay(cause, seed, mag, base=base)))
-        print(cause, "->", rep["cause"], rep["channel"], f"gain {rep['gain']:+.3f}", wrong,
-              replay(cause, seed, mag, base=base), flush=True)
+        how = replay(cause, seed, mag, SLOW_HOURS, base) + " --params <SHIFTED>"
+        results.append((cause, rep["cause"], wrong, how))
+        print(cause, "->", rep["cause"], rep["channel"], f"gain {rep['gain']:+.3f}", wrong, how,
+              flush=True)
     right = sum(not w for _, _, w, _ in results)
     false_alarms = [r for r in results if r[0] == "none" and r[1] != "none"]
     summary = "\n".join(f"{c} -> {g}: {w} ({rp})" for c, g, w, rp in results if w)

@@ -38,7 +38,9 @@ the held-out part. Its prediction of window ``k`` uses the temperatures of the w
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import logging
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
@@ -48,11 +50,12 @@ from typing import ClassVar
 import numpy as np
 
 from softsensor.diagnosis.problem import Prediction, Problem
-from softsensor.diagnosis.windows import lab_model_values
+from softsensor.diagnosis.windows import DayWindows, lab_model_values
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.base import Window
 from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
+from softsensor.estimation.ukf import log as ukf_logger
 from softsensor.model.dryer import parameter_index
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
@@ -93,6 +96,17 @@ class Fitted:
     description: str
     channel: str | None = None
     extra: dict[str, object] = field(default_factory=dict)
+
+
+@contextlib.contextmanager
+def _quiet(logger: logging.Logger):
+    """Hold ``logger`` at WARNING: the filter's per-tick notes are not news in a diagnosis."""
+    level = logger.level
+    logger.setLevel(max(level, logging.WARNING))
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 class Extension(ABC):
@@ -313,6 +327,12 @@ class InletMoistureEstimate(Extension):
         return the posterior inlet moisture after each. [kg/kg]"""
         w = problem.windows
         out = np.empty(k1 - k0)
+        with _quiet(ukf_logger):
+            self._ticks(ukf, w, k0, k1, out)
+        return out
+
+    @staticmethod
+    def _ticks(ukf: UkfEstimator, w: DayWindows, k0: int, k1: int, out: np.ndarray) -> None:
         for i, k in enumerate(range(k0, k1)):
             means: dict[str, float | None] = {n: float(w.U[k, j])
                                               for j, n in enumerate(INPUT_NAMES[:-1])}
@@ -324,7 +344,6 @@ class InletMoistureEstimate(Extension):
             start = int(w.end_ns[k] - round(w.window_s * 1e9))
             body = ukf.tick(Window(start, int(w.end_ns[k]), means, int(w.n_scans[k]), n_good))
             out[i] = body["moisture_in"]
-        return out
 
     def inputs(self, problem: Problem, m_hat: np.ndarray) -> np.ndarray:
         """Inputs with window ``k`` driven by the estimate after window ``k - 1``."""

@@ -15,7 +15,9 @@ measures, with each channel's noise level ``s_c`` (:attr:`Problem.sigma
   ``dL``, compared with chi-square with ``k`` degrees of freedom (the fit-part statistic is
   the weighted least-squares drop of the fit; the held-out part adds what the extension
   predicts on data it never saw, and subtracts when it predicts worse);
-* size: the largest reduction of a channel's RMSE over the whole day.
+* size, over the whole day: the largest relative reduction of a channel's RMSE, and the
+  largest root-mean-square part of a channel's residual the extension explains,
+  ``sqrt((SSE_base - SSE_ext) / n) / s_c`` noise levels.
 
 The temperature channels' log-likelihoods are discounted by ``n_eff / n`` of the residuals
 the extension leaves (:func:`discount`): what it leaves structured (calibration error)
@@ -75,8 +77,8 @@ WORSE_SHARE = 0.1
 #: RMSE grows by more than this share is made worse too (the few lab results weigh little in
 #: the log-likelihood sum, but a lab RMSE that doubles is a wrong extension).
 WORSE_GROWTH = 0.5
-#: Smallest held-out RMSE reduction, on the channel it helps most, that an eligible
-#: extension must bring: an improvement nobody would notice is not a cause.
+#: Smallest reduction of a channel's RMSE over the whole day, on the channel it helps most,
+#: that an eligible extension must bring: an improvement nobody would notice is not a cause.
 MIN_RELATIVE = 0.25
 #: ... and explain, on some channel, a root-mean-square part of the residual of at least this
 #: many noise levels (per channel, ``OUTPUT_NAMES`` order): a correction no larger than the
