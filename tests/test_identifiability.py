@@ -212,3 +212,29 @@ def test_lag1_autocorrelation_of_an_ar1_series():
     assert lag1_autocorrelation(x) == pytest.approx(0.6, abs=0.02)
     assert abs(lag1_autocorrelation(e)) < 0.03
     assert lag1_autocorrelation(np.array([1.0, np.nan])) == 0.0
+
+
+def test_importance_ranks_the_parameters_a_cost_depends_on():
+    # a study whose cost depends on mult_D and mult_h only: both evaluators must say so, and
+    # the default (PED-ANOVA) must rank them first
+    import optuna
+
+    from softsensor.calibration.identifiability import parameter_importance
+    from softsensor.errors import ConfigError
+    from softsensor.plantconfig import PARAMETER_NAMES
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    study = optuna.create_study(sampler=optuna.samplers.TPESampler(seed=0))
+
+    def cost(trial):
+        x = {n: trial.suggest_float(n, 0.01, 5.0, log=True) for n in PARAMETER_NAMES}
+        return (np.log(x["mult_D"]) - 0.2) ** 2 + 0.3 * np.log(x["mult_h"]) ** 2
+
+    study.optimize(cost, n_trials=120)
+    ped = parameter_importance(study)
+    assert ped == parameter_importance(study)  # deterministic
+    assert set(sorted(ped, key=ped.get)[-2:]) == {"mult_D", "mult_h"}
+    fan = parameter_importance(study, "fanova")  # offered; see its docstring for its bias
+    assert set(fan) == set(PARAMETER_NAMES) and sum(fan.values()) == pytest.approx(1.0)
+    with pytest.raises(ConfigError, match="unknown importance method"):
+        parameter_importance(study, "gini")

@@ -160,6 +160,8 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--storage", default=None, metavar="URL",
                    help="the calibration study, for parameter importance (Fig. 4)")
     p.add_argument("--study-name", default=DEFAULT_STUDY_NAME)
+    p.add_argument("--importance", default="ped-anova", choices=("ped-anova", "fanova"),
+                   help="importance evaluator (fanova, the paper's, needs scikit-learn)")
     p.add_argument("--json", default=None, metavar="FILE", help="write the full analysis")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write figures and a Markdown page to DIR")
@@ -188,7 +190,7 @@ def identify_main(args: argparse.Namespace) -> int:
                                       storage=open_storage(args.storage))
         except KeyError as exc:
             raise ConfigError(f"--storage {args.storage}: no study {args.study_name!r}") from exc
-        importance = parameter_importance(study)
+        importance = parameter_importance(study, args.importance)
     print(identifiability_table(ident, config, importance))
     print(f"\nweighted FIM (Table 3 form) condition number {ident.condition_number:.3g}; "
           f"identifiable: {', '.join(ident.identifiable) or 'none'}; poorly identifiable: "
