@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from softsensor.calibration.pipeline import (
     validate,
 )
 from softsensor.errors import ConfigError
+from softsensor.jsonable import jsonable
 from softsensor.plantconfig import (
     PARAMETER_NAMES,
     PlantConfig,
@@ -39,21 +39,8 @@ from softsensor.plantconfig import (
 from softsensor.signals import OUTPUT_NAMES
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def _emit(doc: dict[str, Any], json_path: str | None) -> None:
-    text = json.dumps(_jsonable(doc), indent=2)
+    text = json.dumps(jsonable(doc), indent=2)
     if json_path:
         p = Path(json_path)
         if not p.parent.is_dir():
@@ -221,7 +208,7 @@ def identify_main(args: argparse.Namespace) -> int:
         p = Path(args.json)
         if not p.parent.is_dir():
             raise ConfigError(f"--json {p}: directory {p.parent} does not exist")
-        p.write_text(json.dumps(_jsonable(doc), indent=2) + "\n", encoding="utf-8")
+        p.write_text(json.dumps(jsonable(doc), indent=2) + "\n", encoding="utf-8")
     return 0
 
 

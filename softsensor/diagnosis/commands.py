@@ -19,15 +19,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from softsensor.errors import ConfigError
+from softsensor.jsonable import jsonable
 from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
 from softsensor.signals import OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 
@@ -35,21 +33,6 @@ from softsensor.signals import OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 DEFAULT_TRIALS = 40
 #: Calibration window taken from CAL. [h]
 DEFAULT_CAL_WINDOW_HOURS = 48.0
-
-
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
-        return x if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.bool_):
-        return bool(x)
-    return x
 
 
 def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
@@ -122,7 +105,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
         from softsensor.diagnosis.report import write_report
 
         doc["report"] = str(write_report(d, args.report, doc))
-    text = json.dumps(_jsonable(doc), indent=2)
+    text = json.dumps(jsonable(doc), indent=2)
     Path(args.json).write_text(text + "\n", encoding="utf-8")
     print(text)
     print(f"diagnose: {args.day}: cause {doc['cause']}"

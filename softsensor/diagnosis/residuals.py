@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from softsensor.calibration.identifiability import lag1_autocorrelation as lag1
 from softsensor.diagnosis.windows import DayWindows, lab_model_values
 from softsensor.signals import INPUT_NAMES
 
@@ -95,16 +96,6 @@ class LabStats:
     best_shift_min: float
     rmse_at_best_shift: float
     rmse_by_shift: np.ndarray
-
-
-def lag1(r: np.ndarray) -> float:
-    """Lag-1 autocorrelation of ``r`` (NaNs dropped; 0 for fewer than 3 values)."""
-    r = r[np.isfinite(r)]
-    if r.size < 3:
-        return 0.0
-    d = r - r.mean()
-    den = float(d @ d)
-    return float(d[1:] @ d[:-1] / den) if den > 0 else 0.0
 
 
 def effective_n(n: int, rho1: float) -> float:
