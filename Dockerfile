@@ -19,7 +19,7 @@ RUN useradd --system --uid 10001 --user-group --home-dir /data --shell /usr/sbin
     && chown softsensor:softsensor /data /config "$NUMBA_CACHE_DIR"
 
 WORKDIR /opt/softsensor
-COPY pyproject.toml README.md ./
+COPY pyproject.toml README.md LICENSE ./
 COPY softsensor ./softsensor
 RUN pip install . && rm -rf /opt/softsensor/build
 
