@@ -152,3 +152,11 @@ def test_numba_cache_dir_is_set_and_owned_by_the_user() -> None:
 def test_config_and_data_are_volumes(path: str) -> None:
     volumes = [v for a in of("VOLUME") for v in exec_form(a)]
     assert path in volumes
+
+
+def test_files_the_package_build_needs_are_copied() -> None:
+    # `pip install .` reads the readme and licence files pyproject.toml names
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    needed = {"pyproject.toml", project["readme"], *project.get("license-files", [])}
+    copied = {PurePosixPath(s).name for sources, _ in copies() for s in sources}
+    assert needed <= copied, needed - copied
