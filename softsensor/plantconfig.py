@@ -150,6 +150,12 @@ class PlantConfig:
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
     source: str = "<built-in>"
 
+    def nominal_inputs(self) -> np.ndarray:
+        """Model inputs at the nominal operating point, in ``signals.INPUT_NAMES`` order."""
+        from softsensor.signals import INPUT_NAMES
+
+        return np.array([getattr(self.nominal, n) for n in INPUT_NAMES], dtype=float)
+
     def parameter_vector(self) -> np.ndarray:
         """Parameter values as an array in :data:`PARAMETER_NAMES` order."""
         return np.array([self.parameters[n].value for n in PARAMETER_NAMES])

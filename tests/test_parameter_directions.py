@@ -61,8 +61,9 @@ def _y(sweep, channel):
 
 
 def _wall_heat(sweep):
-    """Heat the air gives to the walls [W] (= lost to ambient at steady state)."""
-    return np.array([np.sum(p["UA_w"] * (p["T_a"] - p["T_w"])) for _, _, p in sweep])
+    """Heat the air gives to the walls [W] (= lost to ambient at steady state); the wall sees
+    the theta-weighted air temperature ``T_a_wall`` (softsensor/model/kernels.py)."""
+    return np.array([np.sum(p["UA_w"] * (p["T_a_wall"] - p["T_w"])) for _, _, p in sweep])
 
 
 def test_mult_D_faster_evaporation_dries_more_and_cools_the_air(model, point):

@@ -25,7 +25,7 @@ from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.ukf import WindowModel
 from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
 from softsensor.plantconfig import PlantConfig
-from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+from softsensor.signals import OUTPUT_NAMES
 
 log = logging.getLogger(__name__)
 
@@ -59,8 +59,7 @@ class OpenLoopEstimator:
         self.theta = np.asarray(model.theta0, float)
         self.window_s = float(model.window)
         self.moisture_in = float(config.nominal.moisture_in)
-        self._hold = InputHold(np.array([getattr(config.nominal, n) for n in INPUT_NAMES],
-                                        float))
+        self._hold = InputHold(config.nominal_inputs())
         self._wall: np.ndarray | None = None
         self._last_end: int | None = None
         #: (start_ns, end_ns, moisture_out) of the kept ticks, for lab residuals

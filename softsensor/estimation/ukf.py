@@ -178,8 +178,7 @@ class UkfEstimator:
                                s.walk_per_window(s.moisture_out_bias_walk, self.window_s) ** 2])
         nominal = config.nominal
         self._x_in_nominal = float(nominal.moisture_in)
-        self._hold = InputHold(np.array([getattr(nominal, name) for name in INPUT_NAMES],
-                                        float))
+        self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(np.array([self._x_in_nominal, 0.0, 0.0]),
                                   np.diag([s.moisture_in_std0**2, s.T_air_in_error_std**2,
                                            s.moisture_out_bias_std0**2]),

@@ -65,8 +65,7 @@ class DryerModel:
 
     def nominal_inputs(self, **overrides: float) -> np.ndarray:
         """Input vector at the config's nominal operating point, with optional overrides."""
-        nom = self.config.nominal
-        values = {name: getattr(nom, name) for name in INPUT_NAMES}
+        values = dict(zip(INPUT_NAMES, self.config.nominal_inputs(), strict=True))
         unknown = set(overrides) - set(values)
         if unknown:
             raise ValueError(f"unknown input {sorted(unknown)[0]!r}")
