@@ -16,17 +16,12 @@ from softsensor.calibration.params_file import dumps, params_document, read_fit,
 from softsensor.calibration.selection import select_windows
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError, IngestError
-from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
+from softsensor.plantconfig import PARAMETER_NAMES, load_parameters
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
 
 NS = 1_000_000_000
 T0 = 1_767_571_200 * NS  # a multiple of 600 s
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_plant_config()
 
 
 def make_day(hours: float, config, *, start_ns: int = T0, labs=None, step_at_h=None,

@@ -32,23 +32,12 @@ from softsensor.calibration.optimize import (
 from softsensor.calibration.refine import refine
 from softsensor.cli import main as cli_main
 from softsensor.errors import ConfigError
-from softsensor.model import DryerModel
 from softsensor.plant.simulator import simulate_day
-from softsensor.plantconfig import PARAMETER_NAMES, load_plant_config
+from softsensor.plantconfig import PARAMETER_NAMES
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
          "hm_cyc": 3e-4, "hc_cyc": 50.0}
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_plant_config()
-
-
-@pytest.fixture(scope="module")
-def model(config):
-    return DryerModel(config)
 
 
 @pytest.fixture(scope="module")

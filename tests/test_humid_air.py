@@ -205,14 +205,8 @@ def test_prandtl_and_schmidt_numbers_of_air_are_textbook_values():
     (ha.vapour_enthalpy, ()), (ha.relative_humidity, (0.05, P)), (ha.prandtl, (0.05,)),
     (ha.schmidt, (0.05, P)), (ha.vapour_diffusivity, (P,)),
 ])
-def test_each_function_takes_a_scalar_and_an_array(fn, args):
-    T = np.array([290.0, 350.0, 470.0])
-    arr = fn(T, *args)
-    assert np.shape(arr) == (3,)
-    for i, t in enumerate(T):
-        s = fn(float(t), *args)
-        assert np.ndim(s) == 0
-        assert s == pytest.approx(arr[i], rel=1e-14)
+def test_each_function_takes_a_scalar_and_an_array(fn, args, scalar_and_array):
+    scalar_and_array(lambda T: fn(T, *args), [290.0, 350.0, 470.0])
 
 
 @pytest.mark.parametrize("fn", [

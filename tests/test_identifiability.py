@@ -24,20 +24,10 @@ from softsensor.calibration.identifiability import (
     weighted_fim,
 )
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, load_plant_config
+from softsensor.plantconfig import PARAMETER_NAMES
 
 NS = 1_000_000_000
 T0 = 1_767_571_200 * NS
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_plant_config()
-
-
-@pytest.fixture(scope="module")
-def model(config):
-    return DryerModel(config)
 
 
 def short_segment(model: DryerModel, hours: float = 4.0, seed: int = 0) -> Segment:
