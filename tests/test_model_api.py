@@ -183,3 +183,28 @@ def test_fibre_heated_towards_boiling_still_solves(model):
                           np.array(case["theta"]), dt=case["dt"])
     assert np.all(np.isfinite(state)) and np.all(np.isfinite(y))
     assert 0.0 < y[2] < 0.35 and 330.0 < y[0] < 370.0
+
+
+def test_cell_on_the_boiling_kink_solves_by_bracketing(model):
+    # regression: the virtual plant (advance_one, warm start) stopped when a cell's outlet
+    # state sat where y_sat(T_f) climbs steeply below boiling and the cell Newton failed from
+    # every start; the nested bisection of kernels._bisect_cell finds it
+    import json
+    from pathlib import Path
+
+    from softsensor.model import kernels
+
+    case = json.loads((Path(__file__).parent / "fixtures"
+                       / "plant_boiling_regression.json").read_text())
+    state = np.array(case["state"])
+    prof = np.array(case["prof"])
+    work = np.empty(4 * state.size)
+    y = np.empty(3)
+    geo = model.geometry.packed
+    st = kernels.advance_one(state, np.array(case["u"]), np.array(case["theta"]),
+                             np.array(case["aux"]), geo, case["dt"], prof, work, y)
+    assert st == kernels.OK
+    assert np.all(np.isfinite(y)) and 330.0 < y[0] < 370.0 and 0.0 < y[2] < 0.5
+    # a physical profile: the fibre dries along the tube and stays below the air
+    n_d = int(geo[kernels.N_D])
+    assert np.all(np.diff(prof[0][:n_d]) <= 1e-12) and np.all(prof[1][:n_d] < prof[3][:n_d])

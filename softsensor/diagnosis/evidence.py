@@ -90,11 +90,12 @@ def score_text(fitted: Fitted, sc: Score) -> str:
     rm = ", ".join(f"{n} {_fmt_unit(n, b.rmse[n])} -> {_fmt_unit(n, e.rmse[n])}"
                    for n in OUTPUT_NAMES if b.n[n])
     ll = ", ".join(f"{n} {sc.loglik[n]:+.1f}" for n in OUTPUT_NAMES if b.n[n])
-    text = (f"fitted: {fitted.description}. Held out ({b.n['T_dryer_out']} windows, "
-            f"{b.n['moisture_out']} lab results): RMSE {rm}; cost {b.cost:.4f} -> "
-            f"{e.cost:.4f} (gain {sc.gain:+.3f}); log-likelihood gain {ll}, penalised for "
-            f"{sc.n_params} parameter(s) {sc.penalised:+.1f}; fit-part likelihood ratio "
-            f"{sc.lr:.1f} (p = {sc.p_value:.2g})")
+    text = (f"fitted: {fitted.description}. Held out, each part of the day predicted by the "
+            f"fit on the other part ({b.n['T_dryer_out']} windows, {b.n['moisture_out']} lab "
+            f"results): RMSE {rm}; cost {b.cost:.4f} -> {e.cost:.4f} (gain {sc.gain:+.3f}; "
+            f"on the last part alone {sc.split_gain:+.3f}); on the last part, log-likelihood "
+            f"gain {ll}, penalised for {sc.n_params} parameter(s) {sc.penalised:+.1f}; "
+            f"likelihood ratio {sc.lr:.1f} (p = {sc.p_value:.2g})")
     why = sc.why_not()
     return text + (f". Not eligible: {why}" if why else ". Eligible")
 

@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from softsensor.diagnosis.problem import Prediction, Problem
 from softsensor.diagnosis.windows import DayWindows, lab_model_values
@@ -119,6 +120,11 @@ class Extension(ABC):
     def fit(self, problem: Problem) -> Fitted:
         """Fit on ``problem.split``'s fit part; return the extension run over the whole day."""
 
+    def fit_both(self, problem: Problem) -> tuple[Fitted, Fitted]:
+        """The extension fitted on the fit part and, separately, on the held-out part (the
+        two folds of the cross-fitting in :mod:`.verdict`)."""
+        return self.fit(problem), self.fit(problem.reversed())
+
 
 def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction],
                 bounds: tuple[float, float], step: float, tol: float,
@@ -133,7 +139,7 @@ def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction
     lower the sum of squares is halved; a parameter value whose model run fails is treated
     as infinitely bad. Stops when a step is below ``tol``. Returns ``(x, chi2)``.
     """
-    k = problem.split.k_fit
+    k = problem.split.sim_end(problem.windows.n_windows)
     lo, hi = bounds
 
     def vector(x: float) -> np.ndarray | None:
@@ -184,10 +190,9 @@ class SensorOffset(Extension):
     def fit(self, problem: Problem) -> Fitted:
         base = problem.baseline
         r = problem.residuals(base)
-        k = problem.split.k_fit
         best: Fitted | None = None
         for c, name in enumerate(KELVIN_CHANNELS):
-            rc = r.T[:k, c]
+            rc = r.T[problem.split.fit_windows, c]
             b = float(np.nanmean(rc)) if np.isfinite(rc).any() else 0.0
             Y = base.Y.copy()
             Y[:, c] += b
@@ -207,6 +212,13 @@ class LabTimeShift(Extension):
     cause = "lab_delay"
     #: Shifts searched. [min]
     grid_min = np.arange(-90.0, 90.0 + 1e-9, 0.5)
+    #: Smallest drop of the fit part's lab chi-square (squared residuals over the lab noise
+    #: level) for which a shift is applied: the chi-square quantile of the verdict's
+    #: significance level (0.001, one degree of freedom). A handful of lab results taken
+    #: where the outlet moisture is flat do not pin a shift, and the grid's best then lands
+    #: anywhere (a fold fitted on eight such results put 84.5 min on a 44 min delay); such a
+    #: shift is noise and is not applied.
+    min_chi2_drop = float(chi2_dist.isf(1e-3, 1))
 
     def fit(self, problem: Problem) -> Fitted:
         base = problem.baseline
@@ -223,7 +235,12 @@ class LabTimeShift(Extension):
                                                       ts + s)) ** 2) for s in shifts])
         i0 = int(np.argmin(np.abs(self.grid_min)))
         i = int(np.argmin(sse))
-        if not sse[i] < sse[i0]:
+        drop = (sse[i0] - sse[i]) / problem.sigma[2] ** 2
+        kept = ""
+        if not drop >= self.min_chi2_drop:
+            kept = (f"; the best shift, {self.grid_min[i]:+.1f} min, lowers the lab "
+                    f"chi-square by only {drop:.1f} (needed: {self.min_chi2_drop:.1f}), so none "
+                    f"is applied")
             i = i0
         delta = float(self.grid_min[i])
         pred = problem.prediction(base.Y, delta * 60e9)
@@ -231,7 +248,7 @@ class LabTimeShift(Extension):
         return Fitted(self.cause, {"shift_min": delta}, self.n_params, pred, problem.chi2(pred),
                       f"lab samples were taken {abs(delta):.1f} min {when} than stamped "
                       f"(fit-part lab RMSE {math.sqrt(sse[i0] / len(y)):.4f} -> "
-                      f"{math.sqrt(sse[i] / len(y)):.4f} kg/kg)")
+                      f"{math.sqrt(sse[i] / len(y)):.4f} kg/kg{kept})")
 
 
 class TransferDrift(Extension):
@@ -352,24 +369,35 @@ class InletMoistureEstimate(Extension):
         return U
 
     def fit(self, problem: Problem) -> Fitted:
-        k = problem.split.k_fit
-        best = None
+        return self._choose(problem, self._runs(problem))
+
+    def fit_both(self, problem: Problem) -> tuple[Fitted, Fitted]:
+        """Both folds from one filter run per intensity: the filter never reads a lab
+        result and a run over the whole day holds the fit part of either fold."""
+        runs = self._runs(problem)
+        return self._choose(problem, runs), self._choose(problem.reversed(), runs)
+
+    def _runs(self, problem: Problem) -> list[tuple[float, np.ndarray, Prediction]]:
+        """For every intensity, the estimate over the whole day and the model it drives."""
+        out = []
         for walk in self.walks:
-            ukf = self.estimator(problem, walk)
-            m_fit = self.run(problem, ukf, 0, k)
+            m_hat = self.run(problem, self.estimator(problem, walk), 0,
+                             problem.windows.n_windows)
             try:
-                chi = problem.chi2(problem.predict(self.inputs(problem, m_fit), k_end=k))
+                out.append((walk, m_hat, problem.predict(self.inputs(problem, m_hat))))
             except SoftsensorError:
                 continue
-            if best is None or chi < best[1]:
-                best = (walk, chi, ukf, m_fit)
-        if best is None:
+        if not out:
             raise SoftsensorError("inlet-moisture extension: the model failed for every "
                                   "random-walk intensity tried")
-        walk, chi, ukf, m_fit = best
-        m_hat = np.concatenate([m_fit, self.run(problem, ukf, k, problem.windows.n_windows)])
-        pred = problem.predict(self.inputs(problem, m_hat))
-        return Fitted(self.cause, {"walk_per_sqrt_h": walk}, self.n_params, pred, chi,
+        return out
+
+    def _choose(self, problem: Problem,
+                runs: list[tuple[float, np.ndarray, Prediction]]) -> Fitted:
+        """The intensity whose run fits ``problem``'s fit part best."""
+        walk, m_hat, pred = min(runs, key=lambda r: problem.chi2(r[2]))
+        return Fitted(self.cause, {"walk_per_sqrt_h": walk}, self.n_params, pred,
+                      problem.chi2(pred),
                       f"inlet moisture tracked from the outlet temperatures (random walk "
                       f"{walk:g} kg/kg/sqrt(h)): {m_hat.min():.2f} to {m_hat.max():.2f} kg/kg "
                       f"over the day, mean {m_hat.mean():.2f}",

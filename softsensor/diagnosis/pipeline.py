@@ -7,9 +7,10 @@
    hold lab results);
 2. run the calibrated model on the day (the baseline) and compute the residual statistics of
    every channel (:mod:`.residuals`);
-3. fit every plausible extension of :data:`~.extensions.EXTENSIONS` on the fit part and score
-   it on the held-out part (:mod:`.verdict`); only the costly inlet-moisture filter is skipped
-   when the residuals rule it out (:func:`implausible`);
+3. fit every plausible extension of :data:`~.extensions.EXTENSIONS` on the fit part and,
+   separately, on the held-out part, and score it on the data each fit did not see
+   (:mod:`.verdict`); only the costly inlet-moisture filter is skipped when the residuals
+   rule it out (:func:`implausible`);
 4. name the cause and write the evidence (:mod:`.evidence`).
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
@@ -29,9 +30,16 @@ import numpy as np
 
 from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
 from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted
-from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Problem, choose_split
+from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Prediction, Problem, choose_split
 from softsensor.diagnosis.residuals import channel_stats, lab_stats
-from softsensor.diagnosis.verdict import Score, Verdict, score, structured, verdict
+from softsensor.diagnosis.verdict import (
+    Score,
+    Verdict,
+    cross_fitted,
+    score,
+    structured,
+    verdict,
+)
 from softsensor.diagnosis.windows import DayLike, DayWindows, day_windows
 from softsensor.estimation.settings import estimator_settings
 from softsensor.model import DryerModel
@@ -42,6 +50,13 @@ log = logging.getLogger(__name__)
 
 _M_IN = INPUT_NAMES.index("moisture_in")
 
+#: How the reported RMSEs, costs and gain are held out (REPORT.json ``held_out.method``).
+HELD_OUT_METHOD = (
+    "two-fold cross-fitting: the day is split in two at split_time_ns; every extension is "
+    "fitted once on each part and each part is predicted by the fit on the other, so every "
+    "window and lab result is scored by an extension that was not fitted on it; split_* "
+    "numbers are those of the held-out part of the first fold alone")
+
 
 @dataclass
 class Diagnosis:
@@ -51,6 +66,7 @@ class Diagnosis:
     summary: ResidualSummary
     fitted: dict[str, Fitted]
     scores: dict[str, Score]
+    other_fold: dict[str, Fitted]
     verdict: Verdict
     sigma: np.ndarray
     timings: dict[str, float] = field(default_factory=dict)
@@ -65,6 +81,12 @@ class Diagnosis:
     def winner(self) -> Fitted | None:
         w = self.verdict.winner
         return None if w is None else self.fitted[w.cause]
+
+    def cross_fitted(self, cause: str) -> Prediction:
+        """The extension of ``cause`` as scored: each part of the day predicted by the fold
+        fitted on the other part (:func:`~.verdict.cross_fitted`)."""
+        return cross_fitted(self.problem, self.fitted[cause].prediction,
+                            self.other_fold[cause].prediction)
 
     def to_json(self) -> dict[str, Any]:
         """REPORT.json (CONTRACT section 5) plus the project's extra fields."""
@@ -85,7 +107,10 @@ class Diagnosis:
                     "eligible": bool(sc.eligible), "gain": _num(sc.gain),
                     "penalised_loglik_gain": _num(sc.penalised),
                     "loglik_gain": {k: _num(x) for k, x in sc.loglik.items()},
+                    "split_gain": _num(sc.split_gain),
                     "params": {k: _num(x) for k, x in fitted.params.items()},
+                    "params_other_fold": {k: _num(x) for k, x in
+                                          self.other_fold[cause].params.items()},
                     "channel": fitted.channel})
             ranking.append(entry)
         for cause, reason in self.skipped.items():
@@ -106,12 +131,19 @@ class Diagnosis:
             "extension": None if win is None else {
                 "cause": win.cause, "params": {k: _num(x) for k, x in
                                                self.fitted[win.cause].params.items()},
+                "params_other_fold": {k: _num(x) for k, x in
+                                      self.other_fold[win.cause].params.items()},
                 "description": self.fitted[win.cause].description},
             "held_out": {
+                "method": HELD_OUT_METHOD,
                 "fit_windows": split.k_fit, "held_out_windows": p.windows.n_windows - split.k_fit,
                 "fit_labs": int(split.lab_fit.sum()), "held_out_labs": int(split.lab_held.sum()),
                 "split_time_ns": split.split_ns, "note": split.note,
-                "samples": dict(base.n)},
+                "samples": dict(base.n),
+                "split_baseline_cost": _num(any_score.split_baseline.cost),
+                "split_extended_cost": _num(win.split_extended.cost if win is not None
+                                            else any_score.split_baseline.cost),
+                "split_gain": _num(win.split_gain if win is not None else 0.0)},
             "noise_levels": {k: _num(x) for k, x in zip(OUTPUT_NAMES, self.sigma, strict=True)},
             "structure": v.structure,
             "parameters": {k: _num(x) for k, x in zip(PARAMETER_NAMES, p.theta, strict=True)},
@@ -211,6 +243,7 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
     summary = summarise(problem)
     timings["baseline"] = time.perf_counter() - t0
     fitted: dict[str, Fitted] = {}
+    other_fold: dict[str, Fitted] = {}
     scores: dict[str, Score] = {}
     skipped: dict[str, str] = {}
     for ext in extensions:
@@ -219,13 +252,14 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
             skipped[ext.cause] = reason
             continue
         t1 = time.perf_counter()
-        f = ext.fit(problem)
-        fitted[f.cause] = f
-        scores[f.cause] = score(problem, f)
+        f, b = ext.fit_both(problem)
+        fitted[f.cause], other_fold[f.cause] = f, b
+        scores[f.cause] = score(problem, f, b)
         timings[f.cause] = time.perf_counter() - t1
         log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
                   scores[f.cause].penalised)
     struct = structured(summary.channels, summary.lab, sigma)
     v = verdict(list(scores.values()), struct)
     timings["total"] = time.perf_counter() - t0
-    return Diagnosis(problem, summary, fitted, scores, v, sigma, timings, source, skipped)
+    return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
+                     skipped)

@@ -22,6 +22,7 @@ stamped sample time, [kg/kg]), in :data:`~softsensor.signals.OUTPUT_NAMES` order
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -48,23 +49,46 @@ class Split:
     Attributes
     ----------
     k_fit : int
-        Windows ``[0, k_fit)`` are the fit part, ``[k_fit, K)`` held out.
+        The split: windows ``[0, k_fit)`` form the *early* part, ``[k_fit, K)`` the *late*
+        part. The fit part is the early one, unless ``reverse``.
     split_ns : int
-        End of window ``k_fit - 1``; labs stamped before it belong to the fit part. [ns]
+        End of window ``k_fit - 1``; labs stamped before it belong to the early part. [ns]
     lab_fit : numpy.ndarray of bool, shape (L,)
         Lab results in the fit part.
     note : str
         How the split was chosen (for the report).
+    reverse : bool
+        The fit part is the late part and the early part is held out (the second fold of
+        the cross-fitting in :mod:`.verdict`).
     """
 
     k_fit: int
     split_ns: int
     lab_fit: np.ndarray
     note: str
+    reverse: bool = False
 
     @property
     def lab_held(self) -> np.ndarray:
         return ~self.lab_fit
+
+    @property
+    def fit_windows(self) -> slice:
+        """The fit part's windows."""
+        return slice(self.k_fit, None) if self.reverse else slice(0, self.k_fit)
+
+    @property
+    def held_windows(self) -> slice:
+        """The held-out part's windows."""
+        return slice(0, self.k_fit) if self.reverse else slice(self.k_fit, None)
+
+    def sim_end(self, n_windows: int) -> int:
+        """Windows a model run must cover to reach the end of the fit part."""
+        return n_windows if self.reverse else self.k_fit
+
+    def reversed(self) -> Split:
+        """The other fold: fit on the held-out part, hold out the fit part."""
+        return Split(self.k_fit, self.split_ns, ~self.lab_fit, self.note, not self.reverse)
 
 
 def choose_split(windows: DayWindows, fraction: float = DEFAULT_FIT_FRACTION,
@@ -140,6 +164,15 @@ class Problem:
             self.sigma = np.maximum(self.sigma, np.where(np.isfinite(floor), floor, 0.0))
         self.baseline_chi2 = self.chi2(self.baseline)
 
+    def reversed(self) -> Problem:
+        """The same problem with the other fold (:meth:`Split.reversed`): extensions fitted on
+        it are fitted on the held-out part. The noise levels stay those of this problem's fit
+        part, so that both folds weigh the channels alike."""
+        other = copy.copy(self)
+        other.split = self.split.reversed()
+        other.baseline_chi2 = other.chi2(other.baseline)
+        return other
+
     # ------------------------------------------------------------------ model runs
     def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
                  aux: np.ndarray | None = None, k_end: int | None = None) -> np.ndarray:
@@ -180,8 +213,7 @@ class Problem:
     def chi2_channels(self, pred: Prediction) -> np.ndarray:
         """The fit objective per channel (3,), ``OUTPUT_NAMES`` order."""
         r = self.residuals(pred)
-        k = self.split.k_fit
-        T = r.T[:k] / self.sigma[:2]
+        T = r.T[self.split.fit_windows] / self.sigma[:2]
         lab = r.lab[self.split.lab_fit] / self.sigma[2]
         return np.array([np.nansum(T[:, 0] ** 2), np.nansum(T[:, 1] ** 2), np.sum(lab**2)])
 
@@ -189,22 +221,21 @@ class Problem:
         """Fit-part residuals per channel (NaN windows dropped): two temperature arrays [K]
         and the lab array [kg/kg]."""
         r = self.residuals(pred)
-        k = self.split.k_fit
-        parts = [r.T[:k, 0], r.T[:k, 1], r.lab[self.split.lab_fit]]
+        w = self.split.fit_windows
+        parts = [r.T[w, 0], r.T[w, 1], r.lab[self.split.lab_fit]]
         return [p[np.isfinite(p)] for p in parts]
 
     def held_out_part(self, pred: Prediction) -> list[np.ndarray]:
         """Held-out residuals per channel, as :meth:`fit_part`."""
         r = self.residuals(pred)
-        k = self.split.k_fit
-        parts = [r.T[k:, 0], r.T[k:, 1], r.lab[self.split.lab_held]]
+        w = self.split.held_windows
+        parts = [r.T[w, 0], r.T[w, 1], r.lab[self.split.lab_held]]
         return [p[np.isfinite(p)] for p in parts]
 
     def fit_residual_vector(self, pred: Prediction) -> np.ndarray:
         """The normalised fit-part residuals as one vector (for ``least_squares``)."""
         r = self.residuals(pred)
-        k = self.split.k_fit
-        T = (r.T[:k] / self.sigma[:2]).ravel()
+        T = (r.T[self.split.fit_windows] / self.sigma[:2]).ravel()
         lab = r.lab[self.split.lab_fit] / self.sigma[2]
         return np.concatenate([T[np.isfinite(T)], lab])
 
@@ -220,7 +251,7 @@ def noise_levels(res: Residuals, split: Split, lab_noise: float) -> np.ndarray:
     """
     out = np.empty(len(OUTPUT_NAMES))
     for c in range(2):
-        r = res.T[:split.k_fit, c]
+        r = res.T[split.fit_windows, c]
         d = np.diff(r[np.isfinite(r)])
         s = 1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0) if d.size > 4 else 0.5
         out[c] = max(float(s), MIN_TEMPERATURE_NOISE)

@@ -2,9 +2,10 @@
 
 * ``residuals.png``: baseline residuals of every channel over the day (window means for the
   temperatures, lab results at their stamped sample times), with the winning extension's
-  residuals on top and the fit/held-out split marked;
+  residuals on top and the split marked (the extension as scored: each part of the day
+  predicted by the fit on the other part);
 * ``trajectories.png``: measurements, the calibrated model and the model with the winning
-  extension;
+  extension (as scored);
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
 * ``index.md``: the verdict, the evidence table and the figures (the same page layout as the
@@ -47,7 +48,7 @@ def residual_figure(d: Diagnosis, path: Path) -> Path:
     t_split = t[p.split.k_fit - 1]
     base = p.residuals(p.baseline)
     win = d.winner
-    ext = p.residuals(win.prediction) if win is not None else None
+    ext = p.residuals(d.cross_fitted(win.cause)) if win is not None else None
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
     for c, ax in enumerate(axes[:2]):
         ax.plot(t, base.T[:, c], ".", ms=3, color="tab:red", label="calibrated model")
@@ -63,7 +64,8 @@ def residual_figure(d: Diagnosis, path: Path) -> Path:
     for s in (1, -1):
         axes[2].axhline(s * 2 * d.sigma[2], color="0.6", ls=":", lw=0.8)
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
-        ax.axvline(t_split, color="k", ls="--", lw=1, label="fit | held out")
+        ax.axvline(t_split, color="k", ls="--", lw=1,
+                   label="split (each side scored by the fit on the other)")
         ax.axhline(0.0, color="0.3", lw=0.6)
         ax.set_ylabel(f"{name} residual [{_UNITS[name]}]")
         ax.grid(alpha=0.3)
@@ -79,13 +81,14 @@ def trajectory_figure(d: Diagnosis, path: Path) -> Path:
     w = p.windows
     t = w.hours
     win = d.winner
+    pred = d.cross_fitted(win.cause) if win is not None else None
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
     for c, ax in enumerate(axes[:2]):
         ax.plot(t, w.Y[:, c] - C0, ".", ms=3, color="0.4", label="measured (600 s mean)")
         ax.plot(t, p.baseline.Y[:, c] - C0, "-", lw=1.1, color="tab:red",
                 label="calibrated model")
         if win is not None:
-            ax.plot(t, win.prediction.Y[:, c] - C0, "-", lw=1.1, color="tab:blue",
+            ax.plot(t, pred.Y[:, c] - C0, "-", lw=1.1, color="tab:blue",
                     label=f"with {win.cause} extension")
     t_mid = t - 0.5 * w.window_s / 3600.0
     axes[2].plot(w.lab_hours, w.lab_value, "s", ms=5, color="tab:green",
@@ -93,7 +96,7 @@ def trajectory_figure(d: Diagnosis, path: Path) -> Path:
     axes[2].plot(t_mid, p.baseline.Y[:, 2], "-", lw=1.1, color="tab:red",
                  label="calibrated model")
     if win is not None:
-        axes[2].plot(t_mid, win.prediction.Y[:, 2], "-", lw=1.1, color="tab:blue",
+        axes[2].plot(t_mid, pred.Y[:, 2], "-", lw=1.1, color="tab:blue",
                      label=f"with {win.cause} extension")
     units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": "kg/kg"}
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
@@ -101,8 +104,8 @@ def trajectory_figure(d: Diagnosis, path: Path) -> Path:
         ax.set_ylabel(f"{name} [{units[name]}]")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
-    axes[0].set_title("Trajectories before and after the winning extension "
-                      "(dashed: fit | held out)")
+    axes[0].set_title("Trajectories before and after the winning extension (dashed: the "
+                      "split; each side predicted by the fit on the other)")
     axes[-1].set_xlabel("time from the first scan [h]")
     return _save(fig, path)
 
@@ -115,7 +118,7 @@ def gain_figure(d: Diagnosis, path: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     axes[0].barh(causes, [s.gain for s in sc], color=colors)
     axes[0].axvline(0.0, color="k", lw=0.8)
-    axes[0].set_xlabel("held-out gain = 1 - extended cost / baseline cost")
+    axes[0].set_xlabel("held-out gain = 1 - extended cost / baseline cost (cross-fitted)")
     pen = np.array([s.penalised for s in sc])
     axes[1].barh(causes, np.sign(pen) * np.log10(1.0 + np.abs(pen)), color=colors)
     axes[1].axvline(0.0, color="k", lw=0.8)
@@ -123,7 +126,8 @@ def gain_figure(d: Diagnosis, path: Path) -> Path:
     axes[1].set_yticks([])
     for ax in axes:
         ax.grid(alpha=0.3, axis="x")
-    fig.suptitle(f"Extensions on the held-out part (green: eligible); verdict: {d.cause}")
+    fig.suptitle(f"Extensions scored on data they were not fitted on (green: eligible); "
+                 f"verdict: {d.cause}")
     return _save(fig, path)
 
 
@@ -151,7 +155,8 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
                          for n in OUTPUT_NAMES])
     verdict = (f"**Cause: `{doc['cause']}`**"
                + (f" on `{doc['channel']}`" if doc.get("channel") else "")
-               + f". Held-out cost (paper eq. 4) {doc['baseline_cost']:.4f} -> "
+               + f". Held-out cost (paper eq. 4; each part of the day predicted by the "
+               f"extension fitted on the other part) {doc['baseline_cost']:.4f} -> "
                f"{doc['extended_cost']:.4f}, gain {doc['gain']:+.3f}. "
                f"{doc['held_out']['note']}.")
     if doc.get("extension"):

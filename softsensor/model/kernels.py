@@ -117,6 +117,8 @@ K_D, K_C, K_H, K_K, K_P, K_HM, K_HC = range(7)
 OK, NEWTON_FAILED, BAD_INPUT, STEADY_FAILED = 0, 1, 2, 3
 
 _MAX_NEWTON = 60
+# Halvings of a bracket in the last-resort cell solve (1 kg/kg or 300 K down to 1e-15)
+_BISECTIONS = 60
 #: Theta-scheme weight of tube cells along x (see :func:`space_weight`).
 SPACE_WEIGHT = 0.6
 
@@ -299,6 +301,77 @@ def _newton_cell(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, 
 
 
 @register_jitable
+def _moisture_root(kind, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, m_f, theta,
+                   geo):
+    """Outlet moisture ``X`` with zero fibre-water residual at fibre temperature ``Tf``, by
+    bisection on ``[0, X_in + 1]`` (the residual falls with ``X``: less water leaves and more
+    evaporates); returns ``(found, X)``."""
+    lo = 0.0
+    hi = Xp + 1.0
+    f_lo = _cell_residual(kind, lo, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                          m_f, theta, geo)[0]
+    f_hi = _cell_residual(kind, hi, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                          m_f, theta, geo)[0]
+    if not (f_lo >= 0.0 and f_hi <= 0.0):
+        return False, 0.0
+    for _ in range(_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        f = _cell_residual(kind, mid, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                           m_f, theta, geo)[0]
+        if f >= 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return True, 0.5 * (lo + hi)
+
+
+@register_jitable
+def _bisect_cell(kind, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo):
+    """Nested bisection for a cell's outlet ``(X, T_f)``: the fibre temperature brackets the
+    root of the fibre-energy residual, each trial temperature with its own water-balance
+    moisture (:func:`_moisture_root`).
+
+    The last resort of :func:`solve_profile`. Near the boiling point ``y_sat(T_f)`` climbs
+    steeply and the evaporation with it, so the residual has a near-kink where the Newton's
+    finite-difference Jacobian can fail from every start (seen with ``mult_h`` 1.4,
+    ``mult_D`` 0.7: a fibre entering the third cell at 374.4 K). Both residuals are monotone
+    along the bisections, so this finds the cell's state whenever the bracket holds it.
+    Returns ``(converged, X, T_f)``.
+    """
+    lo = 250.0
+    hi = max(Tap, Tfp, Tw_i) + 1.0
+    ok_lo, x_lo = _moisture_root(kind, lo, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                                 m_f, theta, geo)
+    ok_hi, x_hi = _moisture_root(kind, hi, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                                 m_f, theta, geo)
+    if not (ok_lo and ok_hi):
+        return False, Xp, Tfp
+    g_lo = _cell_residual(kind, x_lo, lo, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                          m_f, theta, geo)[1]
+    g_hi = _cell_residual(kind, x_hi, hi, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                          m_f, theta, geo)[1]
+    if not (g_lo >= 0.0 and g_hi <= 0.0):
+        return False, Xp, Tfp
+    X = x_lo
+    for _ in range(_BISECTIONS):
+        mid = 0.5 * (lo + hi)
+        ok, X = _moisture_root(kind, mid, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                               m_f, theta, geo)
+        if not ok:
+            return False, Xp, Tfp
+        g = _cell_residual(kind, X, mid, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
+                           m_f, theta, geo)[1]
+        if g >= 0.0:
+            lo = mid
+        else:
+            hi = mid
+    Tf = 0.5 * (lo + hi)
+    ok, X = _moisture_root(kind, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, m_f,
+                           theta, geo)
+    return ok, X, Tf
+
+
+@register_jitable
 def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, warm=False):
     """Steady fibre/air profile through tube and cyclone for given wall temperatures.
 
@@ -331,9 +404,17 @@ def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, warm=False
         if not converged:
             converged, X, Tf = _newton_cell(kind, Xp, Tfp, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i,
                                             UAw, v_s, m_a, m_f, theta, geo)
-        if not converged:  # last resort: the fibre heated to the incoming air temperature
+        if not converged:  # the fibre heated to the incoming air temperature
             converged, X, Tf = _newton_cell(kind, Xp, min(Tap, 372.0), Xp, Tfp, Yp, Tap, Efp,
                                             Etot, Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+        if not converged:  # last resort: bracketing, then a Newton polish from there
+            converged, X, Tf = _bisect_cell(kind, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw,
+                                            v_s, m_a, m_f, theta, geo)
+            if converged:
+                polished, Xn, Tn = _newton_cell(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot,
+                                                Tw_i, UAw, v_s, m_a, m_f, theta, geo)
+                if polished:
+                    X, Tf = Xn, Tn
         if not converged:
             return NEWTON_FAILED
         _, _, Y, Ta, hf, Tam = _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i,
