@@ -12,10 +12,13 @@
 
 The plant's true parameters are the config's (``--truth config``) or a set away from them
 (``--truth shifted``, the calibration benchmark's), so that the calibration has to find them.
-Prints one JSON document; the load average is included because the machine is shared.
+``--cases-with truth`` diagnoses the accuracy cases with the plant's true parameters instead
+(the per-cause tests' setting: what the diagnosis does when the model is right, apart from
+the hidden effect). Prints one JSON document; the load average is included because the
+machine is shared.
 
     python benchmarks/diagnose.py [--hours 48] [--trials 40] [--cases 14] [--case-hours 30]
-                                  [--truth shifted] [--seed 0]
+                                  [--truth shifted] [--cases-with calibrated] [--seed 0]
 """
 
 from __future__ import annotations
@@ -57,6 +60,8 @@ def main() -> None:
     ap.add_argument("--cases", type=int, default=14, help="randomised accuracy cases")
     ap.add_argument("--case-hours", type=float, default=30.0, help="length of a case [h]")
     ap.add_argument("--truth", choices=("config", "shifted"), default="shifted")
+    ap.add_argument("--cases-with", choices=("calibrated", "truth"), default="calibrated",
+                    help="parameters the accuracy cases are diagnosed with")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args()
 
@@ -90,6 +95,9 @@ def main() -> None:
         "calibrated_params": rep["calibration"]["params"],
         "calibration_rmse": cal_rmse,
     })
+    if args.cases_with == "truth":
+        cal_cfg, cal_rmse = plant, None
+    out["cases_with"] = args.cases_with
     cases = []
     t1 = time.perf_counter()
     for i in range(args.cases):
@@ -109,6 +117,8 @@ def main() -> None:
         "missed": sum(c["cause"] != "none" and c["named"] == "none" for c in cases),
         "positive_gain_share": (sum(c["gain"] > 0 for c in cases if c["cause"] != "none")
                                 / max(sum(c["cause"] != "none" for c in cases), 1)),
+        "smallest_gain_named_right": min([c["gain"] for c in cases
+                                          if c["right"] and c["cause"] != "none"], default=None),
         "seconds_per_case": round((time.perf_counter() - t1) / max(len(cases), 1), 1),
         "load_average": list(os.getloadavg()),
     })

@@ -12,9 +12,13 @@ the whole ``softsensor diagnose --calibrate-on`` command; the ``slow`` case cali
 a clean day of a plant whose true parameters are away from the config's and diagnoses 24 days
 across all causes.
 
-Measured on fresh seeds (``/tmp``-free: ``SOFTSENSOR_DIAG_SEED=<n> pytest ...`` replays any
-of them), 72 h days, true parameters: see the closing note of issue 6 and the README's
-"Diagnosis" section for the counts.
+Measured on fresh seeds (the per-cause setting, 72 h, true parameters; 96 days, 13 or 14 per
+case): 95 named right, every hidden effect among them with a positive held-out gain
+(smallest 0.20). The one failure, an ambient heat loss called ``unexplained`` (gain
+-0.07), is the lab noise: the extension predicts the true outlet moisture better than the
+model without it (0.0019 against 0.0024 kg/kg RMS at the sample times) but the day's 22 lab
+results read 0.0015 kg/kg low on average, a 2.3-sigma draw, and eq. 4 is mostly the lab
+RMSE. At that rate about one run in fifteen of the seven effect cases meets such a day.
 """
 
 from __future__ import annotations
@@ -156,7 +160,15 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
 def test_randomised_days_are_named_correctly(cfg, tmp_path):
     """24 random days (3 per cause, 6 clean) of a plant with shifted true parameters, one
     calibration (40 trials and the polish) on a clean 48 h day of it: at least 90 % named
-    right and at most one false alarm (a clean day given a cause)."""
+    right and at most one false alarm (a clean day given a cause).
+
+    The calibration's draw matters: none of the seven parameters is pinned to 15 % by one day
+    (issue 4), and a calibration that fits its day to the noise but extrapolates badly (base
+    seed 4242: ``mult_h`` 0.48 for 1.4, ``hc_cyc`` 115 for 50) makes an error on other days
+    that depends on the ambient conditions, which the extensions then explain (16 of 24
+    right, 3 false alarms; bases 221017, 31337 and 20261121: 22, 23 and 24 right, at most
+    one false alarm).
+    """
     from softsensor.calibration.dataset import segment_from_day
     from softsensor.calibration.optimize import StudySettings
     from softsensor.calibration.pipeline import calibrate
