@@ -5,8 +5,10 @@ Everything an extension fit or a score needs sits in one :class:`Problem`:
 * the calibrated model (``DryerModel`` of the calibrated config) and its parameters ``theta``;
 * the day as model windows (:mod:`.windows`);
 * the held-out :class:`Split`: windows ``[0, k_fit)`` and the labs sampled before
-  ``split_ns`` are the *fit part*, the rest is *held out*. Extensions are fitted on the fit part
-  only; every RMSE, cost and gain in the report is measured on the held-out part;
+  ``split_ns`` are the *fit part*, the rest is *held out*; :meth:`Problem.reversed` is the
+  other fold (fit on the late part, hold out the early one). An extension fit sees its fit
+  part only; every RMSE, cost and gain in the report is measured on data the fit producing it
+  did not see (:func:`~.verdict.cross_fitted`);
 * the noise level of each channel: :func:`noise_levels`, raised to ``sigma_floor`` when given
   (the calibrated model's RMSE on its calibration data: a model does not fit a new day better
   than the day it was calibrated on, and the floor keeps calibration error from passing for a
