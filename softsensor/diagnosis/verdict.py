@@ -51,7 +51,7 @@ An extension is *eligible* (:func:`verdict`) when
    calibrated model's error on another day can be absorbed in part by several extensions at
    once (a sensor offset, a drift and an ambient heat loss all eligible by rules 1 to 4 on
    the same clean day), and those buy little or nothing under eq. 4. On 48 calibrated 30 h
-   days (two calibrations, 12 of them clean) this rule removed two of three false alarms
+   days (two calibrations, 12 of them clean) this rule removed one of two false alarms
    and one wrong name and cost no right one; on 72 h days with the true parameters the
    hidden causes gained at least 0.03.
 
