@@ -163,3 +163,26 @@ def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
             sub.close()
     assert [(m.kind, m.time_ns) for m in got] == [(k, t) for k, t, _ in sent]
     assert sub.n_errors == 0 and sub.n_received == len(sent)
+
+
+def test_a_failing_advance_is_counted_and_the_worker_goes_on():
+    """advance() has no caller waiting on it: its failure is counted and logged, and the
+    next call is still served."""
+    from softsensor.service.pipeline import ServicePipeline
+
+    class Failing:
+        calls = 0
+
+        def advance(self, now_ns):
+            Failing.calls += 1
+            raise RuntimeError("estimator broke")
+
+    with open_session(port=None) as session:
+        pipe = ServicePipeline(session, Failing())  # type: ignore[arg-type]
+        try:
+            pipe.advance(1)
+            pipe.advance(2)
+            pipe.sync(timeout=10.0)
+            assert Failing.calls == 2 and pipe.n_errors == 2 and pipe.n_out == 0
+        finally:
+            pipe.close()

@@ -386,6 +386,10 @@ def test_restore_refuses_a_foreign_checkpoint():
     snap["state"]["x"] = [1.0, 0.0]
     with pytest.raises(EstimationError, match="shapes"):
         est.restore(snap)
+    snap = make().checkpoint()
+    snap["hold"] = snap["hold"][:-1]  # a checkpoint of a model with one input fewer
+    with pytest.raises(EstimationError, match=r"hold\(7,\)"):
+        est.restore(snap)
 
 
 # ---------------------------------------------------------------------------------- settings

@@ -280,9 +280,11 @@ class UkfEstimator:
         except (KeyError, TypeError, ValueError) as exc:
             raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
         n = len(STATE_NAMES)
-        if state.x.shape != (n,) or state.P.shape != (n, n) or hold.shape != (8,):
+        m = len(INPUT_NAMES)
+        if state.x.shape != (n,) or state.P.shape != (n, n) or hold.shape != (m,):
             raise EstimationError(f"checkpoint state has shapes x{state.x.shape} "
-                                  f"P{state.P.shape}, expected ({n},) and ({n}, {n})")
+                                  f"P{state.P.shape} hold{hold.shape}, expected ({n},), "
+                                  f"({n}, {n}) and ({m},)")
         self._state, self._history, self._labs = state, history, labs
         self._hold = InputHold(hold)
         self._dirty = None if dirty is None else int(dirty)

@@ -155,8 +155,18 @@ class ServicePipeline:
         return c.result
 
     def advance(self, now_ns: int) -> None:
-        """Queue a passage of time to ``now_ns`` [ns] (closes windows of a silent PLC)."""
-        self._q.put(_Call(lambda: self._publish(self.service.advance(now_ns))))
+        """Queue a passage of time to ``now_ns`` [ns] (closes windows of a silent PLC).
+
+        Nobody waits on this call, so a failure is counted and logged here, as for a message.
+        """
+        def run() -> None:
+            try:
+                self._publish(self.service.advance(now_ns))
+            except Exception:  # noqa: BLE001 - one bad tick must not stop the service
+                self.n_errors += 1
+                log.exception("advancing the estimator to %d failed", now_ns)
+
+        self._q.put(_Call(run))
 
     def sync(self, timeout: float = 60.0) -> None:
         """Wait until every message queued so far has been processed."""
