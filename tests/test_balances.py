@@ -26,11 +26,6 @@ POINTS = {
 }
 
 
-@pytest.fixture(scope="module")
-def model():
-    return DryerModel()
-
-
 def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
     state, _ = model.steady_state(u, theta, aux)
     p = model.profiles(state, u, theta)

@@ -11,18 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softsensor.model import DryerModel, parameter_index
+from softsensor.model import parameter_index
 
 POINTS = {
     "nominal": {},
     "cold_high_production": {"T_air_in": 460.0, "m_fiber": 7.0, "T_amb": 265.0},
 }
 T_DRY, T_CYC, MOIST = 0, 1, 2
-
-
-@pytest.fixture(scope="module")
-def model():
-    return DryerModel()
 
 
 @pytest.fixture(scope="module", params=sorted(POINTS))

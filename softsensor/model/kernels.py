@@ -352,7 +352,6 @@ def _bisect_cell(kind, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, m_f, th
                           m_f, theta, geo)[1]
     if not (g_lo >= 0.0 and g_hi <= 0.0):
         return False, Xp, Tfp
-    X = x_lo
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
         ok, X = _moisture_root(kind, mid, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a,
