@@ -54,7 +54,8 @@ def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--save-params", default=None, metavar="PARAMS.toml",
                    help="also write the parameters calibrated on CAL here")
     p.add_argument("--fit-fraction", type=float, default=None,
-                   help="share of DAY the extensions are fitted on (default 0.6)")
+                   help="share of DAY in the first part of the split (default 0.6, "
+                        "problem.DEFAULT_FIT_FRACTION)")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
 
 

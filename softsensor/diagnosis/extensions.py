@@ -44,14 +44,14 @@ import logging
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from softsensor.diagnosis.problem import Prediction, Problem
-from softsensor.diagnosis.windows import DayWindows, lab_model_values
+from softsensor.diagnosis.windows import DayWindows, lab_sse_by_shift
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.base import Window
 from softsensor.estimation.settings import estimator_settings
@@ -96,7 +96,6 @@ class Fitted:
     fit_chi2: float
     description: str
     channel: str | None = None
-    extra: dict[str, object] = field(default_factory=dict)
 
 
 @contextlib.contextmanager
@@ -227,12 +226,8 @@ class LabTimeShift(Extension):
             pred = base
             return Fitted(self.cause, {"shift_min": 0.0}, self.n_params, pred,
                           problem.chi2(pred), "no lab result in the fit part: shift not fitted")
-        w = problem.windows
-        ts = w.lab_time_ns[fit].astype(float)
-        y = w.lab_value[fit]
-        shifts = self.grid_min * 60e9
-        sse = np.array([np.sum((y - lab_model_values(w.end_ns, base.Y[:, 2], w.window_s,
-                                                      ts + s)) ** 2) for s in shifts])
+        sse = lab_sse_by_shift(problem.windows, base.Y[:, 2], self.grid_min, fit)
+        n_labs = int(fit.sum())
         i0 = int(np.argmin(np.abs(self.grid_min)))
         i = int(np.argmin(sse))
         drop = (sse[i0] - sse[i]) / problem.sigma[2] ** 2
@@ -247,8 +242,8 @@ class LabTimeShift(Extension):
         when = "later" if delta > 0 else "earlier"
         return Fitted(self.cause, {"shift_min": delta}, self.n_params, pred, problem.chi2(pred),
                       f"lab samples were taken {abs(delta):.1f} min {when} than stamped "
-                      f"(fit-part lab RMSE {math.sqrt(sse[i0] / len(y)):.4f} -> "
-                      f"{math.sqrt(sse[i] / len(y)):.4f} kg/kg{kept})")
+                      f"(fit-part lab RMSE {math.sqrt(sse[i0] / n_labs):.4f} -> "
+                      f"{math.sqrt(sse[i] / n_labs):.4f} kg/kg{kept})")
 
 
 class TransferDrift(Extension):
@@ -400,8 +395,7 @@ class InletMoistureEstimate(Extension):
                       problem.chi2(pred),
                       f"inlet moisture tracked from the outlet temperatures (random walk "
                       f"{walk:g} kg/kg/sqrt(h)): {m_hat.min():.2f} to {m_hat.max():.2f} kg/kg "
-                      f"over the day, mean {m_hat.mean():.2f}",
-                      extra={"moisture_in": m_hat})
+                      f"over the day, mean {m_hat.mean():.2f}")
 
 
 #: One extension per injectable cause, in CONTRACT order.

@@ -126,7 +126,7 @@ class Diagnosis:
             "extended_rmse": {k: _num(x) for k, x in ext.rmse.items()},
             "baseline_cost": _num(base.cost),
             "extended_cost": _num(ext.cost),
-            "gain": _num(1.0 - ext.cost / base.cost if base.cost > 0 else 0.0),
+            "gain": _num(win.gain if win is not None else 0.0),
             "day": self.source,
             "extension": None if win is None else {
                 "cause": win.cause, "params": {k: _num(x) for k, x in
@@ -225,7 +225,7 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
         The day to diagnose (``scans`` and ``labs``; ground truth is never read).
     calibration_rmse : dict, optional
         Per-channel RMSE of the calibrated model on its calibration data (``[fit] rmse`` of a
-        PARAMS.toml): a floor under each channel's noise level (:mod:`.verdict`).
+        PARAMS.toml): a floor under each channel's noise level (:mod:`.problem`).
     fit_fraction : float
         Share of the windows the extensions are fitted on.
     """

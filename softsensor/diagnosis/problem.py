@@ -155,7 +155,6 @@ class Problem:
     sigma_floor: np.ndarray | None = None
     sigma: np.ndarray = field(init=False)
     baseline: Prediction = field(init=False)
-    baseline_chi2: float = field(init=False)
 
     def __post_init__(self) -> None:
         self.theta = np.asarray(self.theta, float)
@@ -164,7 +163,6 @@ class Problem:
         if self.sigma_floor is not None:
             floor = np.asarray(self.sigma_floor, float)
             self.sigma = np.maximum(self.sigma, np.where(np.isfinite(floor), floor, 0.0))
-        self.baseline_chi2 = self.chi2(self.baseline)
 
     def reversed(self) -> Problem:
         """The same problem with the other fold (:meth:`Split.reversed`): extensions fitted on
@@ -172,7 +170,6 @@ class Problem:
         part, so that both folds weigh the channels alike."""
         other = copy.copy(self)
         other.split = self.split.reversed()
-        other.baseline_chi2 = other.chi2(other.baseline)
         return other
 
     # ------------------------------------------------------------------ model runs

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import stats
 
 from softsensor.calibration.identifiability import lag1_autocorrelation as lag1
-from softsensor.diagnosis.windows import DayWindows, lab_model_values
+from softsensor.diagnosis.windows import DayWindows, lab_model_values, lab_sse_by_shift
 from softsensor.signals import INPUT_NAMES
 
 #: Lags of the Ljung-Box test.
@@ -95,7 +95,6 @@ class LabStats:
     corr_model_rate: float
     best_shift_min: float
     rmse_at_best_shift: float
-    rmse_by_shift: np.ndarray
 
 
 def effective_n(n: int, rho1: float) -> float:
@@ -210,21 +209,18 @@ def channel_stats(name: str, r: np.ndarray, windows: DayWindows, noise: float
 
 
 def lab_stats(r: np.ndarray, windows: DayWindows, y_model: np.ndarray) -> LabStats:
-    """Statistics of the lab residuals ``r`` (L,) given the model's outlet moisture
-    ``y_model`` (K,) of every window."""
+    """Statistics of the lab residuals ``r`` (L,) of the model's outlet moisture ``y_model``
+    (K,) of every window at the stamped sample times."""
     n = int(r.size)
     if n == 0:
-        return LabStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.zeros(0))
+        return LabStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     t = windows.lab_time_ns.astype(float)
     slope = _slope(windows.lab_hours, r, n)[0] if n >= 3 else 0.0
     rate = np.gradient(y_model, windows.window_s / 3600.0)  # kg/kg per h
     rate_at = lab_model_values(windows.end_ns, rate, windows.window_s, t)
     corr = (float(np.corrcoef(r, rate_at)[0, 1])
             if n >= 3 and np.std(r) > 0 and np.std(rate_at) > 0 else 0.0)
-    measured = r + lab_model_values(windows.end_ns, y_model, windows.window_s, t)
-    rmse = np.array([np.sqrt(np.mean((measured - lab_model_values(
-        windows.end_ns, y_model, windows.window_s, t + s * 60e9)) ** 2))
-        for s in LAB_SHIFTS_MIN])
+    rmse = np.sqrt(lab_sse_by_shift(windows, y_model, LAB_SHIFTS_MIN) / n)
     i = int(np.argmin(rmse))
     return LabStats(n, float(r.mean()), float(np.sqrt(np.mean(r**2))), slope, corr,
-                    float(LAB_SHIFTS_MIN[i]), float(rmse[i]), rmse)
+                    float(LAB_SHIFTS_MIN[i]), float(rmse[i]))

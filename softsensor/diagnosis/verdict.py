@@ -13,16 +13,18 @@ the held-out part (the second fold). :func:`score` measures, with each channel's
   on 48 h virtual-plant days the first fold's held-out part alone gave a negative gain on
   about one day in ten for an ambient heat loss or an input lag whose moisture signature
   (0.001 to 0.003 kg/kg) is below the lab noise;
-* on the held-out part of the first fold, which decides the verdict: per channel the
-  Gaussian log-likelihood gain ``dL_c = (SSE_base,c - SSE_ext,c) / (2 s_c^2)``;
+* on the held-out part of the first fold (rules 2 and 3 below, the ranking and half of the
+  significance test): per channel the Gaussian log-likelihood gain
+  ``dL_c = (SSE_base,c - SSE_ext,c) / (2 s_c^2)``;
 * the penalised held-out gain ``P = sum_c dL_c - k`` for ``k`` fitted parameters (Akaike's
   criterion on held-out data, ``P = -(AIC_ext - AIC_base) / 2``), which ranks the extensions;
 * significance: the likelihood-ratio statistic of the fit part plus twice the held-out
   ``dL``, compared with chi-square with ``k`` degrees of freedom (the fit-part statistic is
   the weighted least-squares drop of the fit; the held-out part adds what the extension
   predicts on data it never saw, and subtracts when it predicts worse);
-* size, over the whole day: the largest relative reduction of a channel's RMSE, and the
-  largest root-mean-square part of a channel's residual the extension explains,
+* size (rule 4), over the whole day with the first fold's fit, its fit part included: the
+  largest relative reduction of a channel's RMSE, and the largest root-mean-square part of a
+  channel's residual the extension explains,
   ``sqrt((SSE_base - SSE_ext) / n) / s_c`` noise levels.
 
 The temperature channels' log-likelihoods are discounted by ``n_eff / n`` of the residuals
@@ -64,12 +66,12 @@ the eligible extensions and the unextended model (``P = 0``); an ineligible exte
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
-from softsensor.calibration.cost import fit_from_residuals
+from softsensor.calibration.cost import Fit, fit_from_residuals
 from softsensor.diagnosis.extensions import Fitted
 from softsensor.diagnosis.problem import Prediction, Problem
 from softsensor.diagnosis.residuals import ChannelStats, LabStats, lag1
@@ -111,15 +113,6 @@ MIN_LABS_STRUCTURE = 4
 
 
 @dataclass(frozen=True)
-class HeldOut:
-    """Held-out RMSE per channel and eq. 4 cost of one prediction."""
-
-    n: dict[str, int]
-    rmse: dict[str, float]
-    cost: float
-
-
-@dataclass(frozen=True)
 class Score:
     """An extension scored on the fit part and the held-out part (module docstring).
 
@@ -131,11 +124,11 @@ class Score:
     cause: str
     channel: str | None
     n_params: int
-    baseline: HeldOut
-    extended: HeldOut
+    baseline: Fit
+    extended: Fit
     gain: float
-    split_baseline: HeldOut
-    split_extended: HeldOut
+    split_baseline: Fit
+    split_extended: Fit
     split_gain: float
     loglik: dict[str, float]
     penalised: float
@@ -144,8 +137,6 @@ class Score:
     p_value: float
     relative: dict[str, float]
     explained: dict[str, float]
-    cv_relative: dict[str, float] = field(default_factory=dict)
-    cv_explained: dict[str, float] = field(default_factory=dict)
 
     @property
     def best_explained(self) -> float:
@@ -217,15 +208,14 @@ def _any_reaches(per_channel: dict[str, float], limits: tuple[float, ...]) -> bo
                for n, lim in zip(OUTPUT_NAMES, limits, strict=True))
 
 
-def held_out(problem: Problem, pred: Prediction) -> tuple[HeldOut, list[np.ndarray]]:
+def held_out(problem: Problem, pred: Prediction) -> tuple[Fit, list[np.ndarray]]:
     """Held-out RMSE per channel and eq. 4 cost of ``pred``; also the residual arrays."""
     parts = problem.held_out_part(pred)
     return _eq4(problem, parts), parts
 
 
-def _eq4(problem: Problem, parts: list[np.ndarray]) -> HeldOut:
-    fit = fit_from_residuals([[p[None] for p in parts]], problem.config.cost.weights())[0]
-    return HeldOut(dict(fit.n), dict(fit.rmse), float(fit.cost))
+def _eq4(problem: Problem, parts: list[np.ndarray]) -> Fit:
+    return fit_from_residuals([[p[None] for p in parts]], problem.config.cost.weights())[0]
 
 
 def cross_fitted(problem: Problem, forward: Prediction, backward: Prediction) -> Prediction:
@@ -239,7 +229,7 @@ def cross_fitted(problem: Problem, forward: Prediction, backward: Prediction) ->
     return Prediction(Y, lab)
 
 
-def whole_day(problem: Problem, pred: Prediction) -> HeldOut:
+def whole_day(problem: Problem, pred: Prediction) -> Fit:
     """RMSE per channel and eq. 4 cost over every window and lab result of the day."""
     return _eq4(problem, _day_parts(problem, pred))
 
@@ -271,7 +261,7 @@ def _loglik(base: list[np.ndarray], ext: list[np.ndarray], sigma: np.ndarray) ->
     return out
 
 
-def _gain(base: HeldOut, ext: HeldOut) -> float:
+def _gain(base: Fit, ext: Fit) -> float:
     return 1.0 - ext.cost / base.cost if base.cost > 0 else 0.0
 
 
@@ -303,12 +293,10 @@ def score(problem: Problem, fitted: Fitted, other_fold: Fitted | None = None) ->
     fb, fe = problem.fit_part(problem.baseline), problem.fit_part(fitted.prediction)
     relative, explained = _size([np.concatenate(x) for x in zip(fb, rb, strict=True)],
                                 [np.concatenate(x) for x in zip(fe, re, strict=True)], sigma)
-    cv_relative, cv_explained = (relative, explained) if cv_pred is None else _size(
-        _day_parts(problem, problem.baseline), _day_parts(problem, cv_pred), sigma)
     return Score(fitted.cause, fitted.channel, fitted.n_params, cv_base, cv_ext,
                  _gain(cv_base, cv_ext), base, ext, _gain(base, ext), loglik,
                  float(ll.sum() - fitted.n_params), worse, float(lr), p_value, relative,
-                 explained, cv_relative, cv_explained)
+                 explained)
 
 
 def _size(base: list[np.ndarray], ext: list[np.ndarray],

@@ -215,3 +215,17 @@ def lab_model_values(end_ns: np.ndarray, y_model: np.ndarray, window_s: float,
     """
     centres = np.asarray(end_ns, float) - 0.5 * window_s * 1e9
     return np.interp(np.asarray(sample_time_ns, float), centres, y_model)
+
+
+def lab_sse_by_shift(windows: DayWindows, y_model: np.ndarray, shifts_min: np.ndarray,
+                     mask: np.ndarray | None = None) -> np.ndarray:
+    """Sum of squared lab residuals [(kg/kg)^2] for every sample-time shift [min].
+
+    The model's outlet moisture ``y_model`` (K,) is looked up (:func:`lab_model_values`) at the
+    stamped sample times moved by each shift; ``mask`` selects the lab results (default all).
+    """
+    keep = np.ones(windows.lab_value.size, bool) if mask is None else np.asarray(mask, bool)
+    ts = windows.lab_time_ns[keep].astype(float)
+    y = windows.lab_value[keep]
+    return np.array([np.sum((y - lab_model_values(windows.end_ns, y_model, windows.window_s,
+                                                  ts + s * 60e9)) ** 2) for s in shifts_min])
