@@ -36,14 +36,14 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import IngestError
+from softsensor.estimation.window_inputs import MEASURED_INPUTS
+from softsensor.estimation.windowing import NS
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import RecordedDay, read_day
-from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 
-#: Inputs read from the scans (every model input except the unmeasured ``moisture_in``).
-MEASURED_INPUTS: tuple[str, ...] = tuple(n for n in INPUT_NAMES if n != "moisture_in")
 #: Output channels measured on every scan (the third, ``moisture_out``, comes from the lab).
-SCANNED_OUTPUTS: tuple[str, ...] = OUTPUT_NAMES[:2]
+SCANNED_OUTPUTS: tuple[str, ...] = KELVIN_CHANNELS
 #: A window's mean is used only when at least this share of its nominal scans is good.
 MIN_GOOD_SHARE = 0.5
 #: Nominal PLC scan period [s] (CONTRACT section 1).
@@ -52,7 +52,6 @@ SCAN_PERIOD = 10.0
 LAB_SPAN = 120.0
 #: Good scans of a signal needed in that span; fewer: the window mean is used.
 LAB_MIN_SCANS = 3
-NS = 1_000_000_000
 
 
 @dataclass(frozen=True)
