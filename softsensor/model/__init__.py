@@ -4,6 +4,10 @@ No I/O here. :class:`DryerModel` is the front door; :mod:`kernels` holds the com
 balances, :mod:`mol` the full transient method of lines used as a reference.
 """
 
-from softsensor.model.dryer import DryerModel, parameter_index
+from softsensor.jit_cache import configure as _configure_jit_cache
+
+_configure_jit_cache()  # before the kernels are compiled or loaded from the cache
+
+from softsensor.model.dryer import DryerModel, parameter_index  # noqa: E402
 
 __all__ = ["DryerModel", "parameter_index"]

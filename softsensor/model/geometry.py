@@ -18,7 +18,8 @@ from softsensor.plantconfig import PlantConfig
 P, DX, D, D_OUT, A_FLOW, C_W_CELL, G_COND, S_SPEC, D_FIB, D_P, RHO_FIB = range(11)
 X_FSP, X_CR, W_CR, ALPHA_B, W_EQ, T_HOT, Y_HOT, WIND, EMISS = range(11, 20)
 V_C_CELL, A_SH_CELL, C_SH_CELL, H_IN_CYC, D_CYC, N_D, N_C = range(20, 27)
-N_GEO = 27
+TAU_HOLD, R_WALL_IN, R_WALL_OUT, D_MEAN = range(27, 31)
+N_GEO = 31
 
 #: Indices into the auxiliary (model-extension) array: ``BETA_AMB`` [1/K] makes the outside
 #: heat-loss coefficients grow by ``1 + BETA_AMB (T_AMB_REF - T_amb)`` (diagnosis extension).
@@ -84,4 +85,11 @@ def geometry(cfg: PlantConfig, n_d: int | None = None) -> Geometry:
     g[D_CYC] = c.diameter
     g[N_D] = n_d
     g[N_C] = c.n_cells
+    g[TAU_HOLD] = c.hold_up_time
+    # conduction resistance [m2 K/W] from the wall node (mid-steel) to either surface: the
+    # inner side crosses the fibre deposit too
+    g[R_WALL_IN] = (t.deposit_thickness / t.deposit_conductivity
+                    + 0.5 * t.wall_thickness / t.wall_conductivity)
+    g[R_WALL_OUT] = 0.5 * t.wall_thickness / t.wall_conductivity
+    g[D_MEAN] = t.diameter + t.wall_thickness
     return Geometry(n_d=n_d, n_c=c.n_cells, packed=g)

@@ -160,7 +160,7 @@ class MethodOfLines:
         for i in range(n):
             kind = 0 if i < n_d else 1
             w = kernels.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
-            v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, geo)
+            v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, theta, geo)
             Tf_m = w * Tf[i] + (1.0 - w) * Tf_in
             Ta_m = w * Ta[i] + (1.0 - w) * Ta_in
             R, Q, M_f, M_a = kernels.cell_rates(kind, w * X[i] + (1.0 - w) * X_in, Tf_m,
@@ -176,7 +176,7 @@ class MethodOfLines:
             dha = (m_a * (h_a_in - h_a) - Q - Q_w + R * h_v) / M_a
             dTf[i] = (dhf - _dh_f_dX(X[i], Tf[i], x_fsp) * dX[i]) / wd.heat_capacity(
                 X[i], Tf[i], x_fsp)
-            dTa[i] = (dha - ha.vapour_enthalpy(Ta[i]) * dY[i]) / ha.heat_capacity(Y[i])
+            dTa[i] = (dha - ha.vapour_enthalpy(Ta[i]) * dY[i]) / ha.heat_capacity(Ta[i], Y[i])
             U_out = kernels.outside_conductance(Tw[i], u, theta, aux, geo, kind)
             wall = Q_w - U_out * (Tw[i] - T_amb)
             if kind == 0:

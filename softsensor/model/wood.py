@@ -9,7 +9,11 @@ Choices where the paper is silent
 * Heat capacity: Wood Handbook (FPL-GTR-190, 2010) ch. 4 eqs. 4-18 and 4-19, after
   Dietenberger's compilation: ``c0 = 103.1 + 3.867 T`` [J/(kg K)] for dry wood, liquid water
   added per kg, plus the wood-water bond adjustment ``A_c = M (b1 + b2 T + b3 M)`` with ``M``
-  in percent, capped at the fibre saturation point.
+  in percent. The handbook's eq. 4-18 holds below the fibre saturation point; above it the
+  wood at saturation (its bound water with the bond adjustment) carries the free water as
+  plain liquid, so the adjustment, per kg of moist wood at saturation, is multiplied by
+  ``1 + min(X, X_fsp)`` and not by ``1 + X`` (which made wet fibre 5 to 6 % too heavy a heat
+  sink).
 * Bound water: differential heat of sorption ``q = 0.4 h_fg0 (1 - X / X_fsp)^2`` below the
   fibre saturation point (Stanish, Schajer & Kayihan 1986). It enters the enthalpy as
   ``-Q_s(X)``, the integral of ``q``, so removing bound water costs ``h_fg + q`` without a
@@ -20,8 +24,9 @@ Choices where the paper is silent
 * The paper's double-sigmoid reduction ``alpha(H_f)`` (after Pang 2001) is written as the
   product of two smooth factors: a logistic step from free water (1) to ``bound_fraction``
   around the critical moisture (spruce MDF fibre: constant rate down to ~1.25 kg/kg, Fritzell
-  et al. 2009), and a tanh ramp that falls to 0 at the equilibrium moisture ``X_eq`` of the
-  surrounding air, so fibre never dries below equilibrium.
+  et al. 2009), and a tanh ramp that passes through 0 at the equilibrium moisture ``X_eq`` of
+  the surrounding air. The ramp is signed: fibre drier than equilibrium re-adsorbs vapour
+  (``alpha < 0``), as over-dried fibre does in humid air.
 """
 
 from __future__ import annotations
@@ -36,15 +41,17 @@ _B1, _B2, _B3 = -0.06191e3, 2.36e-4 * 1e3, -1.33e-4 * 1e3
 
 
 @register_jitable
-def _bond_cap(X, X_fsp):
-    return 100.0 * np.minimum(np.maximum(X, 0.0), X_fsp)
+def _bound(X, X_fsp):
+    """Bound water ``min(max(X, 0), X_fsp)`` [kg/kg]."""
+    return np.minimum(np.maximum(X, 0.0), X_fsp)
 
 
 @register_jitable
 def heat_capacity(X, T, X_fsp):
     """Moist-fibre heat capacity ``c_f`` [J/(kg dry fibre K)].
 
-    Wood Handbook ch. 4 eqs. 4-18/4-19 (Dietenberger): ``c0 + X c_w + (1 + X) A_c``.
+    Wood Handbook ch. 4 eqs. 4-18/4-19 (Dietenberger): ``c0 + X c_w + (1 + X_b) A_c(X_b)``
+    with ``X_b = min(X, X_fsp)`` the bound water (module notes).
 
     Parameters
     ----------
@@ -55,9 +62,10 @@ def heat_capacity(X, T, X_fsp):
     X_fsp : float
         Fibre saturation point [kg/kg].
     """
-    M = _bond_cap(X, X_fsp)
+    Xb = _bound(X, X_fsp)
+    M = 100.0 * Xb
     A_c = M * (_B1 + _B2 * T + _B3 * M)
-    return 103.1 + 3.867 * T + X * C_W + (1.0 + X) * A_c
+    return 103.1 + 3.867 * T + X * C_W + (1.0 + Xb) * A_c
 
 
 @register_jitable
@@ -81,11 +89,12 @@ def enthalpy(X, T, X_fsp):
     ``h_f = int_T0^T c_f dT - Q_s(X)``: the temperature integral of :func:`heat_capacity`
     minus the bond energy of the bound water (see module notes).
     """
-    M = _bond_cap(X, X_fsp)
+    Xb = _bound(X, X_fsp)
+    M = 100.0 * Xb
     t = T - T0
     tt = 0.5 * (T * T - T0 * T0)
     dry = 103.1 * t + 3.867 * tt
-    bond = (1.0 + X) * M * (_B1 * t + _B2 * tt + _B3 * M * t)
+    bond = (1.0 + Xb) * M * (_B1 * t + _B2 * tt + _B3 * M * t)
     return dry + X * C_W * t + bond - _sorption_integral(X, X_fsp)
 
 
@@ -112,10 +121,10 @@ def equilibrium_moisture(T, phi):
 def drying_reduction(X, X_eq, X_cr, w_cr, alpha_b, w_eq):
     """Double-sigmoid reduction of the evaporation rate ``alpha(H_f)`` [-] (paper eq. 2).
 
-    ``alpha = [alpha_b + (1 - alpha_b) s((X - X_cr) / w_cr)] * max(tanh((X - X_eq) / w_eq), 0)``
+    ``alpha = [alpha_b + (1 - alpha_b) s((X - X_cr) / w_cr)] * tanh((X - X_eq) / w_eq)``
     with ``s`` the logistic function: 1 for free water, ``alpha_b`` in the bound-water regime,
-    0 at and below the equilibrium moisture.
+    0 at the equilibrium moisture and negative below it (re-adsorption).
     """
     s = 1.0 / (1.0 + np.exp(-(X - X_cr) / w_cr))
-    ramp = np.maximum(np.tanh((X - X_eq) / w_eq), 0.0)
+    ramp = np.tanh((X - X_eq) / w_eq)
     return (alpha_b + (1.0 - alpha_b) * s) * ramp

@@ -16,12 +16,12 @@ def mixed_air(fraction: float, T_hot: float, Y_hot: float, T_amb: float,
               H_amb: float) -> tuple[float, float]:
     """Temperature [K] and humidity ratio [kg/kg] of hot gas mixed with ambient air.
 
-    Adiabatic mixing by mass of dry gas (ASHRAE 2017 ch. 1, eq. 32 enthalpies):
+    Adiabatic mixing by mass of dry gas (enthalpies of :mod:`softsensor.model.humid_air`):
     ``h = f h_hot + (1 - f) h_amb``, ``Y = f Y_hot + (1 - f) H_amb``.
     """
     h = fraction * ha.enthalpy(T_hot, Y_hot) + (1.0 - fraction) * ha.enthalpy(T_amb, H_amb)
     Y = fraction * Y_hot + (1.0 - fraction) * H_amb
-    return ha.T0 + (h - Y * ha.H_FG0) / (ha.C_PA + Y * ha.C_PV), Y
+    return float(ha.temperature(h, Y)), Y
 
 
 def fraction_for_temperature(T_air_in: float, T_hot: float, Y_hot: float, T_amb: float,
