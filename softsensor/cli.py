@@ -28,34 +28,34 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _simulate(args: argparse.Namespace) -> int:
-    from softsensor.plant.simulator import simulate_day
-    from softsensor.plantconfig import load_parameters, load_plant_config
+    from softsensor.plant.commands import load_plant, simulate_plant
 
-    cfg = load_plant_config(args.config)
-    if args.params:
-        cfg = load_parameters(args.params, cfg)
-    day = simulate_day(cfg, args.hours, args.seed, args.effect, args.magnitude)
+    cfg = load_plant(args)
+    day = simulate_plant(cfg, args)
     day.write(args.out)
     eff = day.effect
     what = "clean day" if eff["effect"] == "none" else (
         f"effect {eff['effect']} magnitude {eff['magnitude']:g} {eff['unit']}"
         + (f" on {eff['channel']}" if eff.get("channel") else ""))
+    plant = ("plant independent, plant seed " + str(args.plant_seed)
+             if args.plant == "independent" else "plant model")
     print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h, "
-          f"{len(day.labs)} lab results, {what}, seed {args.seed}")
+          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}")
     return 0
 
 
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    from softsensor.plant.commands import add_plant_options
     from softsensor.plant.effects import EFFECTS
 
-    p = sub.add_parser("simulate", help="run the virtual plant and record a day as MCAP")
+    p = sub.add_parser("simulate", help="run a virtual plant and record a day as MCAP")
     p.add_argument("--hours", type=float, default=48.0, help="length of the record [h]")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random stream")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random stream of the day")
     p.add_argument("--effect", default=None, metavar="CAUSE",
                    help=f"hide one effect in the day: {', '.join(EFFECTS)}")
     p.add_argument("--magnitude", type=float, default=None,
                    help="size of the effect (units and ranges: softsensor.plant.effects)")
-    p.add_argument("--params", default=None, help="true plant parameters (PARAMS.toml)")
+    add_plant_options(p)
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
     p.add_argument("--out", required=True, help="MCAP file to write")
     p.set_defaults(func=_simulate)

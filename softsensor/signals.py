@@ -70,5 +70,6 @@ CAUSES: tuple[str, ...] = (
     "unexplained",
 )
 
-#: Causes the virtual plant can inject with ``softsensor simulate --effect``.
-INJECTABLE_EFFECTS: tuple[str, ...] = CAUSES[1:-1]
+#: Causes the virtual plants can inject with ``softsensor simulate --effect``: every cause
+#: but ``none`` (``unexplained`` as alternating chip batches).
+INJECTABLE_EFFECTS: tuple[str, ...] = CAUSES[1:]

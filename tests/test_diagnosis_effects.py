@@ -40,7 +40,10 @@ from softsensor.plantconfig import load_plant_config
 
 HOURS = 72.0
 SLOW_HOURS = 30.0
-CASES = ("none", *EFFECTS)
+#: Causes with an extension in the diagnosis; ``unexplained`` (alternating chip batches) is
+#: what no extension explains, measured by ``benchmarks/diagnose.py``, not required here.
+EXTENDED = tuple(c for c in EFFECTS if c != "unexplained")
+CASES = ("none", *EXTENDED)
 #: True parameters of the slow case's plant, away from the config's (as in
 #: ``benchmarks/calibrate.py``): the calibration must find them.
 SHIFTED = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
@@ -74,7 +77,8 @@ def replay(cause: str, seed: int, mag: float | None, hours: float = HOURS,
            base: int = BASE_SEED) -> str:
     effect = "" if cause == "none" else f" --effect {cause} --magnitude {mag!r}"
     return (f"seed {seed}, magnitude {mag}: replay with SOFTSENSOR_DIAG_SEED={base} or "
-            f"`softsensor simulate --hours {hours:g} --seed {seed}{effect} --out DAY.mcap`")
+            f"`softsensor simulate --plant model --hours {hours:g} --seed {seed}{effect} "
+            f"--out DAY.mcap`")
 
 
 def check(cause: str, day, report: dict) -> list[str]:
@@ -139,7 +143,7 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
         assert key in rep
     assert set(rep["baseline_rmse"]) == {"T_dryer_out", "T_cyclone_out", "moisture_out"}
     assert all(isinstance(e["evidence"], str) and e["evidence"] for e in rep["ranking"])
-    assert {e["cause"] for e in rep["ranking"]} >= set(EFFECTS)
+    assert {e["cause"] for e in rep["ranking"]} >= set(EXTENDED)
     assert not check("sensor_bias", day, rep), (check("sensor_bias", day, rep),
                                                 replay("sensor_bias", seed, mag, 24.0))
     assert rep["calibration"]["trials"] == 12 and (tmp_path / "params.toml").is_file()

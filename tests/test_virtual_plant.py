@@ -133,7 +133,20 @@ def test_bad_effect_and_hours(cfg):
     with pytest.raises(ConfigError, match="--hours"):
         simulate_day(cfg, -2.0, 0)
     assert set(EFFECTS) == {"inlet_moisture", "sensor_bias", "lab_delay", "fouling_drift",
-                            "input_lag", "ambient_heat_loss"}
+                            "input_lag", "ambient_heat_loss", "unexplained"}
+
+
+def test_unexplained_effect_alternates_the_kinetics(cfg):
+    """Chip batches: mult_D switches between 1 +- X in blocks of 1.5 to 3 h."""
+    clean = simulate_day(cfg, 8.0, seed=6)
+    d = simulate_day(cfg, 8.0, seed=6, effect="unexplained", magnitude=0.3)
+    assert d.effect["effect"] == "unexplained" and d.effect["sign"] in (-1.0, 1.0)
+    np.testing.assert_allclose(d.truth.m_fiber, clean.truth.m_fiber)
+    diff = (d.truth.moisture_out - clean.truth.moisture_out).to_numpy()
+    # the first block (1.5 h at least) dries faster when the sign is +, slower when -
+    first = slice(180, 540)  # 30 to 90 min
+    assert d.effect["sign"] * diff[first].mean() < -0.003
+    assert diff.max() > 0.003 and diff.min() < -0.003  # both levels occur
 
 
 def test_mixing_inverse():
@@ -148,8 +161,8 @@ def test_mixing_inverse():
     (["--config", "/nonexistent/plant.toml"], "no such config file"),
 ])
 def test_cli_bad_input_is_one_line(tmp_path, args, needle):
-    r = subprocess.run([sys.executable, "-m", "softsensor.cli", "simulate", "--hours", "1",
-                        *args, "--out", str(tmp_path / "x.mcap")],
+    r = subprocess.run([sys.executable, "-m", "softsensor.cli", "simulate", "--plant", "model",
+                        "--hours", "1", *args, "--out", str(tmp_path / "x.mcap")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()

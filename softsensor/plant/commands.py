@@ -1,4 +1,10 @@
-"""``softsensor plant-server``: the virtual plant as a Modbus TCP PLC (tests and demos)."""
+"""``softsensor plant-server``: a virtual plant as a Modbus TCP PLC (tests and demos).
+
+Also the plant choice shared with ``softsensor simulate``: ``--plant independent`` (default;
+:mod:`softsensor.plant.independent`, a dryer simulated apart from the model, member
+``--plant-seed``) or ``--plant model`` (:mod:`softsensor.plant.simulator`, the model itself
+with known parameters, ``--params``).
+"""
 
 from __future__ import annotations
 
@@ -7,9 +13,50 @@ import asyncio
 import logging
 import signal
 
+from softsensor.errors import ConfigError
+from softsensor.plant.day import SimulatedDay
 from softsensor.plant.effects import EFFECTS
+from softsensor.plantconfig import PlantConfig
 
 log = logging.getLogger(__name__)
+
+PLANTS = ("independent", "model")
+
+
+def add_plant_options(p: argparse.ArgumentParser) -> None:
+    """``--plant``, ``--plant-seed`` and ``--params`` of the verbs that run a virtual plant."""
+    p.add_argument("--plant", choices=PLANTS, default="independent",
+                   help="independent: a dryer simulated apart from the model (default); "
+                        "model: the model itself with known parameters")
+    p.add_argument("--plant-seed", type=int, default=0, metavar="P",
+                   help="which member of the independent plant family (default 0)")
+    p.add_argument("--params", default=None,
+                   help="true parameters of --plant model (PARAMS.toml)")
+
+
+def load_plant(args: argparse.Namespace) -> PlantConfig:
+    """The plant config of ``args``, with ``--params`` applied (``--plant model`` only)."""
+    from softsensor.plantconfig import load_parameters, load_plant_config
+
+    if args.params and args.plant != "model":
+        raise ConfigError("--params applies to --plant model only (the independent plant "
+                          "has no model parameters)")
+    cfg = load_plant_config(args.config)
+    if args.params:
+        cfg = load_parameters(args.params, cfg)
+    return cfg
+
+
+def simulate_plant(cfg: PlantConfig, args: argparse.Namespace) -> SimulatedDay:
+    """Run the plant chosen by ``args`` for ``args.hours``."""
+    if args.plant == "model":
+        from softsensor.plant.simulator import simulate_day
+
+        return simulate_day(cfg, args.hours, args.seed, args.effect, args.magnitude)
+    from softsensor.plant.independent import simulate_independent_day
+
+    return simulate_independent_day(cfg, args.hours, args.seed, args.effect, args.magnitude,
+                                    plant_seed=args.plant_seed)
 
 
 async def _serve(args: argparse.Namespace) -> int:
@@ -17,16 +64,12 @@ async def _serve(args: argparse.Namespace) -> int:
     from softsensor.plant.plc_feed import PlantFeed
     from softsensor.plant.plc_server import PlcServer
     from softsensor.plant.settings import virtual_plant_settings
-    from softsensor.plant.simulator import simulate_day
-    from softsensor.plantconfig import load_parameters, load_plant_config
 
-    cfg = load_plant_config(args.config)
-    if args.params:
-        cfg = load_parameters(args.params, cfg)
+    cfg = load_plant(args)
     tagmap = load_tagmap(args.tagmap) if args.tagmap else load_tagmap()
     if args.speed <= 0:
         raise SystemExit("softsensor: --speed must be > 0")
-    day = simulate_day(cfg, args.hours, args.seed, args.effect, args.magnitude)
+    day = simulate_plant(cfg, args)
     feed = PlantFeed(day, lab_dir=args.lab_dir, loop=not args.once)
     period = virtual_plant_settings(cfg).scan_period / args.speed
     stop = asyncio.Event()
@@ -36,8 +79,10 @@ async def _serve(args: argparse.Namespace) -> int:
     server = PlcServer(tagmap, feed.next_values, host=args.host, port=args.port,
                        period_s=period)
     await server.start()
+    plant = (f"plant independent (plant seed {args.plant_seed})"
+             if args.plant == "independent" else "plant model")
     print(f"plant-server: serving {tagmap.source} on {args.host}:{server.port}, "
-          f"one scan every {period:g} s ({args.speed:g}x real time)", flush=True)
+          f"one scan every {period:g} s ({args.speed:g}x real time), {plant}", flush=True)
     try:
         while not stop.is_set() and not feed.finished:
             try:
@@ -56,12 +101,12 @@ def _plant_server(args: argparse.Namespace) -> int:
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("plant-server", help="serve the virtual plant over Modbus TCP")
+    p = sub.add_parser("plant-server", help="serve a virtual plant over Modbus TCP")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     p.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")
     p.add_argument("--tagmap", default=None, help="tag map TOML (default config/tagmap)")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
-    p.add_argument("--params", default=None, help="true plant parameters (PARAMS.toml)")
+    add_plant_options(p)
     p.add_argument("--hours", type=float, default=48.0, help="length of the simulated day")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--effect", default=None, help=f"one of {', '.join(EFFECTS)}")

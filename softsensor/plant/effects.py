@@ -18,7 +18,15 @@ input_lag           time constant of a first-order lag of the ``T_air_in``    8 
                     sensor
 ambient_heat_loss   extra outside heat loss per 10 K of ambient below        0.5          0.3-1.0
                     283.15 K, as a fraction (model aux ``BETA_AMB`` = X/10 1/K)
+unexplained         alternating chip batches: every 1.5 to 3 h the fibre's   0.25         0.15-0.4
+                    drying rate switches between ``1 + X`` and ``1 - X``
+                    times its value (matched plant: ``mult_D``; the
+                    independent plant splits it between kinetics and
+                    specific surface)
 =================== ======================================================== ============ =========
+
+The independent plant (:mod:`softsensor.plant.independent.effects`) gives every magnitude
+the same meaning in its own physics.
 """
 
 from __future__ import annotations
@@ -52,6 +60,8 @@ EFFECTS: dict[str, EffectSpec] = {
                             "time constant of a first-order lag of the T_air_in sensor"),
     "ambient_heat_loss": EffectSpec("ambient_heat_loss", "fraction per 10 K", 0.5, (0.3, 1.0),
                                     (0.0, 5.0), "extra outside heat loss per 10 K of cold"),
+    "unexplained": EffectSpec("unexplained", "fraction", 0.25, (0.15, 0.4), (0.0, 0.6),
+                              "alternating chip batches: kinetic rate switches by +- X"),
 }
 assert set(EFFECTS) == set(INJECTABLE_EFFECTS)
 

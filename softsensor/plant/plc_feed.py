@@ -14,7 +14,7 @@ import math
 import os
 from pathlib import Path
 
-from softsensor.plant.simulator import SimulatedDay
+from softsensor.plant.day import SimulatedDay
 
 
 class PlantFeed:

@@ -19,8 +19,6 @@ the same disturbances with and without an effect.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -30,61 +28,16 @@ from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel, kernels
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
+from softsensor.plant.day import DEFAULT_START_NS, TOPIC_TRUTH_EFFECT, SimulatedDay
 from softsensor.plant.effects import EFFECTS, resolve_effect
 from softsensor.plant.scenario import inlet_moisture_trajectory, make_scenario
 from softsensor.plant.settings import virtual_plant_settings
 from softsensor.plantconfig import PlantConfig
-from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS, TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
+from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
 
-#: Default start of a simulated day: 2026-01-05 00:00:00 UTC [ns].
-DEFAULT_START_NS = 1_767_571_200_000_000_000
-TOPIC_TRUTH_EFFECT = "/truth/effect"
-
-
-@dataclass
-class SimulatedDay:
-    """A virtual-plant day in memory (the same frames :func:`read_day` returns).
-
-    ``scans`` is indexed by log time [ns] with one column per scan signal; ``labs`` has
-    ``log_time_ns, sample_time_ns, moisture_out, sample_id``; ``truth`` is indexed like
-    ``scans`` with the true ``moisture_in``, ``moisture_out``, ``T_air_in``, ``T_dryer_out``,
-    ``T_cyclone_out``; ``effect`` says what was injected.
-    """
-
-    scans: pd.DataFrame
-    labs: pd.DataFrame
-    truth: pd.DataFrame
-    effect: dict[str, Any] = field(default_factory=dict)
-
-    def write(self, path: str | Path) -> Path:
-        """Write the day as an MCAP file (CONTRACT section 2); returns the path."""
-        from softsensor.recording.mcap_day import DayWriter  # adapter at the edge
-
-        path = Path(path)
-        start = int(self.scans.index[0])
-        labs = self.labs.sort_values("log_time_ns").to_dict("records")
-        j = 0
-        scan_cols = list(self.scans.columns)
-        scan_vals = self.scans.to_numpy()
-        truth_cols = list(self.truth.columns)
-        truth_vals = self.truth.to_numpy()
-        with DayWriter(path) as w:
-            w.write(TOPIC_TRUTH_EFFECT, start, self.effect)
-            for i, t in enumerate(self.scans.index.to_numpy()):
-                t = int(t)
-                while j < len(labs) and labs[j]["log_time_ns"] <= t:
-                    lab = labs[j]
-                    w.write(TOPIC_LAB, int(lab["log_time_ns"]), {
-                        "sample_time_ns": int(lab["sample_time_ns"]),
-                        "moisture_out": round(float(lab["moisture_out"]), 5),
-                        "sample_id": str(lab["sample_id"])})
-                    j += 1
-                body = {c: (None if math.isnan(v) else round(float(v), 6))
-                        for c, v in zip(scan_cols, scan_vals[i], strict=True)}
-                w.write(TOPIC_SCAN, t, body)
-                w.write(TOPIC_TRUTH, t, {c: round(float(v), 6)
-                                         for c, v in zip(truth_cols, truth_vals[i], strict=True)})
-        return path
+#: ``SimulatedDay`` and the day constants live in :mod:`softsensor.plant.day` (no model import);
+#: they stay importable from here.
+__all__ = ["DEFAULT_START_NS", "TOPIC_TRUTH_EFFECT", "SimulatedDay", "simulate_day"]
 
 
 def _initial_operating_point(model: DryerModel, u: np.ndarray, theta: np.ndarray,
@@ -171,6 +124,15 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     elif effect == "lab_delay":
         lab_shift = float(rng_eff.choice([-1.0, 1.0])) * magnitude * 60.0
         info.update(sign=float(np.sign(lab_shift)))
+    elif effect == "unexplained":
+        # alternating chip batches: mult_D switches between 1 +- magnitude every 1.5 to 3 h
+        sign = float(rng_eff.choice([-1.0, 1.0]))
+        edges = [0.0]
+        while edges[-1] < sc.t[-1]:
+            edges.append(edges[-1] + rng_eff.uniform(1.5, 3.0) * 3600.0)
+        block = np.searchsorted(np.array(edges), sc.t, side="right") - 1
+        theta[:, 0] *= 1.0 + magnitude * sign * np.where(block % 2 == 0, 1.0, -1.0)
+        info.update(sign=sign)
 
     hg = config.hot_gas
 
