@@ -120,6 +120,63 @@ def test_step_equals_one_window_of_simulate(model, U):
     np.testing.assert_array_equal(y_b, np.stack([y1, y1]))
 
 
+# ------------------------------------------------------------------ parallel members
+@pytest.fixture(scope="module")
+def model2(config):
+    """The reference plant with two threads per batch, whatever the cores of this machine."""
+    from softsensor.model import DryerModel
+
+    return DryerModel(config, threads=2)
+
+
+def _varied_members(model, U, n=5):
+    """``n`` members with different inputs and parameters: (n, K, 8) and (n, 7)."""
+    UU = np.repeat(U[None], n, axis=0)
+    UU[:, :, INPUT_NAMES.index("T_air_in")] += np.linspace(-15.0, 15.0, n)[:, None]
+    UU[:, :, INPUT_NAMES.index("m_fiber")] *= np.linspace(0.9, 1.1, n)[::-1, None]
+    thetas = np.stack([_theta(model, mult_D=f, mult_h=1.0 / f, hm_cyc=f * f)
+                       for f in np.linspace(0.6, 1.6, n)])
+    return UU, thetas
+
+
+def test_parallel_batch_equals_members_alone(model2, U):
+    # members run in threads: each must get exactly the numbers it gets alone
+    UU, thetas = _varied_members(model2, U)
+    Y, state = model2.simulate(UU, thetas)
+    s0, y0 = model2.steady_state(UU[:, 0], thetas)
+    s1, y1 = model2.step(s0, UU[:, 1], thetas)
+    for b in range(len(UU)):
+        Yb, sb = model2.simulate(UU[b], thetas[b])
+        assert np.array_equal(Y[b], Yb) and np.array_equal(state[b], sb)
+        s0b, y0b = model2.steady_state(UU[b, 0], thetas[b])
+        assert np.array_equal(s0[b], s0b) and np.array_equal(y0[b], y0b)
+        s1b, y1b = model2.step(s0b, UU[b, 1], thetas[b])
+        assert np.array_equal(s1[b], s1b) and np.array_equal(y1[b], y1b)
+    assert np.ptp(Y[:, -1, 2]) > 0.01  # the members really differ
+
+
+def test_failing_member_does_not_disturb_the_others(model2, U):
+    UU, thetas = _varied_members(model2, U)
+    UU[2, 3, INPUT_NAMES.index("m_air")] = np.nan  # member 2 fails in window 3
+    thetas[4, parameter_index("mult_h")] = -1.0  # member 4 from its steady state on
+    Y, state = model2.simulate(UU, thetas, raise_on_failure=False)
+    assert np.all(np.isnan(Y[2, 3:])) and np.all(np.isfinite(Y[2, :3]))
+    assert np.all(np.isnan(Y[4]))
+    for b in (0, 1, 3):
+        Yb, sb = model2.simulate(UU[b], thetas[b])
+        assert np.array_equal(Y[b], Yb) and np.array_equal(state[b], sb)
+    good, _ = model2.simulate(UU[2, :3], thetas[2])
+    assert np.array_equal(Y[2, :3], good)
+    # each failure is reported for its own member, with its own cause
+    with pytest.raises(SolverError, match="member 2: inputs or parameters are not physical"):
+        model2.simulate(UU[:4], thetas[:4])
+    s0, _ = model2.steady_state(UU[:4, 0], thetas[:4])
+    bad = UU[:4, 1].copy()
+    bad[3, INPUT_NAMES.index("T_air_in")] = np.inf
+    with pytest.raises(SolverError, match="member 3: inputs or parameters are not physical"):
+        model2.step(s0, bad, thetas[:4])
+
+
 # ------------------------------------------------------------------ errors
 @pytest.mark.parametrize("signal, value", [
     ("m_air", -82.0), ("m_fiber", -1.0), ("m_fiber", 0.0), ("T_air_in", np.nan),

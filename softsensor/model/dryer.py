@@ -16,9 +16,17 @@ Example
 >>> u = m.nominal_inputs()                        # (8,)
 >>> x0, y0 = m.steady_state(u, m.theta0)          # consistent initial state
 >>> x1, y1 = m.step(x0, u, m.theta0)              # one 600 s window
+
+Batch members run in parallel threads, one per core (``DryerModel(threads=...)``); each member
+gets exactly the numbers it gets alone (see :func:`for_members`).
 """
 
 from __future__ import annotations
+
+import itertools
+import os
+import threading
+from collections.abc import Callable
 
 import numpy as np
 
@@ -36,6 +44,59 @@ _STATUS_TEXT = {
 }
 
 
+def default_threads() -> int:
+    """Cores this process may run on: the number of threads a batch runs in by default."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def for_members(run: Callable[[slice], None], n_members: int, threads: int) -> None:
+    """Call ``run(members)`` on slices covering ``range(n_members)``, in up to ``threads``
+    threads.
+
+    The kernels release the GIL (``nogil``) and each call allocates its own scratch, so members
+    run in parallel on the cores, and each member gets exactly the computation it gets alone:
+    the same kernel on its own rows, whatever the schedule. Members are handed out one at a
+    time (a hard member, e.g. one with many Newton fallbacks, does not hold up a fixed share),
+    and the calling thread works too. A batch of one runs in the calling thread.
+
+    Why Python threads and not numba's ``parallel=True``: numba's own ``workqueue`` threading
+    layer (the one that needs nothing installed) aborts the whole process when two Python
+    threads launch parallel kernels at once, as the service's estimator thread or Optuna's
+    ``n_jobs`` would; the ``omp`` and ``tbb`` layers need the system's GNU OpenMP (not
+    fork-safe) or the ``tbb`` package. Threads over ``nogil`` kernels need neither and may be
+    used from any number of threads.
+    """
+    n_threads = min(threads, n_members)
+    if n_threads <= 1:
+        run(slice(0, n_members))
+        return
+    claim = itertools.count()  # next() on a count is atomic under the GIL
+    errors: list[BaseException] = []
+
+    def work() -> None:
+        try:
+            while not errors:
+                b = next(claim)
+                if b >= n_members:
+                    return
+                run(slice(b, b + 1))
+        except BaseException as exc:  # re-raised in the calling thread
+            errors.append(exc)
+
+    helpers = [threading.Thread(target=work, name=f"dryer-member-{i}", daemon=True)
+               for i in range(n_threads - 1)]
+    for t in helpers:
+        t.start()
+    work()
+    for t in helpers:
+        t.join()
+    if errors:
+        raise errors[0]
+
+
 class DryerModel:
     """The flash dryer tube plus cyclone of one plant (paper section 2).
 
@@ -47,15 +108,20 @@ class DryerModel:
         Number of tube cells (overrides ``tube.n_cells``), e.g. for grid-convergence studies.
     wall_substeps : int, optional
         Crank-Nicolson substeps of the wall per window (overrides ``solver.wall_substeps``).
+    threads : int, optional
+        Threads a batch's members run in (default: the cores this process may use,
+        :func:`default_threads`); 1 runs them one after another in the calling thread, e.g.
+        when the caller already runs several models at once.
     """
 
     def __init__(self, config: PlantConfig | None = None, *, n_d: int | None = None,
-                 wall_substeps: int | None = None) -> None:
+                 wall_substeps: int | None = None, threads: int | None = None) -> None:
         self.config = config if config is not None else load_plant_config()
         self.geometry: Geometry = geometry(self.config, n_d)
         self.window = float(self.config.solver.window)
         self.wall_substeps = int(wall_substeps or self.config.solver.wall_substeps)
         self.theta0 = self.config.parameter_vector()
+        self.threads = default_threads() if threads is None else max(int(threads), 1)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -87,13 +153,21 @@ class DryerModel:
         return np.zeros(N_AUX) if aux is None else np.asarray(aux, dtype=float)
 
     @staticmethod
-    def _check(status: np.ndarray, u: np.ndarray) -> None:
+    def _check(status: np.ndarray, u: np.ndarray, first: int = 0) -> None:
+        """Raise for the first failed member; ``status[0]`` is batch member ``first``."""
         bad = np.flatnonzero(status != kernels.OK)
         if bad.size:
             b = int(bad[0])
             detail = ", ".join(f"{n}={v:.6g}" for n, v in zip(INPUT_NAMES, u[b], strict=True))
-            raise SolverError(f"model solve failed for batch member {b}: "
+            raise SolverError(f"model solve failed for batch member {first + b}: "
                               f"{_STATUS_TEXT.get(int(status[b]), 'unknown failure')} ({detail})")
+
+    def _steady(self, u: np.ndarray, theta: np.ndarray, aux: np.ndarray, states: np.ndarray,
+                y: np.ndarray, status: np.ndarray) -> None:
+        """:func:`kernels.steady_batch` on flat (B, n) arrays, members in parallel threads."""
+        geo = self.geometry.packed
+        for_members(lambda m: kernels.steady_batch(u[m], theta[m], aux[m], geo, states[m], y[m],
+                                                   status[m]), u.shape[0], self.threads)
 
     # ------------------------------------------------------------------ API
     def steady_state(self, u: np.ndarray, theta: np.ndarray | None = None,
@@ -110,7 +184,7 @@ class DryerModel:
         states = np.empty((B, self.n_state))
         y = np.empty((B, 3))
         status = np.empty(B, dtype=np.int64)
-        kernels.steady_batch(u2, th2, ax2, self.geometry.packed, states, y, status)
+        self._steady(u2, th2, ax2, states, y, status)
         self._check(status, u2)
         return states.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
 
@@ -129,8 +203,9 @@ class DryerModel:
         y = np.empty((B, 3))
         status = np.empty(B, dtype=np.int64)
         x2 = x2.copy()  # the kernel advances states in place; inputs may be read-only views
-        kernels.step_batch(x2, u2, th2, ax2, self.geometry.packed, dt, self.wall_substeps, y,
-                           status)
+        geo, n_sub = self.geometry.packed, self.wall_substeps
+        for_members(lambda m: kernels.step_batch(x2[m], u2[m], th2[m], ax2[m], geo, dt, n_sub,
+                                                 y[m], status[m]), B, self.threads)
         self._check(status, u2)
         return x2.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
 
@@ -185,9 +260,8 @@ class DryerModel:
             states = np.empty((B, self.n_state))
             y0 = np.empty((B, 3))
             status = np.empty(B, dtype=np.int64)
-            kernels.steady_batch(np.ascontiguousarray(Ub[:, 0]), np.ascontiguousarray(Tb[:, 0]),
-                                 np.ascontiguousarray(Ab[:, 0]), self.geometry.packed, states,
-                                 y0, status)
+            self._steady(np.ascontiguousarray(Ub[:, 0]), np.ascontiguousarray(Tb[:, 0]),
+                         np.ascontiguousarray(Ab[:, 0]), states, y0, status)
             if raise_on_failure:
                 self._check(status, Ub[:, 0])
             states[status != kernels.OK] = 350.0
@@ -200,14 +274,15 @@ class DryerModel:
         dt = self.window if dt is None else float(dt)
         Y = np.empty((B, K, 3))
         status2 = np.empty(B, dtype=np.int64)
-        kernels.simulate_batch(states, Ub, Tb, Ab, self.geometry.packed, dt, self.wall_substeps,
-                               Y, status2)
+        geo, n_sub = self.geometry.packed, self.wall_substeps
+        for_members(lambda m: kernels.simulate_batch(states[m], Ub[m], Tb[m], Ab[m], geo, dt,
+                                                     n_sub, Y[m], status2[m]), B, self.threads)
         Y[failed0] = np.nan
         status2[failed0] = status[failed0]
         if raise_on_failure and np.any(status2 != kernels.OK):
             b = int(np.flatnonzero(status2 != kernels.OK)[0])
             k = int(np.argmax(np.isnan(Y[b, :, 0])))
-            self._check(status2[b:b + 1], Ub[b, k][None])
+            self._check(status2[b:b + 1], Ub[b, k][None], first=b)
         return Y.reshape(batch + (K, 3)), states.reshape(batch + (self.n_state,))
 
     def profiles(self, state: np.ndarray, u: np.ndarray,

@@ -198,15 +198,38 @@ def _component_viscosities(T):
 
 
 @register_jitable
-def _wilke_mix(Y, mu_a, mu_v, prop_a, prop_v):
-    """Wilke's mixing rule [2] of a dry-air and a vapour property, weights from the component
-    viscosities ``mu_a``, ``mu_v``."""
+def _wilke_weights(Y, mu_a, mu_v):
+    """Mole fractions and Wilke's interaction weights [2] ``(x_a, x_v, phi_av, phi_va)`` from
+    the component viscosities ``mu_a``, ``mu_v``."""
     xv = _mole_fraction_vapour(Y)
     xa = 1.0 - xv
     ma, mv = 28.9645, 18.01528
     phi_av = (1.0 + (mu_a / mu_v) ** 0.5 * (mv / ma) ** 0.25) ** 2 / (8.0 * (1.0 + ma / mv)) ** 0.5
     phi_va = (1.0 + (mu_v / mu_a) ** 0.5 * (ma / mv) ** 0.25) ** 2 / (8.0 * (1.0 + mv / ma)) ** 0.5
+    return xa, xv, phi_av, phi_va
+
+
+@register_jitable
+def _mix(weights, prop_a, prop_v):
+    """Wilke's mixing rule [2] of a dry-air and a vapour property with
+    :func:`_wilke_weights`."""
+    xa, xv, phi_av, phi_va = weights
     return xa * prop_a / (xa + xv * phi_av) + xv * prop_v / (xv + xa * phi_va)
+
+
+@register_jitable
+def _wilke_mix(Y, mu_a, mu_v, prop_a, prop_v):
+    """Wilke's mixing rule [2] of a dry-air and a vapour property, weights from the component
+    viscosities ``mu_a``, ``mu_v``."""
+    return _mix(_wilke_weights(Y, mu_a, mu_v), prop_a, prop_v)
+
+
+@register_jitable
+def _component_conductivities(T):
+    """Dry air (Sutherland-type) and water vapour (quadratic fit) conductivities [W/(m K)]."""
+    k_a = 0.02414 * (T / 273.15) ** 1.5 * (273.15 + 194.4) / (T + 194.4)
+    k_v = 0.0176 + 5.87e-5 * (T - 273.15) + 1.04e-7 * (T - 273.15) ** 2
+    return k_a, k_v
 
 
 @register_jitable
@@ -225,10 +248,20 @@ def conductivity(T, Y):
 
     Dry air by a Sutherland-type law, vapour by a quadratic fit, mixed with Wilke's weights [2].
     """
-    k_a = 0.02414 * (T / 273.15) ** 1.5 * (273.15 + 194.4) / (T + 194.4)
-    k_v = 0.0176 + 5.87e-5 * (T - 273.15) + 1.04e-7 * (T - 273.15) ** 2
+    k_a, k_v = _component_conductivities(T)
     mu_a, mu_v = _component_viscosities(T)
     return _wilke_mix(Y, mu_a, mu_v, k_a, k_v)
+
+
+@register_jitable
+def viscosity_conductivity(T, Y):
+    """``(viscosity(T, Y), conductivity(T, Y))``, the same numbers, for callers that need both
+    at one state (the model's kernels, once per cell balance): the component viscosities and
+    Wilke's weights, the costly part, are computed once."""
+    mu_a, mu_v = _component_viscosities(T)
+    weights = _wilke_weights(Y, mu_a, mu_v)
+    k_a, k_v = _component_conductivities(T)
+    return _mix(weights, mu_a, mu_v), _mix(weights, k_a, k_v)
 
 
 @register_jitable
