@@ -251,7 +251,9 @@ def load_plant_config(path: str | Path | None = None) -> PlantConfig:
 def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
 
-    Only ``[parameters.<name>]`` tables are read; each needs a ``value`` within its bounds.
+    ``[parameters.<name>]`` tables give the values (each within its bounds); the calibration's
+    ``[discrepancy]`` table (what the model left on held-out data), when present, is carried
+    in ``extra["discrepancy"]`` for the estimator.
     """
     data = read_toml(path)
     table = data.get("parameters")
@@ -269,4 +271,11 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
             raise ConfigError(f"{path}: parameters.{name}.value must be a number, got {v!r}")
         values[name] = float(v)
     cfg = config.with_parameters(values) if values else config
-    return dataclasses.replace(cfg, source=f"{config.source} + {path}")
+    extra = dict(cfg.extra)
+    disc = data.get("discrepancy")
+    if disc is not None:
+        if not isinstance(disc, dict) or not all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in disc.values()):
+            raise ConfigError(f"{path}: [discrepancy] must be a table of numbers")
+        extra["discrepancy"] = {str(k): float(v) for k, v in disc.items()}
+    return dataclasses.replace(cfg, extra=extra, source=f"{config.source} + {path}")

@@ -18,6 +18,7 @@ from optuna.trial import TrialState
 
 from softsensor.calibration.chunked_run import ChunkedRun, chunk_bounds, simulate_segments
 from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.objective import ObjectiveSpec
 from softsensor.calibration.optimize import (
     FAILED_COST,
     StudySettings,
@@ -52,15 +53,21 @@ def segment(day6, config):
 
 
 @pytest.fixture(scope="module")
+def eq4(config):
+    """The paper's objective: eq. 4, nominal inlet moisture, no prior."""
+    return ObjectiveSpec(cost="eq4", weights=config.cost.weights())
+
+
+@pytest.fixture(scope="module")
 def day6_file(day6, tmp_path_factory):
     return day6.write(tmp_path_factory.mktemp("days") / "day6.mcap")
 
 
-def test_chunked_run_continues_the_state_exactly(model, segment, config):
+def test_chunked_run_continues_the_state_exactly(model, segment, eq4):
     """Four chunks with the state passed on give the same outputs as one run; the partial
     cost after the last chunk is the full cost."""
     theta = np.stack([model.theta0, np.array(list(TRUTH.values()))])
-    run = ChunkedRun(model, [segment], theta, config.cost.weights(), n_chunks=4)
+    run = ChunkedRun(model, [segment], theta, eq4, n_chunks=4)
     assert list(run.bounds[0]) == list(chunk_bounds(segment.n_windows, 4))
     costs = []
     while not run.done:
@@ -70,19 +77,21 @@ def test_chunked_run_continues_the_state_exactly(model, segment, config):
     np.testing.assert_allclose(run.runs[0].lab, full.lab, rtol=1e-10, atol=1e-12)
     assert full.lab.shape == (2, len(segment.lab_value)) and np.isfinite(full.lab).all()
     final = run.run()
-    assert [f.cost for f in final] == pytest.approx([costs[-1][0].cost, costs[-1][1].cost])
-    assert len(costs) == 4 and costs[0][0].n["T_dryer_out"] == run.bounds[0][1] == 9
-    assert final[0].n["T_dryer_out"] == segment.n_windows == 36
+    assert [f.objective for f in final] == pytest.approx([costs[-1][0].objective,
+                                                          costs[-1][1].objective])
+    assert final[0].objective == final[0].fit.cost  # eq. 4 without a prior
+    assert len(costs) == 4 and costs[0][0].fit.n["T_dryer_out"] == run.bounds[0][1] == 9
+    assert final[0].fit.n["T_dryer_out"] == segment.n_windows == 36
     assert list(chunk_bounds(3, 4)) == [0, 1, 2, 3]
 
 
-def test_chunked_run_over_two_segments_of_different_length(model, segment, config):
+def test_chunked_run_over_two_segments_of_different_length(model, segment, eq4):
     """Several days or windows: each segment starts from its own steady state; the pooled
     cost equals eq. 4 over the concatenated residuals."""
     a, b = segment.slice(0, 20), segment.slice(20, 36)
     theta = np.array(list(TRUTH.values()))
-    run = ChunkedRun(model, [a, b], theta[None], config.cost.weights(), n_chunks=3)
-    fit = run.run()[0]
+    run = ChunkedRun(model, [a, b], theta[None], eq4, n_chunks=3)
+    fit = run.run()[0].fit
     sep = simulate_segments(model, [a, b], theta)
     np.testing.assert_allclose(run.runs[1].Y, sep[1].Y, rtol=1e-10)
     assert fit.n["T_dryer_out"] == 36 and fit.n["moisture_out"] == len(segment.lab_value)
@@ -93,11 +102,11 @@ def test_chunked_run_over_two_segments_of_different_length(model, segment, confi
     assert d[-1] < d[0] or d[0] < 1e-6
 
 
-def test_study_prunes_keeps_bounds_and_starts_from_the_config(model, segment, config):
+def test_study_prunes_keeps_bounds_and_starts_from_the_config(model, segment, config, eq4):
     settings = StudySettings(n_trials=24, seed=4, progress=False, n_chunks=4)
     study, created = open_study(settings, config, data_fingerprint([segment], config))
     assert created
-    report = run_trials(study, model, [segment], config, settings)
+    report = run_trials(study, model, [segment], config, settings, eq4)
     trials = study.get_trials()
     assert n_finished(study) == 24 == report.trials
     assert trials[0].user_attrs["origin"] == "config"
@@ -129,12 +138,12 @@ class _FailingModel:
         return Y, x
 
 
-def test_failed_solves_are_pruned_with_a_high_cost(model, segment, config):
+def test_failed_solves_are_pruned_with_a_high_cost(model, segment, config, eq4):
     settings = StudySettings(n_trials=4, seed=0, progress=False, n_chunks=2)
     study, _ = open_study(settings, config, "x")
     study.enqueue_trial({**TRUTH, "mult_D": 0.02})
     study.enqueue_trial({**TRUTH, "mult_D": 0.03})
-    run_trials(study, _FailingModel(model), [segment], config, settings)
+    run_trials(study, _FailingModel(model), [segment], config, settings, eq4)
     failed = [t for t in study.get_trials() if t.user_attrs.get("solver_failed")]
     assert len(failed) == 2
     for t in failed:
@@ -142,17 +151,17 @@ def test_failed_solves_are_pruned_with_a_high_cost(model, segment, config):
     assert study.best_value < 1.0
 
 
-def test_resume_and_data_fingerprint(tmp_path, model, segment, config):
+def test_resume_and_data_fingerprint(tmp_path, model, segment, config, eq4):
     url = f"journal:{tmp_path / 'study.log'}"
     fp = data_fingerprint([segment], config)
     s1 = StudySettings(n_trials=5, seed=1, storage=url, progress=False, study_name="r")
     study, created = open_study(s1, config, fp)
-    run_trials(study, model, [segment], config, s1)
+    run_trials(study, model, [segment], config, s1, eq4)
     first = [t.params for t in study.get_trials()]
     s2 = StudySettings(n_trials=8, seed=1, storage=url, progress=False, study_name="r")
     study2, created2 = open_study(s2, config, fp)
     assert created and not created2
-    report = run_trials(study2, model, [segment], config, s2)
+    report = run_trials(study2, model, [segment], config, s2, eq4)
     assert report.trials == 3 and n_finished(study2) == 8
     assert [t.params for t in study2.get_trials()[:5]] == first
     with pytest.raises(ConfigError, match="made on other data"):
@@ -211,14 +220,14 @@ def test_two_workers_share_one_journal_study(tmp_path, day6_file):
     assert len(set(params)) == len(params)
 
 
-def test_polish_lowers_the_cost_within_bounds(model, segment, config):
+def test_polish_lowers_the_cost_within_bounds(model, segment, config, eq4):
     start = np.array([0.3, 0.5, 3.0, 1.0, 4.0, 1e-5, 30.0])
     bounds = config.bounds()
     bounds[4, 1] = 4.5  # a tight upper bound on mult_p: the polish must respect it
-    r = refine(model, [segment], start, bounds, config.cost.weights())
-    assert r.improved and r.fit.cost < 0.6 * r.start_fit.cost
+    r = refine(model, [segment], start, bounds, eq4)
+    assert r.improved and r.evaluation.fit.cost < 0.6 * r.start.fit.cost
     assert np.all(r.theta >= bounds[:, 0]) and np.all(r.theta <= bounds[:, 1])
-    assert r.simulations < 80
+    assert r.simulations <= 100  # two passes of at most 6 evaluations of 1 + 7 members
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys, config):

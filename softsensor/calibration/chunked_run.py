@@ -14,6 +14,10 @@ sample, and from the state there one short step to the sample time with the samp
 gives the model's ``moisture_out``. A member whose solve fails gets
 NaN outputs and an infinite cost (it is never raised: a bad corner of the search box is a bad
 trial, not an error).
+
+When the objective estimates the inlet moisture (:mod:`.objective`), every parameter set runs
+twice, as it is and with the inlet moisture raised (``du``, per-member input offsets), in the
+same batched call.
 """
 
 from __future__ import annotations
@@ -22,8 +26,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from softsensor.calibration.cost import Fit, ModelRun, evaluate_fit
+from softsensor.calibration.cost import ModelRun
 from softsensor.calibration.dataset import Segment
+from softsensor.calibration.objective import (
+    Evaluation,
+    ObjectiveSpec,
+    evaluate,
+    sensitivity_offsets,
+)
 from softsensor.model import DryerModel
 
 
@@ -35,11 +45,13 @@ def chunk_bounds(n_windows: int, n_chunks: int) -> np.ndarray:
 
 
 def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k1: int,
-                  state0: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  state0: np.ndarray | None, du: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Windows ``k0 .. k1-1`` of ``seg`` for parameter sets ``theta`` (B, 7).
 
     ``state0`` (B, n_state) is the state at the start of window ``k0`` (None: the steady
-    state at that window's inputs). Returns ``Y`` (B, k1-k0, 3), the model's
+    state at that window's inputs); ``du`` (B, 8) optional offsets added to every input of
+    each member (e.g. the inlet moisture raised). Returns ``Y`` (B, k1-k0, 3), the model's
     ``moisture_out`` at the lab samples whose window lies in the span (B, n_labs), and the
     end state (B, n_state). Failed members give NaN, never an exception. Where the model
     cannot be solved at a sample's own inputs but can at its window's (the cell Newton of
@@ -47,6 +59,7 @@ def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k
     """
     theta = np.atleast_2d(np.asarray(theta, float))
     B = theta.shape[0]
+    dU = np.zeros((B, seg.U.shape[1])) if du is None else np.asarray(du, float)
     in_span = np.flatnonzero((seg.lab_window >= k0) & (seg.lab_window < k1))
     cuts = sorted({k0, k1, *(int(w) for w in seg.lab_window[in_span] if w > k0)})
     Y = np.empty((B, k1 - k0, 3))
@@ -57,18 +70,18 @@ def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k
             if seg.lab_window[li] == a:
                 # a lab sample in window a: one step from the window's start to its time
                 dt = float(seg.lab_offset[li])
-                y, _ = model.simulate(seg.lab_U[li][None, None], theta, state0=state, dt=dt,
-                                      raise_on_failure=False)
+                y, _ = model.simulate((seg.lab_U[li] + dU)[:, None], theta, state0=state,
+                                      dt=dt, raise_on_failure=False)
                 lab[:, j] = y[:, 0, 2]
                 bad = np.flatnonzero(np.isnan(lab[:, j]))
                 if bad.size:  # the sample-time inputs failed: the window's inputs instead
-                    y, _ = model.simulate(seg.U[a][None, None], theta[bad], dt=dt,
+                    y, _ = model.simulate((seg.U[a] + dU[bad])[:, None], theta[bad], dt=dt,
                                           state0=None if state is None else state[bad],
                                           raise_on_failure=False)
                     lab[bad, j] = y[:, 0, 2]
         # U gets a leading batch axis so theta (B, 7) is read as constant parameters
-        Yp, state = model.simulate(seg.U[a:b][None], theta, state0=state,
-                                   raise_on_failure=False)
+        U = seg.U[a:b][None] if du is None else seg.U[a:b][None] + dU[:, None, :]
+        Yp, state = model.simulate(U, theta, state0=state, raise_on_failure=False)
         Y[:, a - k0:b - k0] = Yp
     return Y, lab, state
 
@@ -82,25 +95,29 @@ class ChunkedRun:
     segments : sequence of Segment
     theta : array, shape (B, 7)
         Parameter sets in :data:`~softsensor.plantconfig.PARAMETER_NAMES` order.
-    weights : array, shape (3,)
-        Eq. 4 weights in :data:`~softsensor.signals.OUTPUT_NAMES` order.
+    spec : ObjectiveSpec
+        What is scored (:mod:`.objective`); with an estimated inlet moisture every set also
+        runs with the inlet moisture raised.
     n_chunks : int
         Chunks per segment (1: no intermediate costs).
     """
 
     def __init__(self, model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
-                 weights: np.ndarray, n_chunks: int = 4) -> None:
+                 spec: ObjectiveSpec, n_chunks: int = 4) -> None:
         self.model = model
         self.segments = list(segments)
         self.theta = np.atleast_2d(np.asarray(theta, float))
-        self.weights = np.asarray(weights, float)
+        self.spec = spec
         B = self.theta.shape[0]
+        self.du = sensitivity_offsets(B, spec.inlet is not None)
+        self.members = self.theta if self.du is None else np.vstack([self.theta, self.theta])
+        M = self.members.shape[0]
         self.bounds = [chunk_bounds(s.n_windows, n_chunks) for s in self.segments]
         self.n_steps = max(len(b) - 1 for b in self.bounds)
         self.alive = np.ones(B, dtype=bool)
         self.failed = np.zeros(B, dtype=bool)
-        self.runs = [ModelRun(np.full((B, s.n_windows, 3), np.nan),
-                              np.full((B, len(s.lab_value)), np.nan)) for s in self.segments]
+        self.runs = [ModelRun(np.full((M, s.n_windows, 3), np.nan),
+                              np.full((M, len(s.lab_value)), np.nan)) for s in self.segments]
         self.states: list[np.ndarray | None] = [None] * len(self.segments)
         self.step_index = 0
 
@@ -111,67 +128,93 @@ class ChunkedRun:
     def _upto(self, step: int) -> list[int]:
         return [int(b[min(step + 1, len(b) - 1)]) for b in self.bounds]
 
-    def advance(self) -> dict[int, Fit]:
-        """Simulate the next chunk for every live member; return their partial fits.
+    def _rows(self, members: np.ndarray) -> np.ndarray:
+        """Rows of the runs holding parameter sets ``members`` (both copies with the inlet)."""
+        B = self.theta.shape[0]
+        return members if self.du is None else np.concatenate([members, members + B])
 
-        The returned dict maps batch index to the eq. 4 fit over the windows simulated so far
-        (``inf`` cost for a member whose solve failed; it is not simulated any further).
+    def advance(self) -> dict[int, Evaluation]:
+        """Simulate the next chunk for every live member; return their partial evaluations.
+
+        The returned dict maps batch index to the objective over the windows simulated so far
+        (infinite for a member whose solve failed; it is not simulated any further).
         """
         if self.done:
             raise RuntimeError("the run is complete")
         live = np.flatnonzero(self.alive)
+        rows = self._rows(live)
         c = self.step_index
+        B = self.theta.shape[0]
         for s, seg in enumerate(self.segments):
             b = self.bounds[s]
             if c + 1 >= len(b) or live.size == 0:
                 continue
             k0, k1 = int(b[c]), int(b[c + 1])
-            state0 = None if self.states[s] is None else self.states[s][live]
-            Y, lab, x_end = simulate_span(self.model, seg, self.theta[live], k0, k1, state0)
+            state0 = None if self.states[s] is None else self.states[s][rows]
+            Y, lab, x_end = simulate_span(self.model, seg, self.members[rows], k0, k1, state0,
+                                          None if self.du is None else self.du[rows])
             run = self.runs[s]
-            run.Y[live, k0:k1] = Y
+            run.Y[rows, k0:k1] = Y
             span = (seg.lab_window >= k0) & (seg.lab_window < k1)
-            run.lab[np.ix_(live, np.flatnonzero(span))] = lab
-            if self.states[s] is None:
-                self.states[s] = np.full((self.theta.shape[0], x_end.shape[-1]), np.nan)
-            self.states[s][live] = x_end
+            run.lab[np.ix_(rows, np.flatnonzero(span))] = lab
+            if x_end is not None:  # a stateless model (tests) has nothing to carry on
+                if self.states[s] is None:
+                    self.states[s] = np.full((self.members.shape[0], x_end.shape[-1]),
+                                             np.nan)
+                self.states[s][rows] = x_end
             bad = np.isnan(Y).any(axis=(1, 2)) | np.isnan(lab).any(axis=1)
-            self.failed[live[bad]] = True
+            bad_sets = np.unique(rows[bad] % B) if self.du is not None else rows[bad]
+            self.failed[bad_sets] = True
         self.alive[self.failed] = False
         self.step_index += 1
         return self.partial(live)
 
-    def partial(self, members: np.ndarray | None = None) -> dict[int, Fit]:
-        """Eq. 4 over the windows simulated so far, for ``members`` (default: the live ones)."""
+    def partial(self, members: np.ndarray | None = None) -> dict[int, Evaluation]:
+        """The objective over the windows simulated so far, for ``members`` (default: the
+        live ones)."""
         members = np.flatnonzero(self.alive) if members is None else np.asarray(members)
         if members.size == 0:
             return {}
         upto = self._upto(self.step_index - 1)
-        fits = evaluate_fit([r.member(members) for r in self.runs], self.segments,
-                            self.weights, upto)
-        return {int(m): f for m, f in zip(members, fits, strict=True)}
+        base = [r.member(members) for r in self.runs]
+        sens = None
+        if self.du is not None:
+            B = self.theta.shape[0]
+            sens = [r.member(members + B) for r in self.runs]
+        evs = evaluate(self.segments, base, sens, self.theta[members], self.spec, upto)
+        return {int(m): e for m, e in zip(members, evs, strict=True)}
 
     def drop(self, member: int) -> None:
         """Stop simulating ``member`` (pruned)."""
         self.alive[member] = False
 
-    def run(self) -> list[Fit]:
-        """Run every remaining chunk without pruning; return the full-horizon fits."""
+    def run(self) -> list[Evaluation]:
+        """Run every remaining chunk without pruning; return the full-horizon evaluations."""
         while not self.done:
             self.advance()
-        return evaluate_fit(self.runs, self.segments, self.weights)
+        B = self.theta.shape[0]
+        ev = self.partial(np.arange(B))
+        return [ev[b] for b in range(B)]
 
 
-def simulate_segments(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray
-                      ) -> list[ModelRun]:
+def simulate_segments(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
+                      du: np.ndarray | None = None) -> list[ModelRun]:
     """Model outputs on every segment for ``theta`` (7,) or (B, 7), each from the steady
-    state at its first window; NaN where the solve failed. Always with a batch axis."""
+    state at its first window; NaN where the solve failed. Always with a batch axis. ``du``
+    (B, 8): per-member input offsets."""
     theta = np.atleast_2d(np.asarray(theta, float))
     out = []
     for seg in segments:
-        Y, lab, _ = simulate_span(model, seg, theta, 0, seg.n_windows, None)
+        Y, lab, _ = simulate_span(model, seg, theta, 0, seg.n_windows, None, du)
         out.append(ModelRun(Y, lab))
     return out
 
 
-__all__ = ["ChunkedRun", "chunk_bounds", "simulate_segments", "simulate_span"]
+def evaluate_parameters(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
+                        spec: ObjectiveSpec) -> list[Evaluation]:
+    """Simulate ``theta`` (7,) or (B, 7) on every segment and score it (:mod:`.objective`)."""
+    return ChunkedRun(model, segments, theta, spec, n_chunks=1).run()
+
+
+__all__ = ["ChunkedRun", "chunk_bounds", "evaluate_parameters", "simulate_segments",
+           "simulate_span"]

@@ -10,6 +10,7 @@ into one line on stderr and exit status 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -17,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from softsensor.calibration.dataset import load_segment
+from softsensor.calibration.identifiability import identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
 from softsensor.calibration.params_file import params_document, read_fit, write_params
 from softsensor.calibration.pipeline import (
@@ -24,9 +27,15 @@ from softsensor.calibration.pipeline import (
     DEFAULT_WINDOW_HOURS,
     DataSelection,
     calibrate,
-    identify_segments,
     load_segments,
+    objective_spec,
     validate,
+)
+from softsensor.calibration.settings import (
+    COSTS,
+    INLET_MODES,
+    CalibrationSettings,
+    calibration_settings,
 )
 from softsensor.errors import ConfigError
 from softsensor.jsonable import jsonable
@@ -49,13 +58,6 @@ def _emit(doc: dict[str, Any], json_path: str | None) -> None:
     print(text)
 
 
-def _config(args: argparse.Namespace) -> PlantConfig:
-    cfg = load_plant_config(args.config)
-    if getattr(args, "params", None):
-        cfg = load_parameters(args.params, cfg)
-    return cfg
-
-
 def _add_data_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window-hours", type=float, default=DEFAULT_WINDOW_HOURS,
                    help="calibration window [h]; a longer record is cut to the window(s) "
@@ -76,12 +78,61 @@ def _selection(args: argparse.Namespace) -> DataSelection:
 
 
 # ---------------------------------------------------------------------------- calibrate
+def _add_objective_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--cost", choices=COSTS, default=None,
+                   help="eq4 (the paper's weighted RMSE sum) or likelihood (each channel by "
+                        "its own noise); default: [calibration] cost, else eq4")
+    p.add_argument("--inlet", choices=INLET_MODES, default=None,
+                   help="the unmeasured inlet moisture: estimated (a slow trajectory fitted "
+                        "per day, default) or nominal (the paper's)")
+    p.add_argument("--prior-sigma", type=float, default=None,
+                   help="sd of the prior on ln(theta) around the config's values (default 1)")
+    p.add_argument("--no-prior", action="store_true", help="no prior: the plain bounded fit")
+    p.add_argument("--paper", action="store_true",
+                   help="the paper's calibration: eq4, nominal inlet moisture, no prior")
+
+
+def _calibration_settings(args: argparse.Namespace, config: PlantConfig
+                          ) -> CalibrationSettings:
+    s = calibration_settings(config)
+    changes: dict[str, Any] = {}
+    if getattr(args, "paper", False):
+        changes.update(cost="eq4", inlet="nominal", prior=False)
+    if getattr(args, "cost", None):
+        changes["cost"] = args.cost
+    if getattr(args, "inlet", None):
+        changes["inlet"] = args.inlet
+    if getattr(args, "prior_sigma", None) is not None:
+        if not (args.prior_sigma > 0 and np.isfinite(args.prior_sigma)):
+            raise ConfigError(f"--prior-sigma must be > 0, got {args.prior_sigma}")
+        changes["prior_sigma"] = float(args.prior_sigma)
+    if getattr(args, "no_prior", False):
+        changes["prior"] = False
+    if getattr(args, "holdout", None) is not None:
+        if not 0.0 <= args.holdout < 0.9:
+            raise ConfigError(f"--holdout must be in [0, 0.9), got {args.holdout}")
+        changes["holdout_fraction"] = float(args.holdout)
+    return dataclasses.replace(s, **changes)
+
+
 def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("days", nargs="+", metavar="DAY.mcap", help="recorded day(s) to fit")
     p.add_argument("--trials", type=int, default=200,
                    help="finished trials the study should hold (default 200, as the paper); "
                         "an existing study is resumed up to this number")
     p.add_argument("--out", required=True, metavar="PARAMS.toml", help="file to write")
+    p.add_argument("--params", default=None, metavar="PARAMS.toml",
+                   help="the current parameters, which the result must beat on the "
+                        "validation data (default: the config's values)")
+    p.add_argument("--validate-on", nargs="+", default=None, metavar="DAY.mcap",
+                   help="validate on these days (default: the last --holdout share of the "
+                        "calibration data)")
+    p.add_argument("--holdout", type=float, default=None,
+                   help="share of each calibration window held out to validate on "
+                        "(default 0.25; 0: none)")
+    p.add_argument("--force", action="store_true",
+                   help="write the result even when it predicts the validation data worse "
+                        "than the current parameters")
     p.add_argument("--seed", type=int, default=0, help="TPE seed (default 0)")
     p.add_argument("--storage", default=None, metavar="URL",
                    help="Optuna storage shared by workers: journal:PATH, a .log file, "
@@ -101,12 +152,19 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
                    help="write figures and a Markdown page to DIR")
     p.add_argument("--json", default=None, metavar="FILE", help="also write the JSON here")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    _add_objective_arguments(p)
     _add_data_arguments(p)
 
 
+#: Exit status of ``calibrate`` when it refuses to write a result that validates worse.
+REFUSED = 3
+
+
 def calibrate_main(args: argparse.Namespace) -> int:
-    """``softsensor calibrate``: fit, write PARAMS.toml, print a JSON summary."""
-    config = _config(args)
+    """``softsensor calibrate``: fit, validate, write PARAMS.toml, print a JSON summary."""
+    base = load_plant_config(args.config)
+    current = load_parameters(args.params, base) if args.params else base
+    calibration = _calibration_settings(args, base)
     out = Path(args.out)
     if not out.parent.is_dir():
         raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
@@ -118,24 +176,49 @@ def calibrate_main(args: argparse.Namespace) -> int:
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
-    segments, choices = load_segments(args.days, config, _selection(args))
+    segments, choices = load_segments(args.days, base, _selection(args))
     for c in choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
-    result = calibrate(segments, config, settings, choices=choices,
-                       polish=not args.no_polish, identify=not args.no_identify)
+    validation = None
+    if args.validate_on:
+        validation = [load_segment(p, base) for p in args.validate_on]
+
+    def progress(phase: str) -> None:
+        if not args.quiet:
+            print(f"calibrate: {phase} ...", file=sys.stderr, flush=True)
+
+    result = calibrate(segments, base, settings, calibration, choices=choices,
+                       validation_segments=validation,
+                       current_theta=current.parameter_vector(), polish=not args.no_polish,
+                       identify_result=not args.no_identify, progress=progress)
     verdicts = None
     if result.identifiability is not None:
         verdicts = {v.name: v.verdict for v in result.identifiability.verdicts}
-    doc = params_document(config, result.params, result.fit_section(), verdicts)
-    comment = ("Calibrated by `softsensor calibrate` (paper eq. 4, Table 1 bounds).\n"
-               "Load with softsensor.plantconfig.load_parameters or --params.")
-    write_params(out, doc, comment)
     summary = {"out": str(out), **result.summary()}
+    written = result.accepted or args.force
+    if written:
+        doc = params_document(base, result.params, result.fit_section(), verdicts,
+                              result.at_bounds,
+                              None if result.discrepancy is None
+                              else result.discrepancy.as_dict())
+        comment = (f"Calibrated by `softsensor calibrate` (cost {calibration.cost}, inlet "
+                   f"moisture {calibration.inlet}, prior "
+                   f"{calibration.prior_sigma if calibration.prior else 'none'}; Table 1 "
+                   f"bounds).\nLoad with softsensor.plantconfig.load_parameters or --params.")
+        write_params(out, doc, comment)
+    summary["written"] = written
     if args.report:
         from softsensor.calibration.report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report))
     _emit(summary, args.json)
+    line = result.verdict_line()
+    if not written:
+        print(f"calibrate: refused to write {out}: the result predicts the validation data "
+              f"worse than the current parameters ({line}); --force writes it anyway",
+              file=sys.stderr)
+        return REFUSED
+    print(f"calibrate: wrote {out}; {line}", file=sys.stderr)
     return 0
 
 
@@ -152,6 +235,7 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", default=None, metavar="FILE", help="write the full analysis")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write figures and a Markdown page to DIR")
+    _add_objective_arguments(p)
     _add_data_arguments(p)
 
 
@@ -160,11 +244,14 @@ def identify_main(args: argparse.Namespace) -> int:
     from softsensor.calibration.report import identifiability_table, identify_page
     from softsensor.model import DryerModel
 
-    config = _config(args)
+    base = load_plant_config(args.config)
+    config = load_parameters(args.params, base) if args.params else base
+    calibration = _calibration_settings(args, base)
     segments, choices = load_segments(args.days, config, _selection(args))
     model = DryerModel(config)
     theta = config.parameter_vector()
-    ident, sens = identify_segments(model, segments, theta, config)
+    spec = objective_spec(model, segments, base, calibration)
+    ident, sens = identify(model, segments, theta, spec, config.bounds())
     study = importance = None
     if args.storage:
         import optuna
@@ -179,18 +266,20 @@ def identify_main(args: argparse.Namespace) -> int:
             raise ConfigError(f"--storage {args.storage}: no study {args.study_name!r}") from exc
         importance = parameter_importance(study, args.importance)
     print(identifiability_table(ident, config, importance))
-    print(f"\nweighted FIM (Table 3 form) condition number {ident.condition_number:.3g}; "
-          f"identifiable: {', '.join(ident.identifiable) or 'none'}; poorly identifiable: "
-          f"{', '.join(ident.poorly_identifiable) or 'none'}")
+    print(f"\nweighted FIM (Table 3 form) condition number {ident.condition_number:.3g} "
+          f"(the paper's: 584); identifiable: {', '.join(ident.identifiable) or 'none'}; "
+          f"poorly identifiable: {', '.join(ident.poorly_identifiable) or 'none'}")
     doc = {
         "windows": [c.reason for c in choices],
         "params": dict(zip(PARAMETER_NAMES, map(float, theta), strict=True)),
+        "cost_kind": spec.cost, "inlet": calibration.inlet,
         "verdicts": {v.name: {"verdict": v.verdict, "relative_se": v.relative_se,
                               "posterior_over_prior": v.prior_ratio,
                               "most_correlated": v.partner, "correlation": v.correlation,
-                              "eq4_se": v.eq4_se,
+                              "profile_rise": v.rise,
                               "reason": v.reason} for v in ident.verdicts},
         "fim": ident.fim.tolist(), "fim_condition_number": ident.condition_number,
+        "paper_condition_number": 584.2,
         "fim_eigenvalues": ident.eigenvalues.tolist(),
         "fim_eigenvectors": ident.eigenvectors.tolist(),
         "correlation": ident.correlation.tolist(), "noise": ident.noise.tolist(),
@@ -214,30 +303,46 @@ def identify_main(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------- validate
 def add_validate_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("day", metavar="DAY.mcap", help="an independent recorded day")
+    p.add_argument("days", nargs="+", metavar="DAY.mcap", help="independent recorded day(s)")
     p.add_argument("--params", required=True, metavar="PARAMS.toml",
                    help="calibrated parameters")
     p.add_argument("--json", default=None, metavar="FILE", help="also write the JSON here")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write Fig. 6 and a Markdown page to DIR")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
+    _add_objective_arguments(p)
 
 
 def validate_main(args: argparse.Namespace) -> int:
-    """``softsensor validate``: per-channel RMSE and eq. 4 cost on a whole day."""
-    from softsensor.calibration.dataset import load_segment
+    """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days, with the inlet
+    moisture fitted to their temperatures (and open loop)."""
+    from softsensor.model import DryerModel
 
-    config = _config(args)
-    cal_cost = read_fit(args.params).get("cost")
-    segment = load_segment(args.day, config)
-    result = validate(segment, config, float(cal_cost) if isinstance(cal_cost, (int, float))
-                      else None)
+    base = load_plant_config(args.config)
+    config = load_parameters(args.params, base)
+    fit = read_fit(args.params)
+    calibration = _calibration_settings(args, base)
+    if args.cost is None and isinstance(fit.get("cost_kind"), str) \
+            and fit["cost_kind"] in COSTS and not args.paper:
+        calibration = dataclasses.replace(calibration, cost=fit["cost_kind"])
+    segments = [load_segment(p, config) for p in args.days]
+    model = DryerModel(config)
+    spec = objective_spec(model, segments, base, calibration)
+    cal_cost = fit.get("cost")
+    result = validate(segments, config, spec, config.parameter_vector(),
+                      float(cal_cost) if isinstance(cal_cost, (int, float)) else None, model)
     doc = result.summary()
     if args.report:
         from softsensor.calibration.report import validation_page
 
         doc["report"] = str(validation_page(result, config, args.report))
     _emit(doc, args.json)
+    r, o = result.fit.rmse, result.evaluation.open_fit.rmse
+    print(f"validate: {len(segments)} day(s): T_dryer_out {r['T_dryer_out']:.2f} K, "
+          f"T_cyclone_out {r['T_cyclone_out']:.2f} K, moisture_out {r['moisture_out']:.4f} "
+          f"kg/kg with the inlet moisture fitted to the temperatures (open loop: "
+          f"{o['T_dryer_out']:.2f} K, {o['T_cyclone_out']:.2f} K, {o['moisture_out']:.4f})",
+          file=sys.stderr)
     return 0
 
 
@@ -249,7 +354,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("identify", help="which parameters the data can pin down (FIM)")
     add_identify_arguments(p)
     p.set_defaults(func=identify_main)
-    p = sub.add_parser("validate", help="RMSE and eq. 4 cost of PARAMS.toml on another day")
+    p = sub.add_parser("validate", help="RMSE and eq. 4 cost of PARAMS.toml on other days")
     add_validate_arguments(p)
     p.set_defaults(func=validate_main)
 

@@ -1,34 +1,32 @@
-"""Calibration data: a recorded day resampled to the model's 600 s windows.
+"""Calibration data: a recorded day as the model's windows, with its lab results aligned.
 
-The paper (section 3.3) feeds the model "resampling 600 s" data: every window's inputs are the
-mean of the good scans in it, held constant over the window (the model's piecewise-constant
-inputs), and every window's measured temperatures are the mean of its good scans. Window means
-and not end-of-window values are compared with the model's end-of-window outputs: the plant's
+The paper (section 3.3) feeds the model "resampling 600 s" data. The windows are those of the
+one windowing of the program (:mod:`softsensor.estimation.windowing`, the estimator's): aligned
+to multiples of the window length since the Unix epoch, half-open ``(start, end]``, the mean of
+the good scans of every signal, a signal with fewer good scans than ``solver.min_good_fraction``
+of the expected ``window / solver.scan_period`` dropped. Every window's model inputs are its
+input means, held when missing as the estimator holds them
+(:class:`~softsensor.estimation.window_inputs.InputHold`); its measured temperatures are its
+means, missing where the window or the channel has too few good scans. Window means, not
+end-of-window values, are compared with the model's end-of-window outputs: the plant's
 controller moves ``T_air_in`` inside a window, and the model run on the window-mean inputs
 matches the window-mean outputs several times better than the end-of-window samples (the fast
 states sit at their quasi-steady profile; see :mod:`softsensor.model.kernels`).
 
-Lab results are aligned to their *sample* time, not to the time the result was logged. The
-fibre in a lab sample left the cyclone at that instant, a few seconds after it entered the
-tube; the fast states follow the inputs within seconds, so the model is evaluated *at the
-sample time*: the wall state at the start of the sample's window, stepped to the sample time,
-with the inputs averaged over the :data:`LAB_SPAN` seconds of scans before it (``lab_U``).
-The closed loop moves ``T_air_in`` within a window (about 0.7 K r.m.s. on the virtual
-plant), so this halves the model-to-lab error compared with interpolating window-mean
-outputs (0.0036 against 0.0064 kg/kg at the true parameters of a 48 h virtual-plant day,
-lab noise 0.003).
+Lab results are aligned to their *sample* time by :mod:`softsensor.estimation.lab_alignment`
+(the estimator's alignment too): the model is evaluated at the sample time, one step from the
+start of its window with the inputs of the ``solver.lab_span`` seconds before it (``lab_U``).
 
 ``moisture_in`` is not measured; the open-loop model uses the config's ``nominal.moisture_in``.
-
-Windows are aligned to multiples of the window length since the Unix epoch and are half-open
-``(start, end]``, as the estimator service's :class:`~softsensor.estimation.base.Window`.
-Only complete windows inside the record are used.
+Only complete windows inside the record are used: a window that starts before the first scan
+or ends after the last is dropped.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,22 +34,21 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import IngestError
-from softsensor.estimation.window_inputs import MEASURED_INPUTS
-from softsensor.estimation.windowing import NS
+from softsensor.estimation.lab_alignment import (
+    bin_matrix,
+    sample_inputs_from_bins,
+    sample_offset,
+    window_index,
+)
+from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
+from softsensor.estimation.windowing import NS, window_settings, windows_from_frame
+from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import RecordedDay, read_day
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 
 #: Output channels measured on every scan (the third, ``moisture_out``, comes from the lab).
 SCANNED_OUTPUTS: tuple[str, ...] = KELVIN_CHANNELS
-#: A window's mean is used only when at least this share of its nominal scans is good.
-MIN_GOOD_SHARE = 0.5
-#: Nominal PLC scan period [s] (CONTRACT section 1).
-SCAN_PERIOD = 10.0
-#: Scans before a lab sample time averaged into its inputs [s].
-LAB_SPAN = 120.0
-#: Good scans of a signal needed in that span; fewer: the window mean is used.
-LAB_MIN_SCANS = 3
 
 
 @dataclass(frozen=True)
@@ -79,8 +76,11 @@ class Segment:
     lab_id : tuple of str
         Lab sample ids.
     lab_U : ndarray, shape (L, 8), optional
-        Model inputs at each sample time (scans of the last :data:`LAB_SPAN` s); by default
-        the inputs of the sample's window.
+        Model inputs at each sample time (:mod:`~softsensor.estimation.lab_alignment`); by
+        default the inputs of the sample's window.
+    bins : ndarray, shape (K, n_bins, 7), optional
+        Sub-window bin means of the measured inputs (NaN where a bin had no good value), as
+        :attr:`softsensor.messages.Window.bins`; ``(K, 0, 7)`` when unknown.
     lab_window : ndarray of int, shape (L,)
         Window holding each sample time (derived).
     lab_offset : ndarray, shape (L,)
@@ -96,17 +96,21 @@ class Segment:
     lab_value: np.ndarray
     lab_id: tuple[str, ...]
     lab_U: np.ndarray | None = None
+    bins: np.ndarray | None = None
     lab_window: np.ndarray = dataclasses.field(init=False, repr=False)
     lab_offset: np.ndarray = dataclasses.field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         w_ns = self.window_ns
-        rel = np.asarray(self.lab_time_ns, dtype=np.int64) - self.start_ns
-        win = np.clip((rel - 1) // w_ns, 0, max(self.n_windows - 1, 0)).astype(np.int64)
+        win = np.clip(window_index(self.start_ns, w_ns, self.lab_time_ns), 0,
+                      max(self.n_windows - 1, 0)).astype(np.int64)
         object.__setattr__(self, "lab_window", win)
-        object.__setattr__(self, "lab_offset", np.maximum((rel - win * w_ns) / NS, 1.0))
+        object.__setattr__(self, "lab_offset",
+                           sample_offset(self.start_ns + win * w_ns, self.lab_time_ns))
         if self.lab_U is None:
             object.__setattr__(self, "lab_U", np.asarray(self.U)[win].reshape(-1, self.U.shape[1]))
+        if self.bins is None:
+            object.__setattr__(self, "bins", np.empty((self.n_windows, 0, len(MEASURED_INPUTS))))
 
     @property
     def n_windows(self) -> int:
@@ -146,7 +150,7 @@ class Segment:
             start_ns=start, window=self.window, U=self.U[k0:k1], Y=self.Y[k0:k1],
             lab_time_ns=self.lab_time_ns[keep], lab_value=self.lab_value[keep],
             lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k),
-            lab_U=self.lab_U[keep])
+            lab_U=self.lab_U[keep], bins=self.bins[k0:k1])
 
     def require_labs(self, minimum: int = 1) -> None:
         """Refuse a segment without enough lab samples to fit ``moisture_out``."""
@@ -161,112 +165,89 @@ def _iso(t_ns: int) -> str:
     return pd.Timestamp(int(t_ns), unit="ns", tz="UTC").strftime("%Y-%m-%dT%H:%MZ")
 
 
-def window_means(scans: pd.DataFrame, start_ns: int, window_ns: int, n_windows: int,
-                 columns: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Means and good-value counts of ``columns`` per window ``(start + k w, start + (k+1) w]``.
+def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: PlantConfig,
+                         source: str) -> Segment:
+    """Windows of :mod:`~softsensor.estimation.windowing` (consecutive, in time order) and the
+    lab results (``sample_time_ns``, ``moisture_out``, ``sample_id``) as a :class:`Segment`.
 
-    Returns ``(means (K, C), counts (K, C))``; a window without good values has a NaN mean.
+    Leading and trailing stale windows are dropped (the model starts from a steady state at the
+    first window's inputs, which must be measured). Raises :class:`IngestError` when no window
+    is usable, naming why.
     """
-    t = scans.index.to_numpy(dtype=np.int64)
-    k = (t - start_ns - 1) // window_ns
-    inside = (k >= 0) & (k < n_windows)
-    k = k[inside]
-    means = np.full((n_windows, len(columns)), np.nan)
-    counts = np.zeros((n_windows, len(columns)), dtype=np.int64)
-    for j, name in enumerate(columns):
-        v = scans[name].to_numpy(dtype=float)[inside]
-        good = np.isfinite(v)
-        counts[:, j] = np.bincount(k[good], minlength=n_windows)
-        sums = np.bincount(k[good], weights=v[good], minlength=n_windows)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            means[:, j] = np.where(counts[:, j] > 0, sums / np.maximum(counts[:, j], 1), np.nan)
-    return means, counts
+    settings = window_settings(config)
+    usable = [i for i, w in enumerate(windows) if not w.stale]
+    if not usable:
+        reasons = windows[0].reasons if windows else {}
+        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:2]) or "no scans"
+        raise IngestError(
+            f"{source}: no {settings.period_s:g} s window has enough good scans of every model "
+            f"input (first window: {why}); is solver.scan_period ({settings.scan_period_s:g} s) "
+            f"the data's scan period?")
+    kept = list(windows[usable[0]:usable[-1] + 1])
+    hold = InputHold(config.nominal_inputs())
+    U = np.empty((len(kept), len(INPUT_NAMES)))
+    Y = np.full((len(kept), len(OUTPUT_NAMES)), np.nan)
+    for k, w in enumerate(kept):
+        U[k], _ = hold.inputs(w)
+        if not w.stale:
+            for c, name in enumerate(SCANNED_OUTPUTS):
+                v = w.means.get(name)
+                if v is not None and math.isfinite(v):
+                    Y[k, c] = v
+    U[:, INPUT_NAMES.index("moisture_in")] = config.nominal.moisture_in
+    bins = np.stack([bin_matrix(w) for w in kept])
+    start = int(kept[0].start_ns)
+    w_ns = settings.period_ns
+    end = start + len(kept) * w_ns
+    lt = labs["sample_time_ns"].to_numpy(dtype=np.int64)
+    lv = labs["moisture_out"].to_numpy(dtype=float)
+    keep = (lt > start) & (lt <= end) & np.isfinite(lv)
+    order = np.argsort(lt[keep], kind="stable")
+    ids = np.asarray(labs["sample_id"].to_numpy(dtype=object))[keep][order]
+    lab_t = lt[keep][order]
+    k_lab = window_index(start, w_ns, lab_t)
+    span_ns = int(round(config.solver.lab_span * NS))
+    lab_U = np.array([sample_inputs_from_bins(bins[k], start + k * w_ns, settings.bin_ns, U[k],
+                                              int(t), span_ns)
+                      for k, t in zip(k_lab, lab_t, strict=True)]).reshape(-1, U.shape[1])
+    return Segment(source=source, start_ns=start, window=settings.period_s, U=U, Y=Y,
+                   lab_time_ns=lab_t, lab_value=lv[keep][order],
+                   lab_id=tuple(str(i) for i in ids), lab_U=lab_U, bins=bins)
 
 
-def lab_inputs(scans: pd.DataFrame, lab_time_ns: np.ndarray, U: np.ndarray, start_ns: int,
-               window_ns: int, span: float = LAB_SPAN) -> np.ndarray:
-    """Model inputs at each lab sample time: means of the scans in ``(t - span, t]``; a
-    signal with fewer than :data:`LAB_MIN_SCANS` good scans there takes its window mean."""
-    t = scans.index.to_numpy(dtype=np.int64)
-    vals = scans[list(MEASURED_INPUTS)].to_numpy(dtype=float)
-    out = np.empty((len(lab_time_ns), U.shape[1]))
-    for i, ts in enumerate(lab_time_ns):
-        k = int(np.clip((ts - start_ns - 1) // window_ns, 0, len(U) - 1))
-        out[i] = U[k]
-        lo, hi = np.searchsorted(t, [ts - int(span * NS), ts], side="right")
-        block = vals[lo:hi]
-        good = np.isfinite(block)
-        n = good.sum(axis=0)
-        with np.errstate(invalid="ignore"):
-            mean = np.where(good, block, 0.0).sum(axis=0) / np.maximum(n, 1)
-        use = n >= LAB_MIN_SCANS
-        out[i, :len(MEASURED_INPUTS)][use] = mean[use]
-    return out
-
-
-def _hold(values: np.ndarray) -> np.ndarray:
-    """Fill NaN windows with the last good value (the first good one before it starts)."""
-    out = pd.DataFrame(values).ffill().bfill().to_numpy()
-    return out
-
-
-def segment_from_day(day: RecordedDay, config: PlantConfig, *, window: float | None = None,
-                     source: str | None = None) -> Segment:
-    """Resample a recorded day to model windows (module docstring for the rules).
+def segment_from_day(day: RecordedDay, config: PlantConfig, *, source: str | None = None
+                     ) -> Segment:
+    """A recorded day as model windows (module docstring for the rules).
 
     Parameters
     ----------
     day : RecordedDay
         Scans and lab results (the ground-truth topic, if any, is never read).
     config : PlantConfig
-        Gives the window length (``solver.window``) and ``nominal.moisture_in`` [kg/kg].
-    window : float, optional
-        Window length [s]; default ``config.solver.window`` (600 s).
+        Windowing (``[solver]``) and ``nominal.moisture_in`` [kg/kg].
 
     Raises
     ------
     IngestError
-        No scans, a day shorter than one window, or an input or temperature signal without
-        any good value.
+        No scans, no complete window, an input or temperature signal without any good value,
+        or no usable window.
     """
     src = source or str(day.path)
-    window = float(config.solver.window if window is None else window)
-    w_ns = int(round(window * NS))
     scans = day.scans
     if len(scans) == 0:
         raise IngestError(f"{src}: no scans ({TOPIC_SCAN}) in the recording")
-    first, last = int(scans.index[0]), int(scans.index[-1])
-    start = -(-first // w_ns) * w_ns  # first window boundary at or after the first scan
-    n = (last - start) // w_ns
-    if n < 1:
-        raise IngestError(f"{src}: {(last - first) / NS / 3600:.2f} h of scans holds no complete "
-                          f"{window:g} s window")
     for name in MEASURED_INPUTS + SCANNED_OUTPUTS:
         if name not in scans.columns or not np.isfinite(scans[name].to_numpy(float)).any():
             raise IngestError(f"{src}: signal {name} has no good value in {TOPIC_SCAN}")
-    min_count = max(1, math.ceil(MIN_GOOD_SHARE * window / SCAN_PERIOD))
-    u_mean, u_count = window_means(scans, start, w_ns, n, MEASURED_INPUTS)
-    u_mean[u_count < min_count] = np.nan
-    if np.isnan(u_mean).all(axis=0).any():
-        bad = MEASURED_INPUTS[int(np.flatnonzero(np.isnan(u_mean).all(axis=0))[0])]
-        raise IngestError(f"{src}: signal {bad} has no window with {min_count} good scans")
-    U = np.empty((n, len(INPUT_NAMES)))
-    U[:, :len(MEASURED_INPUTS)] = _hold(u_mean)
-    U[:, INPUT_NAMES.index("moisture_in")] = config.nominal.moisture_in
-    y_mean, y_count = window_means(scans, start, w_ns, n, SCANNED_OUTPUTS)
-    y_mean[y_count < min_count] = np.nan
-    Y = np.full((n, len(OUTPUT_NAMES)), np.nan)
-    Y[:, :2] = y_mean
-    labs = day.labs
-    lt = labs["sample_time_ns"].to_numpy(dtype=np.int64)
-    lv = labs["moisture_out"].to_numpy(dtype=float)
-    keep = (lt > start) & (lt <= start + n * w_ns) & np.isfinite(lv)
-    order = np.argsort(lt[keep], kind="stable")
-    ids = np.asarray(labs["sample_id"].to_numpy(dtype=object))[keep][order]
-    lab_t = lt[keep][order]
-    return Segment(source=src, start_ns=start, window=window, U=U, Y=Y, lab_time_ns=lab_t,
-                   lab_value=lv[keep][order], lab_id=tuple(str(i) for i in ids),
-                   lab_U=lab_inputs(scans, lab_t, U, start, w_ns))
+    settings = window_settings(config)
+    t = scans.index.to_numpy(dtype=np.int64)
+    first, last = int(t.min()), int(t.max())
+    windows = [w for w in windows_from_frame(scans.sort_index(), settings)
+               if w.start_ns >= first and w.end_ns <= last]
+    if not windows:
+        raise IngestError(f"{src}: {(last - first) / NS / 3600:.2f} h of scans holds no "
+                          f"complete {settings.period_s:g} s window")
+    return segment_from_windows(windows, day.labs, config, src)
 
 
 def load_segment(path: str | Path, config: PlantConfig) -> Segment:
@@ -279,8 +260,7 @@ __all__ = [
     "MEASURED_INPUTS",
     "SCANNED_OUTPUTS",
     "Segment",
-    "lab_inputs",
     "load_segment",
     "segment_from_day",
-    "window_means",
+    "segment_from_windows",
 ]

@@ -1,55 +1,46 @@
-"""Local identifiability of the seven multipliers (paper section 3.4).
+"""Local identifiability of the seven parameters (paper section 3.4).
 
 Sensitivity trajectories (eq. 5)
     ``S_i(t) = theta_i * dy(t, theta)/d theta_i = dy/d ln(theta_i)``: the change of an output
     [K or kg/kg] per unit fractional change of a parameter, by central differences in
-    ``ln(theta)`` through one batched model call of 15 members (nominal plus two per
-    parameter), each from its own steady initial state.
-Relative sensitivities
-    ``J_relative = S_i / y_mean`` [-].
+    ``ln(theta)`` through one batched model call (nominal plus two members per parameter, each
+    from its own steady initial state), with the nominal inlet moisture (Fig. 2).
+What the cost sees
+    When the calibration estimates the inlet moisture (:mod:`.disturbance`), a parameter's
+    effect that a slow inlet-moisture trajectory can imitate is not information about the
+    parameter. So the rows ``J_m`` of the Fisher information are the sensitivities of the
+    outputs *after* the trajectory is re-fitted (central differences of the residuals the
+    objective sees, :mod:`.objective`): the nuisance is profiled out.
 Weighted Fisher information (the form of the paper's Table 3)
-    ``FIM = sum_m (1 / sigma^2) WF_m^2 J_m^T J_m`` with ``J_m`` the eq. 5 sensitivities of
-    channel ``m`` at its samples (window means for the temperatures, lab sample times for
-    ``moisture_out``: the information the data actually carry) and ``sigma = 1``. A common
-    ``sigma`` scales the matrix only; its condition number, eigenvectors and correlations do
-    not depend on it.
+    ``FIM = sum_m (1 / sigma^2) WF_m^2 J_m^T J_m`` with ``sigma = 1`` and ``J_m`` channel ``m``'s
+    rows at its samples (window means for the temperatures, lab sample times for
+    ``moisture_out``). A common ``sigma`` scales the matrix only; its condition number,
+    eigenvectors and correlations do not depend on it. Each Table 1 parameter has an effect of
+    its own in the model (:mod:`softsensor.model.kernels`), so the condition number is finite;
+    the paper's is 584.
 What the data can pin down
-    The verdict needs the real noise of each channel, not the weights: the statistical FIM
-    ``F = sum_m J_m^T J_m / s_m^2`` uses ``s_m``, the calibration's RMSE of channel ``m``
-    (model error included), inflated by ``(1 + rho_m) / (1 - rho_m)`` for the lag-one
-    autocorrelation ``rho_m`` of the window residuals (serially correlated residuals carry
-    less information than independent ones). A weak Gaussian prior in ``ln(theta)`` whose
-    +-2 sigma spans the Table 1 bounds regularises the exactly collinear directions
-    (``mult_C`` and ``hm_cyc`` act only through their product). The posterior covariance
-    ``C = (F + P0)^-1`` gives each parameter's relative standard error ``sqrt(C_ii)`` (in
-    ``ln(theta)``, so 0.05 means about 5 %) and the correlation matrix.
+    The statistical FIM ``F = sum_m J_m^T J_m / s_m^2`` uses each channel's noise ``s_m``: the
+    RMSE the fit leaves (model error included), inflated by ``sqrt((1 + rho_m) / (1 - rho_m))``
+    for the lag-one autocorrelation ``rho_m`` of the window residuals (serially correlated
+    residuals carry less information than independent ones). With the calibration's prior
+    precision (or, without a prior, a weak one whose +-2 sd spans the Table 1 bounds) the
+    posterior covariance ``C = (F + P0)^-1`` gives each parameter's relative standard error
+    ``sqrt(C_ii)`` (in ``ln(theta)``: 0.05 is about 5 %) and the correlations.
 
-The local FIM is not enough for the verdict. The model saturates (raising ``mult_h`` above
-its value barely changes anything once air-to-fibre heat transfer stops limiting), so a
-FIM standard error of a few percent can hide a ridge that runs tens of percent further; and
-eq. 4 (a weighted sum of RMSEs) weights the temperature channels far less than their noise
-would, so the estimator follows the 600 s temperature means much less than a likelihood
-would. The verdict therefore tests the claim itself, non-linearly and with eq. 4:
-
-*Displacement test* (points of the eq. 4 profile): each parameter is moved by
-``x (1 +- WITHIN)`` (15 %); the other informed parameters start on the linearised eq. 4
-valley (``delta_-i = -H_-i,-i^+ H_-i,i delta_i`` with the Gauss-Newton Hessian
-``H = sum_m a_m J_m^T J_m`` of the re-weighted problem, ``a_m = WF_m / (N_m RMSE_m)``, see
-:mod:`.refine`) and are re-fitted there by a few bounded Gauss-Newton steps, since the valley
-is curved. The rise of eq. 4 is compared with its noise: a pure-noise change of the data moves
-the difference of the two costs by ``sd = sqrt(sum_m s_m^2 |dJ/dy_m(moved) - dJ/dy_m(fit)|^2)``
-with ``dJ/dy_m = WF_m r_m / (N_m RMSE_m)`` (``r_m`` the channel's residuals); for small
-moves that is ``sqrt(sum_m a_m^2 s_m^2 |d_m|^2)``, ``d_m`` the change of channel ``m``'s
-model outputs. ``z = (J_moved - J_fit) / sd``. For a quadratic
-valley this is exactly ``z = delta / (2 s)``, with ``s`` the sandwich standard error
-``sqrt([H^-1 G H^-1]_ii)`` of the eq. 4 estimator (``G = sum_m a_m^2 s_m^2 J_m^T J_m``), so
-``s_eq4 = WITHIN / (2 z)`` is the eq. 4 estimator's standard error read off the non-linear
-model.
+The local FIM can overstate what is pinned down: the model saturates (raising ``mult_h``
+barely changes anything once air-to-fibre heat transfer stops limiting), and a standard error of
+a few percent can hide a curved valley that runs tens of percent further. So a parameter the
+FIM calls pinned is tested on the objective itself (:func:`profile_test`): moved by
+``+-WITHIN`` (15 %) with the other parameters re-fitted by a few Gauss-Newton steps, the
+objective must rise, on both sides, by at least ``PROFILE_RISE`` (2) in units of the prior's
+scale ``lambda`` (:mod:`.objective`: for the likelihood a log-likelihood unit, for eq. 4 the
+change one noise-sized sample makes). A rise of 2 is a likelihood ratio of e^2: the 15 % move
+lies two standard errors out.
 
 Verdict per parameter: *not identifiable* when the data shrink its prior standard deviation
-by less than half (statistical FIM above); *identifiable* when ``s_eq4 <= IDENTIFIABLE_SE``
-on both sides (5 %: the 15 % recovery tolerance is three standard errors, even with the
-other parameters compensating); *weakly identifiable* otherwise.
+by less than half; *identifiable* when the FIM standard error is at most ``IDENTIFIABLE_SE``
+(7.5 %: 15 % is two standard errors) and the profile test confirms it on both sides;
+*weakly identifiable* otherwise.
 """
 
 from __future__ import annotations
@@ -59,8 +50,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.calibration.cost import Fit, ModelRun
+from softsensor.calibration.chunked_run import ChunkedRun
 from softsensor.calibration.dataset import Segment
+from softsensor.calibration.objective import Evaluation, ObjectiveSpec
 from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES
@@ -68,42 +60,47 @@ from softsensor.signals import OUTPUT_NAMES
 
 #: Central-difference step in ln(theta) (1 %; 0.1 % agrees to five digits).
 SENSITIVITY_STEP = 1e-2
-#: The displacement test's relative move (the recovery tolerance the verdict vouches for).
+#: The profile test's relative move (the recovery tolerance the verdict vouches for).
 WITHIN = 0.15
+#: Objective rise, in units of the prior's scale, that pins a parameter at +-WITHIN.
+PROFILE_RISE = 2.0
 #: Gauss-Newton evaluations re-fitting the other parameters at each displaced point.
-PROFILE_NFEV = 4
-#: eq. 4 standard error (from the displacement test) up to which a parameter is identifiable.
-IDENTIFIABLE_SE = 0.05
+PROFILE_NFEV = 3
+#: FIM standard error in ln(theta) up to which a parameter may be identifiable.
+IDENTIFIABLE_SE = 0.075
 #: Posterior / prior standard deviation above which a parameter counts as not identifiable.
 NOT_IDENTIFIABLE_RATIO = 0.5
 #: |correlation| above which two parameters are reported as confounded.
 STRONG_CORRELATION = 0.9
+#: Noise floors of the statistical FIM [K, K, kg/kg].
+NOISE_FLOOR = np.array([0.01, 0.01, 1e-4])
 
 
 @dataclass(frozen=True)
 class Sensitivities:
-    """Eq. 5 sensitivity trajectories on one segment.
+    """Sensitivities on one segment.
 
     Attributes
     ----------
     theta : ndarray (7,)
     Y : ndarray (K, 3)
-        Model outputs at ``theta`` (window ends).
+        Model outputs at ``theta`` (window ends), nominal inlet moisture.
     S : ndarray (K, 3, 7)
-        ``dy_m / d ln(theta_i)`` at window ends [K or kg/kg per unit fractional change].
+        Eq. 5: ``dy_m / d ln(theta_i)`` at window ends [K or kg/kg per unit fractional change].
     S_lab : ndarray (L, 7)
         ``d moisture_out / d ln(theta_i)`` at the lab sample times [kg/kg].
+    rows : list of ndarray
+        Per channel, ``(n_m, 7)``: the sensitivities of the outputs the cost compares, after
+        the inlet trajectory is re-fitted (module docstring), at the channel's samples.
     segment : Segment
-    lab : ndarray (L,)
-        Model ``moisture_out`` at the lab sample times at ``theta``.
     """
 
     theta: np.ndarray
     Y: np.ndarray
     S: np.ndarray
     S_lab: np.ndarray
+    rows: list[np.ndarray]
     segment: Segment
-    lab: np.ndarray | None = None
 
     @property
     def relative(self) -> np.ndarray:
@@ -111,17 +108,16 @@ class Sensitivities:
         return self.S / np.mean(self.Y, axis=0)[None, :, None]
 
     def channel_rows(self, c: int) -> np.ndarray:
-        """Sensitivity rows of channel ``c`` at its measured samples: windows with a measured
-        temperature (c = 0, 1) or lab samples (c = 2)."""
-        if c == 2:
-            return self.S_lab
-        ok = np.isfinite(self.segment.Y[:, c])
-        return self.S[ok, c, :]
+        """Rows of channel ``c`` the information is counted on (``rows[c]``)."""
+        return self.rows[c]
 
 
-def sensitivities(model: DryerModel, segment: Segment, theta: np.ndarray,
-                  step: float = SENSITIVITY_STEP) -> Sensitivities:
-    """Eq. 5 by central differences in ``ln(theta)``: one batched simulate of 15 members.
+def sensitivities(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
+                  spec: ObjectiveSpec, step: float = SENSITIVITY_STEP
+                  ) -> tuple[list[Sensitivities], Evaluation]:
+    """Eq. 5 and the profiled rows on every segment, by central differences in
+    ``ln(theta)``: one batched run of 15 parameter sets. Returns them and the evaluation at
+    ``theta``.
 
     Where one perturbed member's solve fails, that parameter falls back to the one-sided
     difference of the other; both failing, or the nominal member failing, is a
@@ -133,30 +129,36 @@ def sensitivities(model: DryerModel, segment: Segment, theta: np.ndarray,
     for i in range(n):
         members[1 + 2 * i, i] *= np.exp(step)
         members[2 + 2 * i, i] *= np.exp(-step)
-    from softsensor.calibration.chunked_run import simulate_segments
-
-    run = simulate_segments(model, [segment], members)[0]
-    Y, lab = run.Y, run.lab  # (2n+1, K, 3), (2n+1, L)
-    ok = ~run.failed
+    run = ChunkedRun(model, segments, members, spec, n_chunks=1)
+    evs = run.run()
+    ok = np.array([not e.failed for e in evs])
     if not ok[0]:
         at = ", ".join(f"{k}={v:.4g}" for k, v in zip(PARAMETER_NAMES, theta, strict=True))
-        raise SolverError(f"{segment.source}: the model fails at the parameters analysed "
-                          f"({at})")
-    S = np.empty(Y.shape[1:] + (n,))
-    S_lab = np.empty((lab.shape[-1], n))
+        raise SolverError(f"the model fails at the parameters analysed ({at})")
+    pairs = []
     for i in range(n):
         up, dn = 1 + 2 * i, 2 + 2 * i
         if ok[up] and ok[dn]:
-            a, b, h = up, dn, 2 * step
+            pairs.append((up, dn, 2 * step))
         elif ok[up] or ok[dn]:
-            a, b, h = (up, 0, step) if ok[up] else (0, dn, step)
+            pairs.append((up, 0, step) if ok[up] else (0, dn, step))
         else:
-            raise SolverError(f"{segment.source}: the model fails on both sides of "
-                              f"{PARAMETER_NAMES[i]} = {theta[i]:.4g} (+-{step:g} in ln)")
-        S[..., i] = (Y[a] - Y[b]) / h
-        S_lab[:, i] = (lab[a] - lab[b]) / h
-    return Sensitivities(theta=theta, Y=Y[0], S=S, S_lab=S_lab, segment=segment,
-                         lab=lab[0])
+            raise SolverError(f"the model fails on both sides of {PARAMETER_NAMES[i]} = "
+                              f"{theta[i]:.4g} (+-{step:g} in ln)")
+    out = []
+    for s, seg in enumerate(segments):
+        Y, lab = run.runs[s].Y, run.runs[s].lab
+        S = np.empty(Y.shape[1:] + (n,))
+        S_lab = np.empty((lab.shape[-1], n))
+        rows = [np.empty((evs[0].res[s][c].size, n)) for c in range(3)]
+        for i, (a, b, h) in enumerate(pairs):
+            S[..., i] = (Y[a] - Y[b]) / h
+            S_lab[:, i] = (lab[a] - lab[b]) / h
+            for c in range(3):  # residual = measured - model: the model moves the other way
+                rows[c][:, i] = -(evs[a].res[s][c] - evs[b].res[s][c]) / h
+        out.append(Sensitivities(theta=theta, Y=Y[0], S=S, S_lab=S_lab, rows=rows,
+                                 segment=seg))
+    return out, evs[0]
 
 
 def weighted_fim(sens: Sequence[Sensitivities], weights: np.ndarray, sigma: float = 1.0
@@ -191,9 +193,87 @@ def statistical_fim(sens: Sequence[Sensitivities], noise: np.ndarray) -> np.ndar
     return 0.5 * (F + F.T)
 
 
-def prior_sd(bounds: np.ndarray) -> np.ndarray:
-    """Prior standard deviation of ln(theta): +-2 sd spans the Table 1 bounds."""
+def noise_from_evaluation(ev: Evaluation) -> np.ndarray:
+    """Per-channel noise for the statistical FIM: the RMSE the fit leaves, inflated for
+    serially correlated window residuals by ``sqrt((1 + rho) / (1 - rho))``."""
+    noise = np.empty(3)
+    for c, name in enumerate(OUTPUT_NAMES):
+        s = float(ev.fit.rmse[name]) if np.isfinite(ev.fit.rmse[name]) else 0.0
+        if c < 2:
+            rho = float(np.clip(np.mean([lag1_autocorrelation(r[c]) for r in ev.res]),
+                                0.0, 0.95))
+            s *= np.sqrt((1 + rho) / (1 - rho))
+        noise[c] = max(s, NOISE_FLOOR[c])
+    return noise
+
+
+def bounds_prior_sd(bounds: np.ndarray) -> np.ndarray:
+    """A weak prior standard deviation of ln(theta): +-2 sd spans the Table 1 bounds."""
     return np.log(bounds[:, 1] / bounds[:, 0]) / 4.0
+
+
+@dataclass(frozen=True)
+class ProfileTest:
+    """Objective rise, in units of the prior scale, when a parameter moves by +-``within``
+    with the others re-fitted (module docstring). NaN where not tested; ``inf`` where a bound
+    blocks the move (the bound pins the parameter on that side)."""
+
+    within: float
+    rise_up: np.ndarray
+    rise_down: np.ndarray
+
+    def rise(self, i: int) -> float:
+        """The smaller rise of the two sides (NaN when untested)."""
+        pair = [v for v in (self.rise_up[i], self.rise_down[i]) if not np.isnan(v)]
+        return float(min(pair)) if pair else float("nan")
+
+
+def profile_test(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
+                 ev: Evaluation, spec: ObjectiveSpec, bounds: np.ndarray, tested: np.ndarray,
+                 informed: np.ndarray, within: float = WITHIN,
+                 profile_nfev: int = PROFILE_NFEV) -> ProfileTest:
+    """Move each ``tested`` parameter by ``x (1 +- within)``, re-fit the other ``informed``
+    ones by at most ``profile_nfev`` bounded Gauss-Newton steps and measure the objective's
+    rise in units of ``spec.prior_scale``: points of the profile of the objective."""
+    from scipy.optimize import least_squares
+
+    from softsensor.calibration.chunked_run import evaluate_parameters
+    from softsensor.calibration.objective import irls_scale
+    from softsensor.calibration.refine import WeightedResiduals
+
+    n = len(PARAMETER_NAMES)
+    lo, hi = np.log(bounds[:, 0]), np.log(bounds[:, 1])
+    z0 = np.log(np.asarray(theta, float))
+    scale = irls_scale(ev, spec)
+    up, dn = np.full(n, np.nan), np.full(n, np.nan)
+    unit = spec.prior_scale if spec.prior_scale > 0 else 1.0
+
+    def refit(z: np.ndarray, others: np.ndarray) -> float:
+        """The objective with ``others`` re-fitted from ``z`` (a few Gauss-Newton steps)."""
+        if others.size and profile_nfev > 0:
+            active = np.zeros(n, dtype=bool)
+            active[others] = True
+            prob = WeightedResiduals(model, segments, spec, scale, z, active)
+            sol = least_squares(prob.fun, z[active], jac=prob.jac,
+                                bounds=(lo[active], hi[active]), method="trf",
+                                max_nfev=profile_nfev, xtol=1e-4, ftol=1e-4)
+            z = prob.full(np.clip(sol.x, lo[active], hi[active]))
+        return evaluate_parameters(model, segments, np.exp(z), spec)[0].objective
+
+    for i in np.flatnonzero(tested):
+        others = np.array([j for j in np.flatnonzero(informed) if j != i], dtype=int)
+        # the reference is the calibrated point re-fitted the same way, so that an optimum
+        # the polish left a little short of does not pass for a rise
+        ref = min(ev.objective, refit(z0.copy(), others))
+        for sign, step in ((1, np.log1p(within)), (-1, np.log1p(-within))):
+            zi = z0[i] + step
+            if zi > hi[i] + 1e-12 or zi < lo[i] - 1e-12:
+                (up if sign > 0 else dn)[i] = np.inf
+                continue
+            z = z0.copy()
+            z[i] = zi
+            (up if sign > 0 else dn)[i] = (refit(z, others) - ref) / unit
+    return ProfileTest(within=within, rise_up=up, rise_down=dn)
 
 
 @dataclass(frozen=True)
@@ -204,8 +284,7 @@ class ParameterVerdict:
     prior_ratio: float
     partner: str | None
     correlation: float
-    z: float
-    eq4_se: float
+    rise: float
     verdict: str
     reason: str
 
@@ -224,7 +303,7 @@ class Identifiability:
     correlation: np.ndarray
     noise: np.ndarray               # per channel, as used in ``fim_statistical``
     verdicts: list[ParameterVerdict]
-    displacement: DisplacementTest | None = None
+    profile: ProfileTest | None = None
 
     def verdict(self, name: str) -> ParameterVerdict:
         return self.verdicts[PARAMETER_NAMES.index(name)]
@@ -251,206 +330,86 @@ class Identifiability:
         return out
 
 
-def noise_from_fit(fit: Fit, segments: Sequence[Segment], runs: Sequence[ModelRun]
-                   ) -> np.ndarray:
-    """Per-channel noise for the statistical FIM: the fit's RMSE, inflated for serially
-    correlated window residuals by ``sqrt((1 + rho) / (1 - rho))`` (module docstring)."""
-    noise = np.empty(3)
-    for c, name in enumerate(OUTPUT_NAMES):
-        s = float(fit.rmse[name]) if np.isfinite(fit.rmse[name]) else 0.0
-        if c < 2:
-            rho = np.mean([lag1_autocorrelation(seg.Y[:, c] - run.Y[0, :, c])
-                           for seg, run in zip(segments, runs, strict=True)])
-            rho = float(np.clip(rho, 0.0, 0.95))
-            s *= np.sqrt((1 + rho) / (1 - rho))
-        noise[c] = max(s, (0.01, 0.01, 1e-4)[c])  # floors: 0.01 K, 1e-4 kg/kg
-    return noise
-
-
-@dataclass(frozen=True)
-class DisplacementTest:
-    """Eq. 4 rise, in noise standard deviations, when a parameter moves by +-``within``
-    with the others compensating (module docstring). NaN where not tested; ``inf`` where a
-    bound blocks the move (the bound itself pins the parameter on that side)."""
-
-    within: float
-    z_up: np.ndarray
-    z_down: np.ndarray
-    dcost_up: np.ndarray
-    dcost_down: np.ndarray
-
-    def z(self, i: int) -> float:
-        """The smaller rise of the two sides (NaN when untested)."""
-        pair = [v for v in (self.z_up[i], self.z_down[i]) if not np.isnan(v)]
-        return float(min(pair)) if pair else float("nan")
-
-
-def eq4_standard_error(z: float, within: float = WITHIN) -> float:
-    """Standard error of the eq. 4 estimator from a displacement-test rise ``z``:
-    ``within / (2 z)`` (0 when a bound blocks the move, inf for no rise, NaN untested)."""
-    if np.isnan(z):
-        return float("nan")
-    if z == np.inf:
-        return 0.0
-    return float(within / (2.0 * z)) if z > 0 else float("inf")
-
-
-def eq4_weights(fit: Fit, weights: np.ndarray) -> np.ndarray:
-    """``a_m = WF_m / (N_m RMSE_m)``: eq. 4 as re-weighted least squares at ``fit``."""
-    a = np.zeros(3)
-    for c, name in enumerate(OUTPUT_NAMES):
-        r, n = fit.rmse[name], fit.n[name]
-        if n and np.isfinite(r) and r > 0:
-            a[c] = weights[c] / (n * r)
-    return a
-
-
-def displacement_test(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
-                      sens: Sequence[Sensitivities], fit: Fit, runs0: Sequence[ModelRun],
-                      weights: np.ndarray, noise: np.ndarray, bounds: np.ndarray,
-                      tested: np.ndarray, within: float = WITHIN,
-                      profile_nfev: int = PROFILE_NFEV) -> DisplacementTest:
-    """Move each ``tested`` parameter by ``x (1 +- within)``, re-fit the others and measure
-    the rise of eq. 4 against its noise: points of the eq. 4 profile.
-
-    The others start on the linearised eq. 4 valley and are then re-fitted by at most
-    ``profile_nfev`` bounded Gauss-Newton steps (the re-weighted problem of :mod:`.refine`):
-    the valley between ``mult_D`` and ``mult_h`` is curved (heat transfer saturates), and a
-    straight line through it would overstate how well a parameter is pinned. Only the other
-    ``tested`` parameters (those the data inform at all) are re-fitted: an uninformed one has
-    a near-zero sensitivity column, and the valley would send it across decades.
-    """
-    from scipy.optimize import least_squares
-
-    from softsensor.calibration.chunked_run import simulate_segments
-    from softsensor.calibration.cost import evaluate_fit, residuals
-    from softsensor.calibration.refine import WeightedResiduals, irls_scale
-
-    n = len(PARAMETER_NAMES)
-    a = eq4_weights(fit, weights)
-    H = np.zeros((n, n))
-    for s in sens:
-        for c in range(3):
-            J = s.channel_rows(c)
-            H += a[c] * (J.T @ J)
-    lo, hi = np.log(bounds[:, 0]), np.log(bounds[:, 1])
-    z0 = np.log(theta)
-    scale = irls_scale(fit, weights)
-    members, where = [], []
-    z_up, z_dn = np.full(n, np.nan), np.full(n, np.nan)
-    for i in np.flatnonzero(tested):
-        others = [j for j in np.flatnonzero(tested) if j != i]
-        comp = (np.linalg.lstsq(H[np.ix_(others, others)], H[others, i], rcond=1e-10)[0]
-                if others else np.zeros(0))
-        for sign, step in ((1, np.log1p(within)), (-1, np.log1p(-within))):
-            zi = z0[i] + step
-            if zi > hi[i] + 1e-12 or zi < lo[i] - 1e-12:
-                (z_up if sign > 0 else z_dn)[i] = np.inf
-                continue
-            z = z0.copy()
-            z[i] = zi
-            z[others] = np.clip(z0[others] - comp * step, lo[others], hi[others])
-            if others and profile_nfev > 0:
-                active = np.zeros(n, dtype=bool)
-                active[others] = True
-                prob = WeightedResiduals(model, segments, scale, z, active)
-                sol = least_squares(prob.fun, z[active], jac=prob.jac,
-                                    bounds=(lo[active], hi[active]), method="trf",
-                                    max_nfev=profile_nfev, xtol=1e-4, ftol=1e-4)
-                z = prob.full(np.clip(sol.x, lo[active], hi[active]))
-            members.append(z)
-            where.append((i, sign))
-    d_up, d_dn = np.full(n, np.nan), np.full(n, np.nan)
-    if members:
-        runs = simulate_segments(model, segments, np.exp(np.array(members)))
-        fits = evaluate_fit(runs, segments, weights)
-        fit0 = evaluate_fit(runs0, segments, weights)[0]
-        var = np.zeros(len(members))
-        res0 = [residuals(r, seg) for r, seg in zip(runs0, segments, strict=True)]
-        res1 = [residuals(r, seg) for r, seg in zip(runs, segments, strict=True)]
-        for c, name in enumerate(OUTPUT_NAMES):
-            n_c, R0 = fit0.n[name], fit0.rmse[name]
-            if not n_c or not R0 > 0:
-                continue
-            R1 = np.array([f.rmse[name] for f in fits])[:, None]
-            # d J / d data of both costs; their difference's variance under channel noise
-            g0 = np.concatenate([r[c] for r in res0], axis=-1) / R0
-            g1 = np.concatenate([r[c] for r in res1], axis=-1) / R1
-            var += (weights[c] / n_c * noise[c]) ** 2 * np.sum((g1 - g0) ** 2, axis=-1)
-        for b, (i, sign) in enumerate(where):
-            dJ = fits[b].cost - fit0.cost
-            sd = np.sqrt(var[b])
-            zval = dJ / sd if sd > 0 and np.isfinite(dJ) else (np.inf if dJ > 0 else 0.0)
-            (z_up if sign > 0 else z_dn)[i] = zval
-            (d_up if sign > 0 else d_dn)[i] = dJ
-    return DisplacementTest(within=within, z_up=z_up, z_down=z_dn, dcost_up=d_up,
-                            dcost_down=d_dn)
+def condition_number(F: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """Condition number, eigenvalues (ascending) and eigenvectors of a symmetric matrix."""
+    lam, vec = np.linalg.eigh(F)
+    cond = float(lam[-1] / lam[0]) if lam[0] > 0 else float("inf")
+    return cond, lam, vec
 
 
 def analyse(sens: Sequence[Sensitivities], weights: np.ndarray, noise: np.ndarray,
-            bounds: np.ndarray, displacement: DisplacementTest | None = None
-            ) -> Identifiability:
+            prior_sd: np.ndarray, profile: ProfileTest | None = None) -> Identifiability:
     """FIMs, condition number, eigenvectors, correlations and per-parameter verdicts.
 
-    Without a ``displacement`` test no parameter is called identifiable (the local FIM
-    alone cannot vouch for it); see the module docstring.
+    ``prior_sd`` (7,) is the prior standard deviation of ``ln(theta)`` the verdict measures
+    the data against. Without a ``profile`` test no parameter is called identifiable (the
+    local FIM alone cannot vouch for it); see the module docstring.
     """
     theta = sens[0].theta
     F = weighted_fim(sens, weights)
-    lam, vec = np.linalg.eigh(F)
-    lam_min = max(float(lam[0]), float(lam[-1]) * np.finfo(float).eps)
-    cond = float(lam[-1] / lam_min) if lam[-1] > 0 else float("inf")
+    cond, lam, vec = condition_number(F)
     Fs = statistical_fim(sens, noise)
-    p_sd = prior_sd(bounds)
+    p_sd = np.asarray(prior_sd, float)
     C = np.linalg.inv(Fs + np.diag(1.0 / p_sd**2))
     C = 0.5 * (C + C.T)
     sd = np.sqrt(np.diag(C))
     R = C / np.outer(sd, sd)
+    pct = 100 * (WITHIN if profile is None else profile.within)
     verdicts = []
     for i, name in enumerate(PARAMETER_NAMES):
         others = [j for j in range(len(PARAMETER_NAMES)) if j != i]
         j = others[int(np.argmax(np.abs(R[i, others])))]
         r = float(R[i, j])
         ratio = float(sd[i] / p_sd[i])
-        z = np.nan if displacement is None else displacement.z(i)
-        within = WITHIN if displacement is None else displacement.within
-        pct = 100 * within
-        se4 = eq4_standard_error(z, within)
+        rise = np.nan if profile is None else profile.rise(i)
+        confounded = (f"; confounded with {PARAMETER_NAMES[j]} ({r:+.2f})"
+                      if abs(r) >= STRONG_CORRELATION else "")
         if ratio > NOT_IDENTIFIABLE_RATIO:
             verdict = "not identifiable"
             reason = (f"confounded with {PARAMETER_NAMES[j]} (correlation {r:+.2f})"
                       if abs(r) >= STRONG_CORRELATION
-                      else "hardly any effect on the measured outputs")
-        elif se4 <= IDENTIFIABLE_SE:
+                      else "hardly any effect on the outputs the cost compares")
+        elif sd[i] <= IDENTIFIABLE_SE and np.isfinite(rise) and rise >= PROFILE_RISE:
             verdict = "identifiable"
-            reason = (f"eq. 4 s.e. {100 * se4:.1f} %: moving it {pct:.0f} % (others "
-                      f"re-fitted) raises J by {min(z, 999):.1f} noise s.d.")
+            reason = (f"s.e. {100 * sd[i]:.1f} %; moved {pct:.0f} % with the others "
+                      f"re-fitted, the objective rises by {min(rise, 999):.1f}")
         else:
             verdict = "weakly identifiable"
-            side = ""
-            if displacement is not None:
-                up, dn = displacement.z_up[i], displacement.z_down[i]
-                side = "up" if (np.nan_to_num(up, nan=np.inf) <= np.nan_to_num(dn, nan=np.inf)) \
-                    else "down"
-            if np.isfinite(z) and z < 0:
-                reason = (f"moving it {pct:.0f} % {side} with the others re-fitted lowers J "
-                          f"({z:.1f} noise s.d.): a flat valley, the fit is one point of it")
-            elif np.isfinite(z):
-                reason = (f"eq. 4 s.e. {100 * se4:.0f} %: moving it {pct:.0f} % {side} (others "
-                          f"re-fitted) raises J by only {z:.1f} noise s.d.")
+            if sd[i] > IDENTIFIABLE_SE:
+                reason = f"s.e. {100 * sd[i]:.0f} %" + confounded
+            elif np.isfinite(rise):
+                reason = (f"s.e. {100 * sd[i]:.1f} %, but moved {pct:.0f} % with the others "
+                          f"re-fitted the objective rises by only {rise:.2f}: a curved "
+                          f"valley" + confounded)
             else:
-                reason = f"local s.e. {100 * sd[i]:.0f} %, not tested non-linearly"
-            if abs(r) >= STRONG_CORRELATION:
-                reason += f"; confounded with {PARAMETER_NAMES[j]} ({r:+.2f})"
+                reason = f"s.e. {100 * sd[i]:.1f} %, not tested on the objective" + confounded
         verdicts.append(ParameterVerdict(
             name=name, value=float(theta[i]), relative_se=float(sd[i]), prior_ratio=ratio,
-            partner=PARAMETER_NAMES[j], correlation=r, z=float(z), eq4_se=float(se4),
-            verdict=verdict,
+            partner=PARAMETER_NAMES[j], correlation=r, rise=float(rise), verdict=verdict,
             reason=reason))
     return Identifiability(theta=theta, fim=F, condition_number=cond, eigenvalues=lam,
                            eigenvectors=vec, fim_statistical=Fs, covariance=C, correlation=R,
-                           noise=np.asarray(noise, float), verdicts=verdicts,
-                           displacement=displacement)
+                           noise=np.asarray(noise, float), verdicts=verdicts, profile=profile)
+
+
+def identify(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
+             spec: ObjectiveSpec, bounds: np.ndarray, *, profile: bool = True
+             ) -> tuple[Identifiability, list[Sensitivities]]:
+    """The whole analysis at ``theta``: sensitivities, FIMs, and the profile test of the
+    parameters the FIM calls pinned."""
+    sens, ev = sensitivities(model, segments, theta, spec)
+    noise = noise_from_evaluation(ev)
+    p_sd = (np.full(len(PARAMETER_NAMES), spec.prior_sigma) if spec.prior_center is not None
+            else bounds_prior_sd(bounds))
+    local = analyse(sens, spec.weights, noise, p_sd)
+    if not profile:
+        return local, sens
+    tested = np.array([v.relative_se <= IDENTIFIABLE_SE for v in local.verdicts])
+    informed = np.array([v.verdict != "not identifiable" for v in local.verdicts])
+    if not tested.any():
+        return local, sens
+    prof = profile_test(model, segments, theta, ev, spec, bounds, tested, informed)
+    return analyse(sens, spec.weights, noise, p_sd, prof), sens
 
 
 #: Importance evaluators ``parameter_importance`` offers.
@@ -491,21 +450,21 @@ def parameter_importance(study, method: str = "ped-anova") -> dict[str, float]:
 
 
 __all__ = [
+    "IDENTIFIABLE_SE",
     "IMPORTANCE_METHODS",
     "WITHIN",
-    "IDENTIFIABLE_SE",
-    "eq4_standard_error",
-    "DisplacementTest",
-    "displacement_test",
-    "eq4_weights",
     "Identifiability",
     "ParameterVerdict",
+    "ProfileTest",
     "Sensitivities",
     "analyse",
+    "bounds_prior_sd",
+    "condition_number",
+    "identify",
     "lag1_autocorrelation",
-    "noise_from_fit",
+    "noise_from_evaluation",
     "parameter_importance",
-    "prior_sd",
+    "profile_test",
     "sensitivities",
     "statistical_fim",
     "weighted_fim",

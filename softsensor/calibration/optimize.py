@@ -6,8 +6,9 @@
   best 10 % of the trials (capped at 25), the paper's ``gamma = 0.1``, which is Optuna 5's
   default (passing ``gamma`` is deprecated). The first 10 trials are random; the very first
   trial of a new study is the config's own parameter values (the uncalibrated model).
-* Objective: eq. 4 (:mod:`softsensor.calibration.cost`) over all segments, every trial from
-  its own steady initial state.
+* Objective: :mod:`softsensor.calibration.objective` (eq. 4 or the likelihood, after the inlet
+  moisture's trajectory when it is estimated, plus the prior) over all segments, every trial
+  from its own steady initial state.
 * Pruning: the horizon runs in chunks (:class:`~softsensor.calibration.chunked_run.ChunkedRun`);
   after each chunk but the last the partial cost is reported and Optuna's
   :class:`~optuna.pruners.MedianPruner` stops trials worse than the median of earlier trials at
@@ -45,12 +46,13 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 
 from softsensor.calibration.chunked_run import ChunkedRun
 from softsensor.calibration.dataset import Segment
+from softsensor.calibration.objective import ObjectiveSpec
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
-#: Cost reported for a trial whose model solve failed (far above any real eq. 4 cost).
-FAILED_COST = 1.0e3
+#: Objective reported for a trial whose model solve failed (far above any real objective).
+FAILED_COST = 1.0e9
 DEFAULT_STUDY_NAME = "softsensor-calibration"
 #: Trials TPE draws at random before it models the good and bad sets.
 N_STARTUP_TRIALS = 10
@@ -121,9 +123,10 @@ def open_storage(url: str | None) -> BaseStorage:
         raise ConfigError(f"--storage {url}: cannot open: {str(exc).splitlines()[0]}") from exc
 
 
-def data_fingerprint(segments: Sequence[Segment], config: PlantConfig) -> str:
-    """A short hash of the calibration data and search space: a study is only resumed or
-    joined on the same data."""
+def data_fingerprint(segments: Sequence[Segment], config: PlantConfig,
+                     spec: ObjectiveSpec | None = None) -> str:
+    """A short hash of the calibration data, search space and objective: a study is only
+    resumed or joined on the same problem."""
     h = hashlib.sha256()
     for seg in segments:
         h.update(np.ascontiguousarray(seg.U).tobytes())
@@ -132,6 +135,10 @@ def data_fingerprint(segments: Sequence[Segment], config: PlantConfig) -> str:
         h.update(seg.lab_value.tobytes())
     h.update(json.dumps(config.bounds().tolist()).encode())
     h.update(np.asarray(config.cost.weights()).tobytes())
+    if spec is not None:
+        h.update(repr((spec.cost, spec.prior_sigma, spec.prior_scale, spec.inlet,
+                       None if spec.prior_center is None else spec.prior_center.tolist(),
+                       spec.n_eff_ratio.tolist())).encode())
     return h.hexdigest()[:16]
 
 
@@ -205,10 +212,10 @@ class WorkerReport:
 
 
 def _finish_batch(study: optuna.Study, model: DryerModel, segments: Sequence[Segment],
-                  trials: list[Trial], weights: np.ndarray, settings: StudySettings,
+                  trials: list[Trial], spec: ObjectiveSpec, settings: StudySettings,
                   report: WorkerReport) -> None:
     theta = np.stack([theta_of(t.params) for t in trials])
-    run = ChunkedRun(model, segments, theta, weights, settings.n_chunks)
+    run = ChunkedRun(model, segments, theta, spec, settings.n_chunks)
     open_ = set(range(len(trials)))
     for t in trials:
         t.set_user_attr("worker", os.getpid())
@@ -219,9 +226,9 @@ def _finish_batch(study: optuna.Study, model: DryerModel, segments: Sequence[Seg
             for b in run.bounds))
         partial = run.advance()
         last = run.done
-        for i, fit in partial.items():
+        for i, ev in partial.items():
             trial = trials[i]
-            if not np.isfinite(fit.cost):
+            if not np.isfinite(ev.objective):
                 trial.set_user_attr("solver_failed", True)
                 trial.report(FAILED_COST, run.step_index - 1)
                 study.tell(trial, state=TrialState.PRUNED)
@@ -230,7 +237,7 @@ def _finish_batch(study: optuna.Study, model: DryerModel, segments: Sequence[Seg
                 continue
             if last:
                 continue
-            trial.report(fit.cost, run.step_index - 1)
+            trial.report(ev.objective, run.step_index - 1)
             if settings.prune and trial.should_prune():
                 study.tell(trial, state=TrialState.PRUNED)
                 report.pruned += 1
@@ -239,11 +246,13 @@ def _finish_batch(study: optuna.Study, model: DryerModel, segments: Sequence[Seg
     if open_:
         full = run.partial(np.array(sorted(open_)))
         for i in sorted(open_):
-            fit = full[i]
+            ev = full[i]
             trial = trials[i]
-            for name, v in fit.rmse.items():
+            for name, v in ev.fit.rmse.items():
                 trial.set_user_attr(f"rmse_{name}", v)
-            study.tell(trial, fit.cost)
+            trial.set_user_attr("eq4", ev.fit.cost)
+            trial.set_user_attr("prior", ev.prior)
+            study.tell(trial, ev.objective)
             report.complete += 1
     report.trials += len(trials)
     report.windows_full += len(trials) * sum(s.n_windows for s in segments)
@@ -251,7 +260,7 @@ def _finish_batch(study: optuna.Study, model: DryerModel, segments: Sequence[Seg
 
 
 def run_trials(study: optuna.Study, model: DryerModel, segments: Sequence[Segment],
-               config: PlantConfig, settings: StudySettings,
+               config: PlantConfig, settings: StudySettings, spec: ObjectiveSpec,
                on_trial: Callable[[FrozenTrial | None], None] | None = None) -> WorkerReport:
     """Ask, evaluate and tell trials until the study holds ``settings.n_trials`` finished
     trials. A progress bar goes to stderr when ``settings.progress``. On an interrupt the
@@ -259,7 +268,6 @@ def run_trials(study: optuna.Study, model: DryerModel, segments: Sequence[Segmen
     from tqdm import tqdm
 
     space = search_space(config)
-    weights = config.cost.weights()
     report = WorkerReport()
     t0 = time.perf_counter()
     done = n_finished(study)
@@ -275,7 +283,7 @@ def run_trials(study: optuna.Study, model: DryerModel, segments: Sequence[Segmen
             if room <= 0:
                 break
             trials = [study.ask(space) for _ in range(min(settings.batch, room))]
-            _finish_batch(study, model, segments, trials, weights, settings, report)
+            _finish_batch(study, model, segments, trials, spec, settings, report)
             trials = []
             now = n_finished(study)
             bar.update(max(0, min(now, settings.n_trials) - bar.n))

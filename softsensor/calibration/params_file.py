@@ -9,13 +9,17 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     high = 5.0
     log = true
     verdict = "identifiable"   when an identifiability analysis ran
+    at_bound = true            when the value ended within the bound margin (flagged)
 
-    [fit]                      eq. 4 cost, trials, seed, data, chosen window(s) and why
+    [fit]                      objective, cost kind, trials, seed, data, chosen window(s) and
+                               why, parameters at a bound, validation against the current ones
     [fit.rmse]                 per channel: T_dryer_out [K], T_cyclone_out [K],
                                moisture_out [kg/kg]
     [fit.weighted_rmse]        WF_m * RMSE_m, the numbers the paper quotes
     [fit.weights]              the eq. 4 weights used
     [fit.samples]              samples per channel
+    [discrepancy]              what the model leaves on held-out data (the estimator's prior
+                               on its own error, :class:`~.pipeline.Discrepancy`)
 
 Python's standard library reads TOML but does not write it; :func:`dumps` writes the small
 subset used here (tables of numbers, booleans, strings and lists of strings).
@@ -25,7 +29,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -76,9 +80,11 @@ def dumps(doc: Mapping[str, Any], comment: str | None = None) -> str:
 
 
 def params_document(config: PlantConfig, values: Mapping[str, float],
-                    fit: Mapping[str, Any], verdicts: Mapping[str, str] | None = None
-                    ) -> dict[str, Any]:
-    """The PARAMS.toml document for parameter ``values`` and the ``[fit]`` section."""
+                    fit: Mapping[str, Any], verdicts: Mapping[str, str] | None = None,
+                    at_bounds: Sequence[str] = (),
+                    discrepancy: Mapping[str, float] | None = None) -> dict[str, Any]:
+    """The PARAMS.toml document for parameter ``values``, the ``[fit]`` section, the flags
+    of parameters at a bound and the ``[discrepancy]`` section."""
     params: dict[str, Any] = {}
     for name in PARAMETER_NAMES:
         spec = config.parameters[name]
@@ -86,8 +92,14 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
                                  "high": float(spec.high), "log": bool(spec.log)}
         if verdicts and name in verdicts:
             entry["verdict"] = verdicts[name]
+        if name in at_bounds:
+            entry["at_bound"] = True
         params[name] = entry
-    return {"parameters": params, "fit": dict(fit)}
+    doc: dict[str, Any] = {"parameters": params, "fit": dict(fit)}
+    if discrepancy:
+        doc["discrepancy"] = {k: v for k, v in discrepancy.items()
+                              if not (isinstance(v, float) and math.isnan(v))}
+    return doc
 
 
 def write_params(path: str | Path, document: Mapping[str, Any], comment: str | None = None
@@ -102,6 +114,20 @@ def write_params(path: str | Path, document: Mapping[str, Any], comment: str | N
     return p
 
 
+def read_discrepancy(path: str | Path) -> dict[str, float]:
+    """The ``[discrepancy]`` section of a PARAMS.toml ({} when absent)."""
+    data = read_toml(path)
+    table = data.get("discrepancy", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{path}: [discrepancy] must be a table")
+    out = {}
+    for k, v in table.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise ConfigError(f"{path}: discrepancy.{k} must be a number, got {v!r}")
+        out[str(k)] = float(v)
+    return out
+
+
 def read_fit(path: str | Path) -> dict[str, Any]:
     """The ``[fit]`` section of a PARAMS.toml ({} when absent)."""
     data = read_toml(path)
@@ -111,4 +137,4 @@ def read_fit(path: str | Path) -> dict[str, Any]:
     return fit
 
 
-__all__ = ["dumps", "params_document", "read_fit", "write_params"]
+__all__ = ["dumps", "params_document", "read_discrepancy", "read_fit", "write_params"]

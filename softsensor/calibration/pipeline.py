@@ -1,15 +1,31 @@
 """Calibrate, identify, validate: the three workflows of the paper's section 3, as functions.
 
-:func:`calibrate` loads the recorded days, picks the calibration window(s) of each
-(:mod:`.selection`), runs the Optuna study (:mod:`.optimize`), polishes its best trial
-(:mod:`.refine`), evaluates the result on the whole calibration data and, unless told not to,
-analyses which parameters the data pin down (:mod:`.identifiability`). :func:`validate`
-evaluates a parameter set on an independent day. The command-line verbs in
-:mod:`.commands` only parse arguments and print or write what these return.
+:func:`calibrate` takes the calibration segments (the recorded days, cut to their calibration
+windows by :mod:`.selection`), holds out the end of each (``holdout_fraction``) unless other
+days are given for validation, runs the Optuna study on the rest (:mod:`.optimize`), polishes
+its best trial (:mod:`.refine`), and validates the result against the current parameters on
+the held-out data (:func:`validate`): a result that predicts worse than the current parameters
+is marked not accepted, with the numbers, and the ``calibrate`` verb then refuses to write it.
+Unless told not to, it analyses which parameters the data pin down (:mod:`.identifiability`).
+
+What is minimised is :mod:`.objective`: eq. 4 or the likelihood, after the unmeasured inlet
+moisture's trajectory, plus a prior on the parameters (``[calibration]``,
+:class:`~.settings.CalibrationSettings`). Validation scores with the trajectory fitted to the
+temperatures only, so that the lab results test the model out of sample, as the virtual sensor
+meets them; the open-loop numbers (nominal inlet moisture) are reported beside.
+
+The statistics of what the validation leaves (:class:`Discrepancy`) go into PARAMS.toml for
+the estimator: how far, how correlated and how slowly the calibrated model misses a day it
+was not fitted on.
+
+The command-line verbs in :mod:`.commands` only parse arguments and print or write what these
+return.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -19,17 +35,22 @@ from typing import Any
 import numpy as np
 import optuna
 
-from softsensor.calibration.chunked_run import simulate_segments
-from softsensor.calibration.cost import Fit, ModelRun, evaluate_fit, weighted_rmse
+from softsensor.calibration.chunked_run import evaluate_parameters, simulate_segments
+from softsensor.calibration.cost import ModelRun, weighted_rmse
 from softsensor.calibration.dataset import Segment, load_segment
+from softsensor.calibration.disturbance import InletPrior
 from softsensor.calibration.identifiability import (
     Identifiability,
     Sensitivities,
-    analyse,
-    displacement_test,
-    noise_from_fit,
+    identify,
+    lag1_autocorrelation,
     parameter_importance,
-    sensitivities,
+)
+from softsensor.calibration.objective import (
+    Evaluation,
+    ObjectiveSpec,
+    effective_ratio,
+    prior_scale,
 )
 from softsensor.calibration.optimize import (
     StudySettings,
@@ -43,6 +64,7 @@ from softsensor.calibration.optimize import (
 )
 from softsensor.calibration.refine import Refinement, refine
 from softsensor.calibration.selection import WindowChoice, select_windows
+from softsensor.calibration.settings import CalibrationSettings
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -52,6 +74,8 @@ from softsensor.signals import OUTPUT_NAMES
 DEFAULT_WINDOW_HOURS = 48.0
 #: Lab samples a calibration window must hold.
 DEFAULT_MIN_LABS = 3
+#: Lab samples a held-out part must hold to validate on it.
+MIN_HELD_LABS = 2
 
 
 @dataclass(frozen=True)
@@ -79,31 +103,241 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
     return segments, choices
 
 
+def objective_spec(model: DryerModel, segments: Sequence[Segment], config: PlantConfig,
+                   settings: CalibrationSettings) -> ObjectiveSpec:
+    """The objective of a calibration (:mod:`.objective`): the settings, with the prior's
+    scale and the effective sample sizes set once at the config's parameter values."""
+    inlet = (InletPrior(settings.inlet_knot_hours, settings.inlet_level_std,
+                        settings.inlet_walk) if settings.inlet == "estimated" else None)
+    center = np.log(config.parameter_vector()) if settings.prior else None
+    spec = ObjectiveSpec(cost=settings.cost, weights=config.cost.weights(),
+                         prior_center=center, prior_sigma=settings.prior_sigma, inlet=inlet)
+    ev0 = evaluate_parameters(model, segments, config.parameter_vector(), spec)[0]
+    if ev0.failed:
+        return spec
+    ratio = effective_ratio(ev0, segments) if settings.cost == "likelihood" else np.ones(3)
+    return dataclasses.replace(spec, prior_scale=prior_scale(settings.cost, ev0),
+                               n_eff_ratio=ratio)
+
+
+def split_holdout(segments: Sequence[Segment], fraction: float,
+                  min_labs: int = MIN_HELD_LABS) -> tuple[list[Segment], list[Segment]]:
+    """Cut the last ``fraction`` of every segment off for validation. A segment whose tail
+    would hold fewer than ``min_labs`` lab results (or whose head would hold none) is kept
+    whole for fitting. Returns ``(fit, held)``."""
+    fit, held = [], []
+    for seg in segments:
+        k = int(round((1.0 - fraction) * seg.n_windows))
+        if fraction <= 0 or k < 1 or k >= seg.n_windows:
+            fit.append(seg)
+            continue
+        n_head = seg.labs_before(k)
+        if n_head < 1 or len(seg.lab_value) - n_head < min_labs:
+            fit.append(seg)
+            continue
+        fit.append(seg.slice(0, k))
+        held.append(seg.slice(k, seg.n_windows))
+    return fit, held
+
+
+@dataclass(frozen=True)
+class Discrepancy:
+    """What the calibrated model leaves on data it was not fitted on (after the inlet
+    trajectory fitted to the temperatures): the estimator's prior on its own error.
+
+    Attributes
+    ----------
+    common_std : float
+        Standard deviation of the part of the two outlet temperatures' residuals they share
+        (``sqrt(max(cov, 0))``) [K].
+    dryer_std, cyclone_std : float
+        Standard deviation of each channel's own part [K].
+    tau_s : float
+        Correlation time of the temperature residuals, from their lag-one autocorrelation [s].
+    moisture_std : float
+        Root mean square of the lab residuals (out of sample) [kg/kg].
+    inlet_walk : float
+        Random-walk intensity of the fitted inlet trajectory [kg/kg / sqrt(h)].
+    n_windows, n_labs : int
+        Samples behind these numbers.
+    """
+
+    common_std: float
+    dryer_std: float
+    cyclone_std: float
+    tau_s: float
+    moisture_std: float
+    inlet_walk: float
+    n_windows: int
+    n_labs: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return dataclasses.asdict(self)
+
+
+def discrepancy(ev: Evaluation, segments: Sequence[Segment]) -> Discrepancy:
+    """:class:`Discrepancy` from a validation evaluation (residuals per segment)."""
+    pairs_d, pairs_c, rhos = [], [], []
+    for r, seg in zip(ev.res, segments, strict=True):
+        ok = np.isfinite(seg.Y[:, 0]) & np.isfinite(seg.Y[:, 1])
+        okd, okc = np.isfinite(seg.Y[:, 0]), np.isfinite(seg.Y[:, 1])
+        rd = np.full(seg.n_windows, np.nan)
+        rc = np.full(seg.n_windows, np.nan)
+        rd[okd] = r[0]
+        rc[okc] = r[1]
+        pairs_d.append(rd[ok])
+        pairs_c.append(rc[ok])
+        rhos.append(lag1_autocorrelation(0.5 * (rd + rc)[ok]))
+    d = np.concatenate(pairs_d) if pairs_d else np.zeros(0)
+    c = np.concatenate(pairs_c) if pairs_c else np.zeros(0)
+    if d.size >= 2:
+        C = np.cov(np.vstack([d, c]))
+        common = math.sqrt(max(C[0, 1], 0.0))
+        own_d = math.sqrt(max(C[0, 0] - max(C[0, 1], 0.0), 0.0))
+        own_c = math.sqrt(max(C[1, 1] - max(C[0, 1], 0.0), 0.0))
+    else:
+        common = own_d = own_c = float("nan")
+    rho = float(np.clip(np.mean(rhos), 1e-3, 0.999)) if rhos else 0.5
+    window = segments[0].window if segments else 600.0
+    tau = -window / math.log(rho)
+    labs = np.concatenate([r[2] for r in ev.res]) if ev.res else np.zeros(0)
+    walks = []
+    for cs, kn in zip(ev.inlet, ev.knots, strict=True):
+        if cs.size > 1:
+            walks.append(np.diff(cs) / np.sqrt(np.diff(kn)))
+    walk = float(np.sqrt(np.mean(np.concatenate(walks) ** 2))) if walks else float("nan")
+    return Discrepancy(common_std=common, dryer_std=own_d, cyclone_std=own_c, tau_s=tau,
+                       moisture_std=float(np.sqrt(np.mean(labs**2))) if labs.size else math.nan,
+                       inlet_walk=walk, n_windows=int(d.size), n_labs=int(labs.size))
+
+
+@dataclass(frozen=True)
+class ValidationResult:
+    """A parameter set evaluated on data it was not fitted on.
+
+    ``evaluation``: with the inlet trajectory fitted to the temperatures only (the lab results
+    out of sample); its ``open_fit`` is the model with the nominal inlet moisture.
+    """
+
+    theta: np.ndarray
+    evaluation: Evaluation
+    segments: list[Segment]
+    runs: list[ModelRun]
+    weights: np.ndarray
+    calibration_cost: float | None = None
+
+    @property
+    def fit(self):
+        return self.evaluation.fit
+
+    @property
+    def score(self) -> float:
+        """The data term of the calibration's cost on these data (lower is better)."""
+        return self.evaluation.data
+
+    @property
+    def ratio(self) -> float | None:
+        """Validation eq. 4 over calibration eq. 4 (None when the latter is unknown)."""
+        if not self.calibration_cost:
+            return None
+        return self.fit.cost / self.calibration_cost
+
+    def summary(self) -> dict[str, Any]:
+        ev = self.evaluation
+        return {"days": [s.source for s in self.segments],
+                "hours": float(sum(s.hours for s in self.segments)),
+                "rmse": dict(ev.fit.rmse), "weighted_rmse": weighted_rmse(ev.fit, self.weights),
+                "cost": ev.fit.cost, "score": ev.data, "samples": dict(ev.fit.n),
+                "open_loop": {"rmse": dict(ev.open_fit.rmse), "cost": ev.open_fit.cost},
+                "inlet_moisture_offset": [float(np.mean(c)) if c.size else 0.0
+                                          for c in ev.inlet],
+                "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}
+
+
+def validate(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
+             theta: np.ndarray | None = None, calibration_cost: float | None = None,
+             model: DryerModel | None = None) -> ValidationResult:
+    """Score ``theta`` (default: the config's values) on ``segments`` with the inlet
+    trajectory fitted to the temperatures only (module docstring)."""
+    for seg in segments:
+        seg.require_labs(1)
+    model = model or DryerModel(config)
+    theta = config.parameter_vector() if theta is None else np.asarray(theta, float)
+    vspec = dataclasses.replace(spec, inlet_from_labs=False)
+    ev = evaluate_parameters(model, segments, theta, vspec)[0]
+    runs = simulate_segments(model, segments, theta)
+    return ValidationResult(theta=theta, evaluation=ev, segments=list(segments), runs=runs,
+                            weights=config.cost.weights(), calibration_cost=calibration_cost)
+
+
+def at_bounds(theta: np.ndarray, bounds: np.ndarray, margin: float) -> list[str]:
+    """Parameters within ``margin`` of a bound (``value <= low (1 + m)`` or ``>= high /
+    (1 + m)``)."""
+    return [n for n, v, (lo, hi) in zip(PARAMETER_NAMES, theta, bounds, strict=True)
+            if v <= lo * (1.0 + margin) or v >= hi / (1.0 + margin)]
+
+
 @dataclass
 class CalibrationResult:
     """Everything a calibration produced (see :func:`calibrate`)."""
 
     config: PlantConfig
     theta: np.ndarray
-    fit: Fit
+    evaluation: Evaluation
+    spec: ObjectiveSpec
+    calibration: CalibrationSettings
     segments: list[Segment]
     choices: list[WindowChoice]
     study: optuna.Study
     settings: StudySettings
     runs: list[ModelRun]
     tpe_best: dict[str, Any]
-    config_fit: Fit | None
+    current_theta: np.ndarray
+    current_evaluation: Evaluation | None
     refinement: Refinement | None
     identifiability: Identifiability | None
     importance: dict[str, float] | None
+    validation: ValidationResult | None = None
+    current_validation: ValidationResult | None = None
+    discrepancy: Discrepancy | None = None
     sensitivities: list[Sensitivities] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     trials_here: int = 0
     pruned_here: int = 0
 
     @property
+    def fit(self):
+        return self.evaluation.fit
+
+    @property
     def params(self) -> dict[str, float]:
         return dict(zip(PARAMETER_NAMES, map(float, self.theta), strict=True))
+
+    @property
+    def at_bounds(self) -> list[str]:
+        """Parameters that ended within the bound margin of a Table 1 bound (flagged)."""
+        return at_bounds(self.theta, self.config.bounds(), self.calibration.bound_margin)
+
+    @property
+    def accepted(self) -> bool:
+        """False when the result predicts the validation data worse than the current
+        parameters (then the verb does not write it)."""
+        if self.validation is None or self.current_validation is None:
+            return True
+        return bool(self.validation.score <= self.current_validation.score)
+
+    def verdict_line(self) -> str:
+        """One line: validation against the current parameters, and the flags."""
+        parts = []
+        if self.validation is not None and self.current_validation is not None:
+            new, old = self.validation, self.current_validation
+            parts.append(
+                f"validation on {new.segments[0].hours:.1f} h held out: calibrated "
+                f"{_rmse_text(new.fit.rmse)} (score {new.score:.4g}) against current "
+                f"{_rmse_text(old.fit.rmse)} (score {old.score:.4g})")
+        flags = self.at_bounds
+        parts.append("at a bound: " + (", ".join(flags) if flags else "none"))
+        return "; ".join(parts)
 
     def fit_section(self) -> dict[str, Any]:
         """The ``[fit]`` section of PARAMS.toml."""
@@ -111,12 +345,17 @@ class CalibrationResult:
         c = s["counts"]
         w = self.config.cost.weights()
         out: dict[str, Any] = {
+            "cost_kind": self.spec.cost,
+            "objective": self.evaluation.objective,
             "cost": self.fit.cost,
+            "prior": self.calibration.prior,
+            "prior_sigma": self.calibration.prior_sigma,
+            "inlet": self.calibration.inlet,
             "trials": s["finished"],
             "trials_complete": c.get("complete", 0),
             "trials_pruned": c.get("pruned", 0),
             "best_trial": s.get("best_trial"),
-            "tpe_best_cost": self.tpe_best.get("cost"),
+            "tpe_best_objective": self.tpe_best.get("objective"),
             "tpe_best_trial": self.tpe_best.get("trial"),
             "refined": bool(self.refinement and self.refinement.improved),
             "seed": self.settings.seed,
@@ -126,31 +365,43 @@ class CalibrationResult:
             "windows": [seg.source for seg in self.segments],
             "selection": [ch.reason for ch in self.choices],
             "hours": float(sum(seg.hours for seg in self.segments)),
+            "at_bounds": self.at_bounds,
+            "accepted": self.accepted,
         }
-        if self.config_fit is not None:
-            out["cost_at_config"] = self.config_fit.cost
+        if self.current_evaluation is not None:
+            out["cost_at_current"] = self.current_evaluation.fit.cost
         out["rmse"] = {k: self.fit.rmse[k] for k in OUTPUT_NAMES}
+        out["open_loop_rmse"] = {k: self.evaluation.open_fit.rmse[k] for k in OUTPUT_NAMES}
         out["weighted_rmse"] = weighted_rmse(self.fit, w)
         out["weights"] = dict(zip(OUTPUT_NAMES, map(float, w), strict=True))
         out["samples"] = dict(self.fit.n)
+        if self.validation is not None:
+            out["validation"] = _validation_section(self.validation, self.current_validation)
         if self.identifiability is not None:
             ident = self.identifiability
             out["identifiability"] = {
                 "identifiable": ident.identifiable,
                 "poorly_identifiable": ident.poorly_identifiable,
                 "fim_condition_number": min(ident.condition_number, 1e300),
+                "paper_condition_number": 584.2,
             }
         return out
 
     def summary(self) -> dict[str, Any]:
-        """The JSON the ``calibrate`` verb prints."""
+        """The JSON the ``calibrate`` verb writes."""
         s = study_summary(self.study)
         out = {
             "params": self.params,
+            "objective": self.evaluation.objective,
+            "cost_kind": self.spec.cost,
             "cost": self.fit.cost,
             "rmse": dict(self.fit.rmse),
+            "open_loop_rmse": dict(self.evaluation.open_fit.rmse),
             "weighted_rmse": weighted_rmse(self.fit, self.config.cost.weights()),
-            "cost_at_config": None if self.config_fit is None else self.config_fit.cost,
+            "cost_at_current": (None if self.current_evaluation is None
+                                else self.current_evaluation.fit.cost),
+            "at_bounds": self.at_bounds,
+            "accepted": self.accepted,
             "trials": s["finished"],
             "trials_this_process": self.trials_here,
             "pruned_share": s["pruned_share"],
@@ -159,130 +410,127 @@ class CalibrationResult:
             "refine_simulations": 0 if self.refinement is None else self.refinement.simulations,
             "windows": [{"window": ch.segment.source, "reason": ch.reason}
                         for ch in self.choices],
+            "fit_windows": [seg.source for seg in self.segments],
             "timings_s": {k: round(v, 2) for k, v in self.timings.items()},
         }
+        if self.validation is not None:
+            out["validation"] = _validation_section(self.validation, self.current_validation)
+        if self.discrepancy is not None:
+            out["discrepancy"] = self.discrepancy.as_dict()
         if self.identifiability is not None:
-            out["identifiability"] = {v.name: {"verdict": v.verdict,
-                                               "relative_se": v.relative_se,
-                                               "eq4_se": v.eq4_se,
-                                               "reason": v.reason}
-                                      for v in self.identifiability.verdicts}
+            ident = self.identifiability
+            out["identifiability"] = {
+                "fim_condition_number": ident.condition_number,
+                "paper_condition_number": 584.2,
+                **{v.name: {"verdict": v.verdict, "relative_se": v.relative_se,
+                            "profile_rise": v.rise, "reason": v.reason}
+                   for v in ident.verdicts}}
         if self.importance is not None:
             out["importance"] = self.importance
         return out
 
 
-def identify_segments(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
-                      config: PlantConfig, fit: Fit | None = None,
-                      runs: Sequence[ModelRun] | None = None
-                      ) -> tuple[Identifiability, list[Sensitivities]]:
-    """Sensitivities on every segment and the identifiability analysis at ``theta``."""
-    weights = config.cost.weights()
-    if runs is None:
-        runs = simulate_segments(model, segments, theta)
-    if fit is None:
-        fit = evaluate_fit(runs, segments, weights)[0]
-    sens = [sensitivities(model, seg, theta) for seg in segments]
-    noise = noise_from_fit(fit, segments, runs)
-    informed = analyse(sens, weights, noise, config.bounds())
-    tested = np.array([v.verdict != "not identifiable" for v in informed.verdicts])
-    disp = displacement_test(model, segments, theta, sens, fit, runs, weights, noise,
-                             config.bounds(), tested)
-    return analyse(sens, weights, noise, config.bounds(), disp), sens
+def _rmse_text(rmse: dict[str, float]) -> str:
+    return (f"{rmse['T_dryer_out']:.2f}/{rmse['T_cyclone_out']:.2f} K, "
+            f"{rmse['moisture_out']:.4f} kg/kg")
 
 
-def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudySettings, *,
-              choices: Sequence[WindowChoice] = (), polish: bool = True,
-              identify: bool = True, model: DryerModel | None = None) -> CalibrationResult:
-    """Fit the seven parameters to ``segments`` (see the module docstring).
+def _validation_section(new: ValidationResult, old: ValidationResult | None
+                        ) -> dict[str, Any]:
+    out: dict[str, Any] = {"windows": [s.source for s in new.segments],
+                           "rmse": dict(new.fit.rmse), "score": new.score,
+                           "open_loop_rmse": dict(new.evaluation.open_fit.rmse)}
+    if old is not None:
+        out["current_rmse"] = dict(old.fit.rmse)
+        out["current_score"] = old.score
+        out["current_open_loop_rmse"] = dict(old.evaluation.open_fit.rmse)
+    return out
 
-    The returned parameters are the best of the study's trials and the polished point; the
-    polished point is added to the study as a trial (user attribute ``origin = "refine"``) so
-    that the study's best trial is the result.
+
+def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudySettings,
+              calibration: CalibrationSettings, *, choices: Sequence[WindowChoice] = (),
+              validation_segments: Sequence[Segment] | None = None,
+              current_theta: np.ndarray | None = None, polish: bool = True,
+              identify_result: bool = True, model: DryerModel | None = None,
+              progress: Any = None) -> CalibrationResult:
+    """Fit the seven parameters (see the module docstring).
+
+    ``validation_segments``: days to validate on (default: the held-out ends of
+    ``segments``, :func:`split_holdout`). ``current_theta``: the parameters the result must
+    beat there (default: the config's values). ``progress(phase)`` is called at the start of
+    each phase. The returned parameters are the best of the study's trials and the polished
+    point; the polished point is added to the study as a trial (user attribute ``origin =
+    "refine"``) so that the study's best trial is the result.
     """
     settings.check()
     model = model or DryerModel(config)
+    say = progress or (lambda phase: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    study, _created = open_study(settings, config, data_fingerprint(segments, config))
-    report = run_trials(study, model, segments, config, settings)
+    if validation_segments is None:
+        fit_segs, held = split_holdout(segments, calibration.holdout_fraction)
+    else:
+        fit_segs, held = list(segments), list(validation_segments)
+    current = config.parameter_vector() if current_theta is None else np.asarray(current_theta)
+    spec = objective_spec(model, fit_segs, config, calibration)
+    say("study")
+    study, _created = open_study(settings, config, data_fingerprint(fit_segs, config, spec))
+    report = run_trials(study, model, fit_segs, config, settings, spec)
     timings["study"] = time.perf_counter() - t0
     best = study.best_trial
-    tpe_best = {"trial": best.number, "cost": best.value,
+    tpe_best = {"trial": best.number, "objective": best.value,
                 "first_reached": first_trial_reaching(study, best.value)}
     theta = theta_of(best.params)
     refinement = None
     if polish:
+        say("refine")
         t1 = time.perf_counter()
-        refinement = refine(model, segments, theta, config.bounds(), config.cost.weights())
+        refinement = refine(model, fit_segs, theta, config.bounds(), spec)
         timings["refine"] = time.perf_counter() - t1
         if refinement.improved:
             theta = refinement.theta
             study.add_trial(optuna.trial.create_trial(
                 params=dict(zip(PARAMETER_NAMES, map(float, theta), strict=True)),
-                distributions=search_space(config), value=refinement.fit.cost,
+                distributions=search_space(config), value=refinement.evaluation.objective,
                 user_attrs={"origin": "refine", "simulations": refinement.simulations}))
-    runs = simulate_segments(model, segments, theta)
-    fit = evaluate_fit(runs, segments, config.cost.weights())[0]
-    config_fit = evaluate_fit(simulate_segments(model, segments, model.theta0), segments,
-                              config.cost.weights())[0]
-    ident = importance = sens = None
-    if identify:
+    evs = evaluate_parameters(model, fit_segs, np.stack([theta, current]), spec)
+    runs = simulate_segments(model, fit_segs, theta)
+    val = cur_val = disc = None
+    if held:
+        say("validate")
         t2 = time.perf_counter()
-        ident, sens = identify_segments(model, segments, theta, config, fit, runs)
+        val = validate(held, config, spec, theta, evs[0].fit.cost, model)
+        cur_val = validate(held, config, spec, current, None, model)
+        disc = discrepancy(val.evaluation, held)
+        timings["validate"] = time.perf_counter() - t2
+    ident = importance = sens = None
+    if identify_result:
+        say("identify")
+        t3 = time.perf_counter()
+        ident, sens = identify(model, fit_segs, theta, spec, config.bounds())
         importance = parameter_importance(study)
-        timings["identify"] = time.perf_counter() - t2
+        timings["identify"] = time.perf_counter() - t3
     timings["total"] = time.perf_counter() - t0
     return CalibrationResult(
-        config=config, theta=theta, fit=fit, segments=list(segments), choices=list(choices),
-        study=study, settings=settings, runs=runs, tpe_best=tpe_best,
-        config_fit=config_fit, refinement=refinement, identifiability=ident,
-        importance=importance, sensitivities=sens, timings=timings, trials_here=report.trials,
-        pruned_here=report.pruned)
-
-
-@dataclass(frozen=True)
-class ValidationResult:
-    """A parameter set evaluated on an independent day."""
-
-    fit: Fit
-    weighted: dict[str, float]
-    segment: Segment
-    run: ModelRun
-    calibration_cost: float | None
-
-    @property
-    def ratio(self) -> float | None:
-        """Validation cost over calibration cost (None when the latter is unknown)."""
-        if not self.calibration_cost:
-            return None
-        return self.fit.cost / self.calibration_cost
-
-    def summary(self) -> dict[str, Any]:
-        return {"day": self.segment.source, "hours": self.segment.hours,
-                "rmse": dict(self.fit.rmse), "weighted_rmse": self.weighted,
-                "cost": self.fit.cost, "samples": dict(self.fit.n),
-                "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}
-
-
-def validate(segment: Segment, config: PlantConfig, calibration_cost: float | None = None,
-             model: DryerModel | None = None) -> ValidationResult:
-    """Per-channel RMSE and eq. 4 cost of ``config``'s parameters on a whole day."""
-    segment.require_labs(1)
-    model = model or DryerModel(config)
-    Y = simulate_segments(model, [segment], config.parameter_vector())[0]
-    fit = evaluate_fit([Y], [segment], config.cost.weights())[0]  # one member
-    return ValidationResult(fit=fit, weighted=weighted_rmse(fit, config.cost.weights()),
-                            segment=segment, run=Y, calibration_cost=calibration_cost)
+        config=config, theta=theta, evaluation=evs[0], spec=spec, calibration=calibration,
+        segments=list(fit_segs), choices=list(choices), study=study, settings=settings,
+        runs=runs, tpe_best=tpe_best, current_theta=current, current_evaluation=evs[1],
+        refinement=refinement, identifiability=ident, importance=importance, validation=val,
+        current_validation=cur_val, discrepancy=disc, sensitivities=sens, timings=timings,
+        trials_here=report.trials, pruned_here=report.pruned)
 
 
 __all__ = [
     "DEFAULT_WINDOW_HOURS",
     "CalibrationResult",
     "DataSelection",
+    "Discrepancy",
     "ValidationResult",
+    "at_bounds",
     "calibrate",
-    "identify_segments",
+    "discrepancy",
     "load_segments",
+    "objective_spec",
+    "split_holdout",
     "validate",
 ]

@@ -47,13 +47,13 @@ def identifiability_table(ident: Identifiability, config: PlantConfig,
     for v in ident.verdicts:
         spec = config.parameters[v.name]
         imp = "" if importance is None else f"{importance.get(v.name, 0.0):.3f}"
-        se4 = "" if np.isnan(v.eq4_se) else f"{100 * v.eq4_se:.3g} %"
+        rise = "" if np.isnan(v.rise) else f"{min(v.rise, 999):.3g}"
         rows.append((v.name, f"{v.value:.5g}", f"[{spec.low:g}, {spec.high:g}]",
-                     f"{100 * v.relative_se:.3g} %", se4, f"{v.prior_ratio:.2f}",
+                     f"{100 * v.relative_se:.3g} %", rise, f"{v.prior_ratio:.2f}",
                      f"{v.partner} ({v.correlation:+.2f})", imp, f"**{v.verdict}**",
                      v.reason))
     return figures.markdown_table(
-        ("parameter", "value", "bounds", "FIM s.e.", "eq. 4 s.e. (±15 % test)",
+        ("parameter", "value", "bounds", "FIM s.e.", "rise at ±15 %",
          "post./prior sd", "most correlated", "importance", "verdict", "why"), rows)
 
 
@@ -71,15 +71,15 @@ def identifiability_sections(ident: Identifiability, config: PlantConfig,
         ("What the data can and cannot pin down",
          identifiability_table(ident, config, importance)
          + f"\n\n'FIM s.e.': local relative standard error from the statistical FIM with "
-           f"channel noise {noise} (calibration RMSE, inflated for serial correlation) and a "
-           "weak prior spanning the Table 1 bounds; 'post./prior sd' near 1 means the data "
-           "add nothing. 'eq. 4 s.e.': the standard error of the eq. 4 estimator read off "
-           "non-linear model runs with the parameter moved 15 % and the others re-fitted "
-           "(worse side); at most 5 % (15 % = three standard errors) means identifiable."),
+           f"channel noise {noise} (the fit's RMSE, inflated for serial correlation) and the "
+           "calibration's prior; 'post./prior sd' near 1 means the data add nothing. 'rise "
+           "at ±15 %': how much the objective rises (in units of the prior's scale) when the "
+           "parameter moves 15 % with the others re-fitted (worse side); identifiable needs "
+           "a s.e. of at most 7.5 % and a rise of at least 2."),
         ("Weighted Fisher information (paper's Table 3 form, ln θ)",
          matrix_table(ident.fim)
-         + f"\n\nCondition number {ident.condition_number:.3g}. Least informed directions:\n"
-         + weak),
+         + f"\n\nCondition number {ident.condition_number:.3g} (the paper's Table 3: 584). "
+           "Least informed directions:\n" + weak),
         ("Parameter correlation matrix", matrix_table(ident.correlation, "{:+.2f}")),
     ]
 
@@ -95,9 +95,11 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
             for i, n in enumerate(PARAMETER_NAMES)]
     sections.append(("Calibrated parameters", figures.markdown_table(
         ("parameter", "calibrated", "config", "bounds"), rows)))
+    cur = result.current_evaluation
     sections.append(("Fit on the calibration data", fit_table(result.fit, cfg.cost.weights())
-                     + "\n\nCost at the config's values: "
-                     + ("n/a" if result.config_fit is None else f"{result.config_fit.cost:.4g}")))
+                     + "\n\nEq. 4 at the current parameters: "
+                     + ("n/a" if cur is None else f"{cur.fit.cost:.4g}")
+                     + f"\n\n{result.verdict_line()}"))
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
     figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",
@@ -106,8 +108,9 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     figures.study_figure(result.study, result.importance or {}, d / "fig4_study.png")
     sections.append(("Cost by trial and parameter importance (Fig. 4)",
                      "![](fig4_study.png)\n\nTPE best: trial "
-                     f"{result.tpe_best['trial']} (cost {result.tpe_best['cost']:.4g}); "
-                     f"after the local polish: {result.fit.cost:.4g}."))
+                     f"{result.tpe_best['trial']} (objective "
+                     f"{result.tpe_best['objective']:.4g}); after the local polish: "
+                     f"{result.evaluation.objective:.4g}."))
     if result.identifiability is not None and result.sensitivities:
         figures.sensitivity_figure(result.sensitivities[0], d / "fig2_sensitivity.png")
         sections.append(("Sensitivity trajectories (Fig. 2)", "![](fig2_sensitivity.png)"))
@@ -141,15 +144,20 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
 def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path
                     ) -> Path:
     d = _dir(directory)
-    figures.trajectory_figure([result.segment], [result.run], d / "fig6_validation.png",
-                              "Validation: calibrated model vs an independent day")
+    figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
+                              "Validation: calibrated model (nominal inlet moisture) vs "
+                              "independent data")
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     sections = [
-        ("Fit on the validation day", fit_table(result.fit, config.cost.weights())
+        ("Fit with the inlet moisture fitted to the temperatures",
+         fit_table(result.fit, config.cost.weights())
          + f"\n\nValidation cost / calibration cost: {ratio}"),
+        ("Open loop (nominal inlet moisture)",
+         fit_table(result.evaluation.open_fit, config.cost.weights())),
         ("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"),
     ]
-    return figures.write_page(d, f"Validation report: {result.segment.source}", sections)
+    title = ", ".join(s.source for s in result.segments)
+    return figures.write_page(d, f"Validation report: {title}", sections)
 
 
 __all__ = ["calibration_page", "fit_table", "identifiability_table", "identify_page",

@@ -122,6 +122,7 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
 
     from softsensor.calibration.optimize import StudySettings
     from softsensor.calibration.pipeline import DataSelection, calibrate, load_segments
+    from softsensor.calibration.settings import calibration_settings
 
     if not args.window_hours > 0:
         raise ConfigError(f"--window-hours must be > 0, got {args.window_hours}")
@@ -131,13 +132,16 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     for c in choices:
         print(f"diagnose: calibrate: {c.reason}", file=sys.stderr)
     settings = StudySettings(n_trials=args.trials, seed=args.seed, progress=False)
-    result = calibrate(segments, cfg, settings, choices=choices, identify=False)
+    result = calibrate(segments, cfg, settings, calibration_settings(cfg), choices=choices,
+                       identify_result=False)
     cal_cfg = cfg.with_parameters(result.theta)
     if args.save_params:
         from softsensor.calibration.params_file import params_document, write_params
 
-        write_params(args.save_params, params_document(cfg, result.params, result.fit_section()),
-                     "Calibrated by `softsensor diagnose --calibrate-on` (paper eq. 4).")
+        write_params(args.save_params, params_document(
+            cfg, result.params, result.fit_section(), None, result.at_bounds,
+            None if result.discrepancy is None else result.discrepancy.as_dict()),
+            "Calibrated by `softsensor diagnose --calibrate-on`.")
     summary = {
         "day": str(args.calibrate_on), "trials": args.trials, "seed": args.seed,
         "cost": result.fit.cost,

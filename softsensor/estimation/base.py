@@ -9,48 +9,11 @@ sample time. Estimators are pure: no I/O, no clocks; time is whatever the window
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from softsensor.messages import LabResult, Window
 
-@dataclass(frozen=True)
-class Window:
-    """Scans of one estimator window, averaged.
-
-    Attributes
-    ----------
-    start_ns, end_ns : int
-        Window bounds, nanoseconds since the Unix epoch (UTC); the window is (start, end].
-    means : dict[str, float | None]
-        Mean of the good (non-null) values of each scan signal; ``None`` when the signal had
-        too few good values.
-    n_scans : int
-        Scans received in the window.
-    n_good : dict[str, int]
-        Good values per signal.
-    stale : bool
-        True when the window has too few good scans to be used for correction.
-    reasons : dict[str, str]
-        Why a signal was dropped (for the health message).
-    """
-
-    start_ns: int
-    end_ns: int
-    means: dict[str, float | None]
-    n_scans: int
-    n_good: dict[str, int] = field(default_factory=dict)
-    stale: bool = False
-    reasons: dict[str, str] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class LabResult:
-    """A laboratory moisture result. ``moisture_out`` in kg/kg dry basis."""
-
-    sample_time_ns: int
-    moisture_out: float
-    sample_id: str
-    log_time_ns: int | None = None
+__all__ = ["Estimator", "LabResult", "Window"]
 
 
 class Estimator(Protocol):

@@ -122,7 +122,9 @@ def window_to_json(w: Window) -> dict[str, Any]:
             "means": {k: (None if v is None or not math.isfinite(v) else float(v))
                       for k, v in w.means.items()},
             "n_scans": int(w.n_scans), "n_good": {k: int(v) for k, v in w.n_good.items()},
-            "stale": bool(w.stale), "reasons": dict(w.reasons)}
+            "stale": bool(w.stale), "reasons": dict(w.reasons), "bin_s": float(w.bin_s),
+            "bins": {k: [None if v is None or not math.isfinite(v) else float(v) for v in vs]
+                     for k, vs in w.bins.items()}}
 
 
 def window_from_json(data: dict[str, Any]) -> Window:
@@ -132,25 +134,33 @@ def window_from_json(data: dict[str, Any]) -> Window:
                   n_scans=int(data["n_scans"]),
                   n_good={k: int(v) for k, v in data["n_good"].items()},
                   stale=bool(data["stale"]), reasons={k: str(v) for k, v in
-                                                      data["reasons"].items()})
+                                                      data["reasons"].items()},
+                  bin_s=float(data.get("bin_s", 0.0)),
+                  bins={k: [None if v is None else float(v) for v in vs]
+                        for k, vs in data.get("bins", {}).items()})
 
 
 @dataclass
 class FilterState:
-    """Mean ``x`` and covariance ``P`` of the filter state, and the mean wall state."""
+    """Mean ``x`` and covariance ``P`` of the filter state, the mean wall state, and the
+    filter's adaptive-noise memory (JSON, see :class:`~softsensor.estimation.discrepancy.
+    AdaptiveNoise`)."""
 
     x: np.ndarray
     P: np.ndarray
     wall: np.ndarray | None
+    adapt: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"x": self.x.tolist(), "P": self.P.tolist(),
-                "wall": None if self.wall is None else self.wall.tolist()}
+                "wall": None if self.wall is None else self.wall.tolist(),
+                "adapt": dict(self.adapt)}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> FilterState:
         return cls(np.array(d["x"], float), np.array(d["P"], float),
-                   None if d["wall"] is None else np.array(d["wall"], float))
+                   None if d["wall"] is None else np.array(d["wall"], float),
+                   dict(d.get("adapt", {})))
 
 
 @dataclass

@@ -44,20 +44,40 @@ class EstimatorSettings:
         :meth:`softsensor.estimation.ukf.UkfEstimator._match_covariance`). [-]
     moisture_in_min, moisture_in_max : float
         Range the model is evaluated in; sigma points outside it are clipped. [kg/kg]
-    moisture_out_bias_std0 : float
-        Prior standard deviation of the additive outlet-moisture model bias. [kg/kg]
-    moisture_out_bias_walk : float
-        Random-walk intensity of that bias. [kg/kg / sqrt(h)]
     moisture_out_bias_adapt : float
         A lab result more than this many standard deviations from the estimate (given the
         tick's temperatures) widens the bias prior so its innovation becomes one standard
         deviation (covariance matching, as for the inlet moisture). [-]
-    T_air_in_error_std : float
-        Effective error of the window's ``T_air_in`` as the model sees it: white, redrawn
-        every window. It stands for what a window mean of the inputs cannot carry (the loop
-        moves the air temperature within the window; the model is nonlinear), and lets the
-        filter explain a common-mode temperature mismatch by the heat input, which leaves the
-        outlet moisture nearly unchanged, rather than by the inlet moisture, which does not. [K]
+    offset_adapt : float
+        The same for one outlet temperature channel's own offset (a thermometer that steps). [-]
+    T_offset_std, T_channel_std : float
+        Default stationary standard deviations of the outlet temperatures' common offset and
+        of each channel's own offset, used when the parameters carry no ``[discrepancy]``
+        from a calibration. [K]
+    T_offset_tau_h, T_channel_tau_h : float
+        Their default correlation times [h]. The calibration sets the common offset's (the
+        model's energy balance drifts with the conditions); a channel's own offset keeps the
+        long default (a thermometer that reads off stays off).
+    moisture_out_bias_std : float
+        Default stationary standard deviation of the outlet-moisture bias. [kg/kg]
+    moisture_out_bias_tau_h : float
+        Its correlation time. [h]
+    T_std_floor, moisture_std_floor : float
+        Floors on the calibration's numbers (a validation day can be luckier than the next).
+        [K, kg/kg]
+    adapt_ticks : int
+        Memory of the innovation-based noise adaptation: the forgetting factor is
+        ``1 - 1 / adapt_ticks``. [-]
+    adapt_limit : float
+        Largest inflation of an error state's process noise. [-]
+    inlet_margin : float
+        Width of the soft clip at each end of ``[moisture_in_min, moisture_in_max]``. [kg/kg]
+    guard_sigma : float
+        An error state beyond this many of its prior standard deviations, while the
+        innovations are inconsistent, says the model has lost the plant. [-]
+    fallback_drift : float
+        How fast the lab-anchored fallback's band widens after the last lab result.
+        [kg/kg / sqrt(h)]
     temperature_sensor_std : float
         Noise of one temperature scan; a window mean of ``n`` good scans has
         ``temperature_sensor_std / sqrt(n)``. [K]
@@ -91,14 +111,25 @@ class EstimatorSettings:
 
     kind: str = "ukf"
     moisture_in_std0: float = num(0.15, gt=0, lt=2)
-    moisture_in_walk: float = num(0.01, ge=0, lt=2)
+    moisture_in_walk: float = num(0.004, ge=0, lt=2)
     moisture_in_adapt: float = num(3.0, gt=0)
     moisture_in_min: float = num(0.3, gt=0, lt=5)
     moisture_in_max: float = num(2.5, gt=0, lt=5)
-    moisture_out_bias_std0: float = num(0.0002, gt=0, lt=1)
-    moisture_out_bias_walk: float = num(0.00002, ge=0, lt=1)
     moisture_out_bias_adapt: float = num(3.0, gt=0)
-    T_air_in_error_std: float = num(0.25, gt=0, lt=50)
+    offset_adapt: float = num(3.0, gt=0)
+    T_offset_std: float = num(1.0, gt=0, lt=50)
+    T_channel_std: float = num(0.5, gt=0, lt=50)
+    T_offset_tau_h: float = num(6.0, gt=0, le=240)
+    T_channel_tau_h: float = num(24.0, gt=0, le=240)
+    moisture_out_bias_std: float = num(0.01, gt=0, lt=1)
+    moisture_out_bias_tau_h: float = num(24.0, gt=0, le=2400)
+    T_std_floor: float = num(0.2, ge=0, lt=50)
+    moisture_std_floor: float = num(0.003, ge=0, lt=1)
+    adapt_ticks: int = num(12, ge=1, le=10000)
+    adapt_limit: float = num(25.0, ge=1)
+    inlet_margin: float = num(0.1, gt=0, lt=1)
+    guard_sigma: float = num(4.0, gt=0)
+    fallback_drift: float = num(0.01, ge=0, lt=1)
     temperature_sensor_std: float = num(0.5, gt=0, lt=20)
     temperature_model_std: float = num(0.02, ge=0, lt=20)
     lab_std: float = num(0.003, gt=0, lt=1)
@@ -124,7 +155,16 @@ class EstimatorSettings:
                     f"got {self.moisture_in_max:g}")
         if self.lab_max <= self.lab_min:
             return f"lab_max must be > lab_min ({self.lab_min:g}), got {self.lab_max:g}"
+        if 2.5 * self.inlet_margin > self.moisture_in_max - self.moisture_in_min:
+            return (f"inlet_margin must be below 0.4 of the inlet range, got "
+                    f"{self.inlet_margin:g}")
         return None
+
+    @property
+    def discrepancy_floor(self) -> tuple[float, float, float, float]:
+        """Floors of the four error states' standard deviations [K, K, K, kg/kg]."""
+        t = self.T_std_floor
+        return (t, t, t, self.moisture_std_floor)
 
     def walk_per_window(self, walk_per_sqrt_hour: float, window_s: float) -> float:
         """Random-walk standard deviation over one window of ``window_s`` seconds. [kg/kg]"""

@@ -1,52 +1,57 @@
-"""The virtual sensor: an unscented Kalman filter that sees the unmeasured inlet moisture.
+"""The virtual sensor: an unscented Kalman filter of the inlet moisture and the model's error.
 
-The paper's validation failed where the inlet fibre moisture moved: the outlet-temperature PID
-moves ``T_air_in`` to hide the thermal signature, and the open-loop model, fed the nominal inlet
-moisture, misses it. Here the filter carries ``moisture_in`` as a state and corrects it every
-600 s tick with the two measured outlet temperatures (fed the *measured* ``T_air_in``, the model
-needs the right inlet moisture to reproduce ``T_dryer_out``), and with the lab's outlet moisture
-whenever a result arrives, tens of minutes after its sample time.
+The outlet-temperature loop moves ``T_air_in`` to hide the thermal signature of the inlet
+moisture, so an open-loop model fed the nominal inlet moisture misses it. Here the filter
+carries ``moisture_in`` as a state and corrects it every 600 s tick with the two measured
+outlet temperatures (the model, fed the *measured* ``T_air_in``, needs the right inlet
+moisture to reproduce them), and with the lab's outlet moisture whenever a result arrives,
+tens of minutes after its sample time. Because a real dryer is never the model, the state also
+carries the model's own slowly varying error, a common and two per-channel temperature offsets
+and an outlet-moisture bias (:mod:`.discrepancy`, priors from the calibration's residuals on
+data it was not fitted on).
 
-State choice (numbers for ``dryer1`` at its nominal point, ``DryerModel`` of 2026-11-21)
----------------------------------------------------------------------------------------
-* Fibre and air profiles cross the tube in ~3 s and the cyclone in a few seconds: algebraic at
-  a 600 s tick (the model already solves them as a steady profile, :mod:`softsensor.model`).
-* The 50 tube-wall and 5 cyclone-shell temperatures are slow states that mostly settle within
-  one tick: after a step of ``T_air_in`` 485 -> 500 K (inputs then constant) the first window
-  ends 0.059 K (of 4.58 K) short of the new steady ``T_dryer_out`` and 0.12 K (of 4.49 K) short
-  of ``T_cyclone_out``; the rest shrinks 2.3 to 2.8-fold per tick (time constants ~10-12 min).
-  A step of ``moisture_in`` 1.0 -> 1.1 leaves 0.023 K and 0.050 K. They are driven by the
-  measured inputs and by ``moisture_in``; their uncertainty is only the image of the inlet
-  moisture's, a tick late and shrunk ~2.5-fold. So they are not filtered: every sigma point
-  steps them from the shared mean (one batched ``DryerModel.simulate`` call, 7 members ~8 ms)
-  and the posterior wall is the unscented conditional mean ``w = sum W_m w_i + P_wz S^-1 nu``
-  (a "consider" state). Filtering them would take 2 x 58 + 1 = 117 sigma points (115 members
-  cost 0.125 s a tick) for information the outlet temperatures already carry.
-* ``moisture_in`` [kg/kg]: random walk, ``estimator.moisture_in_walk`` per sqrt(h); a step is
-  taken at once by covariance matching (:meth:`UkfEstimator._match_covariance`).
-* ``T_air_in_error`` [K]: white, redrawn each tick (``estimator.T_air_in_error_std``). With the
-  true inlet moisture, the model fed window means misses the plant's window-mean outlet
-  temperatures by 0.07 K (common to both channels, correlation 1.0) and its outlet moisture
-  by 0.001 kg/kg, the two errors tied as a heat-input error ties them (regression -0.012
-  kg/kg per K, correlation -0.95): the loop moves ``T_air_in`` within the window and the model
-  is nonlinear. Treated as temperature noise instead, this error is all blamed on the inlet
-  moisture and the outlet-moisture interval is too wide: on ``inlet_moisture`` days (seeds
-  1-3) the 95 % interval held the truth at 99.7-100 % of ticks, with this state at 97-98 %.
-* ``moisture_out_bias`` [kg/kg]: random walk added to the model's outlet moisture, last in the
-  state. It earns its place when the calibrated model is off: the temperatures pin
-  ``moisture_in`` through the energy balance, so without it the lab cannot correct a kinetic
-  error. On ``inlet_moisture`` days whose plant has ``mult_D`` 15 % above the model's, it takes
-  the outlet-moisture RMSE from 0.015-0.026 to 0.007-0.010 kg/kg (seeds 1-3). Its prior is
-  tight (the calibrated model is trusted) and widened by covariance matching when a lab
-  disagrees, so on a well-calibrated plant the reported uncertainty stays honest.
+One tick
+--------
+1. *Predict* (linear, exact): random walk of the inlet moisture, first-order error states:
+   ``x = F x``, ``P = F P F' + Q`` (``filterpy.kalman.predict``), ``Q`` inflated per channel by
+   the innovation-based adaptation (:class:`~.discrepancy.AdaptiveNoise`).
+2. *Sigma points* of the prior (filterpy's ``MerweScaledSigmaPoints``). Only the inlet moisture
+   moves the model, and it is the first state, so the sigma points hold three distinct inlet
+   moistures (the mean and the two along the first column of the Cholesky factor): the model is
+   stepped over the window for those three only, in one batched call, from the current wall
+   temperatures; a lab result sampled in the window adds one short step per inlet moisture to
+   its sample time (:mod:`.lab_alignment`, the calibration's alignment).
+3. *Measurements*: ``T_dryer_out = y_d(X_in) + T_offset + T_dryer_out_offset``,
+   ``T_cyclone_out = y_c(X_in) + T_offset + T_cyclone_out_offset`` (window means, variance
+   ``sensor_std^2 / n_good + model_std^2``), and per lab result ``y_lab(X_in) +
+   moisture_out_bias`` (variance ``lab_std^2 + moisture_out_jitter_std^2``). Measurement sizes
+   vary; the update uses filterpy's ``unscented_transform`` for the predicted measurement and
+   its covariance and the sigma points' deviations for the cross-covariance.
+4. *Covariance matching* before the update (Mehra 1972): when the innovation along what a
+   change of the inlet moisture (of one channel's offset; of the bias, with a lab) would do is
+   more than ``moisture_in_adapt`` (``offset_adapt``; ``moisture_out_bias_adapt``) standard
+   deviations, that state's prior variance grows until it is one: a step of the inlet moisture
+   or of one thermometer is taken at once.
+5. *Update*, and the wall temperatures (not filtered; a "consider" state that mostly settles
+   within a tick) conditioned on the innovation like the outputs.
 
-Measurements: ``T_dryer_out`` and ``T_cyclone_out`` window means every tick, variance
-``sensor_std² / n_good + model_std²``; ``moisture_out`` (model + bias) for each lab result,
-variance ``lab_std² + moisture_out_jitter_std²`` (a grab sample sees the outlet moisture's
-jitter within the window, 0.004 kg/kg on the virtual plant). Measurement sizes vary, so
-each filterpy ``update()`` gets its own ``hx`` and a full-size ``R`` (STACK.md). The model
-outputs of all sigma points come from one batched model call before the update; ``hx`` only
-looks them up.
+Published (``/softsensor/estimate``): the now-cast ``moisture_out`` (model + bias, posterior mean
+at the window's end) with ``moisture_out_std`` (its uncertainty plus the short-term jitter a
+600 s window cannot follow, so its 95 % band is the one to hold a grab sample against),
+``moisture_in`` and its standard deviation, the error states, the model temperatures, the
+normalised innovation squared ``nis`` and ``status``/``detail`` for health: ``stale`` for a
+stale window (predict only), ``degraded`` when the innovations fail the chi-square test of
+:mod:`.consistency` or the model failed.
+
+The guard
+---------
+When the model has lost the plant, its outlet moisture is nonsense however the filter bends.
+The tick then publishes a *lab-anchored* ``moisture_out``: the latest lab result, with a band
+``sqrt(lab_std^2 + fallback_drift^2 * hours since it was sampled)``, ``fallback`` true, health
+``degraded`` and the reason. The model has lost the plant when a model solve fails, when the
+inlet moisture sits at a bound of its range, or when an
+error state is further than ``guard_sigma`` of its prior standard deviations from zero (the
+model misses the plant by far more than the calibration found it does).
 
 Late lab results
 ----------------
@@ -58,32 +63,38 @@ lab been on time; results arriving out of order give the same estimate as in ord
 sampled after the last tick waits for its window. Older than the history: logged and skipped.
 Duplicate ``sample_id``: ignored. Out-of-range value or a value further than
 ``estimator.lab_gate`` standard deviations from the estimate at its sample time: refused with
-the reason.
-
-Each tick's body (``/softsensor/estimate``) holds the now-cast ``moisture_out`` (model + bias,
-posterior mean at the window's end), ``moisture_in``, their standard deviations, the model
-temperatures, the normalised innovation squared ``nis`` (``nu^T S^-1 nu``) with ``nis_dof``, and
-``status``/``detail`` for the health topic: ``stale`` for a stale window (predict only),
-``degraded`` when the innovations fail the chi-square test of :mod:`.consistency`.
-``moisture_out_std`` is the uncertainty of the outlet moisture *at the tick*: the window
-estimate's (``moisture_out_window_std``) plus the short-term jitter a window cannot follow
-(``estimator.moisture_out_jitter_std``), so its 95 % interval is the one to hold a grab sample
-or an instantaneous truth against. ``notes`` lists covariance-matching events (a step of the
-inlet moisture, a lab that moved the bias).
+the reason (a second one in a row on the same side is taken: the model is off, not the lab).
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
+from filterpy.kalman import predict as kf_predict
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
 from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
+from softsensor.estimation.discrepancy import (
+    ADAPT_CHANNELS,
+    STATE_NAMES,
+    X_BIAS,
+    X_IN,
+    X_TCOM,
+    X_TCYC,
+    X_TDRY,
+    AdaptiveNoise,
+    ErrorPriors,
+    InletTransform,
+    process_noise,
+    transition,
+)
+from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
 from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.window_inputs import (
@@ -97,12 +108,10 @@ from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 log = logging.getLogger(__name__)
 
-#: Filter state layout.
-STATE_NAMES: tuple[str, ...] = ("moisture_in", "T_air_in_error", "moisture_out_bias")
-X_IN, X_TA, X_BIAS = 0, 1, 2
-_T_AIR_IN = INPUT_NAMES.index("T_air_in")
 _MO = OUTPUT_NAMES.index("moisture_out")
-_CHECKPOINT_VERSION = 1
+_CHECKPOINT_VERSION = 2
+#: Rows of the output block (y_d, y_c, y_mo) and of the error states added to each channel.
+_OFFSETS = ((X_TCOM, X_TDRY), (X_TCOM, X_TCYC), (X_BIAS,))
 
 
 class WindowModel(Protocol):
@@ -120,33 +129,41 @@ class WindowModel(Protocol):
                  ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
-class _SigmaLookup:
-    """``hx`` for filterpy: returns the precomputed measurement of each sigma point in turn.
+@dataclass
+class _Posterior:
+    """What an update produced: state, published outputs (T_d, T_c, moisture_out with their
+    error states) and their variances, the model's own temperatures, the walls, the innovation
+    and each measurement row's normalised innovation."""
 
-    filterpy calls ``hx`` once per row of ``sigmas_f``, in order; the lookup checks that the
-    point it is handed is the one it computed for, so a change in filterpy cannot silently
-    pair the wrong outputs with a sigma point.
-    """
+    x: np.ndarray
+    P: np.ndarray
+    y_mean: np.ndarray
+    y_var: np.ndarray
+    model_T: np.ndarray
+    wall: np.ndarray
+    innovation: Innovation
+    normalised: np.ndarray
 
-    def __init__(self, sigmas: np.ndarray, h: np.ndarray) -> None:
-        self.sigmas, self.h, self.i = sigmas, h, 0
 
-    def __call__(self, s: np.ndarray) -> np.ndarray:
-        if self.i >= len(self.sigmas) or not np.array_equal(s, self.sigmas[self.i]):
-            raise EstimationError("filterpy handed hx a sigma point it was not computed for")
-        self.i += 1
-        return self.h[self.i - 1]
+@dataclass
+class _Sigma:
+    """The model at a set of sigma points: window-end outputs (3) and walls per point, and
+    per lab the outlet moisture at its sample time."""
+
+    y: np.ndarray        # (N, 3)
+    wall: np.ndarray     # (N, n_state)
+    lab: np.ndarray      # (N, L)
 
 
 class UkfEstimator:
-    """Unscented Kalman filter of the inlet moisture, an effective ``T_air_in`` error and the
-    outlet-moisture bias (module docstring).
+    """Unscented Kalman filter of the inlet moisture and the model's error (module docstring).
 
     Parameters
     ----------
     config : PlantConfig
-        Plant configuration, with calibrated parameter values (``load_parameters``); its
-        optional ``[estimator]`` table gives the :class:`EstimatorSettings`.
+        Plant configuration with calibrated parameter values (``load_parameters``, which also
+        carries the calibration's ``[discrepancy]``); its optional ``[estimator]`` table gives
+        the :class:`EstimatorSettings`.
     settings : EstimatorSettings, optional
         Overrides the config's table.
     model : WindowModel, optional
@@ -169,20 +186,18 @@ class UkfEstimator:
         if s.consistency_ticks > self.max_history:
             raise ConfigError(f"{config.source}: estimator.consistency_ticks must be <= the "
                               f"history ({self.max_history} ticks), got {s.consistency_ticks}")
+        self.inlet = InletTransform(s.moisture_in_min, s.moisture_in_max, s.inlet_margin)
+        self.priors = ErrorPriors.from_config(config, s)
         n = len(STATE_NAMES)
         self._points = MerweScaledSigmaPoints(n, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
-        self._ukf = UnscentedKalmanFilter(dim_x=n, dim_z=1, dt=self.window_s, hx=None,
-                                          fx=_transition, points=self._points)
-        self._ukf.Q = np.diag([s.walk_per_window(s.moisture_in_walk, self.window_s) ** 2,
-                               s.T_air_in_error_std**2,
-                               s.walk_per_window(s.moisture_out_bias_walk, self.window_s) ** 2])
-        nominal = config.nominal
-        self._x_in_nominal = float(nominal.moisture_in)
+        self._F = transition(self.window_s, self.priors)
+        self._walk = s.walk_per_window(s.moisture_in_walk, self.window_s)
+        x_nom = float(config.nominal.moisture_in)
+        x0 = np.zeros(n)
+        x0[X_IN] = float(self.inlet.inverse(x_nom))
+        P0 = np.diag(np.r_[s.moisture_in_std0**2, self.priors.sigma**2])
         self._hold = InputHold(config.nominal_inputs())
-        self._state = FilterState(np.array([self._x_in_nominal, 0.0, 0.0]),
-                                  np.diag([s.moisture_in_std0**2, s.T_air_in_error_std**2,
-                                           s.moisture_out_bias_std0**2]),
-                                  None)
+        self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
         self._labs = LabBook()
         self._dirty: int | None = None
@@ -277,6 +292,7 @@ class UkfEstimator:
             hold = np.array(snapshot["hold"], float)
             dirty = snapshot["dirty"]
             streak = int(snapshot["gate_streak"])
+            AdaptiveNoise.from_json(state.adapt)
         except (KeyError, TypeError, ValueError) as exc:
             raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
         n = len(STATE_NAMES)
@@ -290,7 +306,7 @@ class UkfEstimator:
         self._dirty = None if dirty is None else int(dirty)
         self._gate_streak = streak
 
-    # ------------------------------------------------------------------ internals
+    # ------------------------------------------------------------------ lab screening
     def _screen(self, lab: LabResult, body: dict[str, Any]) -> str | None:
         """Outlier screen of ``lab`` against the estimate ``body``: the reason to refuse it,
         or None. A lone outlier is refused; the second in a row on the same side is taken."""
@@ -306,16 +322,10 @@ class UkfEstimator:
         return None
 
     def _gate(self, lab: LabResult, body: dict[str, Any]) -> tuple[str | None, int]:
-        """Outlier test of ``lab`` against the estimate ``body`` of its tick.
-
-        Returns the reason to refuse it (None when it passes) and the side it fell on (+1
-        above, -1 below the estimate, 0 when it passes). A lone outlier is refused; a second
-        one in a row on the same side is accepted by :meth:`add_lab`: two lab results agreeing
-        against the estimate say the model is off, and refusing them would lock the filter out
-        of the very information that corrects it.
-        """
+        """Outlier test of ``lab`` against the estimate ``body`` of its tick: the reason to
+        refuse it (None when it passes) and the side it fell on (+1 above, -1 below, 0)."""
         mean, std = body.get("moisture_out"), body.get("moisture_out_std")
-        if mean is None or std is None:
+        if mean is None or std is None or body.get("fallback"):
             return None, 0
         s = self.settings
         z = (lab.moisture_out - mean) / math.sqrt(std**2 + s.lab_std**2)
@@ -334,167 +344,288 @@ class UkfEstimator:
             state = self._run(rec)
         self._state = state
 
+    # ------------------------------------------------------------------ one tick
     def _run(self, rec: TickRecord) -> FilterState:
         """Filter one tick from ``rec.start``; fill ``rec.body``/``rec.innovation``; new state."""
         s = self.settings
         start = rec.start
+        adapt = AdaptiveNoise.from_json(start.adapt)
         temps = temperatures(rec.window, s.temperature_sensor_std, s.temperature_model_std)
-        wall = start.wall
-        detail = ""
+        wall, detail = start.wall, ""
         if wall is None:
             u0 = rec.u.copy()
-            u0[MOISTURE_IN] = np.clip(start.x[X_IN], s.moisture_in_min, s.moisture_in_max)
+            u0[MOISTURE_IN] = float(self.inlet.forward(start.x[X_IN]))
             try:
                 wall = self.model.steady_state(u0, self.theta)[0]
             except (SoftsensorError, ValueError) as exc:  # predict only, retry next tick
                 detail = f"model initialisation failed: {exc}"
-        ukf = self._ukf
-        ukf.x, ukf.P = start.x.copy(), start.P.copy()
-        ukf.predict()
-        x, P = ukf.x.copy(), _symmetric(ukf.P)
-        raw = None
+        Q = process_noise(self.window_s, self.priors, self._walk, adapt.inflation(s.adapt_limit))
+        x, P = kf_predict(start.x, start.P, self._F, Q)
+        P = _symmetric(P)
+        innovation, notes = Innovation(), []
+        y_mean = y_var = np.full(3, np.nan)
+        model_T = np.full(2, np.nan)
+        new_wall = wall
+        failed = bool(detail)
         if wall is not None:
-            raw, detail = self._outputs(ukf.sigmas_f, rec.u, wall, detail)
-        innovation = Innovation()
-        notes: list[str] = []
-        rows, z, R, names = self._measurements(temps, rec.labs)
-        if raw is not None:
-            for i in (X_IN, X_BIAS) if rows else ():
-                if i == X_BIAS and not rec.labs:
-                    continue
-                note = self._match_covariance(i, raw, rows, z, R)
-                if note and i == X_IN:
-                    raw, detail = self._outputs(ukf.sigmas_f, rec.u, wall, detail)
-                    if raw is None:
-                        break
-                if note:
-                    notes.append(note)
-        if raw is None:
-            y_mean = y_var = np.full(3, np.nan)
-            new_wall = wall
-        else:
-            sigmas = ukf.sigmas_f.copy()
-            g = self._with_bias(raw, sigmas)
-            wm, wc = self._points.Wm, self._points.Wc
-            post = wm @ g
-            dg = g - post
-            y_mean = post[:3]
-            y_var = (wc[:, None] * dg[:, :3] ** 2).sum(0)
-            if rows:
-                h = g[:, rows]
-                dh = h - wm @ h
-                ukf.update(z, R=R, hx=_SigmaLookup(sigmas, h))
-                x, P = ukf.x.copy(), _symmetric(ukf.P)
-                gain = ((wc[:, None] * dg).T @ dh) @ ukf.SI
-                post = post + gain @ ukf.y
-                y_mean = post[:3]
-                y_var = y_var - np.einsum("ij,jk,ik->i", gain[:3], ukf.S, gain[:3])
-                innovation = Innovation(float(ukf.y @ ukf.SI @ ukf.y), len(rows),
-                                        _per_channel(names, ukf.y / np.sqrt(np.diag(ukf.S))))
-            new_wall = post[3:]
-        x[X_IN] = float(np.clip(x[X_IN], s.moisture_in_min, s.moisture_in_max))
+            rows, z, R, names, kinds = self._measurements(temps, rec.labs)
+            sig, sigmas, detail = self._sigma_outputs(x, P, rec, wall, detail)
+            if sig is not None:
+                if rows:
+                    candidates = [i for i in (X_IN, X_TDRY, X_TCYC, X_BIAS)
+                                  if not ((i == X_BIAS and not rec.labs)
+                                          or (i == X_TDRY and 0 not in rows)
+                                          or (i == X_TCYC and 1 not in rows))]
+                    P_new, note = self._match_covariance(candidates, P, sigmas, sig, rows, z, R)
+                    if note:
+                        notes.append(note)
+                        P = P_new
+                        sig, sigmas, detail = self._sigma_outputs(x, P, rec, wall, detail)
+            if sig is None:
+                failed = True
+            else:
+                post = self._update(x, P, sigmas, sig, rows, z, R, names)
+                x, P, y_mean, y_var = post.x, post.P, post.y_mean, post.y_var
+                model_T, new_wall, innovation = post.model_T, post.wall, post.innovation
+                for nu, kind in zip(post.normalised, kinds, strict=True):
+                    adapt.update(kind, float(nu) ** 2, s.adapt_ticks)
         _check_covariance(P, rec.window.end_ns)
         rec.innovation = innovation
-        rec.body = self._body(rec, x, P, y_mean, y_var, detail)
+        rec.body = self._body(rec, x, P, y_mean, y_var, model_T, detail, failed)
         rec.body["notes"] = notes
-        return FilterState(x, P, None if new_wall is None else np.array(new_wall, float))
+        return FilterState(x, P, None if new_wall is None else np.array(new_wall, float),
+                           adapt.to_json())
 
-    @staticmethod
-    def _with_bias(raw: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
-        """Sigma-point outputs with the outlet-moisture bias added."""
-        g = raw.copy()
-        g[:, _MO] += sigmas[:, X_BIAS]
-        return g
-
-    def _match_covariance(self, i: int, raw: np.ndarray, rows: list[int], z: np.ndarray,
-                          R: np.ndarray) -> str:
-        """Widen the prior variance of state ``i`` when the innovation says it moved more than
-        its random walk allows (covariance matching, Mehra 1972, "Approaches to adaptive
-        filtering"); returns a note ('' when nothing changed).
-
-        With ``h = Cov(z, x_i) / P_ii`` the sensitivity of the measurements to the state (from
-        the prior sigma points), ``S`` the innovation covariance and ``nu`` the innovation,
-        ``t = h^T S^-1 nu / sqrt(h^T S^-1 h)`` is the innovation's component along what a
-        change of ``x_i`` would do, in standard deviations (for the bias and one lab result it
-        is the lab innovation conditional on the tick's temperatures). When ``|t|`` exceeds the
-        threshold (``estimator.moisture_in_adapt`` / ``moisture_out_bias_adapt``), ``P_ii``
-        grows by ``(t² - 1) / (h^T S^-1 h)``, after which that component is one standard
-        deviation. So a step of the inlet moisture is taken at once instead of over many ticks,
-        and a lab that shows the model is off moves the bias at once, while the random walks
-        stay small and the reported uncertainty honest on a quiet plant. A mismatch no change
-        of the state can explain (one temperature channel off) is left to the chi-square test.
-
-        Widening ``P_ii`` changes the sigma points: for the bias (last in the state, filterpy's
-        upper Cholesky factor) only their bias coordinates, so ``raw`` stays valid; for the
-        inlet moisture the caller evaluates the model again.
-        """
-        ukf, pts = self._ukf, self._points
-        thr = self.settings.moisture_in_adapt if i == X_IN else \
-            self.settings.moisture_out_bias_adapt
-        h_sig = self._with_bias(raw, ukf.sigmas_f)[:, rows]
-        dh = h_sig - pts.Wm @ h_sig
-        S = (pts.Wc[:, None] * dh).T @ dh + R
-        nu = z - pts.Wm @ h_sig
-        dx = ukf.sigmas_f[:, i] - pts.Wm @ ukf.sigmas_f[:, i]
-        h = (pts.Wc * dx) @ dh / ukf.P[i, i]
-        w = np.linalg.solve(S, h)
-        info = float(h @ w)
-        if not info > 0:
-            return ""
-        t = float(w @ nu) / math.sqrt(info)
-        if abs(t) <= thr:
-            return ""
-        P = ukf.P.copy()
-        P[i, i] += (t * t - 1.0) / info
-        sigmas = pts.sigma_points(ukf.x, P)
-        if i == X_BIAS and not np.allclose(sigmas[:, :X_BIAS], ukf.sigmas_f[:, :X_BIAS],
-                                           rtol=0, atol=1e-12):
-            raise EstimationError("bias adaptation moved the model-input sigma points")
-        ukf.P, ukf.sigmas_f = P, sigmas
-        what = "inlet moisture" if i == X_IN else "outlet-moisture bias"
-        msg = (f"measurements {abs(t):.1f} sigma from the model along the {what}: its prior "
-               f"widened to {math.sqrt(P[i, i]):.4f} kg/kg")
-        log.info(msg)
-        return msg
-
-    def _outputs(self, sigmas: np.ndarray, u: np.ndarray, wall: np.ndarray, detail: str
-                 ) -> tuple[np.ndarray | None, str]:
-        """Model outputs and end walls of every sigma point, ``(2n+1, 3 + n_state)``, without
-        the bias (None and the reason when a solve failed)."""
-        s = self.settings
-        U = np.repeat(u[None, None, :], len(sigmas), axis=0)
-        U[:, 0, MOISTURE_IN] = np.clip(sigmas[:, X_IN], s.moisture_in_min, s.moisture_in_max)
-        U[:, 0, _T_AIR_IN] += sigmas[:, X_TA]
+    def _sigma_outputs(self, x: np.ndarray, P: np.ndarray, rec: TickRecord, wall: np.ndarray,
+                       detail: str) -> tuple[_Sigma | None, np.ndarray, str]:
+        """Sigma points of ``(x, P)`` and the model at them (module docstring, step 2); None
+        and the reason when a solve failed."""
+        sigmas = self._points.sigma_points(x, P)
+        s_in = sigmas[:, X_IN]
+        unique, index = np.unique(s_in, return_inverse=True)
+        X = self.inlet.forward(unique)
+        U = np.repeat(rec.u[None, None, :], len(unique), axis=0)
+        U[:, 0, MOISTURE_IN] = X
         Y, walls = self.model.simulate(U, self.theta, state0=wall, raise_on_failure=False)
         Y = Y[:, 0, :]
-        if not np.all(np.isfinite(Y)):
-            bad = int(np.flatnonzero(~np.isfinite(Y).all(1))[0])
-            return None, (f"model solve failed at sigma point moisture_in="
-                          f"{U[bad, 0, MOISTURE_IN]:.3f}: predict only")
-        return np.hstack([Y, walls]), detail
+        lab = np.empty((len(unique), len(rec.labs)))
+        for j, r in enumerate(rec.labs):
+            u_lab = sample_inputs(rec.window, rec.u, r.sample_time_ns,
+                                  self.config.solver.lab_span)
+            Ul = np.repeat(u_lab[None, None, :], len(unique), axis=0)
+            Ul[:, 0, MOISTURE_IN] = X
+            dt = float(sample_offset(rec.window.start_ns, r.sample_time_ns))
+            yl, _ = self.model.simulate(Ul, self.theta, state0=wall, dt=dt,
+                                        raise_on_failure=False)
+            lab[:, j] = yl[:, 0, _MO]
+        if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(lab))):
+            bad = int(np.flatnonzero(~(np.isfinite(Y).all(1) & np.isfinite(lab).all(1)))[0])
+            return None, sigmas, (f"model solve failed at moisture_in={X[bad]:.3f} kg/kg: "
+                                  f"predict only")
+        return _Sigma(Y[index], np.asarray(walls)[index], lab[index]), sigmas, detail
+
+    def _measurement_sigmas(self, sigmas: np.ndarray, sig: _Sigma, rows: list[int]
+                            ) -> np.ndarray:
+        """Predicted measurements (N, m) at the sigma points: the model plus the error
+        states (rows < 2: temperature channels; rows >= 2: lab results in order)."""
+        out = np.empty((len(sigmas), len(rows)))
+        j_lab = 0
+        for m, r in enumerate(rows):
+            if r < 2:
+                out[:, m] = sig.y[:, r] + sigmas[:, list(_OFFSETS[r])].sum(axis=1)
+            else:
+                out[:, m] = sig.lab[:, j_lab] + sigmas[:, X_BIAS]
+                j_lab += 1
+        return out
+
+    def _match_covariance(self, candidates: list[int], P: np.ndarray, sigmas: np.ndarray,
+                          sig: _Sigma, rows: list[int], z: np.ndarray, R: np.ndarray
+                          ) -> tuple[np.ndarray, str]:
+        """Widen the prior variance of the one state whose jump best explains the innovation,
+        when the innovation says it moved more than its process noise allows (covariance
+        matching, Mehra 1972); returns the new ``P`` and a note ('' when nothing changed).
+
+        For each candidate state ``i``, with ``h = dz / dx_i`` the sensitivity of the
+        measurements to that state alone (the others held: :meth:`_partial`), ``S`` the
+        innovation covariance and ``nu`` the innovation, ``t_i = h' S^-1 nu / sqrt(h' S^-1 h)``
+        is the innovation's component along what a jump of ``x_i`` would do, in standard
+        deviations, and ``t_i^2`` the drop of the normalised innovation squared that such a jump
+        buys (a generalised likelihood ratio). The candidate with the largest ``|t_i|`` is the
+        best single explanation: a step of the inlet moisture moves both temperatures (and the
+        lab) as the model says, a thermometer that steps moves one channel. When its ``|t|``
+        exceeds its threshold (``estimator.moisture_in_adapt``, ``offset_adapt``,
+        ``moisture_out_bias_adapt``), ``P_ii`` grows by ``(t^2 - 1) / (h' S^-1 h)``, after
+        which that component is one standard deviation. Taking one jump per tick, the best one,
+        keeps a single thermometer's step from being read as an inlet-moisture step plus the
+        other thermometer's opposite offset.
+        """
+        pts = self._points
+        h_sig = self._measurement_sigmas(sigmas, sig, rows)
+        zp, S = unscented_transform(h_sig, pts.Wm, pts.Wc, R)
+        nu = z - zp
+        best = None
+        for i in candidates:
+            h = self._partial(i, sigmas, h_sig, rows)
+            w = np.linalg.solve(S, h)
+            info = float(h @ w)
+            if not info > 0:
+                continue
+            t = float(w @ nu) / math.sqrt(info)
+            if best is None or abs(t) > abs(best[1]):
+                best = (i, t, info)
+        if best is None:
+            return P, ""
+        i, t, info = best
+        thr = {X_IN: self.settings.moisture_in_adapt,
+               X_BIAS: self.settings.moisture_out_bias_adapt}.get(i, self.settings.offset_adapt)
+        if abs(t) <= thr:
+            return P, ""
+        P = P.copy()
+        P[i, i] += (t * t - 1.0) / info
+        what = {X_IN: "inlet moisture", X_BIAS: "outlet-moisture bias"}.get(
+            i, STATE_NAMES[i].replace("_", " "))
+        msg = (f"measurements {abs(t):.1f} sigma from the model along the {what}: its prior "
+               f"widened to {math.sqrt(P[i, i]):.4f}")
+        log.info(msg)
+        return P, msg
+
+    @staticmethod
+    def _partial(i: int, sigmas: np.ndarray, h_sig: np.ndarray, rows: list[int]
+                 ) -> np.ndarray:
+        """``dz / dx_i`` with the other states held. The error states enter additively (one
+        on their rows); the inlet moisture through the model, by the central difference of the
+        two sigma points that move it (the first column of the Cholesky factor also moves the
+        states correlated with it, so ``Cov(z, x_i) / P_ii`` would not hold the others)."""
+        if i != X_IN:
+            return np.array([1.0 if i in _OFFSETS[r] else 0.0 for r in rows])
+        n = (len(sigmas) - 1) // 2
+        up, dn = sigmas[1], sigmas[1 + n]
+        dz = (h_sig[1] - h_sig[1 + n]) - np.array(
+            [sum(up[j] - dn[j] for j in _OFFSETS[r]) for r in rows])
+        return dz / (up[X_IN] - dn[X_IN])
+
+    def _update(self, x: np.ndarray, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
+                rows: list[int], z: np.ndarray, R: np.ndarray, names: list[str]
+                ) -> _Posterior:
+        """The unscented update of the state, the outputs and the walls (module docstring,
+        steps 3 and 5)."""
+        pts = self._points
+        wm, wc = pts.Wm, pts.Wc
+        # outputs the body publishes, with their error states: T_d, T_c, moisture_out
+        g = np.column_stack([sig.y[:, 0] + sigmas[:, X_TCOM] + sigmas[:, X_TDRY],
+                             sig.y[:, 1] + sigmas[:, X_TCOM] + sigmas[:, X_TCYC],
+                             sig.y[:, _MO] + sigmas[:, X_BIAS], sig.wall])
+        # the model's own temperatures (without offsets) for the body
+        g_model = sig.y[:, :2]
+        post = wm @ g
+        dg = g - post
+        y_var = (wc[:, None] * dg[:, :3] ** 2).sum(0)
+        model_T = wm @ g_model
+        innovation = Innovation()
+        norm = np.zeros(0)
+        if rows:
+            h_sig = self._measurement_sigmas(sigmas, sig, rows)
+            zp, S = unscented_transform(h_sig, wm, wc, R)
+            dh = h_sig - zp
+            Pxz = ((wc[:, None] * (sigmas - x)).T @ dh)
+            SI = np.linalg.inv(S)
+            K = Pxz @ SI
+            nu = z - zp
+            x = x + K @ nu
+            P = _symmetric(P - K @ S @ K.T)
+            gain = ((wc[:, None] * dg).T @ dh) @ SI
+            post = post + gain @ nu
+            y_var = y_var - np.einsum("ij,jk,ik->i", gain[:3], S, gain[:3])
+            gain_m = ((wc[:, None] * (g_model - model_T)).T @ dh) @ SI
+            model_T = model_T + gain_m @ nu
+            norm = nu / np.sqrt(np.diag(S))
+            innovation = Innovation(float(nu @ SI @ nu), len(rows), _per_channel(names, norm))
+        return _Posterior(x, P, post[:3].copy(), y_var, model_T, post[3:], innovation, norm)
 
     def _measurements(self, temps: TemperatureMeasurement, labs: list[LabResult]
-                      ) -> tuple[list[int], np.ndarray, np.ndarray, list[str]]:
-        """Rows of the model output used, measured values, full-size R, channel names."""
+                      ) -> tuple[list[int], np.ndarray, np.ndarray, list[str], list[int]]:
+        """Rows (0, 1: temperature channels; 2: a lab result), measured values, full-size
+        ``R``, channel names and the adaptive channel of each row."""
         rows = list(temps.channels)
         values = list(temps.values)
         var = list(temps.variances)
         names = [OUTPUT_NAMES[c] for c in temps.channels]
+        kinds = list(temps.channels)
         for lab in labs:
-            rows.append(_MO)
+            rows.append(2)
             values.append(lab.moisture_out)
             var.append(self.settings.lab_std**2 + self.settings.moisture_out_jitter_std**2)
             names.append("moisture_out (lab)")
-        return rows, np.array(values, float), np.diag(var), names
+            kinds.append(ADAPT_CHANNELS.index("moisture_out"))
+        return rows, np.array(values, float), np.diag(var), names, kinds
+
+    # ------------------------------------------------------------------ the body
+    def _inlet_moments(self, x: np.ndarray, P: np.ndarray) -> tuple[float, float]:
+        """Mean and standard deviation of the inlet moisture (through the soft clip)."""
+        sig = self._points.sigma_points(x, P)[:, X_IN]
+        X = self.inlet.forward(sig)
+        mean = float(self._points.Wm @ X)
+        var = float(self._points.Wc @ (X - mean) ** 2)
+        return mean, math.sqrt(max(var, 0.0))
+
+    def _lost(self, x: np.ndarray, failed: bool) -> str:
+        """Why the model has lost the plant ('' when it has not): the guard's rules. Only the
+        errors that move the outlet moisture count: the common temperature offset (the energy
+        balance) and the outlet-moisture bias; one channel's own offset is a suspect sensor
+        (:meth:`_suspect`)."""
+        if failed:
+            return "the model could not be solved"
+        if self.inlet.near_bound(float(x[X_IN])):
+            X = float(self.inlet.forward(x[X_IN]))
+            return (f"the inlet moisture sits at the bound of its range ({X:.2f} kg/kg in "
+                    f"[{self.inlet.lo:g}, {self.inlet.hi:g}])")
+        for i in (X_TCOM, X_BIAS):
+            z = x[i] / self.priors.sigma[i - 1]
+            if abs(z) > self.settings.guard_sigma:
+                unit = "kg/kg" if i == X_BIAS else "K"
+                return (f"{STATE_NAMES[i]} {x[i]:+.3g} {unit} is {abs(z):.1f} times the "
+                        f"model error the calibration expects "
+                        f"({self.priors.sigma[i - 1]:.3g} {unit}, {self.priors.source})")
+        return ""
+
+    def _suspect(self, x: np.ndarray) -> str:
+        """A temperature channel whose own offset is beyond ``guard_sigma`` of its prior: its
+        sensor (or that part of the model) is off ('' when none is)."""
+        out = []
+        for i, name in ((X_TDRY, "T_dryer_out"), (X_TCYC, "T_cyclone_out")):
+            z = x[i] / self.priors.sigma[i - 1]
+            if abs(z) > self.settings.guard_sigma:
+                out.append(f"{name} reads {x[i]:+.2f} K from the model ({abs(z):.1f} times "
+                           f"the error expected): check its sensor")
+        return "; ".join(out)
+
+    def _fallback(self, end_ns: int) -> tuple[float, float, str] | None:
+        """The lab-anchored estimate: the latest accepted lab result sampled by ``end_ns``,
+        its band widened with the time since (None without a lab in the history)."""
+        latest = None
+        for r in self._history:
+            for lab in r.labs:
+                if lab.sample_time_ns <= end_ns and (latest is None or lab.sample_time_ns
+                                                     > latest.sample_time_ns):
+                    latest = lab
+        if latest is None:
+            return None
+        s = self.settings
+        hours = max(end_ns - latest.sample_time_ns, 0) / 3.6e12
+        std = math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2
+                        + s.fallback_drift**2 * hours)
+        return float(latest.moisture_out), std, latest.sample_id
 
     def _body(self, rec: TickRecord, x: np.ndarray, P: np.ndarray, y_mean: np.ndarray,
-              y_var: np.ndarray, detail: str) -> dict[str, Any]:
+              y_var: np.ndarray, model_T: np.ndarray, detail: str, failed: bool
+              ) -> dict[str, Any]:
         """The estimate body of one tick (``lab_updated`` is set by :meth:`tick`)."""
+        s = self.settings
         window = rec.window
-        jitter = self.settings.moisture_out_jitter_std
+        jitter = s.moisture_out_jitter_std
         recent = [r.innovation for r in self._history if r.window.end_ns < window.end_ns]
-        recent = recent[max(0, len(recent) - (self.settings.consistency_ticks - 1)):]
-        verdict = chi_square_test([*recent, rec.innovation], self.settings.consistency_alpha)
+        recent = recent[max(0, len(recent) - (s.consistency_ticks - 1)):]
+        verdict = chi_square_test([*recent, rec.innovation], s.consistency_alpha)
         if window.stale:
             status = "stale"
             reasons = "; ".join(f"{k}: {v}" for k, v in window.reasons.items())
@@ -506,35 +637,59 @@ class UkfEstimator:
             status, detail = verdict.status, verdict.detail
             if rec.held:
                 detail += f"; holding last value of {', '.join(rec.held)}"
+        mo = float(y_mean[_MO]) if math.isfinite(y_mean[_MO]) else math.nan
+        mo_std = math.sqrt(max(y_var[_MO], 0.0) + jitter**2) if math.isfinite(mo) else math.nan
+        fallback = False
+        lost = "" if window.stale else self._lost(x, failed)
+        if lost or not math.isfinite(mo):
+            anchor = self._fallback(window.end_ns)
+            if anchor is not None:
+                mo, mo_std, sid = anchor
+                fallback = True
+                status = "degraded"
+                detail = (f"model lost the plant ({lost or 'no model estimate'}): moisture_out "
+                          f"is the last lab result {sid} {mo:.4f} +- {mo_std:.4f} kg/kg; "
+                          + detail)
+            elif lost:
+                status = "degraded"
+                detail = f"model lost the plant ({lost}); no lab result yet; " + detail
+        suspect = "" if window.stale else self._suspect(x)
+        if suspect:
+            status = "degraded"
+            detail = f"{suspect}; {detail}"
+        clipped = math.isfinite(mo) and not s.lab_min <= mo <= s.lab_max
+        if clipped:
+            mo = min(max(mo, s.lab_min), s.lab_max)
+        x_in, x_in_std = self._inlet_moments(x, P)
         inn = rec.innovation
         return {
-            "moisture_out": _num(y_mean[_MO]),
-            "moisture_out_std": _num(math.sqrt(max(y_var[_MO], 0.0) + jitter**2)),
+            "moisture_out": _num(mo),
+            "moisture_out_std": _num(mo_std),
             "moisture_out_window_std": _num(math.sqrt(max(y_var[_MO], 0.0))),
-            "moisture_in": float(x[X_IN]),
-            "moisture_in_std": float(math.sqrt(P[X_IN, X_IN])),
+            "moisture_in": x_in,
+            "moisture_in_std": x_in_std,
             "moisture_out_bias": float(x[X_BIAS]),
             "moisture_out_bias_std": float(math.sqrt(P[X_BIAS, X_BIAS])),
+            "T_offset": float(x[X_TCOM]),
+            "T_dryer_out_offset": float(x[X_TDRY]),
+            "T_cyclone_out_offset": float(x[X_TCYC]),
             "T_dryer_out_model": _num(y_mean[0]),
             "T_cyclone_out_model": _num(y_mean[1]),
+            "T_dryer_out_model_raw": _num(float(model_T[0])),
+            "T_cyclone_out_model_raw": _num(float(model_T[1])),
+            "fallback": fallback,
+            "clipped": clipped,
             "nis": inn.nis if inn.dof else None,
             "nis_dof": inn.dof,
             "labs_applied": [r.sample_id for r in rec.labs],
             "lab_updated": bool(rec.labs),
             "status": status,
             "detail": detail,
+            "discrepancy_priors": self.priors.source,
             "window_start_ns": int(window.start_ns),
             "window_end_ns": int(window.end_ns),
             "estimator": self.kind,
         }
-
-
-def _transition(x: np.ndarray, dt: float) -> np.ndarray:
-    """State transition over one window: random walks keep their value, the white
-    ``T_air_in`` error is redrawn (its process noise ``Q`` is its whole variance)."""
-    out = x.copy()
-    out[X_TA] = 0.0
-    return out
 
 
 def _num(v: float) -> float | None:

@@ -12,6 +12,12 @@ The window is ``stale`` when fewer scans than that arrived, or when a signal of 
 the key ``"scans"`` or the signal's name. Windows without any scan (a gap in the data) are
 emitted too, stale, so time keeps advancing for the estimator.
 
+Each window also keeps, per measured model input, the mean of its good values in consecutive
+bins of ``bin_s`` seconds (60 s): what a lab sample taken inside the window saw
+(:mod:`softsensor.estimation.lab_alignment`). This accumulator is the one windowing of the
+program: the estimator service feeds it live, calibration and diagnosis feed it a recorded day
+(:func:`windows_from_frame`), so all three see the same windows.
+
 No I/O and no clock: time is whatever the scans (or :meth:`WindowAccumulator.advance`) say.
 """
 
@@ -23,13 +29,15 @@ from dataclasses import dataclass
 from typing import Any
 
 from softsensor.errors import ConfigError
-from softsensor.estimation.base import Window
-from softsensor.recording.mcap_day import scan_values
+from softsensor.messages import Window, scan_values
+from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
 
 NS = 10**9
 #: Signals without which a window cannot drive the model: the measured inputs.
 MODEL_SIGNALS: tuple[str, ...] = tuple(n for n in INPUT_NAMES if n in SCAN_SIGNALS)
+#: Default length of the sub-window bins of the measured inputs [s].
+BIN_S = 60.0
 
 
 @dataclass(frozen=True)
@@ -47,12 +55,15 @@ class WindowSettings:
         dropped and the window is stale. [-]
     required : tuple of str
         Signals whose absence makes the window stale.
+    bin_s : float
+        Length of the sub-window bins of the measured inputs [s]; must divide ``period_s``.
     """
 
     period_s: float = 600.0
     scan_period_s: float = 10.0
     min_fraction: float = 0.5
     required: tuple[str, ...] = MODEL_SIGNALS
+    bin_s: float = BIN_S
 
     def __post_init__(self) -> None:
         if not (self.period_s > 0 and math.isfinite(self.period_s)):
@@ -67,11 +78,24 @@ class WindowSettings:
         unknown = [s for s in self.required if s not in SCAN_SIGNALS]
         if unknown:
             raise ConfigError(f"window.required names unknown signal {unknown[0]!r}")
+        if not (0 < self.bin_s <= self.period_s) or (self.period_ns % self.bin_ns):
+            raise ConfigError(f"window.bin_s must divide the window ({self.period_s:g} s), "
+                              f"got {self.bin_s}")
 
     @property
     def period_ns(self) -> int:
         """Window length [ns]."""
         return int(round(self.period_s * NS))
+
+    @property
+    def bin_ns(self) -> int:
+        """Bin length [ns]."""
+        return int(round(self.bin_s * NS))
+
+    @property
+    def n_bins(self) -> int:
+        """Bins per window."""
+        return self.period_ns // self.bin_ns
 
     @property
     def expected_scans(self) -> int:
@@ -84,17 +108,28 @@ class WindowSettings:
         return math.ceil(self.min_fraction * self.expected_scans - 1e-9)
 
 
+def window_settings(config: PlantConfig, **overrides: Any) -> WindowSettings:
+    """The windowing of ``config`` (``[solver]``: window, scan period, good share)."""
+    s = config.solver
+    kwargs: dict[str, Any] = {"period_s": s.window, "scan_period_s": s.scan_period,
+                              "min_fraction": s.min_good_fraction}
+    kwargs.update(overrides)
+    return WindowSettings(**kwargs)
+
+
 def window_end(time_ns: int, period_ns: int) -> int:
     """End [ns] of the aligned window ``(end - period, end]`` holding ``time_ns``."""
     return -((-time_ns) // period_ns) * period_ns
 
 
 class _Sums:
-    __slots__ = ("n_scans", "values")
+    __slots__ = ("bin_n", "bin_sum", "n_scans", "values")
 
-    def __init__(self) -> None:
+    def __init__(self, n_bins: int) -> None:
         self.n_scans = 0
         self.values: dict[str, list[float]] = {name: [] for name in SCAN_SIGNALS}
+        self.bin_sum = {name: [0.0] * n_bins for name in MODEL_SIGNALS}
+        self.bin_n = {name: [0] * n_bins for name in MODEL_SIGNALS}
 
 
 class WindowAccumulator:
@@ -118,7 +153,7 @@ class WindowAccumulator:
         self.settings = settings or WindowSettings()
         self._period = self.settings.period_ns
         self._end: int | None = None  # end of the window being filled
-        self._sums = _Sums()
+        self._sums = _Sums(self.settings.n_bins)
         self._emitted_end: int | None = None  # end of the last emitted window
         if start_ns is not None:
             self._end = window_end(start_ns + 1, self._period)
@@ -151,9 +186,14 @@ class WindowAccumulator:
             return []
         sums = self._sums
         sums.n_scans += 1
+        b = min(max((t - (self._end - self._period) - 1) // self.settings.bin_ns, 0),
+                self.settings.n_bins - 1)
         for name, v in values.items():
             if math.isfinite(v):
                 sums.values[name].append(v)
+                if name in sums.bin_sum:
+                    sums.bin_sum[name][b] += v
+                    sums.bin_n[name][b] += 1
         return out
 
     def advance(self, now_ns: int) -> list[Window]:
@@ -178,11 +218,12 @@ class WindowAccumulator:
     def _close_until(self, last_end: int) -> list[Window]:
         """Close the current window and emit gap windows up to the one ending at ``last_end``."""
         assert self._end is not None
+        n_bins = self.settings.n_bins
         out = [self._build(self._end - self._period, self._end, self._sums)]
-        self._sums = _Sums()
+        self._sums = _Sums(n_bins)
         end = self._end + self._period
         while end <= last_end:
-            out.append(self._build(end - self._period, end, _Sums()))
+            out.append(self._build(end - self._period, end, _Sums(n_bins)))
             end += self._period
         self._emitted_end = last_end if last_end >= self._end else self._end
         self._end = end
@@ -211,8 +252,10 @@ class WindowAccumulator:
         missing = [name for name in s.required if means[name] is None]
         if missing:
             stale = True
+        bins = {name: [sums.bin_sum[name][b] / n if n else None
+                       for b, n in enumerate(sums.bin_n[name])] for name in MODEL_SIGNALS}
         return Window(start_ns=start, end_ns=end, means=means, n_scans=sums.n_scans,
-                      n_good=n_good, stale=stale, reasons=reasons)
+                      n_good=n_good, stale=stale, reasons=reasons, bin_s=s.bin_s, bins=bins)
 
 
 def windows_from_scans(scans: Iterable[tuple[int, Mapping[str, Any]]],
@@ -245,10 +288,12 @@ def windows_from_frame(scans: Any, settings: WindowSettings | None = None, **kwa
 
 
 __all__ = [
+    "BIN_S",
     "MODEL_SIGNALS",
     "WindowAccumulator",
     "WindowSettings",
     "window_end",
     "windows_from_frame",
     "windows_from_scans",
+    "window_settings",
 ]

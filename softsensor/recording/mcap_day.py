@@ -34,7 +34,8 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.writer import CompressionType, Writer
 
 from softsensor.errors import IngestError
-from softsensor.estimation.base import LabResult
+from softsensor.messages import SCAN_EXTRA_FIELDS, LabResult, scan_values
+from softsensor.messages import is_number as _is_number
 from softsensor.signals import (
     HEALTH_STATES,
     SCAN_SIGNALS,
@@ -49,9 +50,6 @@ log = logging.getLogger(__name__)
 
 #: Default uncompressed chunk size [bytes]: about 100 scans, so a crash loses minutes, not hours.
 DEFAULT_CHUNK_SIZE = 32 * 1024
-
-#: Non-signal fields a scan body may carry besides the signals (a Zenoh ``time_ns``, a counter).
-SCAN_EXTRA_FIELDS: frozenset[str] = frozenset({"time_ns", "seq", "sequence", "scan_id", "unit"})
 
 #: Columns of :attr:`RecordedDay.labs`.
 LAB_COLUMNS: tuple[str, ...] = ("log_time_ns", "sample_time_ns", "moisture_out", "sample_id")
@@ -264,34 +262,6 @@ class DayWriter:
 
 # ----------------------------------------------------------------------------------------------
 # Decoding bodies (pure)
-
-
-def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def scan_values(body: dict[str, Any], where: str = "scan") -> dict[str, float]:
-    """Signal values of a ``/plant/scan`` body in SI units, NaN for ``null`` or missing.
-
-    Raises :class:`IngestError` naming ``where`` and the signal for a numeric field that is not
-    a known signal (non-signal fields: :data:`SCAN_EXTRA_FIELDS`, names ending in ``_ns``, and
-    non-numeric metadata) or for a signal whose value is not a number or null.
-    """
-    if not isinstance(body, dict):
-        raise IngestError(f"{where}: scan body is {type(body).__name__}, not an object")
-    out = dict.fromkeys(SCAN_SIGNALS, math.nan)
-    for key, value in body.items():
-        if key in out:
-            if value is None:
-                continue
-            if not _is_number(value):
-                raise IngestError(f"{where}: signal {key} has non-numeric value {value!r}")
-            out[key] = float(value)
-        elif key in SCAN_EXTRA_FIELDS or key.endswith("_ns"):
-            continue
-        elif value is None or _is_number(value):
-            raise IngestError(f"{where}: unknown signal {key!r} in /plant/scan")
-    return out
 
 
 def lab_result(body: dict[str, Any], log_time_ns: int | None = None,

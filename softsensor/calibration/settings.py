@@ -1,0 +1,86 @@
+"""Calibration settings: the optional ``[calibration]`` table of the plant config.
+
+One frozen dataclass, validated on load (:func:`softsensor.configfile.build_section`); every
+field has a default and the ``calibrate`` verb's options override them. What each choice does
+is in :mod:`softsensor.calibration.objective`.
+
+Example ``config/dryer1.toml`` fragment::
+
+    [calibration]
+    cost = "likelihood"        # or "eq4", the paper's
+    prior_sigma = 1.0          # sd of ln(theta) around the config's values
+    inlet = "estimated"        # the unmeasured inlet moisture, fitted as a slow trajectory
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from softsensor.configfile import build_section, num
+from softsensor.plantconfig import PlantConfig
+
+#: Cost functions the calibration offers (:mod:`softsensor.calibration.objective`).
+COSTS: tuple[str, ...] = ("eq4", "likelihood")
+#: How the unmeasured inlet moisture enters the fit.
+INLET_MODES: tuple[str, ...] = ("nominal", "estimated")
+
+
+@dataclass(frozen=True)
+class CalibrationSettings:
+    """Tuning of the calibration (``[calibration]`` in the plant config).
+
+    Attributes
+    ----------
+    cost : str
+        ``"eq4"``: the paper's weighted sum of RMSEs (eq. 4, weights from ``[cost]``);
+        ``"likelihood"``: the Gaussian likelihood with each channel's noise estimated from the
+        data (under eq. 4 a 3 K temperature error costs less than 0.002 kg/kg of moisture).
+    prior : bool
+        Fit the maximum a posteriori: a Gaussian prior on ``ln(theta)`` centred on the
+        config's values (the Table 1 ranges are bounds, not knowledge). False: the paper's
+        plain fit within the bounds.
+    prior_sigma : float
+        Standard deviation of that prior in ``ln(theta)`` [-] (1.0: a factor e).
+    inlet : str
+        ``"estimated"``: the inlet moisture, which no instrument measures, is fitted with the
+        parameters as a slow trajectory per day (a nuisance); ``"nominal"``: held at
+        ``nominal.moisture_in`` (the paper's model).
+    inlet_knot_hours : float
+        Spacing of the trajectory's knots (piecewise linear) [h].
+    inlet_level_std : float
+        Prior standard deviation of a day's inlet moisture about the nominal [kg/kg].
+    inlet_walk : float
+        Random-walk intensity of the trajectory between knots [kg/kg / sqrt(h)].
+    holdout_fraction : float
+        Share of each calibration window, at its end, held out to validate the result when no
+        other day is given (0: validate on the calibration data itself).
+    bound_margin : float
+        A parameter within this fraction of a bound (``value <= low (1 + m)`` or
+        ``value >= high / (1 + m)``) is flagged as at its bound.
+    """
+
+    cost: str = "eq4"
+    prior: bool = True
+    prior_sigma: float = num(1.0, gt=0, le=20)
+    inlet: str = "estimated"
+    inlet_knot_hours: float = num(4.0, gt=0, le=240)
+    inlet_level_std: float = num(0.1, gt=0, lt=2)
+    inlet_walk: float = num(0.015, ge=0, lt=2)
+    holdout_fraction: float = num(0.25, ge=0, lt=0.9)
+    bound_margin: float = num(0.02, gt=0, lt=1)
+
+    def check(self) -> str | None:
+        if self.cost not in COSTS:
+            return f"cost must be one of {', '.join(COSTS)}, got {self.cost!r}"
+        if self.inlet not in INLET_MODES:
+            return f"inlet must be one of {', '.join(INLET_MODES)}, got {self.inlet!r}"
+        return None
+
+
+def calibration_settings(cfg: PlantConfig) -> CalibrationSettings:
+    """The validated ``[calibration]`` table of ``cfg`` (defaults when absent)."""
+    return build_section(CalibrationSettings, cfg.extra.get("calibration", {}), "calibration",
+                         cfg.source)
+
+
+__all__ = ["COSTS", "INLET_MODES", "CalibrationSettings", "calibration_settings"]
