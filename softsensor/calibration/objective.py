@@ -22,9 +22,12 @@ Data terms (``cost``), over the pooled samples of every segment:
 Prior (the MAP fit): ``ln(theta) ~ N(ln(theta_config), prior_sigma^2)`` per parameter, its
 negative log density ``P = sum_i (ln theta_i - ln theta_config,i)^2 / (2 prior_sigma^2)``
 added as ``lambda P``. For the likelihood ``lambda = 1``. Eq. 4 is not a log-likelihood; near
-its minimum it behaves like one scaled by about ``J / N`` (a change of one noise-sized sample
-moves it by ``J / N``), so the prior enters eq. 4 as ``lambda = J_config / N`` with ``N`` the
-number of compared samples and ``J_config`` eq. 4 at the config's values (:func:`prior_scale`).
+its minimum a change of one sample's squared residual by one noise variance moves channel
+``m``'s term by ``WF_m RMSE_m / (2 N_m)``, so eq. 4 behaves like a log-likelihood scaled by
+that amount on the channel that dominates it (the lab moisture: few samples, large weight).
+The prior enters eq. 4 as ``lambda = max_m WF_m RMSE_m / (2 N_m)`` at the config's values
+(:func:`prior_scale`): one prior standard deviation costs what one noise-sized lab residual
+does.
 
 Refinement (:mod:`.refine`) needs the objective as a sum of squares near a point:
 :func:`residual_vector` stacks the re-weighted residuals whose half squared norm has the
@@ -266,13 +269,16 @@ def effective_ratio(ev: Evaluation, segments: Sequence[Segment]) -> np.ndarray:
     return out
 
 
-def prior_scale(cost: str, ev_config: Evaluation) -> float:
-    """``lambda`` of the prior: 1 for the likelihood; ``J_config / N`` for eq. 4."""
+def prior_scale(cost: str, ev_config: Evaluation, weights: np.ndarray) -> float:
+    """``lambda`` of the prior (module docstring): 1 for the likelihood; for eq. 4 the largest
+    ``WF_m RMSE_m / (2 N_m)`` over the channels at the config's values."""
     if cost != "eq4":
         return 1.0
-    n = sum(ev_config.fit.n.values())
-    J = ev_config.fit.cost
-    return float(J / n) if n and np.isfinite(J) and J > 0 else 1e-6
+    per = [weights[c] * ev_config.fit.rmse[n] / (2.0 * ev_config.fit.n[n])
+           for c, n in enumerate(OUTPUT_NAMES)
+           if ev_config.fit.n[n] and np.isfinite(ev_config.fit.rmse[n])]
+    lam = max(per) if per else 0.0
+    return float(lam) if lam > 0 else 1e-6
 
 
 def sensitivity_offsets(B: int, with_inlet: bool) -> np.ndarray | None:

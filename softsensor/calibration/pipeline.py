@@ -116,7 +116,7 @@ def objective_spec(model: DryerModel, segments: Sequence[Segment], config: Plant
     if ev0.failed:
         return spec
     ratio = effective_ratio(ev0, segments) if settings.cost == "likelihood" else np.ones(3)
-    return dataclasses.replace(spec, prior_scale=prior_scale(settings.cost, ev0),
+    return dataclasses.replace(spec, prior_scale=prior_scale(settings.cost, ev0, spec.weights),
                                n_eff_ratio=ratio)
 
 
@@ -148,10 +148,10 @@ class Discrepancy:
     Attributes
     ----------
     common_std : float
-        Standard deviation of the part of the two outlet temperatures' residuals they share
-        (``sqrt(max(cov, 0))``) [K].
+        Root mean square of the part of the two outlet temperatures' residuals they share
+        (``sqrt(max(mean(r_d r_c), 0))``, moments about zero: the mean offset counts) [K].
     dryer_std, cyclone_std : float
-        Standard deviation of each channel's own part [K].
+        Root mean square of each channel's own part [K].
     tau_s : float
         Correlation time of the temperature residuals, from their lag-one autocorrelation [s].
     moisture_std : float
@@ -191,10 +191,12 @@ def discrepancy(ev: Evaluation, segments: Sequence[Segment]) -> Discrepancy:
     d = np.concatenate(pairs_d) if pairs_d else np.zeros(0)
     c = np.concatenate(pairs_c) if pairs_c else np.zeros(0)
     if d.size >= 2:
-        C = np.cov(np.vstack([d, c]))
-        common = math.sqrt(max(C[0, 1], 0.0))
-        own_d = math.sqrt(max(C[0, 0] - max(C[0, 1], 0.0), 0.0))
-        own_c = math.sqrt(max(C[1, 1] - max(C[0, 1], 0.0), 0.0))
+        # second moments about zero, not about the mean: the model's error on a day it was not
+        # fitted on includes its mean offset, which the estimator must expect too
+        cross = float(np.mean(d * c))
+        common = math.sqrt(max(cross, 0.0))
+        own_d = math.sqrt(max(float(np.mean(d * d)) - max(cross, 0.0), 0.0))
+        own_c = math.sqrt(max(float(np.mean(c * c)) - max(cross, 0.0), 0.0))
     else:
         common = own_d = own_c = float("nan")
     rho = float(np.clip(np.mean(rhos), 1e-3, 0.999)) if rhos else 0.5

@@ -38,6 +38,11 @@ class EstimatorSettings:
         Prior standard deviation of the inlet fibre moisture at start-up. [kg/kg]
     moisture_in_walk : float
         Random-walk intensity of the inlet moisture. [kg/kg / sqrt(h)]
+    moisture_in_tau_h : float
+        Time over which the inlet moisture's estimate returns to the nominal when nothing says
+        otherwise (a mean-reverting walk, stationary standard deviation ``walk sqrt(tau / 2)``):
+        evidence the model cannot split between the inlet moisture and its own error does not
+        pile up in the inlet moisture for ever. [h]
     moisture_in_adapt : float
         Temperature innovations more than this many standard deviations along what an inlet
         moisture change would do widen its prior (a step; covariance matching, see
@@ -66,8 +71,8 @@ class EstimatorSettings:
         Floors on the calibration's numbers (a validation day can be luckier than the next).
         [K, kg/kg]
     adapt_ticks : int
-        Memory of the innovation-based noise adaptation: the forgetting factor is
-        ``1 - 1 / adapt_ticks``. [-]
+        Memory of the innovation-based noise adaptation, in ticks
+        (:class:`~softsensor.estimation.discrepancy.AdaptiveNoise`). [-]
     adapt_limit : float
         Largest inflation of an error state's process noise. [-]
     inlet_margin : float
@@ -111,7 +116,8 @@ class EstimatorSettings:
 
     kind: str = "ukf"
     moisture_in_std0: float = num(0.15, gt=0, lt=2)
-    moisture_in_walk: float = num(0.004, ge=0, lt=2)
+    moisture_in_walk: float = num(0.008, ge=0, lt=2)
+    moisture_in_tau_h: float = num(48.0, gt=0, le=1e6)
     moisture_in_adapt: float = num(3.0, gt=0)
     moisture_in_min: float = num(0.3, gt=0, lt=5)
     moisture_in_max: float = num(2.5, gt=0, lt=5)

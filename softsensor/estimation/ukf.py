@@ -12,9 +12,10 @@ data it was not fitted on).
 
 One tick
 --------
-1. *Predict* (linear, exact): random walk of the inlet moisture, first-order error states:
-   ``x = F x``, ``P = F P F' + Q`` (``filterpy.kalman.predict``), ``Q`` inflated per channel by
-   the innovation-based adaptation (:class:`~.discrepancy.AdaptiveNoise`).
+1. *Predict* (linear, exact): the inlet moisture a mean-reverting walk, the error states
+   first-order processes: ``x = F x + (I - F) x_nominal``, ``P = F P F' + Q``
+   (``filterpy.kalman.predict``), ``Q`` inflated per channel by the innovation-based
+   adaptation (:class:`~.discrepancy.AdaptiveNoise`).
 2. *Sigma points* of the prior (filterpy's ``MerweScaledSigmaPoints``). Only the inlet moisture
    moves the model, and it is the first state, so the sigma points hold three distinct inlet
    moistures (the mean and the two along the first column of the Cholesky factor): the model is
@@ -84,8 +85,8 @@ from softsensor.estimation.discrepancy import (
     ADAPT_CHANNELS,
     STATE_NAMES,
     X_BIAS,
+    X_HEAT,
     X_IN,
-    X_TCOM,
     X_TCYC,
     X_TDRY,
     AdaptiveNoise,
@@ -109,9 +110,16 @@ from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 log = logging.getLogger(__name__)
 
 _MO = OUTPUT_NAMES.index("moisture_out")
+_T_AIR_IN = INPUT_NAMES.index("T_air_in")
 _CHECKPOINT_VERSION = 2
-#: Rows of the output block (y_d, y_c, y_mo) and of the error states added to each channel.
-_OFFSETS = ((X_TCOM, X_TDRY), (X_TCOM, X_TCYC), (X_BIAS,))
+#: The error state added to each measured channel (T_dryer_out, T_cyclone_out, a lab result).
+_OFFSETS = ((X_TDRY,), (X_TCYC,), (X_BIAS,))
+#: Finite-difference steps of the model states for the partial derivatives: the inlet moisture
+#: (in the filter's coordinate) [kg/kg] and the heat input [K].
+_FD_STEP = {X_IN: 1e-3, X_HEAT: 0.5}
+#: Two jumps whose effects on the measurements have a cosine above this (``S^-1`` metric)
+#: cannot be told apart by them.
+SAME_JUMP = 0.95
 
 
 class WindowModel(Protocol):
@@ -147,12 +155,15 @@ class _Posterior:
 
 @dataclass
 class _Sigma:
-    """The model at a set of sigma points: window-end outputs (3) and walls per point, and
-    per lab the outlet moisture at its sample time."""
+    """The model at a set of sigma points: window-end outputs (3) and walls per point, per
+    lab the outlet moisture at its sample time, and the outputs' derivatives (3 + L) with
+    respect to each model state with the other held (:data:`MODEL_STATES` order)."""
 
     y: np.ndarray        # (N, 3)
     wall: np.ndarray     # (N, n_state)
     lab: np.ndarray      # (N, L)
+    d_in: np.ndarray     # (3 + L,)
+    d_heat: np.ndarray   # (3 + L,)
 
 
 class UkfEstimator:
@@ -187,14 +198,18 @@ class UkfEstimator:
             raise ConfigError(f"{config.source}: estimator.consistency_ticks must be <= the "
                               f"history ({self.max_history} ticks), got {s.consistency_ticks}")
         self.inlet = InletTransform(s.moisture_in_min, s.moisture_in_max, s.inlet_margin)
-        self.priors = ErrorPriors.from_config(config, s)
+        self.heat_gain = _heat_gain(model, config.nominal_inputs(), self.theta)
+        self.priors = ErrorPriors.from_config(config, s, self.heat_gain)
         n = len(STATE_NAMES)
         self._points = MerweScaledSigmaPoints(n, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
-        self._F = transition(self.window_s, self.priors)
+        self._inlet_tau = s.moisture_in_tau_h * 3600.0
+        self._F = transition(self.window_s, self.priors, self._inlet_tau)
         self._walk = s.walk_per_window(s.moisture_in_walk, self.window_s)
         x_nom = float(config.nominal.moisture_in)
         x0 = np.zeros(n)
         x0[X_IN] = float(self.inlet.inverse(x_nom))
+        # the inlet moisture's deviation from the nominal decays (mean reversion)
+        self._drift = (np.eye(n) - self._F) @ x0
         P0 = np.diag(np.r_[s.moisture_in_std0**2, self.priors.sigma**2])
         self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
@@ -359,8 +374,10 @@ class UkfEstimator:
                 wall = self.model.steady_state(u0, self.theta)[0]
             except (SoftsensorError, ValueError) as exc:  # predict only, retry next tick
                 detail = f"model initialisation failed: {exc}"
-        Q = process_noise(self.window_s, self.priors, self._walk, adapt.inflation(s.adapt_limit))
+        Q = process_noise(self.window_s, self.priors, self._walk, self._inlet_tau,
+                          adapt.inflation())
         x, P = kf_predict(start.x, start.P, self._F, Q)
+        x = x + self._drift
         P = _symmetric(P)
         innovation, notes = Innovation(), []
         y_mean = y_var = np.full(3, np.nan)
@@ -372,7 +389,7 @@ class UkfEstimator:
             sig, sigmas, detail = self._sigma_outputs(x, P, rec, wall, detail)
             if sig is not None:
                 if rows:
-                    candidates = [i for i in (X_IN, X_TDRY, X_TCYC, X_BIAS)
+                    candidates = [i for i in (X_IN, X_HEAT, X_TDRY, X_TCYC, X_BIAS)
                                   if not ((i == X_BIAS and not rec.labs)
                                           or (i == X_TDRY and 0 not in rows)
                                           or (i == X_TCYC and 1 not in rows))]
@@ -388,7 +405,7 @@ class UkfEstimator:
                 x, P, y_mean, y_var = post.x, post.P, post.y_mean, post.y_var
                 model_T, new_wall, innovation = post.model_T, post.wall, post.innovation
                 for nu, kind in zip(post.normalised, kinds, strict=True):
-                    adapt.update(kind, float(nu) ** 2, s.adapt_ticks)
+                    adapt.update(kind, float(nu) ** 2, s.adapt_ticks, s.adapt_limit)
         _check_covariance(P, rec.window.end_ns)
         rec.innovation = innovation
         rec.body = self._body(rec, x, P, y_mean, y_var, model_T, detail, failed)
@@ -399,13 +416,24 @@ class UkfEstimator:
     def _sigma_outputs(self, x: np.ndarray, P: np.ndarray, rec: TickRecord, wall: np.ndarray,
                        detail: str) -> tuple[_Sigma | None, np.ndarray, str]:
         """Sigma points of ``(x, P)`` and the model at them (module docstring, step 2); None
-        and the reason when a solve failed."""
+        and the reason when a solve failed.
+
+        The model runs once per distinct pair (inlet moisture, heat input) among the sigma
+        points (five: the mean and two along each of the first two Cholesky columns), plus
+        four points about the mean, each model state moved alone, for the partial derivatives
+        covariance matching needs.
+        """
         sigmas = self._points.sigma_points(x, P)
-        s_in = sigmas[:, X_IN]
-        unique, index = np.unique(s_in, return_inverse=True)
-        X = self.inlet.forward(unique)
+        mean = x[[X_IN, X_HEAT]]
+        probes = [mean + sign * _FD_STEP[i] * (np.arange(2) == j)
+                  for j, i in enumerate((X_IN, X_HEAT)) for sign in (1.0, -1.0)]
+        pairs = np.vstack([sigmas[:, [X_IN, X_HEAT]], probes])
+        unique, index = np.unique(pairs, axis=0, return_inverse=True)
+        index = np.ravel(index)
+        X = self.inlet.forward(unique[:, 0])
         U = np.repeat(rec.u[None, None, :], len(unique), axis=0)
         U[:, 0, MOISTURE_IN] = X
+        U[:, 0, _T_AIR_IN] += unique[:, 1]
         Y, walls = self.model.simulate(U, self.theta, state0=wall, raise_on_failure=False)
         Y = Y[:, 0, :]
         lab = np.empty((len(unique), len(rec.labs)))
@@ -414,15 +442,22 @@ class UkfEstimator:
                                   self.config.solver.lab_span)
             Ul = np.repeat(u_lab[None, None, :], len(unique), axis=0)
             Ul[:, 0, MOISTURE_IN] = X
+            Ul[:, 0, _T_AIR_IN] += unique[:, 1]
             dt = float(sample_offset(rec.window.start_ns, r.sample_time_ns))
             yl, _ = self.model.simulate(Ul, self.theta, state0=wall, dt=dt,
                                         raise_on_failure=False)
             lab[:, j] = yl[:, 0, _MO]
         if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(lab))):
             bad = int(np.flatnonzero(~(np.isfinite(Y).all(1) & np.isfinite(lab).all(1)))[0])
-            return None, sigmas, (f"model solve failed at moisture_in={X[bad]:.3f} kg/kg: "
-                                  f"predict only")
-        return _Sigma(Y[index], np.asarray(walls)[index], lab[index]), sigmas, detail
+            return None, sigmas, (f"model solve failed at moisture_in={X[bad]:.3f} kg/kg, "
+                                  f"T_air_in offset {unique[bad, 1]:+.2f} K: predict only")
+        out = np.hstack([Y, lab])
+        n = len(sigmas)
+        probe = index[n:]
+        d = [(out[probe[2 * j]] - out[probe[2 * j + 1]]) / (2.0 * _FD_STEP[i])
+             for j, i in enumerate((X_IN, X_HEAT))]
+        return (_Sigma(Y[index[:n]], np.asarray(walls)[index[:n]], lab[index[:n]], d[0], d[1]),
+                sigmas, detail)
 
     def _measurement_sigmas(self, sigmas: np.ndarray, sig: _Sigma, rows: list[int]
                             ) -> np.ndarray:
@@ -455,54 +490,67 @@ class UkfEstimator:
         lab) as the model says, a thermometer that steps moves one channel. When its ``|t|``
         exceeds its threshold (``estimator.moisture_in_adapt``, ``offset_adapt``,
         ``moisture_out_bias_adapt``), ``P_ii`` grows by ``(t^2 - 1) / (h' S^-1 h)``, after
-        which that component is one standard deviation. Taking one jump per tick, the best one,
-        keeps a single thermometer's step from being read as an inlet-moisture step plus the
-        other thermometer's opposite offset.
+        which that component is one standard deviation. Taking one jump, the best, keeps a
+        single thermometer's step from being read as an inlet-moisture step plus the other
+        thermometer's opposite offset; among jumps these measurements cannot tell apart
+        (cosine above :data:`SAME_JUMP` in the ``S^-1`` metric) the inlet moisture's is taken.
         """
         pts = self._points
         h_sig = self._measurement_sigmas(sigmas, sig, rows)
         zp, S = unscented_transform(h_sig, pts.Wm, pts.Wc, R)
         nu = z - zp
-        best = None
+        found = []
         for i in candidates:
-            h = self._partial(i, sigmas, h_sig, rows)
+            h = self._partial(i, sig, rows)
             w = np.linalg.solve(S, h)
             info = float(h @ w)
-            if not info > 0:
-                continue
-            t = float(w @ nu) / math.sqrt(info)
-            if best is None or abs(t) > abs(best[1]):
-                best = (i, t, info)
-        if best is None:
+            if info > 0:
+                found.append((i, float(w @ nu) / math.sqrt(info), info, h, w))
+        if not found:
             return P, ""
-        i, t, info = best
+        best = max(found, key=lambda c: abs(c[1]))
         thr = {X_IN: self.settings.moisture_in_adapt,
-               X_BIAS: self.settings.moisture_out_bias_adapt}.get(i, self.settings.offset_adapt)
-        if abs(t) <= thr:
+               X_BIAS: self.settings.moisture_out_bias_adapt}
+        if abs(best[1]) <= thr.get(best[0], self.settings.offset_adapt):
             return P, ""
+        # the states whose jump looks the same to these measurements (an inlet-moisture step
+        # and a heat-input step both move the two temperatures together) cannot be told
+        # apart by them; the inlet moisture is the one that steps (a new pile of chips), the
+        # heat input's error drifts with the conditions, so the inlet moisture takes the jump
+        # and later lab results, which see it through the outlet moisture, confirm or undo it
+        same = [c for c in found
+                if abs(c[3] @ best[4]) / math.sqrt(c[2] * best[2]) > SAME_JUMP
+                and abs(c[1]) > thr.get(c[0], self.settings.offset_adapt)]
+        inlet = [c for c in same if c[0] == X_IN]
+        chosen = inlet if inlet else [best]
         P = P.copy()
-        P[i, i] += (t * t - 1.0) / info
-        what = {X_IN: "inlet moisture", X_BIAS: "outlet-moisture bias"}.get(
-            i, STATE_NAMES[i].replace("_", " "))
-        msg = (f"measurements {abs(t):.1f} sigma from the model along the {what}: its prior "
-               f"widened to {math.sqrt(P[i, i]):.4f}")
+        parts = []
+        for i, t, info, _h, _w in chosen:
+            P[i, i] += (t * t - 1.0) / info
+            what = {X_IN: "inlet moisture", X_BIAS: "outlet-moisture bias"}.get(
+                i, STATE_NAMES[i].replace("_", " "))
+            parts.append(f"{what} ({abs(t):.1f} sigma, prior widened to "
+                         f"{math.sqrt(P[i, i]):.4g})")
+        msg = "measurements far from the model along the " + ", ".join(parts)
         log.info(msg)
         return P, msg
 
     @staticmethod
-    def _partial(i: int, sigmas: np.ndarray, h_sig: np.ndarray, rows: list[int]
-                 ) -> np.ndarray:
-        """``dz / dx_i`` with the other states held. The error states enter additively (one
-        on their rows); the inlet moisture through the model, by the central difference of the
-        two sigma points that move it (the first column of the Cholesky factor also moves the
-        states correlated with it, so ``Cov(z, x_i) / P_ii`` would not hold the others)."""
-        if i != X_IN:
+    def _partial(i: int, sig: _Sigma, rows: list[int]) -> np.ndarray:
+        """``dz / dx_i`` with the other states held: one on their rows for the error states
+        added to the outputs, the model's central difference for the inlet moisture and the
+        heat input (:meth:`_sigma_outputs`)."""
+        if i not in (X_IN, X_HEAT):
             return np.array([1.0 if i in _OFFSETS[r] else 0.0 for r in rows])
-        n = (len(sigmas) - 1) // 2
-        up, dn = sigmas[1], sigmas[1 + n]
-        dz = (h_sig[1] - h_sig[1 + n]) - np.array(
-            [sum(up[j] - dn[j] for j in _OFFSETS[r]) for r in rows])
-        return dz / (up[X_IN] - dn[X_IN])
+        d = sig.d_in if i == X_IN else sig.d_heat
+        out, j_lab = [], 0
+        for r in rows:
+            if r < 2:
+                out.append(d[r])
+            else:
+                out.append(d[3 + j_lab])
+                j_lab += 1
+        return np.array(out)
 
     def _update(self, x: np.ndarray, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
                 rows: list[int], z: np.ndarray, R: np.ndarray, names: list[str]
@@ -512,8 +560,8 @@ class UkfEstimator:
         pts = self._points
         wm, wc = pts.Wm, pts.Wc
         # outputs the body publishes, with their error states: T_d, T_c, moisture_out
-        g = np.column_stack([sig.y[:, 0] + sigmas[:, X_TCOM] + sigmas[:, X_TDRY],
-                             sig.y[:, 1] + sigmas[:, X_TCOM] + sigmas[:, X_TCYC],
+        g = np.column_stack([sig.y[:, 0] + sigmas[:, X_TDRY],
+                             sig.y[:, 1] + sigmas[:, X_TCYC],
                              sig.y[:, _MO] + sigmas[:, X_BIAS], sig.wall])
         # the model's own temperatures (without offsets) for the body
         g_model = sig.y[:, :2]
@@ -570,7 +618,7 @@ class UkfEstimator:
 
     def _lost(self, x: np.ndarray, failed: bool) -> str:
         """Why the model has lost the plant ('' when it has not): the guard's rules. Only the
-        errors that move the outlet moisture count: the common temperature offset (the energy
+        errors that move the outlet moisture count: the heat input's offset (the energy
         balance) and the outlet-moisture bias; one channel's own offset is a suspect sensor
         (:meth:`_suspect`)."""
         if failed:
@@ -579,7 +627,7 @@ class UkfEstimator:
             X = float(self.inlet.forward(x[X_IN]))
             return (f"the inlet moisture sits at the bound of its range ({X:.2f} kg/kg in "
                     f"[{self.inlet.lo:g}, {self.inlet.hi:g}])")
-        for i in (X_TCOM, X_BIAS):
+        for i in (X_HEAT, X_BIAS):
             z = x[i] / self.priors.sigma[i - 1]
             if abs(z) > self.settings.guard_sigma:
                 unit = "kg/kg" if i == X_BIAS else "K"
@@ -670,7 +718,8 @@ class UkfEstimator:
             "moisture_in_std": x_in_std,
             "moisture_out_bias": float(x[X_BIAS]),
             "moisture_out_bias_std": float(math.sqrt(P[X_BIAS, X_BIAS])),
-            "T_offset": float(x[X_TCOM]),
+            "T_air_in_offset": float(x[X_HEAT]),
+            "T_offset": float(self.heat_gain * x[X_HEAT]),
             "T_dryer_out_offset": float(x[X_TDRY]),
             "T_cyclone_out_offset": float(x[X_TCYC]),
             "T_dryer_out_model": _num(y_mean[0]),
@@ -690,6 +739,20 @@ class UkfEstimator:
             "window_end_ns": int(window.end_ns),
             "estimator": self.kind,
         }
+
+
+def _heat_gain(model: WindowModel, u: np.ndarray, theta: np.ndarray) -> float:
+    """Mean gain from ``T_air_in`` to the two outlet temperatures at ``u`` [K/K] (steady
+    state, central difference of 2 K); 0.3 when the model cannot be solved there."""
+    U = np.tile(np.asarray(u, float), (2, 1))
+    U[0, _T_AIR_IN] += 1.0
+    U[1, _T_AIR_IN] -= 1.0
+    try:
+        _, y = model.steady_state(U, theta)
+    except (SoftsensorError, ValueError):
+        return 0.3
+    g = float(np.mean((y[0, :2] - y[1, :2]) / 2.0))
+    return g if math.isfinite(g) and g > 0 else 0.3
 
 
 def _num(v: float) -> float | None:
