@@ -199,13 +199,14 @@ def test_filter_tracks_the_inlet_moisture_of_a_linear_plant():
 
 def test_a_step_of_the_inlet_moisture_is_taken_at_once_and_settled_by_the_next_lab():
     """The temperatures cannot tell an inlet-moisture step from a heat-input step (both move
-    them together): at the step both priors are widened and the step is split; the next lab
-    result, which sees the inlet moisture through the outlet moisture, settles it."""
+    them together); the inlet moisture is the one that steps, so its prior is widened and it
+    takes the step at once; the next lab result, which sees the inlet moisture through the
+    outlet moisture, confirms it."""
     wins, truth = synthetic_day(60, seed=2, x_in=lambda k: 1.0 if k < 30 else 1.12)
     labs = {36: [lab(32, truth[32, 1], "L")]}
     bodies = run(make(), wins, labs)
-    assert any("inlet moisture" in n and "T air in offset" in n for n in bodies[30]["notes"])
-    assert 1.03 < bodies[30]["moisture_in"] < 1.12 + 0.01     # part of it at once
+    assert any("along the inlet moisture" in n for n in bodies[30]["notes"])
+    assert 1.08 < bodies[30]["moisture_in"] < 1.12 + 0.01     # at once
     assert abs(bodies[36]["moisture_in"] - 1.12) < 0.02        # the lab settles it
     assert abs(bodies[-1]["moisture_out"] - truth[-1, 1]) < 0.006
     assert all(b["status"] == "ok" for b in bodies[1:])
