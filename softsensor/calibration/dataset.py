@@ -52,6 +52,16 @@ SCANNED_OUTPUTS: tuple[str, ...] = KELVIN_CHANNELS
 
 
 @dataclass(frozen=True)
+class LabPoints:
+    """Where lab samples meet the model (:mod:`softsensor.estimation.lab_alignment`): the
+    window holding each sample time, the seconds from its start, and the inputs there (L, 8)."""
+
+    window: np.ndarray
+    offset: np.ndarray
+    inputs: np.ndarray
+
+
+@dataclass(frozen=True)
 class Segment:
     """A contiguous run of model windows with its measurements.
 
@@ -81,6 +91,8 @@ class Segment:
     bins : ndarray, shape (K, n_bins, 7), optional
         Sub-window bin means of the measured inputs (NaN where a bin had no good value), as
         :attr:`softsensor.messages.Window.bins`; ``(K, 0, 7)`` when unknown.
+    lab_span : float
+        Seconds of scans before a sample time that give its inputs (``solver.lab_span``).
     lab_window : ndarray of int, shape (L,)
         Window holding each sample time (derived).
     lab_offset : ndarray, shape (L,)
@@ -97,6 +109,7 @@ class Segment:
     lab_id: tuple[str, ...]
     lab_U: np.ndarray | None = None
     bins: np.ndarray | None = None
+    lab_span: float = 120.0
     lab_window: np.ndarray = dataclasses.field(init=False, repr=False)
     lab_offset: np.ndarray = dataclasses.field(init=False, repr=False)
 
@@ -133,6 +146,25 @@ class Segment:
         """End time of every window [ns]: the time of the model's output for that window."""
         return self.start_ns + self.window_ns * np.arange(1, self.n_windows + 1, dtype=np.int64)
 
+    def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None) -> LabPoints:
+        """The lab samples with their sample times moved by ``shift_ns`` (a wrong stamp),
+        aligned as :meth:`__post_init__` aligns them, inputs from the bins and ``U`` (default
+        the segment's window inputs); sample times outside the segment clip to its ends."""
+        U = self.U if U is None else np.asarray(U, float)
+        w_ns = self.window_ns
+        t = np.clip(np.round(self.lab_time_ns + shift_ns).astype(np.int64), self.start_ns + 1,
+                    self.end_ns)
+        win = np.clip(window_index(self.start_ns, w_ns, t), 0, self.n_windows - 1)
+        starts = self.start_ns + win * w_ns
+        n_bins = self.bins.shape[1]
+        bin_ns = w_ns // n_bins if n_bins else 0
+        span_ns = int(round(self.lab_span * NS))
+        inputs = np.array([sample_inputs_from_bins(self.bins[k], int(s0), bin_ns, U[k], int(ti),
+                                                   span_ns)
+                           for k, s0, ti in zip(win, starts, t, strict=True)]
+                          ).reshape(-1, U.shape[1])
+        return LabPoints(win.astype(np.int64), sample_offset(starts, t), inputs)
+
     def labs_before(self, k: int) -> int:
         """Number of lab samples taken no later than the end of window ``k - 1``."""
         end = self.start_ns + k * self.window_ns
@@ -150,7 +182,7 @@ class Segment:
             start_ns=start, window=self.window, U=self.U[k0:k1], Y=self.Y[k0:k1],
             lab_time_ns=self.lab_time_ns[keep], lab_value=self.lab_value[keep],
             lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k),
-            lab_U=self.lab_U[keep], bins=self.bins[k0:k1])
+            lab_U=self.lab_U[keep], bins=self.bins[k0:k1], lab_span=self.lab_span)
 
     def require_labs(self, minimum: int = 1) -> None:
         """Refuse a segment without enough lab samples to fit ``moisture_out``."""
@@ -212,7 +244,8 @@ def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: 
                       for k, t in zip(k_lab, lab_t, strict=True)]).reshape(-1, U.shape[1])
     return Segment(source=source, start_ns=start, window=settings.period_s, U=U, Y=Y,
                    lab_time_ns=lab_t, lab_value=lv[keep][order],
-                   lab_id=tuple(str(i) for i in ids), lab_U=lab_U, bins=bins)
+                   lab_id=tuple(str(i) for i in ids), lab_U=lab_U, bins=bins,
+                   lab_span=config.solver.lab_span)
 
 
 def segment_from_day(day: RecordedDay, config: PlantConfig, *, source: str | None = None
@@ -259,6 +292,7 @@ def load_segment(path: str | Path, config: PlantConfig) -> Segment:
 __all__ = [
     "MEASURED_INPUTS",
     "SCANNED_OUTPUTS",
+    "LabPoints",
     "Segment",
     "load_segment",
     "segment_from_day",

@@ -189,22 +189,24 @@ class DryerModel:
         return states.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
 
     def step(self, state: np.ndarray, u: np.ndarray, theta: np.ndarray | None = None,
-             aux: np.ndarray | None = None, dt: float | None = None
+             aux: np.ndarray | None = None, dt: float | np.ndarray | None = None
              ) -> tuple[np.ndarray, np.ndarray]:
-        """Advance ``state`` over one window of ``dt`` seconds (default: the config's window)
-        with inputs ``u`` held constant; returns ``(new_state, y_end)``."""
+        """Advance ``state`` over one window of ``dt`` seconds (default: the config's window;
+        an array gives each batch member its own) with inputs ``u`` held constant; returns
+        ``(new_state, y_end)``."""
         theta = self.theta0 if theta is None else theta
-        dt = self.window if dt is None else float(dt)
-        if not dt > 0:
+        dt = np.asarray(self.window if dt is None else dt, dtype=float)
+        if not np.all(dt > 0):
             raise ValueError(f"dt must be > 0, got {dt}")
         (x2, u2, th2, ax2), batch = self._prepare(
             state, u, theta, self._aux(aux), trailing=(self.n_state, len(INPUT_NAMES), 7, N_AUX))
         B = u2.shape[0]
+        dt = np.ascontiguousarray(np.broadcast_to(dt, batch).reshape(B))
         y = np.empty((B, 3))
         status = np.empty(B, dtype=np.int64)
         x2 = x2.copy()  # the kernel advances states in place; inputs may be read-only views
         geo, n_sub = self.geometry.packed, self.wall_substeps
-        for_members(lambda m: kernels.step_batch(x2[m], u2[m], th2[m], ax2[m], geo, dt, n_sub,
+        for_members(lambda m: kernels.step_batch(x2[m], u2[m], th2[m], ax2[m], geo, dt[m], n_sub,
                                                  y[m], status[m]), B, self.threads)
         self._check(status, u2)
         return x2.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))

@@ -836,13 +836,13 @@ def steady_batch(u, theta, aux, geo, states, y, status):
 
 @njit(cache=True, nogil=True)
 def step_batch(states, u, theta, aux, geo, dt, n_sub, y, status):
-    """Advance a batch of states (B, n_state) in place by one window of ``dt`` seconds."""
+    """Advance a batch of states (B, n_state) in place, member ``b`` by ``dt[b]`` seconds."""
     n = states.shape[1]
     prof = np.empty((6, n))
     jac = np.empty((4, n))
     work = np.empty(4 * n)
     for b in range(u.shape[0]):
-        status[b] = _step_one(states[b], u[b], theta[b], aux[b], geo, dt, n_sub, prof, jac,
+        status[b] = _step_one(states[b], u[b], theta[b], aux[b], geo, dt[b], n_sub, prof, jac,
                               work)
         _outputs(prof, geo, y[b])
 
