@@ -27,7 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from softsensor.calibration.cost import ModelRun
-from softsensor.calibration.dataset import Segment
+from softsensor.calibration.dataset import LabPoints, Segment
 from softsensor.calibration.objective import (
     Evaluation,
     ObjectiveSpec,
@@ -45,43 +45,75 @@ def chunk_bounds(n_windows: int, n_chunks: int) -> np.ndarray:
 
 
 def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k1: int,
-                  state0: np.ndarray | None, du: np.ndarray | None = None
+                  state0: np.ndarray | None, du: np.ndarray | None = None, *,
+                  U: np.ndarray | None = None, aux: np.ndarray | None = None,
+                  labs: LabPoints | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Windows ``k0 .. k1-1`` of ``seg`` for parameter sets ``theta`` (B, 7).
+    """Windows ``k0 .. k1-1`` of ``seg`` for parameter sets ``theta``.
 
-    ``state0`` (B, n_state) is the state at the start of window ``k0`` (None: the steady
-    state at that window's inputs); ``du`` (B, 8) optional offsets added to every input of
-    each member (e.g. the inlet moisture raised). Returns ``Y`` (B, k1-k0, 3), the model's
-    ``moisture_out`` at the lab samples whose window lies in the span (B, n_labs), and the
-    end state (B, n_state). Failed members give NaN, never an exception. Where the model
-    cannot be solved at a sample's own inputs but can at its window's (the cell Newton of
-    the model does not converge from every state), the window's inputs are used for it.
+    Parameters
+    ----------
+    theta : array, shape (B, 7) or (B, K, 7)
+        Parameter sets, constant or per window of the segment (a drifting multiplier).
+    state0 : array, shape (B, n_state) or None
+        State at the start of window ``k0`` (None: the steady state at that window's inputs).
+    du : array, shape (B, 8), optional
+        Offsets added to every input of each member (e.g. the inlet moisture raised).
+    U : array, shape (K, 8), optional
+        Inputs replacing the segment's (a model extension's view of them).
+    aux : array, shape (N_AUX,) or (K, N_AUX), optional
+        Model-extension coefficients, constant or per window.
+    labs : LabPoints, optional
+        Where the lab samples meet the model (default the segment's own,
+        :meth:`Segment.default_lab_points`; :meth:`Segment.lab_points` moves them).
+
+    Returns ``Y`` (B, k1-k0, 3), the model's ``moisture_out`` at the lab samples whose window
+    lies in the span (B, n_labs), and the end state (B, n_state). Failed members give NaN,
+    never an exception. Where the model cannot be solved at a sample's own inputs but can at
+    its window's (the cell Newton of the model does not converge from every state), the
+    window's inputs are used for it.
     """
-    theta = np.atleast_2d(np.asarray(theta, float))
+    theta = np.asarray(theta, float)
+    theta = theta[None] if theta.ndim == 1 else theta
+    per_window = theta.ndim == 3
     B = theta.shape[0]
-    dU = np.zeros((B, seg.U.shape[1])) if du is None else np.asarray(du, float)
-    in_span = np.flatnonzero((seg.lab_window >= k0) & (seg.lab_window < k1))
-    cuts = sorted({k0, k1, *(int(w) for w in seg.lab_window[in_span] if w > k0)})
+    U = seg.U if U is None else np.asarray(U, float)
+    labs = seg.default_lab_points() if labs is None else labs
+    aux = None if aux is None else np.asarray(aux, float)
+    dU = np.zeros((B, U.shape[1])) if du is None else np.asarray(du, float)
+
+    def at(k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Parameters (B, 7) and aux of window ``k``."""
+        th = theta[:, k] if per_window else theta
+        return th, None if aux is None or aux.ndim == 1 else aux[k]
+
+    in_span = np.flatnonzero((labs.window >= k0) & (labs.window < k1))
+    cuts = sorted({k0, k1, *(int(w) for w in labs.window[in_span] if w > k0)})
     Y = np.empty((B, k1 - k0, 3))
     lab = np.full((B, in_span.size), np.nan)
     state = state0
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        th_a, aux_a = at(a)
+        aux_a = aux if aux_a is None else aux_a
         for j, li in enumerate(in_span):
-            if seg.lab_window[li] == a:
+            if labs.window[li] == a:
                 # a lab sample in window a: one step from the window's start to its time
-                dt = float(seg.lab_offset[li])
-                y, _ = model.simulate((seg.lab_U[li] + dU)[:, None], theta, state0=state,
-                                      dt=dt, raise_on_failure=False)
+                dt = float(labs.offset[li])
+                y, _ = model.simulate((labs.inputs[li] + dU)[:, None], th_a, aux=aux_a,
+                                      state0=state, dt=dt, raise_on_failure=False)
                 lab[:, j] = y[:, 0, 2]
                 bad = np.flatnonzero(np.isnan(lab[:, j]))
                 if bad.size:  # the sample-time inputs failed: the window's inputs instead
-                    y, _ = model.simulate((seg.U[a] + dU[bad])[:, None], theta[bad], dt=dt,
-                                          state0=None if state is None else state[bad],
+                    y, _ = model.simulate((U[a] + dU[bad])[:, None], th_a[bad], aux=aux_a,
+                                          dt=dt, state0=None if state is None else state[bad],
                                           raise_on_failure=False)
                     lab[bad, j] = y[:, 0, 2]
-        # U gets a leading batch axis so theta (B, 7) is read as constant parameters
-        U = seg.U[a:b][None] if du is None else seg.U[a:b][None] + dU[:, None, :]
-        Yp, state = model.simulate(U, theta, state0=state, raise_on_failure=False)
+        # U gets a leading batch axis so theta (B, 7) is read as constant parameters and
+        # theta (B, K, 7) and aux (K, N_AUX) per window
+        Ua = U[a:b][None] if du is None else U[a:b][None] + dU[:, None, :]
+        th = theta[:, a:b] if per_window else theta
+        ax = aux if aux is None or aux.ndim == 1 else aux[a:b][None]
+        Yp, state = model.simulate(Ua, th, aux=ax, state0=state, raise_on_failure=False)
         Y[:, a - k0:b - k0] = Yp
     return Y, lab, state
 

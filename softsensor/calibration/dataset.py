@@ -146,6 +146,10 @@ class Segment:
         """End time of every window [ns]: the time of the model's output for that window."""
         return self.start_ns + self.window_ns * np.arange(1, self.n_windows + 1, dtype=np.int64)
 
+    def default_lab_points(self) -> LabPoints:
+        """The lab samples at their stamped times (the derived ``lab_*`` fields)."""
+        return LabPoints(self.lab_window, self.lab_offset, self.lab_U)
+
     def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None) -> LabPoints:
         """The lab samples with their sample times moved by ``shift_ns`` (a wrong stamp),
         aligned as :meth:`__post_init__` aligns them, inputs from the bins and ``U`` (default
