@@ -58,6 +58,37 @@ def test_replay_writes_inputs_estimates_and_health_and_is_deterministic(day_file
     assert read_day(tmp_path / "b.mcap").topic(TOPIC_ESTIMATE) == estimates
 
 
+def test_the_estimator_is_warmed_up_before_the_first_message(day_file, tmp_path, capsys,
+                                                             monkeypatch) -> None:
+    """A first tick that compiles holds the estimator thread for tens of seconds (cold numba
+    cache), which the replay calls a stall: the real filter ticks, with a lab, beforehand."""
+    import softsensor.service.offline_replay as offline
+
+    order: list[str] = []
+    warmed = []
+
+    def warm(make, cfg):
+        order.append("warm-up")
+        warmed.append(offline_warm_up(make, cfg))
+        return warmed[-1]
+
+    def stream(*args, **kwargs):
+        order.append("stream")
+        return offline_replay_day(*args, **kwargs)
+
+    offline_warm_up, offline_replay_day = offline.warm_up, offline.replay_day
+    monkeypatch.setattr(offline, "warm_up", warm)
+    monkeypatch.setattr(offline, "replay_day", stream)
+    start = int(read_day(day_file).scans.index[0])
+    rc, out, err = replay(capsys, str(day_file), "--out", str(tmp_path / "w.mcap"),
+                          "--end", str(start + H))
+    assert rc == 0, err
+    assert order == ["warm-up", "stream"]
+    (w,) = warmed
+    assert w.error is None and w.stats.failed_ticks == 0 and w.stats.lab_updates == 1
+    assert re.search(r"after a \d+\.\d s warm-up", out), out
+
+
 def test_time_range_rate_params_and_the_open_loop_estimator(day_file, tmp_path, capsys):
     start = int(read_day(day_file).scans.index[0]) + H
     rng = ["--start", str(start), "--end", str(start + H // 2), "--estimator", "openloop"]

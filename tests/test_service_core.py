@@ -21,6 +21,7 @@ from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import make_estimator
 from softsensor.service.logs import JsonFormatter, KeyValueFormatter, event
 from softsensor.service.settings import ServiceSettings, service_settings
+from softsensor.service.warmup import N_WINDOWS, warm_up
 from softsensor.signals import SCAN_SIGNALS
 
 S = 10**9
@@ -284,6 +285,35 @@ def test_make_estimator_kinds() -> None:
     assert make_estimator("openloop", cfg).kind == "openloop"
     with pytest.raises(ConfigError, match="estimator 'kalman' is not known"):
         make_estimator("kalman", cfg)
+
+
+def test_warm_up_ticks_a_throwaway_service_with_a_late_lab() -> None:
+    """Every path of a tick runs once before streaming (full windows, a lab applied late),
+    on a service of its own: the real one never sees the synthetic messages."""
+    made: list[FakeEstimator] = []
+
+    def make() -> EstimatorService:
+        made.append(FakeEstimator())
+        return EstimatorService(made[-1])
+
+    warm = warm_up(make, load_plant_config())
+    assert warm.error is None and len(made) == 1
+    events = made[0].events
+    tick_at = [i for i, e in enumerate(events) if e[0] == "tick"]
+    assert len(tick_at) == N_WINDOWS and not any(events[i][2] for i in tick_at)  # none stale
+    lab_at = events.index(("lab", "warm-up"))
+    assert tick_at[0] < lab_at < tick_at[-1]  # after a model estimate, before the last tick
+    assert warm.stats is not None and warm.stats.labs_accepted == 1
+
+
+def test_a_failing_warm_up_is_logged_not_raised(caplog) -> None:
+    def make() -> EstimatorService:
+        raise EstimationError("model failed at the nominal point")
+
+    with caplog.at_level(logging.WARNING, logger="softsensor.service.warmup"):
+        warm = warm_up(make, load_plant_config())
+    assert warm.stats is None and "model failed at the nominal point" in warm.error
+    assert "warm-up failed" in caplog.text
 
 
 def test_structured_log_lines() -> None:

@@ -46,6 +46,7 @@ from softsensor.service.logs import event
 from softsensor.service.offline_replay import make_service
 from softsensor.service.pipeline import INPUT_KINDS, ScanPublisher, ServicePipeline
 from softsensor.service.settings import ServiceSettings, resolve_estimator_kind, resolve_unit
+from softsensor.service.warmup import warm_up
 
 log = logging.getLogger(__name__)
 
@@ -163,8 +164,8 @@ class Daemon:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
         doc = self.store.load() if self.resume else None
-        service = make_service(self.config, s, self.kind,
-                               self.tagmap.modbus.poll_period_s * s.time_scale)
+        scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
+        service = make_service(self.config, s, self.kind, scan_period_s)
         if doc is not None:
             if doc.get("unit") != self.unit:
                 raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
@@ -175,6 +176,12 @@ class Daemon:
                 raise ConfigError(f"{exc} (run with --no-resume to start afresh)") from exc
             event(log, "resumed", checkpoint=str(self.store.path),
                   ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
+        # compile the estimator's kernels now, not in the first live tick (which would hold
+        # the estimator thread, and every scan behind it, for tens of seconds on a cold cache)
+        warm = await asyncio.to_thread(
+            warm_up, lambda: make_service(self.config, s, self.kind, scan_period_s), self.config)
+        event(log, "warmed_up", seconds=round(warm.seconds, 2),
+              ticks=None if warm.stats is None else warm.stats.ticks, error=warm.error)
         self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
         async with contextlib.AsyncExitStack() as stack:
             session = open_session(mode=s.zenoh_mode, listen=list(s.listen),

@@ -54,6 +54,7 @@ from softsensor.service.settings import (
     resolve_unit,
     service_settings,
 )
+from softsensor.service.warmup import warm_up
 from softsensor.signals import TOPIC_SCAN, TOPIC_TRUTH
 
 log = logging.getLogger(__name__)
@@ -90,7 +91,11 @@ class FileRecorder:
 
 @dataclass
 class ReplaySummary:
-    """What a replay did. Times in ns since the epoch, durations in seconds."""
+    """What a replay did. Times in ns since the epoch, durations in seconds.
+
+    ``wall_s`` is the streaming alone; ``warmup_s`` the estimator's warm-up before it
+    (:mod:`.warmup`: numba compiling or loading its kernels).
+    """
 
     day: Path
     out: Path
@@ -104,6 +109,7 @@ class ReplaySummary:
     labs_refused: int = 0
     span_s: float = 0.0
     wall_s: float = 0.0
+    warmup_s: float = 0.0
     rmse: dict[str, float] | None = None
     estimates: list[tuple[int, dict[str, Any]]] = field(default_factory=list, repr=False)
 
@@ -115,7 +121,8 @@ class ReplaySummary:
     def line(self) -> str:
         """The one-paragraph summary the verb prints."""
         text = (f"replayed {self.day}: {self.n_replayed} messages over {self.span_s / 3600:.1f} "
-                f"h in {self.wall_s:.1f} s ({self.speedup:,.0f}x real time); {self.estimator}: "
+                f"h in {self.wall_s:.1f} s ({self.speedup:,.0f}x real time, after a "
+                f"{self.warmup_s:.1f} s warm-up); {self.estimator}: "
                 f"{self.ticks} ticks ({self.stale_ticks} stale), {self.lab_updates} lab "
                 f"updates ({self.labs_accepted} lab results accepted, {self.labs_refused} "
                 f"refused); wrote {self.out} ({self.n_recorded} messages)")
@@ -215,6 +222,9 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     service = make_service(cfg, settings, estimator)
     unit = service.unit
     summary = ReplaySummary(day=day, out=out, estimator=service.kind)
+    # compile every kernel a tick calls before the first message goes out: a first tick that
+    # compiles holds the estimator thread for tens of seconds, which _wait would call a stall
+    summary.warmup_s = warm_up(lambda: make_service(cfg, settings, estimator), cfg).seconds
 
     def _keep(o: Output) -> None:
         if o.kind == "estimate":
