@@ -7,11 +7,14 @@
    diagnosis). Target: at most 5 minutes on this machine.
 2. Accuracy: ``--cases`` days of ``--case-hours`` each, cycling through every cause and clean
    days, with magnitudes drawn uniformly from each effect's detectable range, diagnosed with
-   the parameters calibrated in step 1 (and their calibration RMSE as noise floors). A case is
-   right when the named cause (and for ``sensor_bias`` the channel) is the hidden one.
+   the config step 1 saved (its parameters and ``[discrepancy]``, as ``--params`` reads
+   it). A case is right when the named cause (and for ``sensor_bias`` the channel) is the
+   hidden one.
 
-The plant's true parameters are the config's (``--truth config``) or a set away from them
-(``--truth shifted``, the calibration benchmark's), so that the calibration has to find them.
+This is the matched plant (the model itself): the floor beside the open-world numbers of
+``benchmarks/open_world.py``. The plant's true parameters are the config's (``--truth
+config``) or a set away from them (``--truth shifted``, the calibration benchmark's), so that
+the calibration has to find them.
 ``--cases-with truth`` diagnoses the accuracy cases with the plant's true parameters instead
 (the per-cause tests' setting: what the diagnosis does when the model is right, apart from
 the hidden effect). Prints one JSON document; the load average is included because the
@@ -105,7 +108,7 @@ def main() -> None:
         seed = args.seed + 100 + i
         m = _magnitude(cause, seed)
         day = simulate_day(plant, args.case_hours, seed, None if cause == "none" else cause, m)
-        rep = diagnose(cal_cfg, day, calibration_rmse=cal_rmse).to_json()
+        rep = diagnose(cal_cfg, day).to_json()
         right = rep["cause"] == cause and (cause != "sensor_bias"
                                            or rep["channel"] == day.effect.get("channel"))
         cases.append({"seed": seed, "cause": cause, "magnitude": m, "named": rep["cause"],

@@ -24,7 +24,8 @@ exactly. Plant seeds and day seeds are drawn from it into a plan made before any
    RMSE <= 1.0 K on each temperature and <= 0.006 kg/kg on the lab, no channel worse than
    with the config's parameters, no parameter at a bound unflagged in PARAMS.toml.
    ``--cost eq4`` (default) or ``likelihood``. A refused calibration leaves the config's
-   parameters in use (the CLI writes nothing), as the next two parts then do.
+   parameters in use (the CLI writes nothing), as the next two parts then do, with the
+   ``[discrepancy]`` those parameters left on the validation day.
 2. **Estimator** (issue 11): with each plant's calibrated config, the UKF
    (:class:`~softsensor.estimation.ukf.UkfEstimator`) over a fresh clean day and a fresh day
    with ``inlet_moisture`` (magnitude stratified across its detectable range over the plants),
@@ -42,9 +43,9 @@ exactly. Plant seeds and day seeds are drawn from it into a plan made before any
 3. **Diagnosis** (issue 11): all 8 causes (clean and the 7 effects) x ``--days-per-cause``
    (default 4) fresh days, magnitudes stratified across each effect's detectable range,
    spread over the calibrated plants, each diagnosed by
-   :func:`softsensor.diagnosis.pipeline.diagnose` with the plant's calibrated config and the
-   ``[fit] rmse`` of its PARAMS.toml as ``calibration_rmse`` (as ``softsensor diagnose
-   --params`` does). Per day: true cause (and channel for ``sensor_bias``, from the day's
+   :func:`softsensor.diagnosis.pipeline.diagnose` with the plant's calibrated config read
+   from its PARAMS.toml, ``[discrepancy]`` included (as ``softsensor diagnose --params``
+   does). Per day: true cause (and channel for ``sensor_bias``, from the day's
    ``effect`` record), named cause and channel, gain, right or wrong. Targets: >= 90 % right,
    no false alarm on a clean day, every named cause with a positive gain (``unexplained`` is
    named without an extension and reports gain 0; it is excepted).
@@ -72,7 +73,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import hashlib
-import inspect
 import json
 import math
 import os
@@ -92,7 +92,7 @@ import numpy as np
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.params_file import params_document, read_fit, write_params
-from softsensor.calibration.pipeline import DataSelection, calibrate
+from softsensor.calibration.pipeline import DataSelection, calibrate, discrepancy
 from softsensor.calibration.selection import select_windows
 from softsensor.calibration.settings import COSTS, calibration_settings
 from softsensor.errors import SoftsensorError
@@ -387,7 +387,12 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         else:
             rec["unflagged_at_bounds"] = []
             checks["bounds"] = True
-            model = PlantModel(i, base, None, "default (refused)", rec)
+            config = base
+            disc = summary.get("current_discrepancy")
+            if disc:
+                config = dataclasses.replace(base, extra={**base.extra, "discrepancy": {
+                    k: float(v) for k, v in disc.items() if isinstance(v, (int, float))}})
+            model = PlantModel(i, config, None, "default (refused)", rec)
         rec["checks"] = checks
         rec["pass"] = all(checks.values())
         rec["used"] = model.used
@@ -413,6 +418,10 @@ def _calibration_summary(result: Any) -> dict[str, Any]:
         "validation_score": float(val.score), "default_validation_score": float(cur.score),
         "fit_rmse": _rmse_dict(result.fit.rmse),
         "discrepancy": None if result.discrepancy is None else result.discrepancy.as_dict(),
+        # what the config's own values leave on the validation day: with a refused
+        # calibration they stay in use, and this sizes the estimator's and the diagnosis's
+        # calibration-error states
+        "current_discrepancy": discrepancy(cur.evaluation, cur.segments).as_dict(),
         "timings_s": {k: round(v, 1) for k, v in result.timings.items()},
         "windows": [c.reason for c in result.choices],
     }
@@ -630,20 +639,12 @@ def estimator_summary(part: dict[str, Any]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------- part 3
-def diagnose_day(config: PlantConfig, day: SimulatedDay,
-                 calibration_rmse: dict[str, float] | None, source: str) -> dict[str, Any]:
-    """The one place that calls the diagnosis (its signature is being reworked): REPORT.json
-    fields the benchmark scores."""
-    from softsensor.diagnosis import pipeline
+def diagnose_day(config: PlantConfig, day: SimulatedDay, source: str) -> dict[str, Any]:
+    """The diagnosis as ``softsensor diagnose --params`` runs it (the config carries the
+    calibration's ``[discrepancy]``): the REPORT.json fields the benchmark scores."""
+    from softsensor.diagnosis.pipeline import diagnose
 
-    params = inspect.signature(pipeline.diagnose).parameters
-    kwargs: dict[str, Any] = {}
-    if "calibration_rmse" in params:
-        kwargs["calibration_rmse"] = calibration_rmse
-    if "source" in params:
-        kwargs["source"] = source
-    result = pipeline.diagnose(config, day, **kwargs)
-    doc = result.to_json() if hasattr(result, "to_json") else dict(result)
+    doc = diagnose(config, day, source=source).to_json()
     return {"named": doc.get("cause"), "named_channel": doc.get("channel"),
             "gain": doc.get("gain"), "diagnose_timings_s": doc.get("timings_s")}
 
@@ -664,7 +665,7 @@ def diagnosis_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]
             day = ctx.simulate(spec)
             rec["channel"] = day.effect.get("channel")
             t1 = time.perf_counter()
-            rec.update(diagnose_day(m.config, day, m.calibration_rmse,
+            rec.update(diagnose_day(m.config, day,
                                     f"{ctx.kind} plant {spec.plant} day {spec.seed}"))
             rec["diagnose_s"] = round(time.perf_counter() - t1, 1)
             rec["right"] = bool(rec["named"] == spec.effect and (

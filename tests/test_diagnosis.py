@@ -21,14 +21,15 @@ from softsensor.diagnosis.extensions import (
 )
 from softsensor.diagnosis.problem import Problem, choose_split
 from softsensor.diagnosis.residuals import (
+    LAB_SHIFTS_MIN,
     change_point,
     channel_stats,
     cross_correlation,
     lab_stats,
     ljung_box,
 )
-from softsensor.diagnosis.verdict import ALPHA, Score, verdict
-from softsensor.diagnosis.windows import day_windows, lab_model_values
+from softsensor.diagnosis.verdict import ALPHA, MIN_PENALISED, Score, verdict
+from softsensor.diagnosis.windows import day_windows, delagged_air
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
 from softsensor.plant.simulator import SimulatedDay, simulate_day
@@ -67,8 +68,12 @@ def test_windows_are_scan_means_and_edges_follow_t_air_in(cfg, day):
     np.testing.assert_allclose(w.U[k, 0], sel.T_air_in.mean())
     np.testing.assert_allclose(w.Y[k], sel[["T_dryer_out", "T_cyclone_out"]].mean())
     assert np.all(w.U[:, -1] == cfg.nominal.moisture_in)
-    near = s[np.abs(s.index - (t0 + k * 600e9)) <= 60e9].T_air_in.mean()
-    np.testing.assert_allclose(w.air_edges[k], near)
+    # an edge: the mean of the sub-window bins on either side of the boundary
+    bw = 600e9 / w.segment.bins.shape[1]
+    edge = t0 + k * 600e9
+    before = s[(s.index > edge - bw) & (s.index <= edge)].T_air_in.mean()
+    after = s[(s.index > edge) & (s.index <= edge + bw)].T_air_in.mean()
+    np.testing.assert_allclose(w.air_edges[k], 0.5 * (before + after))
     assert np.all(np.diff(w.lab_time_ns) > 0) and len(w.lab_value) == len(day.labs)
 
 
@@ -80,15 +85,22 @@ def test_windows_hold_missing_inputs_and_refuse_bad_days(cfg, day):
     with pytest.raises(IngestError, match="signal T_cyclone_out is missing"):
         day_windows(SimulatedDay(scans.drop(columns="T_cyclone_out"), day.labs, day.truth),
                     cfg, "x.mcap")
-    with pytest.raises(IngestError, match="x.mcap: 2.0 h of scans"):
+    with pytest.raises(IngestError,
+                       match="x.mcap: 1.7 h of usable windows; diagnosis needs at least 6 h"):
         day_windows(SimulatedDay(scans.iloc[:721], day.labs, day.truth), cfg, "x.mcap")
 
 
-def test_lab_values_stand_at_window_centres():
-    end = np.array([600, 1200, 1800], dtype=np.int64) * 1_000_000_000
-    y = np.array([0.1, 0.2, 0.4])
-    t = np.array([300, 900, 1200, 2000], dtype=float) * 1e9
-    np.testing.assert_allclose(lab_model_values(end, y, 600.0, t), [0.1, 0.2, 0.3, 0.4])
+def test_lab_points_move_with_the_sample_time(cfg, model, day):
+    """A lab result meets the model at its sample time: moving every sample time by one
+    window gives the model's values one window later."""
+    p = _problem(cfg, model, day)
+    W = p.windows.window_s
+    here = p.lab_points()
+    later = p.lab_points(shift_ns=W * 1e9)
+    assert np.all(later.window[here.window + 1 < p.windows.n_windows]
+                  == here.window[here.window + 1 < p.windows.n_windows] + 1)
+    # the baseline at the unmoved points is the baseline's own lab prediction
+    np.testing.assert_allclose(p.baseline_labs(here), p.baseline.lab, rtol=0, atol=1e-9)
 
 
 # ---------------------------------------------------------------------------- statistics
@@ -123,8 +135,9 @@ def test_channel_and_lab_statistics_on_a_clean_day(cfg, model, day):
     # a clean day with the plant's own parameters: residuals are the noise of a window mean
     # (0.5 K / sqrt(60) = 0.065 K) plus a little model discretisation
     assert st.rmse < 0.15 and abs(st.t_mean) < 4 and st.structure_ratio < 1.5
-    lab = lab_stats(r.lab, p.windows, p.baseline.Y[:, 2])
-    assert lab.rmse < 0.008 and lab.rmse_at_best_shift <= lab.rmse
+    _, shifted = LabTimeShift.lab_chi2(p, LAB_SHIFTS_MIN)
+    lab = lab_stats(r.lab, p.windows, p.baseline.Y[:, 2], shifted)
+    assert lab.rmse < 0.008 and lab.rmse_at_best_shift <= lab.rmse + 1e-12
 
 
 # ---------------------------------------------------------------------------- extensions
@@ -135,47 +148,41 @@ def test_sensor_offset_recovers_an_offset_on_the_right_channel(cfg, model, day):
     f = SensorOffset().fit(p)
     assert f.channel == "T_cyclone_out"
     assert f.params["offset_K"] == pytest.approx(2.5, abs=0.05)
-    assert f.fit_chi2 < 0.01 * p.chi2(p.baseline)
+    # the whitened fit-part chi-square falls by far more than the calibration-error model
+    # would charge for leaving the offset to its slow per-channel state
+    assert p.chi2(p.baseline) - f.fit_chi2 > 10.0
 
 
 def test_lab_time_shift_recovers_a_wrong_stamp(cfg, model, day):
-    labs = day.labs.copy()
-    p0 = _problem(cfg, model, day)
-    # make the outlet moisture move: labs report the model's own values, stamped 40 min late
-    w = p0.windows
-    true_t = labs.sample_time_ns.to_numpy(float)
-    labs["moisture_out"] = lab_model_values(w.end_ns, p0.baseline.Y[:, 2], w.window_s, true_t)
+    labs = day.labs.copy().sort_values("sample_time_ns")
+    # labs report the model's own values, stamped 40 min late
     labs["sample_time_ns"] = labs.sample_time_ns + int(40 * 60e9)
+    stamped = _problem(cfg, model, SimulatedDay(day.scans, labs, day.truth))
+    labs["moisture_out"] = stamped.baseline_labs(stamped.lab_points(shift_ns=-40 * 60e9))
     p = _problem(cfg, model, SimulatedDay(day.scans, labs, day.truth))
+    moved = np.abs(np.gradient(p.baseline.Y[:, 2])).max() > 1e-4
+    assert moved
     ext = LabTimeShift()
     ext.min_chi2_drop = 0.0  # noise-free labs: any drop is real
     f = ext.fit(p)
-    moved = np.abs(np.gradient(p.baseline.Y[:, 2])).max() > 1e-4
-    assert moved
     assert f.params["shift_min"] == pytest.approx(-40.0, abs=1.0)
     # the residual statistics see the same shift
     r = p.residuals(p.baseline)
-    assert lab_stats(r.lab, p.windows, p.baseline.Y[:, 2]).best_shift_min == pytest.approx(
-        -40.0, abs=1.0)
-    # judged against the lab noise (0.004 kg/kg), three results on this slowly moving
-    # moisture do not pin the shift: none is applied
-    f = LabTimeShift().fit(p)
-    assert f.params["shift_min"] == 0.0 and "none is applied" in f.description
-    assert f.prediction.lab == pytest.approx(p.baseline.lab)
+    _, shifted = LabTimeShift.lab_chi2(p, LAB_SHIFTS_MIN)
+    assert lab_stats(r.lab, p.windows, p.baseline.Y[:, 2], shifted).best_shift_min \
+        == pytest.approx(-40.0, abs=2.0)
 
 
-def _replace_outputs(day, p0, Y):
-    """``day`` with its temperatures and labs moved from the baseline model to outputs ``Y``
-    (the day's own noise kept): data made by an extended model."""
+def _replace_outputs(day, p0, pred):
+    """``day`` with its temperatures and labs moved from the baseline model to the prediction
+    ``pred`` of an extended model (the day's own noise kept)."""
     w = p0.windows
     scans = day.scans.copy()
     k = np.clip((scans.index.to_numpy() - w.start_ns - 1) // int(600e9), 0, w.n_windows - 1)
     for c, name in enumerate(("T_dryer_out", "T_cyclone_out")):
-        scans[name] = Y[k, c] + (scans[name].to_numpy() - p0.baseline.Y[k, c])
-    labs = day.labs.copy()
-    t = labs.sample_time_ns.to_numpy(float)
-    labs["moisture_out"] = (labs.moisture_out - p0.baseline.lab
-                            + lab_model_values(w.end_ns, Y[:, 2], w.window_s, t))
+        scans[name] = pred.Y[k, c] + (scans[name].to_numpy() - p0.baseline.Y[k, c])
+    labs = day.labs.copy().sort_values("sample_time_ns")
+    labs["moisture_out"] = labs.moisture_out.to_numpy() - p0.baseline.lab + pred.lab
     return SimulatedDay(scans, labs, day.truth)
 
 
@@ -187,17 +194,23 @@ def test_each_parametric_fit_recovers_its_own_model(cfg, model, day):
 
     p0 = _problem(cfg, model, day)
     drift = TransferDrift()
-    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(p0.windows.U,
-                                                                   drift.theta(p0, 0.3))))
-    assert drift.fit(p).params["loss_by_end"] == pytest.approx(0.3, abs=0.02)
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.predict(theta=drift.theta(p0, 0.3))))
+    # fitted by least squares on whitened residuals: the slow calibration-error states take
+    # a little of a drift (a few hundredths)
+    assert drift.fit(p).params["loss_by_end"] == pytest.approx(0.3, abs=0.04)
     lag = AirSensorLag()
-    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(lag.inputs(p0, 8.0))))
+    w = p0.windows
+    U, bins = delagged_air(w.segment, w.air_edges, 8.0 * 60.0)
+    lagged = p0.predict(U, labs=p0.lab_points(U=U, bins=bins))
+    p = _problem(cfg, model, _replace_outputs(day, p0, lagged))
     assert lag.fit(p).params["tau_min"] == pytest.approx(8.0, abs=0.5)
     aux = np.zeros(N_AUX)
     aux[BETA_AMB] = 0.06
     amb = AmbientHeatLoss()
-    p = _problem(cfg, model, _replace_outputs(day, p0, p0.simulate(p0.windows.U, aux=aux)))
-    assert amb.fit(p).params["beta_amb_per_K"] == pytest.approx(0.06, abs=0.006)
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.predict(aux=aux)))
+    # the slow common calibration-error state takes a share of an ambient signature that
+    # follows the slow ambient temperature
+    assert amb.fit(p).params["beta_amb_per_K"] == pytest.approx(0.06, abs=0.015)
     clean = [lag.fit(p0).params["tau_min"], drift.fit(p0).params["loss_by_end"],
              amb.fit(p0).params["beta_amb_per_K"]]
     assert clean[0] < 2.0 and abs(clean[1]) < 0.05 and abs(clean[2]) < 0.01
@@ -243,7 +256,7 @@ def test_cross_fitted_predictions_never_see_the_data_they_score(cfg, model, day,
     np.testing.assert_allclose(cq.Y[:k], cp.Y[:k], rtol=0, atol=1e-9)
     held_early = p.split.lab_fit
     np.testing.assert_allclose(cq.lab[held_early], cp.lab[held_early], rtol=0, atol=1e-12)
-    assert fq.params != fp.params  # the first fold was fitted on the changed part
+    assert fq.fit_chi2 != fp.fit_chi2  # the first fold was fitted on the changed part
 
 
 def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, model, day):
@@ -252,7 +265,7 @@ def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, model, day):
     from softsensor.diagnosis.pipeline import diagnose
 
     scans = day.scans.copy()
-    scans["T_dryer_out"] += 2.0
+    scans["T_dryer_out"] += 3.0
     d = diagnose(cfg, SimulatedDay(scans, day.labs, day.truth),
                  extensions=(SensorOffset(), LabTimeShift()))
     rep = d.to_json()
@@ -275,22 +288,22 @@ def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, model, day):
     assert rep["extended_cost"] == pytest.approx(eq4(r))
     assert rep["gain"] == pytest.approx(1 - eq4(r) / base)
     assert rep["gain"] > 0 and rep["held_out"]["split_gain"] > 0
-    assert rep["extension"]["params_other_fold"]["offset_K"] == pytest.approx(2.0, abs=0.1)
+    assert rep["extension"]["params_other_fold"]["offset_K"] == pytest.approx(3.0, abs=0.1)
 
 
 # ---------------------------------------------------------------------------- verdict rules
-def _score(cause, penalised, gain=0.1, p=1e-6, worse=(), channel=None, rel=0.5):
+def _score(cause, penalised, gain=0.1, p=1e-6, worse=(), channel=None):
     h = Fit(rmse={"T_dryer_out": 1.0, "T_cyclone_out": 1.0, "moisture_out": 0.01},
             n={"T_dryer_out": 10, "T_cyclone_out": 10, "moisture_out": 3}, cost=0.1)
     return Score(cause, channel, 1, h, h, gain, h, h, gain, {"T_dryer_out": penalised + 1,
                                                  "T_cyclone_out": 0.0, "moisture_out": 0.0},
                  penalised, tuple(worse), 30.0, p,
-                 {"T_dryer_out": rel, "T_cyclone_out": 0.0, "moisture_out": float("nan")},
+                 {"T_dryer_out": 0.5, "T_cyclone_out": 0.0, "moisture_out": float("nan")},
                  {"T_dryer_out": 3.0, "T_cyclone_out": 0.0, "moisture_out": float("nan")})
 
 
 def test_verdict_names_the_best_eligible_extension():
-    v = verdict([_score("fouling_drift", 50.0), _score("inlet_moisture", 80.0, rel=0.1),
+    v = verdict([_score("fouling_drift", 50.0), _score("inlet_moisture", 80.0, p=0.01),
                  _score("ambient_heat_loss", 20.0), _score("sensor_bias", 90.0,
                                                            worse=("T_dryer_out",))], None)
     assert v.cause == "fouling_drift"
@@ -301,18 +314,17 @@ def test_verdict_names_the_best_eligible_extension():
 
 
 def test_verdict_none_or_unexplained_without_an_eligible_extension():
-    weak = [_score("lab_delay", 3.0, p=0.5), _score("input_lag", -5.0)]
+    weak = [_score("lab_delay", 3.0, p=0.5), _score("input_lag", MIN_PENALISED - 0.5)]
     assert verdict(weak, None).cause == "none"
-    assert verdict(weak, "T_dryer_out residual RMSE 3 noise levels").cause == "unexplained"
-    assert not _score("x", 9.0, p=2 * ALPHA).eligible
-    assert "not significant" in _score("x", 9.0, p=2 * ALPHA).why_not()
-    # 20 % is enough on the lab moisture, not on a temperature
-    assert "T_dryer_out 25%" in _score("x", 9.0, rel=0.2).why_not()
-    assert _score("x", 9.0, rel=0.25).eligible
+    assert verdict(weak, "T_dryer_out residuals are 3.0 times ...").cause == "unexplained"
+    assert not _score("x", 50.0, p=2 * ALPHA).eligible
+    assert "not significant" in _score("x", 50.0, p=2 * ALPHA).why_not()
+    assert not weak[1].eligible and "below" in weak[1].why_not()
+    assert _score("x", MIN_PENALISED).eligible and _score("x", MIN_PENALISED).why_not() is None
     # the fix of a cause must lower eq. 4 on data it was not fitted on
-    assert not _score("x", 9.0, gain=0.01).eligible
-    assert "held-out gain" in _score("x", 9.0, gain=0.01).why_not()
-    assert _score("x", 9.0, gain=0.05).eligible
+    assert not _score("x", 50.0, gain=-0.01).eligible
+    assert "gain under eq. 4" in _score("x", 50.0, gain=-0.01).why_not()
+    assert "worse" in _score("x", 50.0, worse=("moisture_out",)).why_not()
 
 
 # ---------------------------------------------------------------------------- CLI
@@ -344,3 +356,20 @@ def test_problem_split_keeps_labs_on_both_sides(cfg, day):
     assert 0.5 * w.n_windows <= s.k_fit <= 0.7 * w.n_windows
     assert np.all(w.lab_time_ns[s.lab_fit] < s.split_ns)
     assert s.split_ns == w.end_ns[s.k_fit - 1]
+
+
+def test_unexplained_when_the_residuals_exceed_what_the_calibration_error_allows(cfg, model,
+                                                                                 day):
+    """A 1.5 K oscillation of 2 h period on one sensor is faster than any calibration error
+    and than every extension tried here: ``unexplained``, naming the channel; the clean day
+    is ``none``."""
+    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.verdict import structured
+
+    scans = day.scans.copy()
+    t_h = (scans.index.to_numpy() - scans.index[0]) / 3.6e12
+    scans["T_cyclone_out"] += 1.5 * np.sin(2 * np.pi * t_h / 2.0)
+    d = diagnose(cfg, SimulatedDay(scans, day.labs, day.truth), extensions=(LabTimeShift(),))
+    assert d.cause == "unexplained"
+    assert "T_cyclone_out" in d.verdict.structure and "T_dryer_out" not in d.verdict.structure
+    assert structured(_problem(cfg, model, day)) is None

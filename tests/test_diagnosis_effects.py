@@ -6,23 +6,26 @@ replays the day are printed and repeated in every assertion message. Seeds are f
 run unless ``SOFTSENSOR_DIAG_SEED`` pins the base seed (``.ci/run`` pins it so that a landing
 is reproducible; the same value replays a failure).
 
-The per-cause cases diagnose a 72 h day with the plant's true parameters and require the
-right cause, the right channel for ``sensor_bias`` and a positive held-out gain; one case runs
-the whole ``softsensor diagnose --calibrate-on`` command; the ``slow`` case calibrates once on
-a clean day of a plant whose true parameters are away from the config's and diagnoses 24 days
-across all causes.
+The per-cause cases diagnose a 72 h day with the plant's true parameters (and a
+``[discrepancy]`` at the estimator's floors: the model is right) and require the right cause,
+the right channel for ``sensor_bias`` and a positive held-out gain; one case runs the whole
+``softsensor diagnose --calibrate-on`` command; one is issue 11's model that is off (the
+model's ``mult_D`` 15 % away from the plant's, nothing said about it): ``none``. The ``slow``
+case calibrates once on a clean day of a plant whose true parameters are away from the
+config's and diagnoses 24 days across all causes.
 
-Measured on fresh seeds (the per-cause setting, 72 h, true parameters; 96 days, 13 or 14 per
-case): 95 named right, every hidden effect among them with a positive held-out gain
-(smallest 0.20). The one failure, an ambient heat loss called ``unexplained`` (gain
--0.07), is the lab noise: the extension predicts the true outlet moisture better than the
-model without it (0.0019 against 0.0024 kg/kg RMS at the sample times) but the day's 22 lab
-results read 0.0015 kg/kg low on average, a 2.3-sigma draw, and eq. 4 is mostly the lab
-RMSE. At that rate about one run in fifteen of the seven effect cases meets such a day.
+This is the matched plant, the floor: the open-world numbers come from
+``benchmarks/open_world.py`` (README, Diagnosis). Measured with base seeds 20261121 (CI),
+777 and 31337: 19 of the 21 effect days right (7, 6, 6), every named cause with a positive
+gain. The misses: base 777's inlet-moisture day named ``sensor_bias`` (the inlet filter's
+estimate, replayed one window late, leaves window-to-window errors that the calibration-error
+model, at its floors, charges more than the slow error the extension removes), base 31337's
+59 min lab delay named ``unexplained``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import random
@@ -34,6 +37,7 @@ import numpy as np
 import pytest
 
 from softsensor.diagnosis.pipeline import diagnose
+from softsensor.estimation.settings import estimator_settings
 from softsensor.plant.effects import EFFECTS
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
@@ -98,13 +102,23 @@ def cfg():
     return load_plant_config()
 
 
+def exact(config):
+    """``config`` saying its model is right up to the estimator's floors (a ``[discrepancy]``
+    of 0.2 K and 0.003 kg/kg, what a calibration on a day of this plant would leave): the
+    per-cause cases diagnose with the plant's true parameters."""
+    s = estimator_settings(config)
+    t, m = s.T_std_floor, s.moisture_std_floor
+    disc = {"common_std": t, "dryer_std": t, "cyclone_std": t, "moisture_std": m}
+    return dataclasses.replace(config, extra={**config.extra, "discrepancy": disc})
+
+
 @pytest.mark.parametrize("cause", CASES)
 def test_hidden_effect_is_named(cfg, cause):
     seed = BASE_SEED + CASES.index(cause)
     mag = draw(cause, seed)
     print(replay(cause, seed, mag))
     day = simulate_day(cfg, HOURS, seed, None if cause == "none" else cause, mag)
-    report = diagnose(cfg, day).to_json()
+    report = diagnose(exact(cfg), day).to_json()
     ranking = [(r["cause"], r["score"]) for r in report["ranking"]]
     assert not check(cause, day, report), (f"{check(cause, day, report)}; "
                                            f"{replay(cause, seed, mag)}; ranking {ranking}")
@@ -116,6 +130,19 @@ def test_hidden_effect_is_named(cfg, cause):
         assert report["extended_cost"] < report["baseline_cost"]
     else:
         assert report["extended_rmse"] == report["baseline_rmse"] and report["gain"] == 0.0
+
+
+def test_a_model_that_is_off_is_not_blamed_on_a_cause(cfg):
+    """Issue 11's case: the matched plant with the model's ``mult_D`` 15 % off, a clean 30 h
+    day, the config's parameters with nothing said about how far off they are. Both outlet
+    temperatures move together (the model's heat balance is off), which one sensor's offset
+    cannot do; it is calibration error, not a cause."""
+    plant = cfg.with_parameters({"mult_D": cfg.parameters["mult_D"].value * 0.85})
+    day = simulate_day(plant, 30.0, 1)
+    d = diagnose(cfg, day)
+    assert d.cause == "none", {k: round(v.penalised, 1) for k, v in d.scores.items()}
+    # told that the model is exact, the same day shows the error (the test can fail)
+    assert diagnose(exact(cfg), day).cause != "none"
 
 
 def _cli(*args: str) -> subprocess.CompletedProcess:
@@ -183,14 +210,14 @@ def test_randomised_days_are_named_correctly(cfg, tmp_path):
     seg = segment_from_day(cal_day, cfg, source="cal")
     res = calibrate([seg], cfg, StudySettings(n_trials=40, seed=0, progress=False),
                     identify=False)
-    cal_cfg = cfg.with_parameters(res.theta)
+    cal_cfg = res.calibrated_config()
     cases = list(CASES) * 3 + ["none"] * 3  # 24 days, 6 of them clean
     results = []
     for i, cause in enumerate(cases):
         seed = base + 1 + i
         mag = draw(cause, seed)
         day = simulate_day(plant, SLOW_HOURS, seed, None if cause == "none" else cause, mag)
-        rep = diagnose(cal_cfg, day, calibration_rmse=res.fit.rmse).to_json()
+        rep = diagnose(cal_cfg, day).to_json()
         wrong = check(cause, day, rep)
         wrong = [w for w in wrong if "gain" not in w]  # the slow case counts names
         how = replay(cause, seed, mag, SLOW_HOURS, base) + " --params <SHIFTED>"

@@ -22,6 +22,7 @@ same batched call.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Sequence
 
 import numpy as np
@@ -34,6 +35,7 @@ from softsensor.calibration.objective import (
     evaluate,
     sensitivity_offsets,
 )
+from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
 
 
@@ -116,6 +118,45 @@ def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k
         Yp, state = model.simulate(Ua, th, aux=ax, state0=state, raise_on_failure=False)
         Y[:, a - k0:b - k0] = Yp
     return Y, lab, state
+
+
+def window_start_states(model: DryerModel, seg: Segment, theta: np.ndarray, *,
+                        U: np.ndarray | None = None, aux: np.ndarray | None = None
+                        ) -> np.ndarray:
+    """The model's state at the start of every window of ``seg`` (K, n_state) for one
+    parameter set ``theta`` (7,), from the steady state at the first window's inputs: what
+    :func:`lab_values_at` steps from when the lab samples move (a lab time shift). Raises
+    :class:`~softsensor.errors.SoftsensorError` when the model fails."""
+    U = seg.U if U is None else np.asarray(U, float)
+    aux = None if aux is None else np.asarray(aux, float)
+    aux0 = aux if aux is None or aux.ndim == 1 else aux[0]
+    state, _ = model.steady_state(U[0], theta, aux=aux0)
+    out = np.empty((seg.n_windows, model.n_state))
+    for k in range(seg.n_windows):
+        out[k] = state
+        ax = aux if aux is None or aux.ndim == 1 else aux[k]
+        state, _ = model.step(state, U[k], theta, aux=ax)
+    return out
+
+
+def lab_values_at(model: DryerModel, states: np.ndarray, labs: LabPoints,
+                  theta: np.ndarray) -> np.ndarray:
+    """The model's ``moisture_out`` at lab points (L,), each one step of its offset from the
+    state at the start of its window (``states`` from :func:`window_start_states`): the lab
+    alignment of :func:`simulate_span`, for many sample times at once. NaN where the model
+    fails."""
+    if labs.window.size == 0:
+        return np.zeros(0)
+    x = states[labs.window]
+    try:
+        _, y = model.step(x, labs.inputs, theta, dt=labs.offset)
+    except SoftsensorError:
+        out = np.full(labs.window.size, np.nan)
+        for i in range(labs.window.size):
+            with contextlib.suppress(SoftsensorError):
+                out[i] = model.step(x[i], labs.inputs[i], theta, dt=labs.offset[i])[1][2]
+        return out
+    return y[:, 2]
 
 
 class ChunkedRun:
@@ -248,5 +289,5 @@ def evaluate_parameters(model: DryerModel, segments: Sequence[Segment], theta: n
     return ChunkedRun(model, segments, theta, spec, n_chunks=1).run()
 
 
-__all__ = ["ChunkedRun", "chunk_bounds", "evaluate_parameters", "simulate_segments",
-           "simulate_span"]
+__all__ = ["ChunkedRun", "chunk_bounds", "evaluate_parameters", "lab_values_at",
+           "simulate_segments", "simulate_span", "window_start_states"]

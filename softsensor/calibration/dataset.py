@@ -29,6 +29,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import pandas as pd
@@ -44,8 +45,17 @@ from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
 from softsensor.estimation.windowing import NS, window_settings, windows_from_frame
 from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.mcap_day import RecordedDay, read_day
+from softsensor.recording.mcap_day import read_day
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+
+
+class DayLike(Protocol):
+    """A day of scans (index: log time [ns]) and lab results: a recorded
+    :class:`~softsensor.recording.mcap_day.RecordedDay` or a simulated one."""
+
+    scans: pd.DataFrame
+    labs: pd.DataFrame
+
 
 #: Output channels measured on every scan (the third, ``moisture_out``, comes from the lab).
 SCANNED_OUTPUTS: tuple[str, ...] = KELVIN_CHANNELS
@@ -150,20 +160,22 @@ class Segment:
         """The lab samples at their stamped times (the derived ``lab_*`` fields)."""
         return LabPoints(self.lab_window, self.lab_offset, self.lab_U)
 
-    def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None) -> LabPoints:
+    def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None,
+                   bins: np.ndarray | None = None) -> LabPoints:
         """The lab samples with their sample times moved by ``shift_ns`` (a wrong stamp),
-        aligned as :meth:`__post_init__` aligns them, inputs from the bins and ``U`` (default
-        the segment's window inputs); sample times outside the segment clip to its ends."""
+        aligned as :meth:`__post_init__` aligns them, inputs from ``bins`` and ``U`` (default
+        the segment's own); sample times outside the segment clip to its ends."""
         U = self.U if U is None else np.asarray(U, float)
+        bins = self.bins if bins is None else np.asarray(bins, float)
         w_ns = self.window_ns
         t = np.clip(np.round(self.lab_time_ns + shift_ns).astype(np.int64), self.start_ns + 1,
                     self.end_ns)
         win = np.clip(window_index(self.start_ns, w_ns, t), 0, self.n_windows - 1)
         starts = self.start_ns + win * w_ns
-        n_bins = self.bins.shape[1]
+        n_bins = bins.shape[1]
         bin_ns = w_ns // n_bins if n_bins else 0
         span_ns = int(round(self.lab_span * NS))
-        inputs = np.array([sample_inputs_from_bins(self.bins[k], int(s0), bin_ns, U[k], int(ti),
+        inputs = np.array([sample_inputs_from_bins(bins[k], int(s0), bin_ns, U[k], int(ti),
                                                    span_ns)
                            for k, s0, ti in zip(win, starts, t, strict=True)]
                           ).reshape(-1, U.shape[1])
@@ -201,6 +213,22 @@ def _iso(t_ns: int) -> str:
     return pd.Timestamp(int(t_ns), unit="ns", tz="UTC").strftime("%Y-%m-%dT%H:%MZ")
 
 
+def trim_stale(windows: Sequence[Window], config: PlantConfig, source: str) -> list[Window]:
+    """``windows`` without their leading and trailing stale windows (the model starts from a
+    steady state at the first window's inputs, which must be measured). Raises
+    :class:`IngestError` when none is usable, naming why."""
+    usable = [i for i, w in enumerate(windows) if not w.stale]
+    if not usable:
+        settings = window_settings(config)
+        reasons = windows[0].reasons if windows else {}
+        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:2]) or "no scans"
+        raise IngestError(
+            f"{source}: no {settings.period_s:g} s window has enough good scans of every model "
+            f"input (first window: {why}); is solver.scan_period ({settings.scan_period_s:g} s) "
+            f"the data's scan period?")
+    return list(windows[usable[0]:usable[-1] + 1])
+
+
 def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: PlantConfig,
                          source: str) -> Segment:
     """Windows of :mod:`~softsensor.estimation.windowing` (consecutive, in time order) and the
@@ -211,15 +239,7 @@ def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: 
     is usable, naming why.
     """
     settings = window_settings(config)
-    usable = [i for i, w in enumerate(windows) if not w.stale]
-    if not usable:
-        reasons = windows[0].reasons if windows else {}
-        why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:2]) or "no scans"
-        raise IngestError(
-            f"{source}: no {settings.period_s:g} s window has enough good scans of every model "
-            f"input (first window: {why}); is solver.scan_period ({settings.scan_period_s:g} s) "
-            f"the data's scan period?")
-    kept = list(windows[usable[0]:usable[-1] + 1])
+    kept = trim_stale(windows, config, source)
     hold = InputHold(config.nominal_inputs())
     U = np.empty((len(kept), len(INPUT_NAMES)))
     Y = np.full((len(kept), len(OUTPUT_NAMES)), np.nan)
@@ -252,13 +272,13 @@ def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: 
                    lab_span=config.solver.lab_span)
 
 
-def segment_from_day(day: RecordedDay, config: PlantConfig, *, source: str | None = None
+def segment_from_day(day: DayLike, config: PlantConfig, *, source: str | None = None
                      ) -> Segment:
     """A recorded day as model windows (module docstring for the rules).
 
     Parameters
     ----------
-    day : RecordedDay
+    day : RecordedDay or SimulatedDay
         Scans and lab results (the ground-truth topic, if any, is never read).
     config : PlantConfig
         Windowing (``[solver]``) and ``nominal.moisture_in`` [kg/kg].
@@ -270,21 +290,28 @@ def segment_from_day(day: RecordedDay, config: PlantConfig, *, source: str | Non
         or no usable window.
     """
     src = source or str(day.path)
+    return segment_from_windows(complete_windows(day, config, src), day.labs, config, src)
+
+
+def complete_windows(day: DayLike, config: PlantConfig, source: str) -> list[Window]:
+    """The day's scans as the windows of :mod:`softsensor.estimation.windowing` that lie
+    wholly inside the record. Raises :class:`IngestError` for no scans, a signal without any
+    good value, or no complete window."""
     scans = day.scans
     if len(scans) == 0:
-        raise IngestError(f"{src}: no scans ({TOPIC_SCAN}) in the recording")
+        raise IngestError(f"{source}: no scans ({TOPIC_SCAN}) in the recording")
     for name in MEASURED_INPUTS + SCANNED_OUTPUTS:
         if name not in scans.columns or not np.isfinite(scans[name].to_numpy(float)).any():
-            raise IngestError(f"{src}: signal {name} has no good value in {TOPIC_SCAN}")
+            raise IngestError(f"{source}: signal {name} has no good value in {TOPIC_SCAN}")
     settings = window_settings(config)
     t = scans.index.to_numpy(dtype=np.int64)
     first, last = int(t.min()), int(t.max())
     windows = [w for w in windows_from_frame(scans.sort_index(), settings)
                if w.start_ns >= first and w.end_ns <= last]
     if not windows:
-        raise IngestError(f"{src}: {(last - first) / NS / 3600:.2f} h of scans holds no "
+        raise IngestError(f"{source}: {(last - first) / NS / 3600:.2f} h of scans holds no "
                           f"complete {settings.period_s:g} s window")
-    return segment_from_windows(windows, day.labs, config, src)
+    return windows
 
 
 def load_segment(path: str | Path, config: PlantConfig) -> Segment:
@@ -296,9 +323,12 @@ def load_segment(path: str | Path, config: PlantConfig) -> Segment:
 __all__ = [
     "MEASURED_INPUTS",
     "SCANNED_OUTPUTS",
+    "DayLike",
     "LabPoints",
     "Segment",
     "load_segment",
+    "complete_windows",
     "segment_from_day",
     "segment_from_windows",
+    "trim_stale",
 ]

@@ -320,6 +320,17 @@ class CalibrationResult:
         """Parameters that ended within the bound margin of a Table 1 bound (flagged)."""
         return at_bounds(self.theta, self.config.bounds(), self.calibration.bound_margin)
 
+    def calibrated_config(self) -> PlantConfig:
+        """The config with the calibrated values and the ``[discrepancy]`` the validation
+        left, as :func:`~softsensor.plantconfig.load_parameters` reads them back from the
+        PARAMS.toml this result writes."""
+        cfg = self.config.with_parameters(self.theta)
+        if self.discrepancy is None:
+            return cfg
+        disc = {k: float(v) for k, v in self.discrepancy.as_dict().items()
+                if isinstance(v, (int, float)) and not isinstance(v, bool)}
+        return dataclasses.replace(cfg, extra={**cfg.extra, "discrepancy": disc})
+
     @property
     def accepted(self) -> bool:
         """False when the result predicts the validation data worse than the current

@@ -8,8 +8,9 @@ calibrate`: the Optuna TPE study, then the Gauss-Newton polish) runs on CAL with
 trials (default :data:`DEFAULT_TRIALS`: TPE finds the basin in a few dozen trials and the
 polish does the rest; the paper's 200 trials take minutes more for little gain) on its
 ``--window-hours`` window with the most natural variability. With ``--params`` the parameter
-file is used as it is, and its ``[fit] rmse`` (written by ``softsensor calibrate``), when
-present, gives the noise-level floors of :mod:`.problem`.
+file is used as it is, its ``[discrepancy]`` (what the calibration left on held-out data,
+written by ``softsensor calibrate``) sizing the calibration-error alternative of
+:mod:`.calibration_error`; ``--calibrate-on`` carries its own calibration's the same way.
 
 REPORT.json (CONTRACT section 5) is written to ``--json`` and printed on stdout; progress goes
 to stderr. Every error is a one-line :class:`~softsensor.errors.SoftsensorError`.
@@ -90,13 +91,13 @@ def diagnose_main(args: argparse.Namespace) -> int:
 
         fit = read_fit(args.params)
         rmse = fit.get("rmse") if isinstance(fit.get("rmse"), dict) else None
-        calibration = {"params_file": str(args.params), "rmse": rmse}
+        calibration = {"params_file": str(args.params), "rmse": rmse,
+                       "discrepancy": cfg.extra.get("discrepancy")}
     else:
         cfg, calibration = _calibrate(cfg, args)
-        rmse = calibration["rmse"]
     t_cal = time.perf_counter() - t0
     day = read_day(args.day, topics=[TOPIC_SCAN, TOPIC_LAB])
-    d = diagnose(cfg, day, calibration_rmse=rmse, source=str(args.day),
+    d = diagnose(cfg, day, source=str(args.day),
                  fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION)
     doc = d.to_json()
     calibration["seconds"] = round(t_cal, 2)
@@ -134,13 +135,15 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     settings = StudySettings(n_trials=args.trials, seed=args.seed, progress=False)
     result = calibrate(segments, cfg, settings, calibration_settings(cfg), choices=choices,
                        identify_result=False)
-    cal_cfg = cfg.with_parameters(result.theta)
+    # what the calibration left on held-out data sizes the diagnosis's calibration-error
+    # alternative, as it does through a PARAMS.toml's [discrepancy]
+    cal_cfg = result.calibrated_config()
+    disc = None if result.discrepancy is None else result.discrepancy.as_dict()
     if args.save_params:
         from softsensor.calibration.params_file import params_document, write_params
 
         write_params(args.save_params, params_document(
-            cfg, result.params, result.fit_section(), None, result.at_bounds,
-            None if result.discrepancy is None else result.discrepancy.as_dict()),
+            cfg, result.params, result.fit_section(), None, result.at_bounds, disc),
             "Calibrated by `softsensor diagnose --calibrate-on`.")
     summary = {
         "day": str(args.calibrate_on), "trials": args.trials, "seed": args.seed,
@@ -148,6 +151,7 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
         "rmse": {n: result.fit.rmse[n] for n in OUTPUT_NAMES},
         "params": dict(zip(PARAMETER_NAMES, map(float, result.theta), strict=True)),
         "windows": [ch.segment.source for ch in choices],
+        "discrepancy": disc,
     }
     return cal_cfg, summary
 

@@ -9,28 +9,33 @@ only, then run over the whole day so that the held-out part scores it honestly:
 cause              extension (fitted parameter)
 ================== ===========================================================================
 sensor_bias        ``y_c + b`` on one outlet temperature ``c``, the better of the two; ``b``
-                   [K] is the fit-part mean residual (closed form)
+                   [K] by generalised least squares (closed form: the whitening is linear)
 lab_delay          the lab sample times moved by ``delta`` [min] before the model is aligned
-                   to them (grid search, 0.5 min steps within +-90 min; the temperatures are
-                   untouched)
+                   to them (:mod:`softsensor.estimation.lab_alignment`; grid search, 2 min
+                   steps within +-90 min refined to 0.5 min; the temperatures are untouched)
 fouling_drift      ``mult_D`` and ``mult_h`` of every window scaled by ``1 - d t / T`` (``t``
                    from the start, ``T`` the day's length; per-window ``theta`` (K, 7));
                    ``d`` [-] is the loss by the end of the day
 input_lag          the ``T_air_in`` the model sees is the measured one with a first-order
-                   sensor lag of time constant ``tau`` [min] undone at scan resolution: over a
-                   window, ``mean(x + tau dx/dt) = mean(x) + tau (x_end - x_start) / W``
-                   (:attr:`~.windows.DayWindows.air_edges`)
+                   sensor lag of time constant ``tau`` [min] undone: over a window,
+                   ``mean(x + tau dx/dt) = mean(x) + tau (x_end - x_start) / W``
+                   (:attr:`~.windows.DayWindows.air_edges`), and in the sub-window bins a lab
+                   sample sees (:func:`~.windows.delagged_air`)
 ambient_heat_loss  outside heat loss scaled by ``1 + beta (283.15 K - T_amb)``, ``beta``
                    [1/K] (model aux ``BETA_AMB``)
 inlet_moisture     the inlet moisture as an estimated disturbance: the UKF of
-                   :mod:`softsensor.estimation.ukf` on the two outlet temperatures (no lab
-                   results), its random-walk intensity [kg/kg/sqrt(h)] chosen on the fit part;
-                   the model is driven by the estimate *available at the start* of each
-                   window (one-step-ahead prediction)
+                   :mod:`softsensor.estimation.ukf` on the day's windows as the daemon hands
+                   them over, without the lab results, its random-walk intensity
+                   [kg/kg/sqrt(h)] chosen on the fit part; the model is driven by the
+                   estimate *available at the start* of each window (one-step-ahead
+                   prediction)
 ================== ===========================================================================
 
-The continuous parameters are fitted by :func:`_fit_scalar` (Gauss-Newton with secant
-updates: a handful of model runs of the fit part). The inlet-moisture extension is a state
+Every fit minimises the whitened fit-part residuals of :meth:`Problem.chi2
+<softsensor.diagnosis.problem.Problem.chi2>`: what the calibration-error alternative
+(:mod:`.calibration_error`) cannot predict. The continuous parameters are fitted by
+:func:`_fit_scalar` (Gauss-Newton with secant updates: a handful of model runs of the fit
+part). The inlet-moisture extension is a state
 estimator, not a fixed trajectory: a trajectory fitted on the fit part would say nothing about
 the held-out part. Its prediction of window ``k`` uses the temperatures of the windows before
 ``k`` only and never a lab result, so its held-out residuals are as honest as the others'.
@@ -50,10 +55,10 @@ from typing import ClassVar
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
+from softsensor.calibration.dataset import LabPoints
 from softsensor.diagnosis.problem import Prediction, Problem
-from softsensor.diagnosis.windows import DayWindows, lab_sse_by_shift
+from softsensor.diagnosis.windows import delagged_air
 from softsensor.errors import SoftsensorError
-from softsensor.estimation.base import Window
 from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
 from softsensor.estimation.ukf import log as ukf_logger
@@ -61,7 +66,6 @@ from softsensor.model.dryer import parameter_index
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
 
-_T_AIR = INPUT_NAMES.index("T_air_in")
 _M_IN = INPUT_NAMES.index("moisture_in")
 _MULT_D = parameter_index("mult_D")
 _MULT_H = parameter_index("mult_h")
@@ -131,7 +135,7 @@ def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction
     """Least squares in one bounded parameter ``x`` by Gauss-Newton with secant updates.
 
     ``make(x, k_end)`` returns the prediction of the first ``k_end`` windows; ``x = 0`` is the
-    baseline model. The residual vector is the normalised fit-part residuals
+    baseline model. The residual vector is the whitened fit-part residuals
     (:meth:`Problem.fit_residual_vector`). The slope ``J = dr/dx`` starts from a forward
     difference of size ``step`` and is refreshed from each accepted step (secant), so a
     fit costs a few model runs of the fit part (at most ``max_runs``); a step that does not
@@ -149,7 +153,7 @@ def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction
         return r if np.all(np.isfinite(r)) else None
 
     x = 0.0
-    r = problem.fit_residual_vector(problem.prediction(problem.baseline.Y[:k]))
+    r = problem.fit_residual_vector(problem.baseline)
     f = float(r @ r)
     h = step if hi >= step else -step
     r_h = vector(h)
@@ -182,68 +186,101 @@ def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction
 
 
 class SensorOffset(Extension):
-    """``sensor_bias``: a constant offset ``b`` [K] on one outlet temperature sensor."""
+    """``sensor_bias``: a constant offset ``b`` [K] on one outlet temperature sensor.
+
+    The whitening of :mod:`.calibration_error` is linear, so the whitened fit-part residuals
+    are ``v0 - b d`` with ``d`` the whitened unit offset: ``b = <v0, d> / <d, d>`` in closed
+    form. The calibration-error alternative already carries each channel's own slowly
+    varying offset with the size the calibration left; the extension wins where one channel
+    reads off by more than that, and a shift both channels share stays with the
+    alternative's common state."""
 
     cause = "sensor_bias"
 
     def fit(self, problem: Problem) -> Fitted:
         base = problem.baseline
-        r = problem.residuals(base)
+        v0 = problem.fit_residual_vector(base)
         best: Fitted | None = None
         for c, name in enumerate(KELVIN_CHANNELS):
-            rc = r.T[problem.split.fit_windows, c]
-            b = float(np.nanmean(rc)) if np.isfinite(rc).any() else 0.0
-            Y = base.Y.copy()
-            Y[:, c] += b
-            pred = Prediction(Y, base.lab)
+            unit = np.zeros(3)
+            unit[c] = 1.0
+            d = v0 - problem.fit_residual_vector(_offset(base, unit))
+            dd = float(d @ d)
+            b = float(v0 @ d) / dd if dd > 0 else 0.0
+            pred = _offset(base, b * unit)
             chi = problem.chi2(pred)
             if best is None or chi < best.fit_chi2:
                 best = Fitted(self.cause, {"offset_K": b}, self.n_params, pred, chi,
-                              f"{name} reads {b:+.2f} K off the model (offset fitted as the "
-                              f"fit-part mean residual)", channel=name)
+                              f"{name} reads {b:+.2f} K off the model (offset fitted by "
+                              f"generalised least squares on the fit part)", channel=name)
         assert best is not None
         return best
+
+
+def _offset(pred: Prediction, offsets: np.ndarray) -> Prediction:
+    """``pred`` with a constant offset (3,) on each output channel."""
+    o = np.asarray(offsets, float)
+    return Prediction(pred.Y + o, pred.lab + o[2])
 
 
 class LabTimeShift(Extension):
     """``lab_delay``: the lab's stamped sample times are off; move them by ``delta``."""
 
     cause = "lab_delay"
-    #: Shifts searched. [min]
-    grid_min = np.arange(-90.0, 90.0 + 1e-9, 0.5)
-    #: Smallest drop of the fit part's lab chi-square (squared residuals over the lab noise
-    #: level) for which a shift is applied: the chi-square quantile of the verdict's
-    #: significance level (0.001, one degree of freedom). A handful of lab results taken
-    #: where the outlet moisture is flat do not pin a shift, and the grid's best then lands
-    #: anywhere (a fold fitted on eight such results put 84.5 min on a 44 min delay); such a
-    #: shift is noise and is not applied.
+    #: Coarse grid of shifts searched, then refined around its best. [min]
+    grid_min = np.arange(-90.0, 90.0 + 1e-9, 2.0)
+    #: Refinement around the coarse best. [min]
+    refine_min = np.arange(-1.5, 1.5 + 1e-9, 0.5)
+    #: Smallest drop of the fit part's whitened lab chi-square for which a shift is applied:
+    #: the chi-square quantile of the verdict's significance level (0.001, one degree of
+    #: freedom). A handful of lab results taken where the outlet moisture is flat do not pin
+    #: a shift, and the grid's best then lands anywhere (a fold fitted on eight such results
+    #: put 84.5 min on a 44 min delay); such a shift is noise and is not applied.
     min_chi2_drop = float(chi2_dist.isf(1e-3, 1))
+
+    @staticmethod
+    def lab_chi2(problem: Problem, shifts_min: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """For every shift [min], the whitened fit-part lab chi-square and the baseline
+        model's ``moisture_out`` at the moved sample times (S, L), all shifts in one batched
+        model step from the window-start states."""
+        pts = [problem.lab_points(float(m) * 60e9) for m in shifts_min]
+        L = problem.windows.lab_value.size
+        cat = LabPoints(np.concatenate([p.window for p in pts]),
+                        np.concatenate([p.offset for p in pts]),
+                        np.concatenate([p.inputs for p in pts]))
+        values = problem.baseline_labs(cat).reshape(len(pts), L)
+        chi = np.array([problem.lab_chi2(v) for v in values])
+        chi[~np.isfinite(chi)] = np.inf
+        return chi, values
 
     def fit(self, problem: Problem) -> Fitted:
         base = problem.baseline
         fit = problem.split.lab_fit
         if not fit.any():
-            pred = base
-            return Fitted(self.cause, {"shift_min": 0.0}, self.n_params, pred,
-                          problem.chi2(pred), "no lab result in the fit part: shift not fitted")
-        sse = lab_sse_by_shift(problem.windows, base.Y[:, 2], self.grid_min, fit)
-        n_labs = int(fit.sum())
-        i0 = int(np.argmin(np.abs(self.grid_min)))
-        i = int(np.argmin(sse))
-        drop = (sse[i0] - sse[i]) / problem.sigma[2] ** 2
+            return Fitted(self.cause, {"shift_min": 0.0}, self.n_params, base,
+                          problem.chi2(base), "no lab result in the fit part: shift not fitted")
+        chi, values = self.lab_chi2(problem, self.grid_min)
+        i = int(np.argmin(chi))
+        fine = np.clip(self.grid_min[i] + self.refine_min, self.grid_min[0], self.grid_min[-1])
+        chi_f, values_f = self.lab_chi2(problem, fine)
+        j = int(np.argmin(chi_f))
+        chi0 = problem.lab_chi2(base.lab)
+        delta, lab, best = float(fine[j]), values_f[j], float(chi_f[j])
         kept = ""
-        if not drop >= self.min_chi2_drop:
-            kept = (f"; the best shift, {self.grid_min[i]:+.1f} min, lowers the lab "
-                    f"chi-square by only {drop:.1f} (needed: {self.min_chi2_drop:.1f}), so none "
-                    f"is applied")
-            i = i0
-        delta = float(self.grid_min[i])
-        pred = problem.prediction(base.Y, delta * 60e9)
+        if not chi0 - best >= self.min_chi2_drop:
+            kept = (f"; the best shift, {delta:+.1f} min, lowers the whitened lab chi-square by "
+                    f"only {chi0 - best:.1f} (needed: {self.min_chi2_drop:.1f}), so none is "
+                    f"applied")
+            delta, lab = 0.0, base.lab
+        pred = Prediction(base.Y, lab)
+        n = int(fit.sum())
+        r0 = problem.residuals(base).lab[fit]
+        r1 = problem.residuals(pred).lab[fit]
         when = "later" if delta > 0 else "earlier"
         return Fitted(self.cause, {"shift_min": delta}, self.n_params, pred, problem.chi2(pred),
                       f"lab samples were taken {abs(delta):.1f} min {when} than stamped "
-                      f"(fit-part lab RMSE {math.sqrt(sse[i0] / n_labs):.4f} -> "
-                      f"{math.sqrt(sse[i] / n_labs):.4f} kg/kg{kept})")
+                      f"(fit-part lab RMSE {math.sqrt(float(r0 @ r0) / n):.4f} -> "
+                      f"{math.sqrt(float(r1 @ r1) / n):.4f} kg/kg{kept})")
 
 
 class TransferDrift(Extension):
@@ -263,10 +300,8 @@ class TransferDrift(Extension):
         return th
 
     def fit(self, problem: Problem) -> Fitted:
-        U = problem.windows.U
-
         def make(d: float, k_end: int | None) -> Prediction:
-            return problem.predict(U, self.theta(problem, d), k_end=k_end)
+            return problem.predict(theta=self.theta(problem, d), k_end=k_end)
 
         d, chi = _fit_scalar(problem, make, self.bounds, step=0.05, tol=2e-3)
         pred = make(d, None)
@@ -282,17 +317,12 @@ class AirSensorLag(Extension):
     cause = "input_lag"
     bounds_min = (0.0, 45.0)
 
-    def inputs(self, problem: Problem, tau_min: float) -> np.ndarray:
-        """Window inputs with ``T_air_in`` de-lagged (module table). [K]"""
-        w = problem.windows
-        U = w.U.copy()
-        U[:, _T_AIR] += tau_min * 60.0 * np.diff(w.air_edges) / w.window_s
-        U[:, _T_AIR] = np.clip(U[:, _T_AIR], 300.0, 1000.0)
-        return U
-
     def fit(self, problem: Problem) -> Fitted:
+        w = problem.windows
+
         def make(tau: float, k_end: int | None) -> Prediction:
-            return problem.predict(self.inputs(problem, tau), k_end=k_end)
+            U, bins = delagged_air(w.segment, w.air_edges, tau * 60.0)
+            return problem.predict(U, k_end=k_end, labs=problem.lab_points(U=U, bins=bins))
 
         tau, chi = _fit_scalar(problem, make, self.bounds_min, step=2.0, tol=0.05)
         return Fitted(self.cause, {"tau_min": tau}, self.n_params, make(tau, None), chi,
@@ -308,12 +338,10 @@ class AmbientHeatLoss(Extension):
     bounds = (-0.1, 0.6)
 
     def fit(self, problem: Problem) -> Fitted:
-        U = problem.windows.U
-
         def make(beta: float, k_end: int | None) -> Prediction:
             aux = np.zeros(N_AUX)
             aux[BETA_AMB] = beta
-            return problem.predict(U, aux=aux, k_end=k_end)
+            return problem.predict(aux=aux, k_end=k_end)
 
         beta, chi = _fit_scalar(problem, make, self.bounds, step=0.02, tol=5e-4)
         return Fitted(self.cause, {"beta_amb_per_K": beta}, self.n_params, make(beta, None), chi,
@@ -334,28 +362,16 @@ class InletMoistureEstimate(Extension):
         settings = dataclasses.replace(estimator_settings(cfg), moisture_in_walk=walk)
         return UkfEstimator(cfg, settings, model=problem.model)
 
-    def run(self, problem: Problem, ukf: UkfEstimator, k0: int, k1: int) -> np.ndarray:
-        """Tick ``ukf`` over windows ``k0 .. k1-1`` with the outlet temperatures (no labs);
-        return the posterior inlet moisture after each. [kg/kg]"""
-        w = problem.windows
-        out = np.empty(k1 - k0)
+    def run(self, problem: Problem, ukf: UkfEstimator) -> np.ndarray:
+        """Tick ``ukf`` over the day's windows as the daemon hands them over, without the lab
+        results; return the posterior inlet moisture after each (K,). [kg/kg]"""
+        out = np.empty(problem.windows.n_windows)
         with _quiet(ukf_logger):
-            self._ticks(ukf, w, k0, k1, out)
+            nominal = float(problem.config.nominal.moisture_in)
+            for k, w in enumerate(problem.windows.windows):
+                v = ukf.tick(w)["moisture_in"]
+                out[k] = nominal if v is None else float(v)
         return out
-
-    @staticmethod
-    def _ticks(ukf: UkfEstimator, w: DayWindows, k0: int, k1: int, out: np.ndarray) -> None:
-        for i, k in enumerate(range(k0, k1)):
-            means: dict[str, float | None] = {n: float(w.U[k, j])
-                                              for j, n in enumerate(INPUT_NAMES[:-1])}
-            n_good = {n: int(w.n_scans[k]) for n in means}
-            for c, n in enumerate(KELVIN_CHANNELS):
-                v = w.Y[k, c]
-                means[n] = float(v) if np.isfinite(v) else None
-                n_good[n] = int(w.n_good_out[k, c])
-            start = int(w.end_ns[k] - round(w.window_s * 1e9))
-            body = ukf.tick(Window(start, int(w.end_ns[k]), means, int(w.n_scans[k]), n_good))
-            out[i] = body["moisture_in"]
 
     def inputs(self, problem: Problem, m_hat: np.ndarray) -> np.ndarray:
         """Inputs with window ``k`` driven by the estimate after window ``k - 1``."""
@@ -376,8 +392,7 @@ class InletMoistureEstimate(Extension):
         """For every intensity, the estimate over the whole day and the model it drives."""
         out = []
         for walk in self.walks:
-            m_hat = self.run(problem, self.estimator(problem, walk), 0,
-                             problem.windows.n_windows)
+            m_hat = self.run(problem, self.estimator(problem, walk))
             try:
                 out.append((walk, m_hat, problem.predict(self.inputs(problem, m_hat))))
             except SoftsensorError:

@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
-from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted
+from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted, LabTimeShift
 from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Prediction, Problem, choose_split
-from softsensor.diagnosis.residuals import channel_stats, lab_stats
+from softsensor.diagnosis.residuals import LAB_SHIFTS_MIN, channel_stats, lab_stats
 from softsensor.diagnosis.verdict import (
     Score,
     Verdict,
@@ -171,7 +171,8 @@ def summarise(problem: Problem) -> ResidualSummary:
     r = problem.residuals(problem.baseline)
     chans = [channel_stats(name, r.T[:, c], w, problem.sigma[c])
              for c, name in enumerate(KELVIN_CHANNELS)]
-    lab = lab_stats(r.lab, w, problem.baseline.Y[:, 2])
+    _, shifted = LabTimeShift.lab_chi2(problem, LAB_SHIFTS_MIN)
+    lab = lab_stats(r.lab, w, problem.baseline.Y[:, 2], shifted)
     ok = np.isfinite(r.T).all(axis=1)
     a, b = r.T[ok, 0], r.T[ok, 1]
     corr = float(np.corrcoef(a, b)[0, 1]) if ok.sum() > 3 and a.std() > 0 and b.std() > 0 \
@@ -211,7 +212,7 @@ def implausible(cause: str, summary: ResidualSummary) -> str | None:
     return None
 
 
-def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, float] | None = None,
+def diagnose(config: PlantConfig, day: DayLike, *,
              fit_fraction: float = DEFAULT_FIT_FRACTION,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
              model: DryerModel | None = None) -> Diagnosis:
@@ -220,12 +221,12 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
     Parameters
     ----------
     config : PlantConfig
-        Plant config carrying the calibrated parameter values.
+        Plant config carrying the calibrated parameter values and, from the calibration's
+        PARAMS.toml, the ``[discrepancy]`` the calibration left on held-out data: the size of
+        the calibration-error alternative every extension is tested against
+        (:mod:`.calibration_error`; the estimator's defaults without it).
     day : RecordedDay or SimulatedDay
         The day to diagnose (``scans`` and ``labs``; ground truth is never read).
-    calibration_rmse : dict, optional
-        Per-channel RMSE of the calibrated model on its calibration data (``[fit] rmse`` of a
-        PARAMS.toml): a floor under each channel's noise level (:mod:`.problem`).
     fit_fraction : float
         Share of the windows the extensions are fitted on.
     """
@@ -235,10 +236,7 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
     windows = day_windows(day, config, source)
     split = choose_split(windows, fit_fraction)
     lab_std = estimator_settings(config).lab_std
-    floor = None
-    if calibration_rmse:
-        floor = np.array([_num(calibration_rmse.get(n)) or 0.0 for n in OUTPUT_NAMES], float)
-    problem = Problem(config, model, windows, split, model.theta0, lab_std, floor)
+    problem = Problem(config, model, windows, split, model.theta0, lab_std)
     sigma = problem.sigma
     summary = summarise(problem)
     timings["baseline"] = time.perf_counter() - t0
@@ -258,7 +256,7 @@ def diagnose(config: PlantConfig, day: DayLike, *, calibration_rmse: dict[str, f
         timings[f.cause] = time.perf_counter() - t1
         log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
                   scores[f.cause].penalised)
-    struct = structured(summary.channels, summary.lab, sigma)
+    struct = structured(problem)
     v = verdict(list(scores.values()), struct)
     timings["total"] = time.perf_counter() - t0
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,

@@ -3,33 +3,43 @@
 Everything an extension fit or a score needs sits in one :class:`Problem`:
 
 * the calibrated model (``DryerModel`` of the calibrated config) and its parameters ``theta``;
-* the day as model windows (:mod:`.windows`);
+* the day as model windows (:mod:`.windows`), the windows and lab alignment of calibration and
+  the estimator: predictions run :func:`~softsensor.calibration.chunked_run.simulate_span`,
+  window-end outputs against window means and ``moisture_out`` at each lab's sample time;
 * the held-out :class:`Split`: windows ``[0, k_fit)`` and the labs sampled before
   ``split_ns`` are the *fit part*, the rest is *held out*; :meth:`Problem.reversed` is the
   other fold (fit on the late part, hold out the early one). An extension fit sees its fit
   part only; every RMSE, cost and gain in the report is measured on data the fit producing it
   did not see (:func:`~.verdict.cross_fitted`);
-* the noise level of each channel: :func:`noise_levels`, raised to ``sigma_floor`` when given
-  (the calibrated model's RMSE on its calibration data: a model does not fit a new day better
-  than the day it was calibrated on, and the floor keeps calibration error from passing for a
-  cause). It weights the channels in the fit objective :meth:`Problem.chi2` and in the
-  log-likelihoods of :mod:`.verdict`;
+* the white noise level of each channel (:func:`noise_levels`: the fit part's window-to-window
+  scatter of the temperatures, the lab noise), the calibration-error model's measurement
+  noise;
+* the calibration-error alternative (:mod:`.calibration_error`): the estimator's discrepancy
+  states, with the sizes and correlation times of the calibration's ``[discrepancy]``, run
+  through the residuals by a Kalman filter; fits and scores use the whitened residuals it
+  leaves (:meth:`Problem.whitened`), so an extension is judged by what it explains beyond "the
+  calibration is a little off";
 * the baseline prediction: the calibrated open-loop model on the day's measured inputs with the
-  nominal inlet moisture.
+  nominal inlet moisture, as ``validate`` runs it (the report's baseline).
 
 Channels are ``T_dryer_out`` and ``T_cyclone_out`` (window means against the model's
-window-end values, [K]) and ``moisture_out`` (lab results against the model interpolated at the
-stamped sample time, [kg/kg]), in :data:`~softsensor.signals.OUTPUT_NAMES` order.
+window-end values, [K]) and ``moisture_out`` (lab results against the model at the sample
+time, [kg/kg]), in :data:`~softsensor.signals.OUTPUT_NAMES` order.
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from softsensor.diagnosis.windows import MODEL_LAB_STD, DayWindows, lab_model_values
+from softsensor.calibration.chunked_run import lab_values_at, simulate_span, window_start_states
+from softsensor.calibration.dataset import LabPoints
+from softsensor.diagnosis.calibration_error import DiscrepancyModel
+from softsensor.diagnosis.windows import MODEL_LAB_STD, DayWindows
+from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
@@ -126,7 +136,8 @@ class Prediction:
     """Model outputs over the whole day.
 
     ``Y`` (K, 3) are window-end outputs in ``OUTPUT_NAMES`` order; ``lab`` (L,) the model's
-    outlet moisture at the lab sample times the prediction uses (an extension may move them).
+    outlet moisture at the lab sample times the prediction uses (an extension may move them),
+    NaN for a lab beyond a run cut short (``k_end``).
     """
 
     Y: np.ndarray
@@ -144,7 +155,7 @@ class Residuals:
 
 @dataclass
 class Problem:
-    """One diagnosis: model, day, split, noise levels and the baseline prediction."""
+    """One diagnosis: model, day, split, noise levels, the baseline and the reference."""
 
     config: PlantConfig
     model: DryerModel
@@ -152,17 +163,15 @@ class Problem:
     split: Split
     theta: np.ndarray
     lab_noise: float
-    sigma_floor: np.ndarray | None = None
     sigma: np.ndarray = field(init=False)
     baseline: Prediction = field(init=False)
+    discrepancy: DiscrepancyModel = field(init=False)
 
     def __post_init__(self) -> None:
         self.theta = np.asarray(self.theta, float)
-        self.baseline = self.predict(self.windows.U)
+        self.baseline = self.predict()
         self.sigma = noise_levels(self.residuals(self.baseline), self.split, self.lab_noise)
-        if self.sigma_floor is not None:
-            floor = np.asarray(self.sigma_floor, float)
-            self.sigma = np.maximum(self.sigma, np.where(np.isfinite(floor), floor, 0.0))
+        self.discrepancy = DiscrepancyModel.from_config(self.config, self.sigma)
 
     def reversed(self) -> Problem:
         """The same problem with the other fold (:meth:`Split.reversed`): extensions fitted on
@@ -173,30 +182,41 @@ class Problem:
         return other
 
     # ------------------------------------------------------------------ model runs
-    def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
-                 aux: np.ndarray | None = None, k_end: int | None = None) -> np.ndarray:
-        """Model outputs (k_end, 3) for inputs ``U`` from the steady state of window 0."""
-        k_end = self.windows.n_windows if k_end is None else k_end
-        th = self.theta if theta is None else np.asarray(theta, float)
-        if th.ndim == 2:
-            th = th[:k_end]
-        if aux is not None and np.ndim(aux) == 2:
-            aux = aux[:k_end]
-        Y, _ = self.model.simulate(U[:k_end], th, aux=aux)
-        return Y
+    def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None,
+                   bins: np.ndarray | None = None) -> LabPoints:
+        """Where the labs meet the model, their sample times moved by ``shift_ns``, with
+        inputs ``U`` and sub-window ``bins`` (default the day's)."""
+        return self.windows.segment.lab_points(shift_ns, U, bins)
 
-    def predict(self, U: np.ndarray, theta: np.ndarray | None = None,
+    def predict(self, U: np.ndarray | None = None, theta: np.ndarray | None = None,
                 aux: np.ndarray | None = None, k_end: int | None = None,
-                lab_shift_ns: float = 0.0) -> Prediction:
-        """Simulate and look up the lab values (sample times moved by ``lab_shift_ns``)."""
-        Y = self.simulate(U, theta, aux, k_end)
-        return self.prediction(Y, lab_shift_ns)
+                labs: LabPoints | None = None) -> Prediction:
+        """The model over the first ``k_end`` windows (default all) from the steady state of
+        window 0: inputs ``U`` (default the day's; the labs then take theirs from ``U`` too),
+        parameters ``theta`` (7,) or per window (K, 7), extension coefficients ``aux``. Raises
+        :class:`~softsensor.errors.SoftsensorError` when the model fails."""
+        seg = self.windows.segment
+        K = seg.n_windows if k_end is None else int(k_end)
+        if labs is None:
+            labs = seg.default_lab_points() if U is None else seg.lab_points(U=U)
+        th = self.theta if theta is None else np.asarray(theta, float)
+        Y, lab, _ = simulate_span(self.model, seg, th[None], 0, K, None, U=U, aux=aux,
+                                  labs=labs)
+        inside = labs.window < K
+        out = np.full(labs.window.size, np.nan)
+        out[inside] = lab[0]
+        if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(lab))):
+            raise SoftsensorError("the model failed on the day with this extension")
+        return Prediction(Y[0], out)
 
-    def prediction(self, Y: np.ndarray, lab_shift_ns: float = 0.0) -> Prediction:
-        """Wrap outputs ``Y`` (k, 3), k <= K, with lab values at the shifted sample times."""
-        w = self.windows
-        ts = w.lab_time_ns.astype(float) + lab_shift_ns
-        return Prediction(Y, lab_model_values(w.end_ns[:len(Y)], Y[:, 2], w.window_s, ts))
+    @functools.cached_property
+    def start_states(self) -> np.ndarray:
+        """The baseline model's state at the start of every window (K, n_state)."""
+        return window_start_states(self.model, self.windows.segment, self.theta)
+
+    def baseline_labs(self, labs: LabPoints) -> np.ndarray:
+        """The baseline model's ``moisture_out`` at other lab points (moved sample times)."""
+        return lab_values_at(self.model, self.start_states, labs, self.theta)
 
     # ------------------------------------------------------------------ residuals and fit
     def residuals(self, pred: Prediction) -> Residuals:
@@ -204,21 +224,9 @@ class Problem:
         k = len(pred.Y)
         return Residuals(self.windows.Y[:k] - pred.Y[:, :2], self.windows.lab_value - pred.lab)
 
-    def chi2(self, pred: Prediction) -> float:
-        """Fit objective: squared residuals over the fit part, each channel divided by its
-        noise level (a weighted least-squares cost; the paper's eq. 4 is used for scores)."""
-        return float(self.chi2_channels(pred).sum())
-
-    def chi2_channels(self, pred: Prediction) -> np.ndarray:
-        """The fit objective per channel (3,), ``OUTPUT_NAMES`` order."""
-        r = self.residuals(pred)
-        T = r.T[self.split.fit_windows] / self.sigma[:2]
-        lab = r.lab[self.split.lab_fit] / self.sigma[2]
-        return np.array([np.nansum(T[:, 0] ** 2), np.nansum(T[:, 1] ** 2), np.sum(lab**2)])
-
     def fit_part(self, pred: Prediction) -> list[np.ndarray]:
-        """Fit-part residuals per channel (NaN windows dropped): two temperature arrays [K]
-        and the lab array [kg/kg]."""
+        """Fit-part residuals per channel (NaN dropped): two temperature arrays [K] and the
+        lab array [kg/kg]."""
         r = self.residuals(pred)
         w = self.split.fit_windows
         parts = [r.T[w, 0], r.T[w, 1], r.lab[self.split.lab_fit]]
@@ -231,12 +239,49 @@ class Problem:
         parts = [r.T[w, 0], r.T[w, 1], r.lab[self.split.lab_held]]
         return [p[np.isfinite(p)] for p in parts]
 
-    def fit_residual_vector(self, pred: Prediction) -> np.ndarray:
-        """The normalised fit-part residuals as one vector (for ``least_squares``)."""
+    def whitened(self, pred: Prediction, part: str = "fit") -> list[np.ndarray]:
+        """``pred``'s residuals through the calibration-error alternative
+        (:class:`~.calibration_error.DiscrepancyModel`): the whitened one-step prediction
+        errors per channel (NaN dropped), over the fit part (``"fit"``, the filter started at
+        its first window), the held-out part (``"held"``) or the whole day (``"all"``)."""
         r = self.residuals(pred)
-        T = (r.T[self.split.fit_windows] / self.sigma[:2]).ravel()
-        lab = r.lab[self.split.lab_fit] / self.sigma[2]
-        return np.concatenate([T[np.isfinite(T)], lab])
+        K = len(pred.Y)
+        if part == "fit":
+            w, labs = self.split.fit_windows, self.split.lab_fit
+        elif part == "held":
+            w, labs = self.split.held_windows, self.split.lab_held
+        elif part == "all":
+            w, labs = slice(0, K), np.ones(r.lab.size, bool)
+        else:
+            raise ValueError(f"part must be fit, held or all, not {part!r}")
+        wT = self.discrepancy.whiten_temperatures(r.T[w])
+        t_s = (self.windows.lab_time_ns[labs] - self.windows.start_ns) / 1e9
+        wl = self.discrepancy.whiten_labs(r.lab[labs], t_s)
+        parts = [wT[:, 0], wT[:, 1], wl]
+        return [p[np.isfinite(p)] for p in parts]
+
+    def lab_chi2(self, lab: np.ndarray) -> float:
+        """Sum of squared whitened fit-part lab residuals of model values ``lab`` (L,) (the
+        lab channel's part of :meth:`chi2`); infinite when a value is missing."""
+        r = self.windows.lab_value - np.asarray(lab, float)
+        keep = self.split.lab_fit
+        if not np.all(np.isfinite(r[keep])):
+            return float("inf")
+        t_s = (self.windows.lab_time_ns[keep] - self.windows.start_ns) / 1e9
+        w = self.discrepancy.whiten_labs(r[keep], t_s)
+        return float(w @ w)
+
+    def fit_residual_vector(self, pred: Prediction) -> np.ndarray:
+        """The whitened fit-part residuals of ``pred`` as one vector (generalised least
+        squares under the calibration-error alternative; its squared norm is :meth:`chi2`)."""
+        return np.concatenate(self.whitened(pred, "fit"))
+
+    def chi2(self, pred: Prediction) -> float:
+        """Fit objective: the sum of squared whitened fit-part residuals, minus twice the
+        log-likelihood of the calibration-error alternative up to a constant (the paper's
+        eq. 4 is used for scores)."""
+        r = self.fit_residual_vector(pred)
+        return float(r @ r)
 
 
 def noise_levels(res: Residuals, split: Split, lab_noise: float) -> np.ndarray:

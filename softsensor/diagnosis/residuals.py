@@ -33,7 +33,7 @@ import numpy as np
 from scipy import stats
 
 from softsensor.calibration.identifiability import lag1_autocorrelation as lag1
-from softsensor.diagnosis.windows import DayWindows, lab_model_values, lab_sse_by_shift
+from softsensor.diagnosis.windows import DayWindows
 from softsensor.signals import INPUT_NAMES
 
 #: Lags of the Ljung-Box test.
@@ -43,7 +43,7 @@ MAX_XCORR_LAG = 3
 #: Fewest windows on either side of a change point.
 MIN_SEGMENT = 6
 #: Lab time shifts scanned. [min]
-LAB_SHIFTS_MIN = np.arange(-90.0, 90.0 + 1e-9, 1.0)
+LAB_SHIFTS_MIN = np.arange(-90.0, 90.0 + 1e-9, 2.0)
 
 
 @dataclass(frozen=True)
@@ -208,19 +208,23 @@ def channel_stats(name: str, r: np.ndarray, windows: DayWindows, noise: float
                         xrate, amb, t_amb, c_h)
 
 
-def lab_stats(r: np.ndarray, windows: DayWindows, y_model: np.ndarray) -> LabStats:
-    """Statistics of the lab residuals ``r`` (L,) of the model's outlet moisture ``y_model``
-    (K,) of every window at the stamped sample times."""
+def lab_stats(r: np.ndarray, windows: DayWindows, y_model: np.ndarray,
+              shifted: np.ndarray) -> LabStats:
+    """Statistics of the lab residuals ``r`` (L,) of the model's outlet moisture: ``y_model``
+    (K,) of every window gives its rate of change, ``shifted`` (S, L) the model at the sample
+    times moved by each of :data:`LAB_SHIFTS_MIN`."""
     n = int(r.size)
     if n == 0:
         return LabStats(0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    t = windows.lab_time_ns.astype(float)
     slope = _slope(windows.lab_hours, r, n)[0] if n >= 3 else 0.0
     rate = np.gradient(y_model, windows.window_s / 3600.0)  # kg/kg per h
-    rate_at = lab_model_values(windows.end_ns, rate, windows.window_s, t)
+    # the rate at a sample time: each window's value stands at its centre
+    centres = windows.end_ns.astype(float) - 0.5 * windows.window_s * 1e9
+    rate_at = np.interp(windows.lab_time_ns.astype(float), centres, rate)
     corr = (float(np.corrcoef(r, rate_at)[0, 1])
             if n >= 3 and np.std(r) > 0 and np.std(rate_at) > 0 else 0.0)
-    rmse = np.sqrt(lab_sse_by_shift(windows, y_model, LAB_SHIFTS_MIN) / n)
+    rmse = np.sqrt(np.mean((windows.lab_value[None, :] - shifted) ** 2, axis=1))
+    rmse = np.where(np.isfinite(rmse), rmse, np.inf)
     i = int(np.argmin(rmse))
     return LabStats(n, float(r.mean()), float(np.sqrt(np.mean(r**2))), slope, corr,
                     float(LAB_SHIFTS_MIN[i]), float(rmse[i]))
