@@ -98,14 +98,9 @@ class DiscrepancyModel:
         """Whitened one-step prediction errors (n, 2) of temperature residuals ``r`` (n, 2)
         of consecutive windows, NaN where a residual is missing. The filter starts from the
         stationary distribution; each window's two measurements update it in turn."""
-        return self._temperature_filter(r)[0]
+        return self._temperature_filter(r)
 
-    def tracked(self, r: np.ndarray) -> np.ndarray:
-        """The filter's one-step prediction of the temperature residuals (n, 2): what the
-        calibration-error alternative expects of each window from the windows before it."""
-        return self._temperature_filter(r)[1]
-
-    def _temperature_filter(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _temperature_filter(self, r: np.ndarray) -> np.ndarray:
         a = np.exp(-self.window_s / self.tau[:3])
         s2 = self.sigma[:3] ** 2
         q = np.diag(s2 * (1.0 - a**2))
@@ -113,12 +108,10 @@ class DiscrepancyModel:
         x = np.zeros(3)
         P = np.diag(s2)
         white = np.full(r.shape, np.nan)
-        pred = np.empty(r.shape)
         for k in range(r.shape[0]):
             if k:
                 x = a * x
                 P = a[:, None] * P * a[None, :] + q
-            pred[k] = _H @ x
             for c in range(2):
                 y = r[k, c]
                 if not math.isfinite(y):
@@ -131,7 +124,7 @@ class DiscrepancyModel:
                 gain = Ph / S
                 x = x + gain * nu
                 P = P - np.outer(gain, Ph)
-        return white, pred
+        return white
 
     def whiten_labs(self, r: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """Whitened one-step prediction errors (m,) of lab residuals ``r`` at sample times

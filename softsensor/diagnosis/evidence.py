@@ -93,9 +93,10 @@ def score_text(fitted: Fitted, sc: Score) -> str:
     text = (f"fitted: {fitted.description}. Held out, each part of the day predicted by the "
             f"fit on the other part ({b.n['T_dryer_out']} windows, {b.n['moisture_out']} lab "
             f"results): RMSE {rm}; cost {b.cost:.4f} -> {e.cost:.4f} (gain {sc.gain:+.3f}; "
-            f"on the last part alone {sc.split_gain:+.3f}); on the last part, log-likelihood "
-            f"gain {ll}, penalised for {sc.n_params} parameter(s) {sc.penalised:+.1f}; "
-            f"likelihood ratio {sc.lr:.1f} (p = {sc.p_value:.2g})")
+            f"on the last part alone {sc.split_gain:+.3f}); against the calibration error "
+            f"(whitened, whole day), log-likelihood gain {ll}, penalised for {sc.n_params} "
+            f"parameter(s) {sc.penalised:+.1f}; likelihood ratio {sc.lr:.1f} "
+            f"(p = {sc.p_value:.2g})")
     why = sc.why_not()
     return text + (f". Not eligible: {why}" if why else ". Eligible")
 

@@ -20,8 +20,8 @@ by the fold that was not fitted on it (:func:`cross_fitted`). :func:`score` meas
   ``k`` degrees of freedom;
 * the reported numbers (CONTRACT section 5): per channel the cross-fitted RMSE of the baseline
   and of the extension and the paper's cost (eq. 4, weights from the config's ``[cost]``) of
-  each, ``gain = 1 - extended_cost / baseline_cost``; the relative RMSE reduction and the
-  explained RMS in noise levels per channel, for the evidence.
+  each, ``gain = 1 - extended_cost / baseline_cost``, and per channel the relative RMSE
+  reduction (:attr:`Score.relative`).
 
 An extension is *eligible* (:func:`verdict`) when
 
@@ -52,6 +52,7 @@ unextended model (``P = 0``); an ineligible extension scores 0.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -115,23 +116,14 @@ class Score:
     worse: tuple[str, ...]
     lr: float
     p_value: float
-    relative: dict[str, float]
-    explained: dict[str, float]
 
     @property
-    def best_explained(self) -> float:
-        """Largest whole-day RMS the extension explains on a channel, in noise levels."""
-        return _best(self.explained)
-
-    @property
-    def held_out_loglik(self) -> float:
-        """Whitened log-likelihood gain summed over the channels (not penalised)."""
-        return float(sum(self.loglik.values()))
-
-    @property
-    def best_relative(self) -> float:
-        """Largest whole-day RMSE reduction over the channels (0 when none improves)."""
-        return _best(self.relative)
+    def relative(self) -> dict[str, float]:
+        """Per channel, the cross-fitted RMSE reduction over the day, ``1 - extended /
+        baseline`` (NaN for a channel without samples or residual)."""
+        return {n: 1.0 - self.extended.rmse[n] / self.baseline.rmse[n]
+                if self.baseline.n[n] and self.baseline.rmse[n] > 0 else float("nan")
+                for n in OUTPUT_NAMES}
 
     @property
     def eligible(self) -> bool:
@@ -157,15 +149,9 @@ class Score:
         return "; ".join(reasons) if reasons else None
 
 
-def _best(per_channel: dict[str, float]) -> float:
-    """Largest finite value over the channels, at least 0."""
-    return max([0.0, *(v for v in per_channel.values() if math.isfinite(v))])
-
-
-def held_out(problem: Problem, pred: Prediction) -> tuple[Fit, list[np.ndarray]]:
-    """Held-out RMSE per channel and eq. 4 cost of ``pred``; also the residual arrays."""
-    parts = problem.held_out_part(pred)
-    return _eq4(problem, parts), parts
+def held_out(problem: Problem, pred: Prediction) -> Fit:
+    """Held-out RMSE per channel and eq. 4 cost of ``pred`` (first fold)."""
+    return _eq4(problem, problem.held_out_part(pred))
 
 
 def _eq4(problem: Problem, parts: list[np.ndarray]) -> Fit:
@@ -202,9 +188,7 @@ def score(problem: Problem, fitted: Fitted, other_fold: Fitted) -> Score:
     """Score ``fitted`` (fitted on the fit part) with ``other_fold`` (the same extension
     fitted on the held-out part) against the calibration-error alternative (module
     docstring)."""
-    sigma = problem.sigma
-    base, rb = held_out(problem, problem.baseline)
-    ext, re = held_out(problem, fitted.prediction)
+    base, ext = held_out(problem, problem.baseline), held_out(problem, fitted.prediction)
     cv_pred = cross_fitted(problem, fitted.prediction, other_fold.prediction)
     cv_base, cv_ext = whole_day(problem, problem.baseline), whole_day(problem, cv_pred)
     wb = problem.whitened(problem.baseline, "all")
@@ -213,31 +197,17 @@ def score(problem: Problem, fitted: Fitted, other_fold: Fitted) -> Score:
                    for c in range(len(OUTPUT_NAMES))])
     loglik = {name: float(ll[c]) for c, name in enumerate(OUTPUT_NAMES)}
     limit = max(WORSE, WORSE_SHARE * float(np.clip(ll, 0.0, None).sum()))
-    relative, explained = _size(_day_parts(problem, problem.baseline),
-                                _day_parts(problem, cv_pred), sigma)
-    rel = {c: relative[c] if math.isfinite(relative[c]) else 0.0 for c in OUTPUT_NAMES}
+    lr = max(2.0 * float(ll.sum()), 0.0)
+    p_value = float(chi2_dist.sf(lr, fitted.n_params))
+    sc = Score(fitted.cause, fitted.channel, fitted.n_params, cv_base, cv_ext,
+               _gain(cv_base, cv_ext), base, ext, _gain(base, ext), loglik,
+               float(ll.sum() - fitted.n_params), (), float(lr), p_value)
+    rel = {c: v if math.isfinite(v) else 0.0 for c, v in sc.relative.items()}
     # a channel whose RMSE falls is not made worse by a whitened fit that is noisier on its
     # fast part (the inlet-moisture filter's estimate jitters from window to window)
     worse = tuple(c for c in OUTPUT_NAMES
                   if (loglik[c] < -limit and rel[c] < 0.0) or rel[c] < -WORSE_GROWTH)
-    lr = max(2.0 * float(ll.sum()), 0.0)
-    p_value = float(chi2_dist.sf(lr, fitted.n_params))
-    del rb, re
-    return Score(fitted.cause, fitted.channel, fitted.n_params, cv_base, cv_ext,
-                 _gain(cv_base, cv_ext), base, ext, _gain(base, ext), loglik,
-                 float(ll.sum() - fitted.n_params), worse, float(lr), p_value, relative,
-                 explained)
-
-
-def _size(base: list[np.ndarray], ext: list[np.ndarray],
-          sigma: np.ndarray) -> tuple[dict[str, float], dict[str, float]]:
-    """Per channel, the relative RMSE reduction and the explained RMS in noise levels."""
-    relative, explained = {}, {}
-    for c, n in enumerate(OUTPUT_NAMES):
-        sb, se, m = float(np.sum(base[c] ** 2)), float(np.sum(ext[c] ** 2)), base[c].size
-        relative[n] = 1.0 - math.sqrt(se / sb) if sb > 0 else float("nan")
-        explained[n] = (math.sqrt(max(sb - se, 0.0) / m) / sigma[c]) if m else float("nan")
-    return relative, explained
+    return dataclasses.replace(sc, worse=worse)
 
 
 def structured(problem: Problem) -> str | None:

@@ -117,17 +117,6 @@ class DayWindows:
         return self.segment.lab_id
 
     @property
-    def n_scans(self) -> np.ndarray:
-        """Scans in each window (K,)."""
-        return np.array([w.n_scans for w in self.windows], dtype=np.int64)
-
-    @property
-    def n_good_out(self) -> np.ndarray:
-        """Good scans of the two outlet temperatures in each window (K, 2)."""
-        return np.array([[w.n_good.get(n, 0) for n in KELVIN_CHANNELS] for w in self.windows],
-                        dtype=np.int64)
-
-    @property
     def hours(self) -> np.ndarray:
         """Window end times in hours from the start. [h]"""
         return (self.end_ns - self.start_ns) / 3.6e12
