@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from softsensor.calibration.dataset import load_segment
-from softsensor.calibration.identifiability import identify
+from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
 from softsensor.calibration.params_file import params_document, read_fit, write_params
 from softsensor.calibration.pipeline import (
@@ -267,7 +267,8 @@ def identify_main(args: argparse.Namespace) -> int:
         importance = parameter_importance(study, args.importance)
     print(identifiability_table(ident, config, importance))
     print(f"\nweighted FIM (Table 3 form) condition number {ident.condition_number:.3g} "
-          f"(the paper's: 584); identifiable: {', '.join(ident.identifiable) or 'none'}; "
+          f"(the paper's: {PAPER_CONDITION_NUMBER:.0f}); identifiable: "
+          f"{', '.join(ident.identifiable) or 'none'}; "
           f"poorly identifiable: {', '.join(ident.poorly_identifiable) or 'none'}")
     doc = {
         "windows": [c.reason for c in choices],
@@ -279,7 +280,7 @@ def identify_main(args: argparse.Namespace) -> int:
                               "profile_rise": v.rise,
                               "reason": v.reason} for v in ident.verdicts},
         "fim": ident.fim.tolist(), "fim_condition_number": ident.condition_number,
-        "paper_condition_number": 584.2,
+        "paper_condition_number": PAPER_CONDITION_NUMBER,
         "fim_eigenvalues": ident.eigenvalues.tolist(),
         "fim_eigenvectors": ident.eigenvectors.tolist(),
         "correlation": ident.correlation.tolist(), "noise": ident.noise.tolist(),

@@ -75,6 +75,9 @@ STRONG_CORRELATION = 0.9
 #: Noise floors of the statistical FIM [K, K, kg/kg].
 NOISE_FLOOR = np.array([0.01, 0.01, 1e-4])
 
+#: Condition number of the weighted FIM in the paper's Table 3, printed beside ours.
+PAPER_CONDITION_NUMBER = 584.2
+
 
 @dataclass(frozen=True)
 class Sensitivities:

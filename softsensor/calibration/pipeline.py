@@ -40,6 +40,7 @@ from softsensor.calibration.cost import ModelRun, weighted_rmse
 from softsensor.calibration.dataset import Segment, load_segment
 from softsensor.calibration.disturbance import InletPrior
 from softsensor.calibration.identifiability import (
+    PAPER_CONDITION_NUMBER,
     Identifiability,
     Sensitivities,
     identify,
@@ -396,7 +397,7 @@ class CalibrationResult:
                 "identifiable": ident.identifiable,
                 "poorly_identifiable": ident.poorly_identifiable,
                 "fim_condition_number": min(ident.condition_number, 1e300),
-                "paper_condition_number": 584.2,
+                "paper_condition_number": PAPER_CONDITION_NUMBER,
             }
         return out
 
@@ -434,7 +435,7 @@ class CalibrationResult:
             ident = self.identifiability
             out["identifiability"] = {
                 "fim_condition_number": ident.condition_number,
-                "paper_condition_number": 584.2,
+                "paper_condition_number": PAPER_CONDITION_NUMBER,
                 **{v.name: {"verdict": v.verdict, "relative_se": v.relative_se,
                             "profile_rise": v.rise, "reason": v.reason}
                    for v in ident.verdicts}}

@@ -14,7 +14,11 @@ import numpy as np
 
 from softsensor.calibration import figures
 from softsensor.calibration.cost import Fit, weighted_rmse
-from softsensor.calibration.identifiability import Identifiability, Sensitivities
+from softsensor.calibration.identifiability import (
+    PAPER_CONDITION_NUMBER,
+    Identifiability,
+    Sensitivities,
+)
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
@@ -78,7 +82,8 @@ def identifiability_sections(ident: Identifiability, config: PlantConfig,
            "a s.e. of at most 7.5 % and a rise of at least 2."),
         ("Weighted Fisher information (paper's Table 3 form, ln θ)",
          matrix_table(ident.fim)
-         + f"\n\nCondition number {ident.condition_number:.3g} (the paper's Table 3: 584). "
+         + f"\n\nCondition number {ident.condition_number:.3g} (the paper's Table 3: "
+           f"{PAPER_CONDITION_NUMBER:.0f}). "
            "Least informed directions:\n" + weak),
         ("Parameter correlation matrix", matrix_table(ident.correlation, "{:+.2f}")),
     ]
