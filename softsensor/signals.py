@@ -1,4 +1,5 @@
-"""Names fixed by ``shared/CONTRACT.md``: signals, topics, Zenoh keys, diagnosis causes.
+"""Names fixed by ``docs/interface.md`` (cited as "CONTRACT section N"): signals, topics, Zenoh
+keys, diagnosis causes.
 
 Everything inside the program is SI: temperatures in K, flows in kg/s, humidity ratios and
 moistures in kg/kg (dry basis), ``flap_cmd`` in percent.

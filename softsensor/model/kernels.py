@@ -1,6 +1,6 @@
 """Compiled kernels of the dryer model: cell balances, the quasi-steady profile, the wall step.
 
-Formulation (see ``shared/MODEL.md`` and the paper's section 2)
+Formulation (see ``docs/model.md`` and the paper's section 2)
 ----------------------------------------------------------------
 The tube is ``n_d`` finite volumes, upwind in the flow direction, followed by ``n_c`` lumped
 cyclone cells in series. Each cell has five states: fibre moisture ``X`` and temperature
