@@ -77,7 +77,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "Y = Yp + m_f / m_a * (Xp - X)", "Y = Yp + 0.99 * m_f / m_a * (Xp - X)", T_BAL),
     Mutation("tube evaporation rate loses its driving force's sign", KER,
              "R = theta[K_D] * alpha * K_c * rho * a_dx * drive  # eq. 2",
-             "R = theta[K_D] * alpha * K_c * rho * a_dx * abs(drive)  # eq. 2", T_MOL),
+             "R = theta[K_D] * alpha * K_c * rho * a_dx * abs(drive)  # eq. 2", T_BAL),
     Mutation("wall step: Crank-Nicolson made explicit on the right", KER,
              "rhs[i] = C / dt * Tw[i] - 0.5 * KT + b", "rhs[i] = C / dt * Tw[i] - KT + b",
              T_MOL),

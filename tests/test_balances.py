@@ -117,3 +117,16 @@ def test_physical_profile(model):
     assert np.all(p["Y_a"] < ha.y_sat(p["T_a"], model.config.environment.pressure))
     assert 339.0 < p["T_a"][n_d - 1] < 361.0  # 66 to 88 °C
     assert 0.06 < p["X_f"][-1] < 0.16
+
+
+def test_humid_air_condenses_on_cold_wet_fibre(model):
+    """The tube's evaporation follows the sign of its driving force: air more humid than
+    saturation at the fibre surface gives water to fibre that is far above equilibrium (a
+    rate taken by magnitude would dry it)."""
+    geo, theta = model.geometry.packed, model.theta0
+    P = geo[kernels.P]
+    Tf, Ta = 300.0, 420.0
+    wet = ha.y_sat(Tf, P)
+    R_cond, *_ = kernels.cell_rates(0, 1.0, Tf, 1.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    R_evap, *_ = kernels.cell_rates(0, 1.0, Tf, 0.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    assert R_cond < 0.0 < R_evap
