@@ -4,7 +4,12 @@
 #   docker build -t softsensor .
 #   docker run -d --name softsensor -v /etc/softsensor:/config:ro -v softsensor-data:/data \
 #       -p 127.0.0.1:7447:7447 softsensor --config /config/dryer1.toml --plc 10.0.0.20:502
-FROM python:3.11-slim
+#
+# BASE: any image with Python >= 3.11 whose `pip` and `python` are on PATH (the public slim
+# image by default; tests/test_dockerfile.py builds from a local Debian base where Docker Hub
+# is out of reach).
+ARG BASE=python:3.11-slim
+FROM ${BASE}
 
 ENV PYTHONDONTWRITEBYTECODE=1 \
     PYTHONUNBUFFERED=1 \

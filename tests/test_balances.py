@@ -4,7 +4,9 @@ At steady state, summing the cell balances of the tube and the cyclone (kernels 
 docstring) must give: water in (fibre plus air) = water out, and enthalpy in = enthalpy out +
 heat through the walls; at a steady wall that heat equals what the walls lose to ambient.
 Enthalpies are recomputed here from the profiles with the property functions, independently
-of how the kernels march.
+of how the kernels march. The README's claim, checked at that tolerance: water and energy close
+to 1e-15 of what flows in (measured up to 6.4e-16 and 3.5e-16), and at a steady wall the loss
+to ambient equals the heat the walls take to 1e-13 (measured up to 5.3e-14).
 """
 
 from __future__ import annotations
@@ -15,6 +17,11 @@ import pytest
 from softsensor.model import DryerModel, kernels
 from softsensor.model import humid_air as ha
 from softsensor.model import wood as wd
+
+#: README, The model: closure relative to the water and enthalpy flowing in, and of the wall's
+#: steady heat loss against the heat it takes from the air.
+CLOSURE = 1e-15
+WALL_CLOSURE = 1e-13
 
 POINTS = {
     "nominal": {},
@@ -54,7 +61,7 @@ def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
 @pytest.mark.parametrize("point", sorted(POINTS))
 def test_water_closes(model, point):
     b = _budget(model, model.nominal_inputs(**POINTS[point]), model.theta0)
-    assert b["water_out"] == pytest.approx(b["water_in"], rel=1e-6)
+    assert b["water_out"] == pytest.approx(b["water_in"], rel=CLOSURE, abs=0)
     # the check has teeth: the fibre really dried, the air really took the water
     assert b["evaporated"] > 0.3 * model.nominal_inputs(**POINTS[point])[kernels.U_MFIB]
 
@@ -65,20 +72,23 @@ def test_energy_closes_counting_the_wall_heat_loss(model, point):
     # energy in = energy out + heat through the walls, to 0.5 % of the energy that flows
     assert b["energy_in"] - b["energy_out"] == pytest.approx(
         b["wall_in"], abs=5e-3 * b["energy_in"])
-    # in fact to solver round-off: the march conserves enthalpy cell by cell
-    assert b["energy_in"] - b["energy_out"] == pytest.approx(b["wall_in"], rel=1e-6)
+    # in fact to round-off of the enthalpy flow: the march conserves enthalpy cell by cell
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(
+        b["wall_in"], rel=0, abs=CLOSURE * b["energy_in"])
     # the wall loss is real (a bare 55 m tube and two cyclones lose 100 kW to 1 MW) ...
     assert 1e5 < b["wall_in"] < 1e6
     # ... and at a steady wall it all leaves to ambient (axial conduction only moves it)
-    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=1e-6)
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=WALL_CLOSURE, abs=0)
 
 
 def test_balances_close_with_other_parameters_and_the_ambient_extension(model):
     theta = model.theta0 * np.array([2.0, 0.5, 0.5, 3.0, 2.5, 4.0, 0.3])
     b = _budget(model, model.nominal_inputs(T_amb=265.0), theta, aux=np.array([0.02]))
-    assert b["water_out"] == pytest.approx(b["water_in"], rel=1e-6)
-    assert b["energy_in"] - b["energy_out"] == pytest.approx(b["wall_in"], rel=1e-6)
-    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=1e-6)
+    assert b["water_out"] == pytest.approx(b["water_in"], rel=CLOSURE, abs=0)
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(
+        b["wall_in"], rel=0, abs=CLOSURE * b["energy_in"])
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=WALL_CLOSURE, abs=0)
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=WALL_CLOSURE, abs=0)
 
 
 def test_each_cell_conserves_water_and_energy(model):
@@ -107,3 +117,16 @@ def test_physical_profile(model):
     assert np.all(p["Y_a"] < ha.y_sat(p["T_a"], model.config.environment.pressure))
     assert 339.0 < p["T_a"][n_d - 1] < 361.0  # 66 to 88 °C
     assert 0.06 < p["X_f"][-1] < 0.16
+
+
+def test_humid_air_condenses_on_cold_wet_fibre(model):
+    """The tube's evaporation follows the sign of its driving force: air more humid than
+    saturation at the fibre surface gives water to fibre that is far above equilibrium (a
+    rate taken by magnitude would dry it)."""
+    geo, theta = model.geometry.packed, model.theta0
+    P = geo[kernels.P]
+    Tf, Ta = 300.0, 420.0
+    wet = ha.y_sat(Tf, P)
+    R_cond, *_ = kernels.cell_rates(0, 1.0, Tf, 1.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    R_evap, *_ = kernels.cell_rates(0, 1.0, Tf, 0.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    assert R_cond < 0.0 < R_evap

@@ -4,28 +4,36 @@ the command line: calibrate on one day, validate on another (different seed), id
 The matched plant (the model itself) with known parameters, calibrated with the likelihood
 cost and no prior (the cost that weighs each channel by its noise; eq. 4 is dominated by the
 lab channel, whose noise the inlet trajectory fitted to the labs absorbs, and leaves the
-temperatures free). What must hold: the calibrated eq. 4 cost is at most 1.5 times the cost
-at the true values on the same data; every parameter the analysis calls identifiable is
-within 15 % of the truth; the cyclone pair (mult_C, hm_cyc, which act only through their
-product) and mult_k are reported as poorly identifiable; on the other day, with the inlet
-moisture fitted to the temperatures only, the eq. 4 cost is at most 3 times (24 h, 40 trials:
-the poorly identified cyclone pair may sit at a bound) or 1.5 times (48 h, 200 trials) the
-true parameters' cost there; PARAMS.toml loads into the plant config. The fast test uses a
-24 h day and 40 trials; the slow one the paper's setting, a 48 h day and 200 trials.
+temperatures free). What must hold: the data term of the calibration's cost at its result
+is at most 1.25 times the same term at the true values, scored by the same function on the
+same windows (the held-out tail cut off, the inlet trajectory fitted to the labs); every
+parameter the analysis calls identifiable is within 15 % of the truth; the cyclone pair
+(mult_C, hm_cyc, which act only through their product) and mult_k are reported as poorly
+identifiable; on the other day, with the inlet moisture fitted to the temperatures only, the
+eq. 4 cost is at most 3 times (24 h, 40 trials: the poorly identified cyclone pair may sit at
+a bound) or 1.5 times (48 h, 200 trials) the true parameters' cost there; PARAMS.toml loads
+into the plant config. The fast test uses a 24 h day and 40 trials; the slow one the paper's
+setting, a 48 h day and 200 trials.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
-from softsensor.calibration.chunked_run import simulate_segments
-from softsensor.calibration.cost import evaluate_fit
+from softsensor.calibration.chunked_run import evaluate_parameters
 from softsensor.calibration.dataset import load_segment
 from softsensor.calibration.params_file import read_fit
-from softsensor.calibration.pipeline import objective_spec, validate
+from softsensor.calibration.pipeline import (
+    DataSelection,
+    load_segments,
+    objective_spec,
+    split_holdout,
+    validate,
+)
 from softsensor.calibration.settings import calibration_settings
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
@@ -38,7 +46,7 @@ TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1
 
 
 def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: bool,
-             val_factor: float):
+             val_factor: float, cost_factor: float):
     config = load_plant_config()
     truth_cfg = config.with_parameters(TRUTH)
     cal = simulate_day(truth_cfg, hours, seed=seed).write(tmp_path / "cal.mcap")
@@ -51,16 +59,22 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
     assert cli_main(argv) == 0
     summary = json.loads(capsys.readouterr().out)
 
-    # the cost at the true values, on the same calibration data
-    seg = load_segment(cal, config)
+    # the truth scored exactly as the calibration scored its result: the same window
+    # selection, the same held-out tail cut off, the same objective (likelihood, no prior,
+    # the inlet trajectory fitted to the labs), the same data term
     model = DryerModel(config)
-    truth_cost = evaluate_fit(simulate_segments(model, [seg], truth_cfg.parameter_vector()),
-                              [seg], config.cost.weights())[0].cost
+    calibration = dataclasses.replace(calibration_settings(config), cost="likelihood",
+                                      prior=False)
+    segments, _ = load_segments([cal], config, DataSelection(window_hours=hours))
+    fit_segs, _ = split_holdout(segments, calibration.holdout_fraction)
+    spec = objective_spec(model, fit_segs, config, calibration)
+    truth_ev = evaluate_parameters(model, fit_segs, truth_cfg.parameter_vector(), spec)[0]
     fit = read_fit(params)
+    assert fit["windows"] == [seg.source for seg in fit_segs]
     assert fit["cost"] == pytest.approx(summary["cost"])
-    # the likelihood fits the inlet moisture to the labs, eq. 4 scores the fit: within 1.5x
-    # of the truth's eq. 4 cost on the same data
-    assert fit["cost"] <= 1.5 * truth_cost, (fit["cost"], truth_cost)
+    # the data term the fit leaves is the truth's within cost_factor (24 h, 40 trials, seed
+    # 21: 0.0219 against the truth's 0.0184, 1.19x)
+    assert fit["cost"] <= cost_factor * truth_ev.fit.cost, (fit["cost"], truth_ev.fit.cost)
     assert fit["cost"] < 0.6 * fit["cost_at_current"]  # the defaults are far off
 
     # identifiability: what is called identifiable is within 15 %, the rest is said so
@@ -95,7 +109,7 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
 
 def test_recovery_24h(tmp_path, capsys):
     summary, verdicts, calibrated = _recover(tmp_path, capsys, 24.0, 40, seed=21, report=True,
-                                             val_factor=3.0)
+                                             val_factor=3.0, cost_factor=1.25)
     page = (tmp_path / "report" / "index.md").read_text()
     for fig in ("fig2_sensitivity.png", "fig3_profile_steps.png", "fig4_study.png",
                 "fig5_calibration.png"):
@@ -109,7 +123,7 @@ def test_recovery_24h(tmp_path, capsys):
 @pytest.mark.slow
 def test_recovery_48h_200_trials(tmp_path, capsys):
     summary, verdicts, calibrated = _recover(tmp_path, capsys, 48.0, 200, seed=5,
-                                             report=False, val_factor=1.5)
+                                             report=False, val_factor=1.5, cost_factor=1.25)
     assert summary["trials"] >= 200
     assert summary["tpe_best"]["trial"] <= 200 and summary["refined"]
     assert np.isfinite(summary["cost"])

@@ -170,7 +170,13 @@ def test_resume_and_data_fingerprint(tmp_path, model, segment, config, eq4):
         open_storage("study.txt")
     with pytest.raises(ConfigError, match="does not exist"):
         open_storage(str(tmp_path / "no" / "s.log"))
-    assert open_storage(f"sqlite:///{tmp_path / 's.db'}") is not None
+    # a database URL opens Optuna's RDB storage, which creates and keeps the study there
+    db = tmp_path / "s.db"
+    rdb = open_storage(f"sqlite:///{db}")
+    assert isinstance(rdb, optuna.storages.RDBStorage) and db.is_file()
+    optuna.create_study(storage=rdb, study_name="kept")
+    assert [s.study_name for s in optuna.get_all_study_summaries(open_storage(
+        f"sqlite:///{db}"))] == ["kept"]
 
 
 def test_two_workers_share_one_journal_study(tmp_path, day6_file):

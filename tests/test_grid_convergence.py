@@ -21,6 +21,8 @@ import pytest
 from softsensor.model import DryerModel
 
 TOL = np.array([0.5, 0.5, 0.002])  # K, K, kg/kg (T_dryer_out, T_cyclone_out, moisture_out)
+#: What the README claims for n_d = 25, 50 and 100 (measured: 0.079 K, 0.049 K, 0.00033).
+CLAIM = np.array([0.08, 0.08, 4e-4])
 
 POINTS = {
     "nominal": {},
@@ -60,9 +62,9 @@ def test_error_shrinks_with_refinement(outputs, point):
     assert np.all(err[0] <= 0.5 * TOL), err
 
 
-def test_n_d_25_50_100_agree_within_tolerance(outputs):
+def test_n_d_25_50_100_agree_within_the_readme_claim(outputs):
     worst = np.zeros(3)
     for point in POINTS:
         ys = np.stack([outputs[n][point] for n in (25, 50, 100)])
         worst = np.maximum(worst, ys.max(axis=0) - ys.min(axis=0))
-    assert np.all(worst <= TOL), worst
+    assert np.all(worst <= CLAIM), worst

@@ -1,0 +1,152 @@
+"""The estimator's parts outside the filter itself, each against a property it must have:
+the error processes' noise keeps their prior (discrepancy), a lab sample finds its window and
+the inputs of the minutes before it (lab alignment), the chi-square test of the innovations
+(consistency). The filter's own tests (``tests/test_ukf*.py``) drive these through the UKF;
+here each is pinned on its own so that a changed sign or factor shows (``tests/
+mutation_check.py``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.stats import chi2
+
+from softsensor.estimation.consistency import Innovation, chi_square_test
+from softsensor.estimation.discrepancy import (
+    AdaptiveNoise,
+    ErrorPriors,
+    InletTransform,
+    process_noise,
+    transition,
+)
+from softsensor.estimation.lab_alignment import (
+    MIN_OFFSET_S,
+    sample_inputs_from_bins,
+    sample_offset,
+    window_index,
+)
+from softsensor.estimation.settings import estimator_settings
+
+NS = 10**9
+PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01]),
+                     tau=np.array([6.0, 12.0, 24.0, 48.0]) * 3600.0, source="test")
+
+
+# ----------------------------------------------------------------------------- discrepancy
+@pytest.mark.parametrize("window_s", [60.0, 600.0, 7200.0])
+def test_error_states_keep_their_prior_variance_over_any_window(window_s):
+    # P = F P F + Q with P = diag(sigma^2): an Ornstein-Uhlenbeck process discretised exactly
+    F = transition(window_s, PRIORS, inlet_tau_s=48 * 3600.0)
+    Q = process_noise(window_s, PRIORS, walk_s=0.01, inlet_tau_s=48 * 3600.0,
+                      inflation=np.ones(4))
+    P = np.diag(PRIORS.sigma**2)
+    np.testing.assert_allclose((F[1:, 1:] @ P @ F[1:, 1:] + Q[1:, 1:]), P, rtol=1e-12)
+    assert F[1, 1] == pytest.approx(math.exp(-window_s / PRIORS.tau[0]), rel=1e-12)
+
+
+def test_inlet_walk_is_mean_reverting_with_the_walks_short_term_variance():
+    window_s, tau, walk = 600.0, 48 * 3600.0, 0.02
+    F = transition(window_s, PRIORS, inlet_tau_s=tau)
+    Q = process_noise(window_s, PRIORS, walk_s=walk, inlet_tau_s=tau, inflation=np.ones(4))
+    assert F[0, 0] == pytest.approx(math.exp(-window_s / tau), rel=1e-12)
+    # a window much shorter than tau: a random walk of walk^2 per window
+    assert Q[0, 0] == pytest.approx(walk**2, rel=window_s / tau)
+    # the stationary variance of the discretised process equals the continuous one,
+    # walk^2 tau / (2 window)
+    assert Q[0, 0] / (1.0 - F[0, 0] ** 2) == pytest.approx(walk**2 * tau / (2 * window_s),
+                                                           rel=1e-12)
+
+
+def test_inflation_scales_each_error_states_noise():
+    base = process_noise(600.0, PRIORS, 0.01, 48 * 3600.0, np.ones(4))
+    infl = np.array([2.0, 3.0, 4.0, 5.0])
+    more = process_noise(600.0, PRIORS, 0.01, 48 * 3600.0, infl)
+    np.testing.assert_allclose(np.diag(more)[1:], np.diag(base)[1:] * infl, rtol=1e-12)
+    assert more[0, 0] == base[0, 0]
+
+
+def test_heat_input_prior_is_the_common_temperature_error_over_the_gain(config):
+    s = estimator_settings(config)
+    one = ErrorPriors.from_config(config, s, heat_gain=1.0)
+    half = ErrorPriors.from_config(config, s, heat_gain=0.5)
+    # a heat input that moves the outlets half as much must err twice as far
+    assert half.sigma[0] == pytest.approx(2.0 * one.sigma[0], rel=1e-12)
+    np.testing.assert_array_equal(half.sigma[1:], one.sigma[1:])
+
+
+def test_inlet_transform_is_the_identity_inside_and_a_smooth_clip_outside():
+    t = InletTransform(lo=0.5, hi=1.5, margin=0.1)
+    inside = np.linspace(0.61, 1.39, 9)
+    np.testing.assert_array_equal(t.forward(inside), inside)
+    s = np.linspace(-2.0, 4.0, 601)
+    x = t.forward(s)
+    assert np.all((x > 0.5) & (x < 1.5)) and np.all(np.diff(x) > 0)
+    near = np.abs(s - 1.0) <= 0.8  # four margins out: the clip still resolves its input
+    np.testing.assert_allclose(t.inverse(x[near]), s[near], rtol=0, atol=1e-9)
+    h = 1e-6
+    fd = (t.forward(s + h) - t.forward(s - h)) / (2 * h)
+    np.testing.assert_allclose(t.derivative(s), fd, rtol=0, atol=1e-5)  # h at the joints
+
+
+def test_adaptive_noise_integrates_the_normalised_innovations():
+    a = AdaptiveNoise.fresh()
+    a.update(0, 1.0, 10, 25.0)  # consistent: no change
+    assert a.factor[0] == 1.0
+    a.update(0, 4.0, 10, 25.0)  # three above one, over ten ticks of memory
+    assert a.factor[0] == pytest.approx(1.3)
+    a.update(0, 1e6, 10, 25.0)  # one outlier counts at most nine
+    assert a.factor[0] == pytest.approx(1.3 * 1.8)
+    for _ in range(100):
+        a.update(0, 0.0, 10, 25.0)
+    assert a.factor[0] == 1.0  # never below one
+    for _ in range(100):
+        a.update(1, 9.0, 10, 25.0)
+    assert a.factor[1] == 25.0  # never above the limit
+    a.factor[:] = [2.0, 3.0, 4.0]
+    np.testing.assert_array_equal(a.inflation(), [2.0, 2.0, 3.0, 4.0])
+
+
+# --------------------------------------------------------------------------- lab alignment
+def test_a_sample_belongs_to_the_window_that_ends_at_or_after_it():
+    start, period = 1_000 * NS, 600 * NS
+    t = np.array([start + 1, start + period, start + period + 1, start + 3 * period])
+    np.testing.assert_array_equal(window_index(start, period, t), [0, 0, 1, 2])
+    off = sample_offset(np.array([start, start]), np.array([start + 90 * NS, start]))
+    np.testing.assert_array_equal(off, [90.0, MIN_OFFSET_S])
+
+
+def test_sample_inputs_average_the_bins_of_the_span_before_the_sample():
+    n_bins, bin_ns = 10, 60 * NS
+    bins = np.tile(np.arange(n_bins, dtype=float)[:, None], (1, 7))  # bin k holds k
+    bins[4, 1] = np.nan  # a bad value is left out of the mean
+    u = np.full(8, -1.0)
+    # a sample at 300 s with a 180 s span sees the bins (120, 300]: 2, 3 and 4
+    got = sample_inputs_from_bins(bins, 0, bin_ns, u, 300 * NS, 180 * NS)
+    assert got[0] == pytest.approx(3.0)
+    assert got[1] == pytest.approx(2.5)
+    assert got[7] == -1.0  # the unmeasured inlet moisture is the window's
+    # a sample on a bin boundary does not see the bin after it
+    assert sample_inputs_from_bins(bins, 0, bin_ns, u, 60 * NS, 60 * NS)[0] == 0.0
+    # no bins: the window's inputs
+    np.testing.assert_array_equal(
+        sample_inputs_from_bins(np.empty((0, 7)), 0, bin_ns, u, 300 * NS, 180 * NS), u)
+
+
+# ----------------------------------------------------------------------------- consistency
+def test_chi_square_test_at_its_limit():
+    alpha = 0.01
+    limit = -2.0 * math.log(alpha)  # chi-square with two degrees of freedom, closed form
+    ticks = [Innovation(nis=0.5 * limit - 1e-9, dof=1, normalised={"T_dryer_out": 1.0}),
+             Innovation(nis=0.5 * limit, dof=1, normalised={"T_dryer_out": 3.0}),
+             Innovation()]  # a tick without update adds nothing
+    ok = chi_square_test(ticks, alpha)
+    assert ok.status == "ok" and ok.dof == 2 and ok.limit == pytest.approx(limit)
+    bad = chi_square_test([*ticks[:1], Innovation(nis=0.5 * limit + 1e-6, dof=1,
+                                                  normalised={"T_dryer_out": 3.0})], alpha)
+    assert bad.status == "degraded" and "T_dryer_out +2.0" in bad.detail
+    assert chi_square_test([Innovation()], alpha).status == "ok"
+    assert chi_square_test([Innovation(nis=30.0, dof=10)], alpha).limit == pytest.approx(
+        chi2.isf(alpha, 10))
