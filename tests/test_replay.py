@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.bus.replay import parse_rate, parse_time, replay_day
+from softsensor.service.day_replay import parse_rate, parse_time, replay_day
 from softsensor.bus.zenoh_bus import (
     BusMessage,
     Publisher,

@@ -111,7 +111,7 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from softsensor.bus.replay import parse_rate
+    from softsensor.service.day_replay import parse_rate
     from softsensor.service.offline_replay import replay_to_file
     from softsensor.service.settings import service_settings
 

@@ -31,7 +31,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from softsensor.bus.replay import parse_time
 from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
 from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
@@ -39,8 +38,10 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, lab_body
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.recorder import BusRecorder, Recorder
+from softsensor.recording.recorder import Recorder
+from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.checkpoint import CheckpointStore
+from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import Output
 from softsensor.service.logs import event
 from softsensor.service.offline_replay import make_service

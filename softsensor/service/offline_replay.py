@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.bus.replay import parse_time, replay_day
 from softsensor.bus.zenoh_bus import (
     Publisher,
     listening_endpoints,
@@ -44,7 +43,8 @@ from softsensor.estimation.windowing import WindowSettings
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
-from softsensor.recording.recorder import BusRecorder
+from softsensor.service.bus_recorder import BusRecorder
+from softsensor.service.day_replay import parse_time, replay_day
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import make_estimator
 from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
