@@ -14,6 +14,7 @@ import pytest
 
 from softsensor.errors import SolverError
 from softsensor.model import DryerModel, mol
+from softsensor.plantconfig import load_plant_config
 from softsensor.signals import INPUT_NAMES
 
 TOL = np.array([0.1, 0.1, 1e-3])  # K, K, kg/kg
@@ -21,7 +22,7 @@ TOL = np.array([0.1, 0.1, 1e-3])  # K, K, kg/kg
 
 @pytest.fixture(scope="module")
 def model():
-    return DryerModel()
+    return DryerModel(load_plant_config())
 
 
 def _stepped_inputs(model: DryerModel) -> np.ndarray:

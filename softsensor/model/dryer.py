@@ -12,7 +12,8 @@ end.
 Example
 -------
 >>> from softsensor.model import DryerModel
->>> m = DryerModel()                              # the reference plant dryer1
+>>> from softsensor.plantconfig import load_plant_config
+>>> m = DryerModel(load_plant_config())           # the reference plant dryer1
 >>> u = m.nominal_inputs()                        # (8,)
 >>> x0, y0 = m.steady_state(u, m.theta0)          # consistent initial state
 >>> x1, y1 = m.step(x0, u, m.theta0)              # one 600 s window
@@ -33,7 +34,7 @@ import numpy as np
 from softsensor.errors import SolverError
 from softsensor.model import kernels
 from softsensor.model.geometry import N_AUX, Geometry, geometry
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, load_plant_config
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import INPUT_NAMES
 
 _STATUS_TEXT = {
@@ -102,8 +103,9 @@ class DryerModel:
 
     Parameters
     ----------
-    config : PlantConfig, optional
-        Plant configuration; the built-in reference plant ``dryer1`` when omitted.
+    config : PlantConfig
+        Plant configuration, already loaded (the reference plant ``dryer1``:
+        :func:`softsensor.plantconfig.load_plant_config` with no path).
     n_d : int, optional
         Number of tube cells (overrides ``tube.n_cells``), e.g. for grid-convergence studies.
     wall_substeps : int, optional
@@ -114,9 +116,12 @@ class DryerModel:
         when the caller already runs several models at once.
     """
 
-    def __init__(self, config: PlantConfig | None = None, *, n_d: int | None = None,
+    def __init__(self, config: PlantConfig, *, n_d: int | None = None,
                  wall_substeps: int | None = None, threads: int | None = None) -> None:
-        self.config = config if config is not None else load_plant_config()
+        # handed its configuration: the model reads no file (the apps load the TOML)
+        if not isinstance(config, PlantConfig):
+            raise TypeError(f"DryerModel needs a PlantConfig, got {type(config).__name__}")
+        self.config = config
         self.geometry: Geometry = geometry(self.config, n_d)
         self.window = float(self.config.solver.window)
         self.wall_substeps = int(wall_substeps or self.config.solver.wall_substeps)
