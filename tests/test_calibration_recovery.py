@@ -21,9 +21,9 @@ import json
 import numpy as np
 import pytest
 
+from softsensor.apps.calibrate import load_segment
 from softsensor.calibration.chunked_run import simulate_segments
 from softsensor.calibration.cost import evaluate_fit
-from softsensor.calibration.dataset import load_segment
 from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.pipeline import objective_spec, validate
 from softsensor.calibration.settings import calibration_settings

@@ -316,6 +316,41 @@ class DryerModel:
         return {"X_f": prof[0], "T_f": prof[1], "Y_a": prof[2], "T_a": prof[3],
                 "T_w": state.copy(), "UA_w": prof[4], "T_a_wall": prof[5], "x": x}
 
+    def control_stepper(self, dt: float) -> ControlStepper:
+        """A stepper for one closed-loop plant at control steps of ``dt`` [s] (the virtual
+        plant's): see :class:`ControlStepper`."""
+        return ControlStepper(self, dt)
+
+
+class ControlStepper:
+    """One plant advanced at short control steps (tens of seconds), as a PLC's loop sees it.
+
+    Each :meth:`advance` returns the outputs *now* (the profile at the current wall state),
+    then moves the wall over ``dt`` with that profile frozen (:func:`kernels.advance_one`):
+    one profile solve per step, its Newton iteration started from the previous step's
+    profile, which the stepper keeps. Use :meth:`DryerModel.step` for model windows.
+    """
+
+    def __init__(self, model: DryerModel, dt: float) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        self.dt = float(dt)
+        self._geo = model.geometry.packed
+        self._prof = np.full((6, model.n_state), -1.0)  # no previous profile yet
+        self._work = np.empty(4 * model.n_state)
+        self._y = np.empty(3)
+
+    def advance(self, state: np.ndarray, u: np.ndarray, theta: np.ndarray,
+                aux: np.ndarray) -> np.ndarray:
+        """Outputs ``(3,)`` at the current ``state`` (advanced in place by ``dt``) for inputs
+        ``u`` (8,), parameters ``theta`` (7,) and extension coefficients ``aux`` (N_AUX,).
+        Raises :class:`~softsensor.errors.SolverError` with the solver's reason."""
+        st = kernels.advance_one(state, u, theta, aux, self._geo, self.dt, self._prof,
+                                 self._work, self._y)
+        if st != kernels.OK:
+            DryerModel._check(np.array([st]), np.asarray(u, float)[None])
+        return self._y.copy()
+
 
 def parameter_index(name: str) -> int:
     """Position of a Table 1 parameter in a ``theta`` vector."""
