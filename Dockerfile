@@ -33,7 +33,8 @@ COPY --chown=10001:10001 config/dryer1.toml config/tagmap_dryer1.toml /config/
 
 USER softsensor
 # compile the model once at build time, so the daemon starts in seconds
-RUN python -c "from softsensor.model import DryerModel; m = DryerModel(); \
+RUN python -c "from softsensor.model import DryerModel; from softsensor.plantconfig import \
+load_plant_config; m = DryerModel(load_plant_config()); \
 m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1))"
 
 WORKDIR /data

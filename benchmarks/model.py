@@ -37,6 +37,7 @@ import numpy as np
 
 from softsensor.model import DryerModel
 from softsensor.model.mol import simulate_mol
+from softsensor.plantconfig import load_plant_config
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 HOURS_FULL = 48.0
@@ -106,7 +107,8 @@ def closed_loop_inputs(model: DryerModel, hours: float = HOURS_FULL, seed: int =
 def _cold_jit_seconds() -> float:
     """First ``simulate`` in a fresh process with an empty numba cache: the compile time."""
     code = ("import time; import numpy as np; from softsensor.model import DryerModel; "
-            "m = DryerModel(); U = np.tile(m.nominal_inputs(), (2, 1)); "
+            "from softsensor.plantconfig import load_plant_config; "
+            "m = DryerModel(load_plant_config()); U = np.tile(m.nominal_inputs(), (2, 1)); "
             "t = time.perf_counter(); m.simulate(U); print(time.perf_counter() - t)")
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
@@ -129,7 +131,7 @@ def _time_fast(model: DryerModel, U: np.ndarray, repeats: int) -> tuple[float, f
 
 def run(hours: float, seed: int, rtol: float, sparse: bool, repeats: int = 5) -> dict:
     load = os.getloadavg()
-    model = DryerModel()
+    model = DryerModel(load_plant_config())
     geo = model.geometry
     w0 = time.perf_counter()
     model.simulate(np.tile(model.nominal_inputs(), (2, 1)))

@@ -1,8 +1,10 @@
 """The ``softsensor`` command: wires configuration, sources, estimators and sinks together.
 
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
-``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``. Each verb lives in the
-package that owns it; this module only parses arguments and turns every
+``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``. Each verb lives in a module
+of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a module that fails to import stops the
+command with one line naming it (exit status 1) rather than hiding its verbs. This module
+only parses arguments and turns every
 :class:`~softsensor.errors.SoftsensorError` into one line on stderr and exit status 2.
 """
 
@@ -27,47 +29,25 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def _simulate(args: argparse.Namespace) -> int:
-    from softsensor.plant.commands import load_plant, simulate_plant
-
-    cfg = load_plant(args)
-    day = simulate_plant(cfg, args)
-    day.write(args.out)
-    eff = day.effect
-    what = "clean day" if eff["effect"] == "none" else (
-        f"effect {eff['effect']} magnitude {eff['magnitude']:g} {eff['unit']}"
-        + (f" on {eff['channel']}" if eff.get("channel") else ""))
-    plant = ("plant independent, plant seed " + str(args.plant_seed)
-             if args.plant == "independent" else "plant model")
-    print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h, "
-          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}")
-    return 0
-
-
-def _add_simulate(sub: argparse._SubParsersAction) -> None:
-    from softsensor.plant.commands import add_plant_options
-    from softsensor.plant.effects import EFFECTS
-
-    p = sub.add_parser("simulate", help="run a virtual plant and record a day as MCAP")
-    p.add_argument("--hours", type=float, default=48.0, help="length of the record [h]")
-    p.add_argument("--seed", type=int, default=0, help="seed of every random stream of the day")
-    p.add_argument("--effect", default=None, metavar="CAUSE",
-                   help=f"hide one effect in the day: {', '.join(EFFECTS)}")
-    p.add_argument("--magnitude", type=float, default=None,
-                   help="size of the effect (units and ranges: softsensor.plant.effects)")
-    add_plant_options(p)
-    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
-    p.add_argument("--out", required=True, help="MCAP file to write")
-    p.set_defaults(func=_simulate)
-
-
-#: Verbs provided by other packages: (module, function adding the sub-parser).
-_PLUGGED: tuple[tuple[str, str], ...] = (
-    ("softsensor.plant.commands", "add_commands"),
-    ("softsensor.calibration.commands", "add_commands"),
-    ("softsensor.service.commands", "add_commands"),
-    ("softsensor.diagnosis.commands", "add_commands"),
+#: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``.
+VERB_MODULES: tuple[str, ...] = (
+    "softsensor.apps.virtual_plant",  # simulate, plant-server
+    "softsensor.apps.calibrate",      # calibrate, identify, validate
+    "softsensor.apps.streaming",      # run, replay
+    "softsensor.apps.diagnose",       # diagnose
 )
+
+
+class VerbImportError(Exception):
+    """A verb module failed to import: a broken install or a bug, never to be hidden by
+    dropping its verbs from the command line."""
+
+
+def _import_verbs(module: str) -> Callable[[argparse._SubParsersAction], None]:
+    try:
+        return importlib.import_module(module).add_commands
+    except ImportError as exc:
+        raise VerbImportError(f"cannot load the verbs of {module}: {exc}") from exc
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -75,21 +55,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"softsensor {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
-    _add_simulate(sub)
-    for module, func in _PLUGGED:
-        try:
-            mod = importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise
-            continue
-        add: Callable[[argparse._SubParsersAction], None] = getattr(mod, func)
-        add(sub)
+    for module in VERB_MODULES:
+        _import_verbs(module)(sub)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except VerbImportError as exc:
+        print(f"softsensor: {exc}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

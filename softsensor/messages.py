@@ -7,16 +7,20 @@ Both sides import this module: the adapters (:mod:`softsensor.recording`, :mod:`
 * :func:`scan_values`: a ``/plant/scan`` body (CONTRACT section 2) to SI floats per signal;
 * :class:`Window`: the scans of one model window, averaged (the estimator's and the
   calibration's unit of data, built by :mod:`softsensor.estimation.windowing`);
-* :class:`LabResult`: one laboratory moisture result with its sample and log times.
+* :class:`LabResult`: one laboratory moisture result with its sample and log times;
+* :func:`encode_body`: a body as the JSON bytes sent on the bus and written to MCAP (one
+  encoding for both, so a recorded day replays byte for byte).
 """
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from softsensor.errors import IngestError
+from softsensor.jsonable import jsonable
 from softsensor.signals import SCAN_SIGNALS
 
 #: Non-signal fields a scan body may carry besides the signals (a Zenoh ``time_ns``, a counter).
@@ -101,4 +105,14 @@ class LabResult:
     log_time_ns: int | None = None
 
 
-__all__ = ["SCAN_EXTRA_FIELDS", "LabResult", "Window", "is_number", "scan_values"]
+def encode_body(body: dict[str, Any]) -> bytes:
+    """Encode a message body as compact JSON bytes; non-finite floats become ``null`` and numpy
+    scalars Python numbers (JSON has no NaN, and every MCAP and Zenoh reader must parse it)."""
+    try:
+        return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
+    except (ValueError, TypeError):
+        return json.dumps(jsonable(body), allow_nan=False, separators=(",", ":")).encode()
+
+
+__all__ = ["SCAN_EXTRA_FIELDS", "LabResult", "Window", "encode_body", "is_number",
+           "scan_values"]

@@ -24,12 +24,11 @@ import json
 import numpy as np
 import pytest
 
+from softsensor.apps.calibrate import load_segment, load_segments
 from softsensor.calibration.chunked_run import evaluate_parameters
-from softsensor.calibration.dataset import load_segment
 from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.pipeline import (
     DataSelection,
-    load_segments,
     objective_spec,
     split_holdout,
     validate,

@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from softsensor.apps.virtual_plant import load_plant, simulate_plant
 from softsensor.cli import build_parser
-from softsensor.plant.commands import load_plant, simulate_plant
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_TRUTH
 

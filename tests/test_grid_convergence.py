@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from softsensor.model import DryerModel
+from softsensor.plantconfig import load_plant_config
 
 TOL = np.array([0.5, 0.5, 0.002])  # K, K, kg/kg (T_dryer_out, T_cyclone_out, moisture_out)
 #: What the README claims for n_d = 25, 50 and 100 (measured: 0.079 K, 0.049 K, 0.00033).
@@ -37,7 +38,7 @@ def outputs():
     """Steady outputs (3,) per n_d and point, one batched steady-state call per grid."""
     res = {}
     for n_d in (25, 50, 100, 200):
-        m = DryerModel(n_d=n_d)
+        m = DryerModel(load_plant_config(), n_d=n_d)
         U = np.stack([m.nominal_inputs(**POINTS[k]) for k in sorted(POINTS)])
         _, Y = m.steady_state(U, m.theta0)
         res[n_d] = dict(zip(sorted(POINTS), Y, strict=True))

@@ -11,9 +11,9 @@ import pytest
 from mcap.reader import make_reader
 
 from softsensor.errors import IngestError
+from softsensor.messages import encode_body
 from softsensor.recording.mcap_day import (
     DayWriter,
-    encode_body,
     iter_messages,
     read_day,
     scan_values,

@@ -17,6 +17,7 @@ import pytest
 
 from softsensor.errors import SolverError
 from softsensor.model import DryerModel, mol
+from softsensor.plantconfig import load_plant_config
 from softsensor.signals import INPUT_NAMES
 
 TOL = np.array([0.01, 0.02, 1e-4])  # K, K, kg/kg: the README's claim
@@ -24,7 +25,7 @@ TOL = np.array([0.01, 0.02, 1e-4])  # K, K, kg/kg: the README's claim
 
 @pytest.fixture(scope="module")
 def model():
-    return DryerModel()
+    return DryerModel(load_plant_config())
 
 
 def _stepped_inputs(model: DryerModel) -> np.ndarray:

@@ -23,12 +23,8 @@ from softsensor.bus.zenoh_bus import (
 )
 from softsensor.errors import IngestError
 from softsensor.recording.mcap_day import read_day
-from softsensor.recording.recorder import (
-    BusRecorder,
-    Recorder,
-    day_file_name,
-    utc_date,
-)
+from softsensor.recording.recorder import Recorder, day_file_name, utc_date
+from softsensor.service.bus_recorder import BusRecorder
 from softsensor.signals import SCAN_SIGNALS, TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 MIDNIGHT = 1_750_032_000 * 10**9  # 2025-06-16T00:00:00Z
@@ -172,7 +168,7 @@ def _read_line(proc: subprocess.Popen, timeout: float) -> str:
 def _start_recorder(tmp_path: Path, port: int, flush_interval: float) -> subprocess.Popen:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
-        [sys.executable, "-m", "softsensor.recording.recorder", "--dir", str(tmp_path),
+        [sys.executable, "-m", "softsensor.service.bus_recorder", "--dir", str(tmp_path),
          "--unit", "dryer1", "--port", str(port), "--chunk-size", "2048",
          "--flush-interval", str(flush_interval)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)

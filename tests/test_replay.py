@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.bus.replay import parse_rate, parse_time, replay_day
 from softsensor.bus.zenoh_bus import (
     BusMessage,
     Publisher,
@@ -20,6 +19,7 @@ from softsensor.bus.zenoh_bus import (
 )
 from softsensor.errors import ConfigError, IngestError
 from softsensor.recording.mcap_day import DayWriter
+from softsensor.service.day_replay import parse_rate, parse_time, replay_day
 from softsensor.signals import TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 T0 = 1_750_000_000 * 10**9  # 2025-06-15T15:06:40Z

@@ -25,7 +25,8 @@ from softsensor.ingest.registers import resolution
 from softsensor.ingest.tagmap import TagMap, load_tagmap, parse_tagmap
 from softsensor.plant.plc_server import NOMINAL_VALUES, PlcServer, constant_values
 from softsensor.recording.mcap_day import read_day
-from softsensor.recording.recorder import BusRecorder, Recorder
+from softsensor.recording.recorder import Recorder
+from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.pipeline import InputSubscription, ScanPublisher
 
 DEADLINE = 10.0

@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import zenoh
 
 from softsensor.errors import ConfigError, IngestError
-from softsensor.recording.mcap_day import encode_body
+from softsensor.messages import encode_body
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN, zenoh_key
 
 log = logging.getLogger(__name__)

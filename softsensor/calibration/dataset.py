@@ -19,7 +19,8 @@ start of its window with the inputs of the ``solver.lab_span`` seconds before it
 
 ``moisture_in`` is not measured; the open-loop model uses the config's ``nominal.moisture_in``.
 Only complete windows inside the record are used: a window that starts before the first scan
-or ends after the last is dropped.
+or ends after the last is dropped. The day comes already read (reading MCAP files is the apps'
+job, :mod:`softsensor.apps.loading`).
 """
 
 from __future__ import annotations
@@ -28,7 +29,6 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Protocol
 
 import numpy as np
@@ -45,7 +45,6 @@ from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
 from softsensor.estimation.windowing import NS, window_settings, windows_from_frame
 from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.mcap_day import read_day
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 
 
@@ -314,19 +313,12 @@ def complete_windows(day: DayLike, config: PlantConfig, source: str) -> list[Win
     return windows
 
 
-def load_segment(path: str | Path, config: PlantConfig) -> Segment:
-    """Read a recorded day (scans and lab topics only) and resample it to model windows."""
-    day = read_day(path, topics=[TOPIC_SCAN, TOPIC_LAB])
-    return segment_from_day(day, config, source=str(path))
-
-
 __all__ = [
     "MEASURED_INPUTS",
     "SCANNED_OUTPUTS",
     "DayLike",
     "LabPoints",
     "Segment",
-    "load_segment",
     "complete_windows",
     "segment_from_day",
     "segment_from_windows",

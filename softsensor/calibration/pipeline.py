@@ -27,9 +27,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,7 +36,7 @@ import optuna
 
 from softsensor.calibration.chunked_run import evaluate_parameters, simulate_segments
 from softsensor.calibration.cost import ModelRun, weighted_rmse
-from softsensor.calibration.dataset import Segment, load_segment
+from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
 from softsensor.calibration.disturbance import InletPrior
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -88,19 +87,21 @@ class DataSelection:
     min_labs: int = DEFAULT_MIN_LABS
 
 
-def load_segments(paths: Sequence[str | Path], config: PlantConfig,
-                  selection: DataSelection = DataSelection()
-                  ) -> tuple[list[Segment], list[WindowChoice]]:
-    """Resample every day and pick its calibration window(s)."""
-    if not paths:
-        raise IngestError("no recorded day given")
-    segments, choices = [], []
-    for p in paths:
-        seg = load_segment(p, config)
+def select_segments(days: Iterable[tuple[str, DayLike]], config: PlantConfig,
+                    selection: DataSelection = DataSelection()
+                    ) -> tuple[list[Segment], list[WindowChoice]]:
+    """Resample every ``(source, day)`` and pick its calibration window(s). ``days`` may be
+    a generator (the apps read each file as it is needed, :mod:`softsensor.apps.loading`)."""
+    segments, choices, n_days = [], [], 0
+    for source, day in days:
+        n_days += 1
+        seg = segment_from_day(day, config, source=source)
         picked = select_windows(seg, selection.window_hours, selection.windows_per_day,
                                 selection.min_labs)
         choices += picked
         segments += [c.segment for c in picked]
+    if not n_days:
+        raise IngestError("no recorded day given")
     return segments, choices
 
 
@@ -543,7 +544,7 @@ __all__ = [
     "at_bounds",
     "calibrate",
     "discrepancy",
-    "load_segments",
+    "select_segments",
     "objective_spec",
     "split_holdout",
     "validate",

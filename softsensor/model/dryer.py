@@ -12,7 +12,8 @@ end.
 Example
 -------
 >>> from softsensor.model import DryerModel
->>> m = DryerModel()                              # the reference plant dryer1
+>>> from softsensor.plantconfig import load_plant_config
+>>> m = DryerModel(load_plant_config())           # the reference plant dryer1
 >>> u = m.nominal_inputs()                        # (8,)
 >>> x0, y0 = m.steady_state(u, m.theta0)          # consistent initial state
 >>> x1, y1 = m.step(x0, u, m.theta0)              # one 600 s window
@@ -33,7 +34,7 @@ import numpy as np
 from softsensor.errors import SolverError
 from softsensor.model import kernels
 from softsensor.model.geometry import N_AUX, Geometry, geometry
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, load_plant_config
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import INPUT_NAMES
 
 _STATUS_TEXT = {
@@ -102,8 +103,9 @@ class DryerModel:
 
     Parameters
     ----------
-    config : PlantConfig, optional
-        Plant configuration; the built-in reference plant ``dryer1`` when omitted.
+    config : PlantConfig
+        Plant configuration, already loaded (the reference plant ``dryer1``:
+        :func:`softsensor.plantconfig.load_plant_config` with no path).
     n_d : int, optional
         Number of tube cells (overrides ``tube.n_cells``), e.g. for grid-convergence studies.
     wall_substeps : int, optional
@@ -114,9 +116,12 @@ class DryerModel:
         when the caller already runs several models at once.
     """
 
-    def __init__(self, config: PlantConfig | None = None, *, n_d: int | None = None,
+    def __init__(self, config: PlantConfig, *, n_d: int | None = None,
                  wall_substeps: int | None = None, threads: int | None = None) -> None:
-        self.config = config if config is not None else load_plant_config()
+        # handed its configuration: the model reads no file (the apps load the TOML)
+        if not isinstance(config, PlantConfig):
+            raise TypeError(f"DryerModel needs a PlantConfig, got {type(config).__name__}")
+        self.config = config
         self.geometry: Geometry = geometry(self.config, n_d)
         self.window = float(self.config.solver.window)
         self.wall_substeps = int(wall_substeps or self.config.solver.wall_substeps)
@@ -310,6 +315,41 @@ class DryerModel:
                             self.config.tube.length + np.arange(1, self.geometry.n_c + 1) * dx])
         return {"X_f": prof[0], "T_f": prof[1], "Y_a": prof[2], "T_a": prof[3],
                 "T_w": state.copy(), "UA_w": prof[4], "T_a_wall": prof[5], "x": x}
+
+    def control_stepper(self, dt: float) -> ControlStepper:
+        """A stepper for one closed-loop plant at control steps of ``dt`` [s] (the virtual
+        plant's): see :class:`ControlStepper`."""
+        return ControlStepper(self, dt)
+
+
+class ControlStepper:
+    """One plant advanced at short control steps (tens of seconds), as a PLC's loop sees it.
+
+    Each :meth:`advance` returns the outputs *now* (the profile at the current wall state),
+    then moves the wall over ``dt`` with that profile frozen (:func:`kernels.advance_one`):
+    one profile solve per step, its Newton iteration started from the previous step's
+    profile, which the stepper keeps. Use :meth:`DryerModel.step` for model windows.
+    """
+
+    def __init__(self, model: DryerModel, dt: float) -> None:
+        if not dt > 0:
+            raise ValueError(f"dt must be > 0, got {dt}")
+        self.dt = float(dt)
+        self._geo = model.geometry.packed
+        self._prof = np.full((6, model.n_state), -1.0)  # no previous profile yet
+        self._work = np.empty(4 * model.n_state)
+        self._y = np.empty(3)
+
+    def advance(self, state: np.ndarray, u: np.ndarray, theta: np.ndarray,
+                aux: np.ndarray) -> np.ndarray:
+        """Outputs ``(3,)`` at the current ``state`` (advanced in place by ``dt``) for inputs
+        ``u`` (8,), parameters ``theta`` (7,) and extension coefficients ``aux`` (N_AUX,).
+        Raises :class:`~softsensor.errors.SolverError` with the solver's reason."""
+        st = kernels.advance_one(state, u, theta, aux, self._geo, self.dt, self._prof,
+                                 self._work, self._y)
+        if st != kernels.OK:
+            DryerModel._check(np.array([st]), np.asarray(u, float)[None])
+        return self._y.copy()
 
 
 def parameter_index(name: str) -> int:

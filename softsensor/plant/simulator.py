@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import ConfigError, SolverError
-from softsensor.model import DryerModel, kernels
+from softsensor.model import DryerModel
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
 from softsensor.plant.day import DEFAULT_START_NS, TOPIC_TRUTH_EFFECT, SimulatedDay
@@ -33,7 +33,7 @@ from softsensor.plant.effects import EFFECTS, resolve_effect
 from softsensor.plant.scenario import inlet_moisture_trajectory, make_scenario
 from softsensor.plant.settings import virtual_plant_settings
 from softsensor.plantconfig import PlantConfig
-from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
+from softsensor.signals import SCAN_SIGNALS
 
 #: ``SimulatedDay`` and the day constants live in :mod:`softsensor.plant.day` (no model import);
 #: they stay importable from here.
@@ -92,7 +92,6 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     n = len(sc.t)
     dt = s.control_period
     model = DryerModel(config)
-    geo = model.geometry.packed
     theta = np.tile(config.parameter_vector(), (n, 1))
     aux = np.zeros(N_AUX)
     moisture_in = sc.moisture_in.copy()
@@ -152,17 +151,15 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     drive = FlapDrive(s.actuator_tau, s.actuator_rate, pos0)
     cmd = pos0
     T_air_sensor = T_air
-    prof = np.full((6, model.n_state), -1.0)  # no previous profile yet
-    work = np.empty(4 * model.n_state)
-    y = np.empty(3)
+    plant = model.control_stepper(dt)
     true = np.empty((n, 6))  # T_air_in, T_dryer_out, T_cyclone_out, moisture_out, in, cmd
     meas_air = np.empty(n)
     for k in range(n):
         u = inputs(k, T_air)
-        st = kernels.advance_one(state, u, theta[k], aux, geo, dt, prof, work, y)
-        if st != kernels.OK:
-            detail = ", ".join(f"{a}={b:.5g}" for a, b in zip(INPUT_NAMES, u, strict=True))
-            raise SolverError(f"virtual plant: model failed at t={sc.t[k]:.0f} s ({detail})")
+        try:
+            y = plant.advance(state, u, theta[k], aux)
+        except SolverError as exc:
+            raise SolverError(f"virtual plant: model failed at t={sc.t[k]:.0f} s: {exc}") from exc
         true[k] = (T_air, y[0], y[1], y[2], moisture_in[k], cmd)
         if lag_tau > 0:
             T_air_sensor += (T_air - T_air_sensor) * (1.0 - math.exp(-dt / lag_tau))

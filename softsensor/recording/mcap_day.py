@@ -34,7 +34,7 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.writer import CompressionType, Writer
 
 from softsensor.errors import IngestError
-from softsensor.messages import SCAN_EXTRA_FIELDS, LabResult, scan_values
+from softsensor.messages import SCAN_EXTRA_FIELDS, LabResult, encode_body, scan_values
 from softsensor.messages import is_number as _is_number
 from softsensor.signals import (
     HEALTH_STATES,
@@ -137,14 +137,6 @@ def _sanitize(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
     return value
-
-
-def encode_body(body: dict[str, Any]) -> bytes:
-    """Encode a message body as JSON bytes; non-finite floats become ``null``."""
-    try:
-        return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
-    except (ValueError, TypeError):
-        return json.dumps(_sanitize(body), allow_nan=False, separators=(",", ":")).encode()
 
 
 # ----------------------------------------------------------------------------------------------
@@ -526,7 +518,6 @@ __all__ = [
     "SCHEMAS",
     "DayWriter",
     "RecordedDay",
-    "encode_body",
     "iter_messages",
     "lab_result",
     "read_day",

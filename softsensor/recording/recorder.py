@@ -12,29 +12,22 @@ A day's file is kept open until the newest message is ``grace_s`` past its midni
 message logged a little late still lands in its own day; later stragglers go into the newest
 file (readers sort by log time).
 
-:class:`BusRecorder` subscribes to the four CONTRACT keys of a unit and records each message
-under its MCAP topic (``plant/<unit>/scan`` -> ``/plant/scan``, ...) with ``time_ns`` as the
-log time. ``python -m softsensor.recording.recorder --dir D --connect tcp/127.0.0.1:7447`` runs
-one until SIGTERM or SIGINT, then closes its files cleanly.
+What feeds a recorder from the Zenoh bus (:class:`~softsensor.service.bus_recorder.
+BusRecorder`) lives with the service, which wires the adapters together: this module knows no
+bus.
 """
 
 from __future__ import annotations
 
-import argparse
 import logging
 import os
-import signal
-import sys
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable
 from datetime import date, timedelta
 from pathlib import Path
 from typing import Any
 
-import zenoh
-
-from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
 from softsensor.errors import SoftsensorError
 from softsensor.recording.mcap_day import DayWriter
 
@@ -204,119 +197,9 @@ class Recorder:
         self.close()
 
 
-class BusRecorder:
-    """Records the CONTRACT keys of ``unit`` from a Zenoh session into a :class:`Recorder`.
-
-    Each message is written under its MCAP topic with its ``time_ns`` as the log time (the
-    receive time when absent), ``time_ns`` itself removed from the body. A background thread
-    calls :meth:`Recorder.tick` every ``tick_s`` seconds so idle chunks are written too.
-    :meth:`close` undeclares the subscribers and stops the thread; it does not close the
-    recorder or the session.
-    """
-
-    def __init__(self, session: zenoh.Session, recorder: Recorder, *, unit: str = "dryer1",
-                 kinds: Iterable[str] = KINDS, tick_s: float = 1.0) -> None:
-        self.recorder = recorder
-        self._stop = threading.Event()
-        self.subscription = subscribe(session, self._on_message, unit=unit, kinds=kinds)
-        self._ticker = threading.Thread(target=self._tick_loop, args=(tick_s,),
-                                        name="recorder-tick", daemon=True)
-        self._ticker.start()
-
-    def _on_message(self, message: BusMessage) -> None:
-        body = dict(message.body)
-        body.pop("time_ns", None)
-        t = message.time_ns if message.time_ns is not None else time.time_ns()
-        self.recorder.write(message.topic, t, body)
-
-    def _tick_loop(self, tick_s: float) -> None:
-        while not self._stop.wait(tick_s):
-            try:
-                self.recorder.tick()
-            except Exception:  # noqa: BLE001 - keep the ticker alive, report it
-                log.exception("recorder tick failed")
-
-    @property
-    def n_received(self) -> int:
-        return self.subscription.n_received
-
-    def close(self) -> None:
-        """Stop recording (idempotent)."""
-        self.subscription.close()
-        self._stop.set()
-        self._ticker.join(timeout=5.0)
-
-    def __enter__(self) -> BusRecorder:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def stop_on_signals(stop: threading.Event,
-                    signums: Sequence[int] = (signal.SIGTERM, signal.SIGINT)) -> None:
-    """Make ``signums`` set ``stop`` (main thread only); the main loop then shuts down."""
-    def _handler(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    for signum in signums:
-        signal.signal(signum, _handler)
-
-
-def run(directory: str | os.PathLike[str], *, unit: str = "dryer1",
-        connect: Sequence[str] = (), port: int | None = None, mode: str = "peer",
-        stop: threading.Event | None = None, chunk_size: int = RECORDER_CHUNK_SIZE,
-        flush_interval_s: float = 30.0, ready: Callable[[], None] | None = None) -> int:
-    """Record the bus into ``directory`` until ``stop`` is set; return messages written."""
-    stop = stop or threading.Event()
-    with open_session(mode=mode, port=port, connect=connect) as session, \
-            Recorder(directory, unit, chunk_size=chunk_size,
-                     flush_interval_s=flush_interval_s) as recorder, \
-            BusRecorder(session, recorder, unit=unit):
-        if ready is not None:
-            ready()
-        while not stop.wait(0.2):
-            pass
-        return recorder.n_written
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m softsensor.recording.recorder``: record a unit's keys until SIGTERM/SIGINT."""
-    p = argparse.ArgumentParser(prog="softsensor-recorder", description=main.__doc__)
-    p.add_argument("--dir", required=True, help="folder of the day files")
-    p.add_argument("--unit", default="dryer1")
-    p.add_argument("--connect", action="append", default=[], help="endpoint, repeatable")
-    p.add_argument("--port", type=int, default=None, help="listen on 127.0.0.1:PORT")
-    p.add_argument("--mode", default="peer", choices=("peer", "client"))
-    p.add_argument("--chunk-size", type=int, default=RECORDER_CHUNK_SIZE)
-    p.add_argument("--flush-interval", type=float, default=30.0, help="[s]")
-    args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    stop = threading.Event()
-    stop_on_signals(stop)
-    try:
-        n = run(args.dir, unit=args.unit, connect=args.connect, port=args.port, mode=args.mode,
-                stop=stop, chunk_size=args.chunk_size, flush_interval_s=args.flush_interval,
-                ready=lambda: print("recording", flush=True))
-    except SoftsensorError as exc:
-        print(f"softsensor: {exc}", file=sys.stderr)
-        return 2
-    print(f"recorded {n} messages", flush=True)
-    return 0
-
-
 __all__ = [
     "RECORDER_CHUNK_SIZE",
-    "BusRecorder",
     "Recorder",
     "day_file_name",
-    "main",
-    "run",
-    "stop_on_signals",
     "utc_date",
 ]
-
-
-if __name__ == "__main__":
-    sys.exit(main())

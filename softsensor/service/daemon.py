@@ -31,7 +31,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from softsensor.bus.replay import parse_time
+import zenoh
+
 from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
 from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
@@ -39,9 +40,11 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, lab_body
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.recorder import BusRecorder, Recorder
+from softsensor.recording.recorder import Recorder
+from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.checkpoint import CheckpointStore
-from softsensor.service.estimator_service import Output
+from softsensor.service.day_replay import parse_time
+from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
 from softsensor.service.offline_replay import make_service
 from softsensor.service.pipeline import INPUT_KINDS, ScanPublisher, ServicePipeline
@@ -165,17 +168,7 @@ class Daemon:
         s = self.settings
         doc = self.store.load() if self.resume else None
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
-        service = make_service(self.config, s, self.kind, scan_period_s)
-        if doc is not None:
-            if doc.get("unit") != self.unit:
-                raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
-                                  f"this daemon runs {self.unit!r} (use --no-resume)")
-            try:
-                service.restore(doc["service"], where=str(self.store.path))
-            except EstimationError as exc:
-                raise ConfigError(f"{exc} (run with --no-resume to start afresh)") from exc
-            event(log, "resumed", checkpoint=str(self.store.path),
-                  ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
+        service = self._service(doc, scan_period_s)
         # compile the estimator's kernels now, not in the first live tick (which would hold
         # the estimator thread, and every scan behind it, for tens of seconds on a cold cache)
         warm = await asyncio.to_thread(
@@ -188,12 +181,7 @@ class Daemon:
                                    connect=list(s.connect))
             stack.callback(session.close)
             if s.record:
-                self.recorder = Recorder(s.data_dir, self.unit,
-                                         chunk_size=s.chunk_size,
-                                         flush_interval_s=s.flush_interval_s)
-                stack.callback(self.recorder.close)
-                bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS)
-                stack.callback(bus_rec.close)
+                self._record(stack, session)
             self.pipeline = pipeline = ServicePipeline(
                 session, service, unit=self.unit, checkpoints=self.store,
                 checkpoint_every=s.checkpoint_every, on_output=self._on_output)
@@ -201,32 +189,8 @@ class Daemon:
             publisher = Publisher(session, self.unit, clock=clock.now_ns)
             publisher.declare(INPUT_KINDS)
             stack.callback(publisher.close)
-
-            def _lab_sink(lab: LabResult) -> None:
-                publisher.put("lab", lab_body(lab), lab.log_time_ns)
-                event(log, "lab", sample_id=lab.sample_id, moisture_out=lab.moisture_out,
-                      sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
-
-            self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
-            if s.lab_dir is not None:
-                watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
-                                           poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
-                                           settle_s=s.lab_settle_s).start()
-                stack.callback(watcher.close)
-            self.poller = poller = ModbusPoller(self.tagmap, ScanPublisher(publisher),
-                                                clock_ns=clock.now_ns,
-                                                monotonic=clock.monotonic)
-            poll_stop = asyncio.Event()
-            poll_task = asyncio.create_task(poller.run(poll_stop), name="modbus-poller")
-
-            async def _stop_poller() -> None:
-                poll_stop.set()
-                try:
-                    await asyncio.wait_for(poll_task, 10.0)
-                except TimeoutError:
-                    log.error("poller did not stop within 10 s")
-
-            stack.push_async_callback(_stop_poller)
+            self._lab_input(stack, publisher, clock)
+            poll_task = self._start_poller(stack, publisher, clock)
             m = self.tagmap.modbus
             self.info = DaemonInfo(self.unit, service.kind, listening_endpoints(session),
                                    f"{m.host}:{m.port}", s.data_dir if s.record else None,
@@ -240,6 +204,65 @@ class Daemon:
             await self._housekeeping(stop, poll_task)
         event(log, "stopped", ticks=service.stats.ticks, stale_ticks=service.stats.stale_ticks,
               scans=service.stats.scans, checkpoints=self.store.n_saved)
+
+    def _service(self, doc: dict | None, scan_period_s: float) -> EstimatorService:
+        """A fresh estimator service, restored from the checkpoint ``doc`` when there is one."""
+        service = make_service(self.config, self.settings, self.kind, scan_period_s)
+        if doc is not None:
+            if doc.get("unit") != self.unit:
+                raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
+                                  f"this daemon runs {self.unit!r} (use --no-resume)")
+            try:
+                service.restore(doc["service"], where=str(self.store.path))
+            except EstimationError as exc:
+                raise ConfigError(f"{exc} (run with --no-resume to start afresh)") from exc
+            event(log, "resumed", checkpoint=str(self.store.path),
+                  ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
+        return service
+
+    def _record(self, stack: contextlib.AsyncExitStack, session: zenoh.Session) -> None:
+        """Record every key of the unit into the daily files, closed with ``stack``."""
+        s = self.settings
+        self.recorder = Recorder(s.data_dir, self.unit, chunk_size=s.chunk_size,
+                                 flush_interval_s=s.flush_interval_s)
+        stack.callback(self.recorder.close)
+        bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS)
+        stack.callback(bus_rec.close)
+
+    def _lab_input(self, stack: contextlib.AsyncExitStack, publisher: Publisher,
+                   clock: ScaledClock) -> None:
+        """Publish lab results given to :attr:`lab_input` or dropped in the lab folder."""
+        s = self.settings
+
+        def _lab_sink(lab: LabResult) -> None:
+            publisher.put("lab", lab_body(lab), lab.log_time_ns)
+            event(log, "lab", sample_id=lab.sample_id, moisture_out=lab.moisture_out,
+                  sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
+
+        self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
+        if s.lab_dir is not None:
+            watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
+                                       poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
+                                       settle_s=s.lab_settle_s).start()
+            stack.callback(watcher.close)
+
+    def _start_poller(self, stack: contextlib.AsyncExitStack, publisher: Publisher,
+                      clock: ScaledClock) -> asyncio.Task[None]:
+        """Start polling the PLC; ``stack`` stops the poller (10 s at most) on the way out."""
+        self.poller = poller = ModbusPoller(self.tagmap, ScanPublisher(publisher),
+                                            clock_ns=clock.now_ns, monotonic=clock.monotonic)
+        poll_stop = asyncio.Event()
+        poll_task = asyncio.create_task(poller.run(poll_stop), name="modbus-poller")
+
+        async def _stop_poller() -> None:
+            poll_stop.set()
+            try:
+                await asyncio.wait_for(poll_task, 10.0)
+            except TimeoutError:
+                log.error("poller did not stop within 10 s")
+
+        stack.push_async_callback(_stop_poller)
+        return poll_task
 
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.pipeline is not None and self.clock is not None

@@ -32,7 +32,6 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.bus.replay import parse_time, replay_day
 from softsensor.bus.zenoh_bus import (
     Publisher,
     listening_endpoints,
@@ -44,7 +43,8 @@ from softsensor.estimation.windowing import WindowSettings
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
-from softsensor.recording.recorder import BusRecorder
+from softsensor.service.bus_recorder import BusRecorder
+from softsensor.service.day_replay import ReplayStats, parse_time, replay_day
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import make_estimator
 from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
@@ -209,18 +209,10 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     (without ``allow_truncated``) truncated day; ``out`` is then not left behind.
     """
     day, out = Path(day), Path(out)
-    if day.resolve() == out.resolve():
-        raise IngestError(f"{out}: --out must differ from the replayed day")
-    if not day.is_file():
-        raise IngestError(f"{day}: no such file")
-    settings = settings or service_settings(cfg)
     start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
-    first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,
-                                    start_ns=start_ns, end_ns=end_ns)), None)
-    if first is None:  # also checks, before anything starts, that the file is intact
-        raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
+    _check_day(day, out, start_ns, end_ns, allow_truncated)
+    settings = settings or service_settings(cfg)
     service = make_service(cfg, settings, estimator)
-    unit = service.unit
     summary = ReplaySummary(day=day, out=out, estimator=service.kind)
     # compile every kernel a tick calls before the first message goes out: a first tick that
     # compiles holds the estimator thread for tens of seconds, which _wait would call a stall
@@ -234,42 +226,8 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     recorder = FileRecorder(out, chunk_size=settings.chunk_size)
     ok = False
     try:
-        with open_session(port=0) as svc_session:
-            (endpoint,) = listening_endpoints(svc_session)[:1] or (None,)
-            if endpoint is None:
-                raise SoftsensorError("replay: the service session is not listening")
-            with open_session(port=None, connect=[endpoint]) as plant_session:
-                if not wait_for_peers(plant_session, timeout=10.0):
-                    raise SoftsensorError("replay: the Zenoh sessions did not connect on "
-                                          "loopback within 10 s")
-                bus = BusRecorder(svc_session, recorder, unit=unit)
-                pipeline = ServicePipeline(svc_session, service, unit=unit, on_output=_keep)
-                publisher = Publisher(plant_session, unit)
-                try:
-                    publisher.declare(INPUT_KINDS)
-                    if not publisher.wait_matched(INPUT_KINDS, timeout=10.0):
-                        raise SoftsensorError("replay: no subscriber matched within 10 s")
-                    labs_sent = [0]
-
-                    def _sink(kind: str, body: dict[str, Any], time_ns: int) -> None:
-                        publisher.put(kind, body, time_ns)
-                        if kind == "lab":  # the next scan must not overtake it (see below)
-                            labs_sent[0] += 1
-                            _wait(lambda: pipeline.n_labs_received >= labs_sent[0],
-                                  lambda: pipeline.n_labs_received, "a lab result")
-
-                    stats = replay_day(day, _sink, rate=rate, start=start_ns, end=end_ns,
-                                       allow_truncated=allow_truncated)
-                    n = stats.n_published
-                    _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
-                          lambda: pipeline.n_in + bus.n_received, "the replayed messages")
-                    pipeline.flush()
-                    _wait(lambda: bus.n_received >= n + pipeline.n_out,
-                          lambda: bus.n_received, "the estimates to be recorded")
-                finally:
-                    publisher.close()
-                    pipeline.close(checkpoint=False)
-                    bus.close()
+        stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns, end=end_ns,
+                        allow_truncated=allow_truncated)
         ok = True
     finally:
         recorder.close()
@@ -287,6 +245,64 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     if report_truth:
         summary.rmse = truth_rmse(day, summary.estimates, allow_truncated)
     return summary
+
+
+def _check_day(day: Path, out: Path, start_ns: int | None, end_ns: int | None,
+               allow_truncated: bool) -> None:
+    """Refuse, before anything starts, a day that is ``out``, missing, corrupt or without
+    scans in the selected range (reading its first scan checks the file is intact)."""
+    if day.resolve() == out.resolve():
+        raise IngestError(f"{out}: --out must differ from the replayed day")
+    if not day.is_file():
+        raise IngestError(f"{day}: no such file")
+    first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,
+                                    start_ns=start_ns, end_ns=end_ns)), None)
+    if first is None:
+        raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
+
+
+def _stream(day: Path, recorder: FileRecorder, service: EstimatorService,
+            on_output: Callable[[Output], None], **replay: Any) -> ReplayStats:
+    """Two Zenoh sessions on loopback, the plant's publishing ``day`` (``replay``: the
+    arguments of :func:`replay_day`) and the service's estimating and recording; returns once
+    every message and estimate is recorded."""
+    unit = service.unit
+    with open_session(port=0) as svc_session:
+        (endpoint,) = listening_endpoints(svc_session)[:1] or (None,)
+        if endpoint is None:
+            raise SoftsensorError("replay: the service session is not listening")
+        with open_session(port=None, connect=[endpoint]) as plant_session:
+            if not wait_for_peers(plant_session, timeout=10.0):
+                raise SoftsensorError("replay: the Zenoh sessions did not connect on "
+                                      "loopback within 10 s")
+            bus = BusRecorder(svc_session, recorder, unit=unit)
+            pipeline = ServicePipeline(svc_session, service, unit=unit, on_output=on_output)
+            publisher = Publisher(plant_session, unit)
+            try:
+                publisher.declare(INPUT_KINDS)
+                if not publisher.wait_matched(INPUT_KINDS, timeout=10.0):
+                    raise SoftsensorError("replay: no subscriber matched within 10 s")
+                labs_sent = [0]
+
+                def _sink(kind: str, body: dict[str, Any], time_ns: int) -> None:
+                    publisher.put(kind, body, time_ns)
+                    if kind == "lab":  # the next scan must not overtake it (see below)
+                        labs_sent[0] += 1
+                        _wait(lambda: pipeline.n_labs_received >= labs_sent[0],
+                              lambda: pipeline.n_labs_received, "a lab result")
+
+                stats = replay_day(day, _sink, **replay)
+                n = stats.n_published
+                _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
+                      lambda: pipeline.n_in + bus.n_received, "the replayed messages")
+                pipeline.flush()
+                _wait(lambda: bus.n_received >= n + pipeline.n_out,
+                      lambda: bus.n_received, "the estimates to be recorded")
+            finally:
+                publisher.close()
+                pipeline.close(checkpoint=False)
+                bus.close()
+    return stats
 
 
 __all__ = ["FileRecorder", "ReplaySummary", "make_service", "replay_to_file", "truth_rmse",

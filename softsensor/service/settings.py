@@ -136,8 +136,8 @@ class ServiceSettings:
         if self.log_format not in LOG_FORMATS:
             return f"log_format must be one of {', '.join(LOG_FORMATS)}, got {self.log_format!r}"
         if self.clock_start is not None:
-            from softsensor.bus.replay import parse_time
             from softsensor.errors import ConfigError
+            from softsensor.service.day_replay import parse_time
             try:
                 parse_time(self.clock_start, "clock_start")
             except ConfigError as exc:

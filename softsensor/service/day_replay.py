@@ -1,4 +1,5 @@
-"""Replay a recorded day onto the bus at a chosen pace.
+"""Replay a recorded day onto the bus at a chosen pace (reads :mod:`softsensor.recording`,
+feeds :mod:`softsensor.bus`: a bridge, so it sits with the service that wires them).
 
 The MCAP topics map to Zenoh key kinds (``/plant/scan`` -> ``plant/<unit>/scan``,
 ``/plant/lab`` -> ``plant/<unit>/lab``, and the ``/softsensor/...`` topics likewise); topics
@@ -120,20 +121,34 @@ def replay_day(path: str | os.PathLike[str], sink: Sink, *, rate: float | str = 
     :class:`~softsensor.errors.IngestError` for a bad file.
     """
     speed = parse_rate(rate)
-    start_ns = parse_time(start, "start")
-    end_ns = parse_time(end, "end")
-    if start_ns is not None and end_ns is not None and end_ns <= start_ns:
-        raise ConfigError(f"end ({end_ns}) must be after start ({start_ns})")
+    start_ns, end_ns = _time_range(start, end)
     selected = list(topics)
     for topic in selected:
         if topic not in TOPIC_KIND:
             raise ConfigError(f"topic {topic} has no Zenoh key and cannot be replayed")
-    stop = stop or threading.Event()
+    messages = iter_messages(path, topics=selected, allow_truncated=allow_truncated,
+                             start_ns=start_ns, end_ns=end_ns)
+    return _paced(messages, sink, speed, stop or threading.Event(), max_messages, clock)
+
+
+def _time_range(start: int | str | datetime | None, end: int | str | datetime | None
+                ) -> tuple[int | None, int | None]:
+    start_ns = parse_time(start, "start")
+    end_ns = parse_time(end, "end")
+    if start_ns is not None and end_ns is not None and end_ns <= start_ns:
+        raise ConfigError(f"end ({end_ns}) must be after start ({start_ns})")
+    return start_ns, end_ns
+
+
+def _paced(messages: Iterable[tuple[str, int, dict[str, Any]]], sink: Sink,
+           speed: float | None, stop: threading.Event, max_messages: int | None,
+           clock: Callable[[], float]) -> ReplayStats:
+    """Hand ``messages`` to ``sink``, each ``(log time - first log time) / speed`` after the
+    first on ``clock`` (``speed`` None: at once), until they end, ``stop`` or the cap."""
     stats = ReplayStats()
     wall0 = clock()
     log0: int | None = None
-    for topic, t, body in iter_messages(path, topics=selected, allow_truncated=allow_truncated,
-                                        start_ns=start_ns, end_ns=end_ns):
+    for topic, t, body in messages:
         if stop.is_set() or (max_messages is not None and stats.n_published >= max_messages):
             stats.stopped = stop.is_set()
             break
@@ -151,6 +166,5 @@ def replay_day(path: str | os.PathLike[str], sink: Sink, *, rate: float | str = 
         stats.last_ns = t
     stats.wall_s = clock() - wall0
     return stats
-
 
 __all__ = ["DEFAULT_TOPICS", "ReplayStats", "parse_rate", "parse_time", "replay_day"]

@@ -1,6 +1,7 @@
 """``softsensor calibrate | identify | validate``: argument parsing and output only.
 
-The work is done by :mod:`softsensor.calibration.pipeline`. ``calibrate`` and ``validate``
+The work is done by :mod:`softsensor.calibration.pipeline`; the pages by
+:mod:`.calibration_report`. ``calibrate`` and ``validate``
 print one JSON document on stdout (progress and logging go to stderr); ``identify`` prints
 the table of what the data can and cannot pin down and writes JSON with ``--json``. Errors are
 :class:`~softsensor.errors.SoftsensorError` subclasses, which the ``softsensor`` command turns
@@ -13,12 +14,14 @@ import argparse
 import dataclasses
 import json
 import sys
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.dataset import load_segment
+from softsensor.apps.loading import load_config_and_params, read_day_inputs
+from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
 from softsensor.calibration.params_file import params_document, read_fit, write_params
@@ -27,10 +30,11 @@ from softsensor.calibration.pipeline import (
     DEFAULT_WINDOW_HOURS,
     DataSelection,
     calibrate,
-    load_segments,
     objective_spec,
+    select_segments,
     validate,
 )
+from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import (
     COSTS,
     INLET_MODES,
@@ -39,12 +43,8 @@ from softsensor.calibration.settings import (
 )
 from softsensor.errors import ConfigError
 from softsensor.jsonable import jsonable
-from softsensor.plantconfig import (
-    PARAMETER_NAMES,
-    PlantConfig,
-    load_parameters,
-    load_plant_config,
-)
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
 
 
@@ -75,6 +75,23 @@ def _selection(args: argparse.Namespace) -> DataSelection:
     if args.windows_per_day < 1:
         raise ConfigError(f"--windows-per-day must be >= 1, got {args.windows_per_day}")
     return DataSelection(args.window_hours, args.windows_per_day, max(args.min_labs, 1))
+
+
+def load_segment(path: str | Path, config: PlantConfig) -> Segment:
+    """Read a recorded day and resample it to model windows (:mod:`.loading`)."""
+    return segment_from_day(read_day_inputs(path), config, source=str(path))
+
+
+def load_segments(paths: Sequence[str | Path], config: PlantConfig,
+                  selection: DataSelection | None = None
+                  ) -> tuple[list[Segment], list[WindowChoice]]:
+    """Read every day, one at a time, and pick its calibration window(s) (``selection``
+    default: :class:`DataSelection`'s)."""
+    def days() -> Iterator[tuple[str, RecordedDay]]:
+        for p in paths:
+            yield str(p), read_day_inputs(p)
+
+    return select_segments(days(), config, selection or DataSelection())
 
 
 # ---------------------------------------------------------------------------- calibrate
@@ -162,8 +179,7 @@ REFUSED = 3
 
 def calibrate_main(args: argparse.Namespace) -> int:
     """``softsensor calibrate``: fit, validate, write PARAMS.toml, print a JSON summary."""
-    base = load_plant_config(args.config)
-    current = load_parameters(args.params, base) if args.params else base
+    base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     out = Path(args.out)
     if not out.parent.is_dir():
@@ -208,7 +224,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         write_params(out, doc, comment)
     summary["written"] = written
     if args.report:
-        from softsensor.calibration.report import calibration_page
+        from softsensor.apps.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report))
     _emit(summary, args.json)
@@ -241,11 +257,10 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
 
 def identify_main(args: argparse.Namespace) -> int:
     """``softsensor identify``: sensitivities, FIM, correlations, verdicts."""
-    from softsensor.calibration.report import identifiability_table, identify_page
+    from softsensor.apps.calibration_report import identifiability_table, identify_page
     from softsensor.model import DryerModel
 
-    base = load_plant_config(args.config)
-    config = load_parameters(args.params, base) if args.params else base
+    base, config = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     segments, choices = load_segments(args.days, config, _selection(args))
     model = DryerModel(config)
@@ -319,8 +334,7 @@ def validate_main(args: argparse.Namespace) -> int:
     moisture fitted to their temperatures (and open loop)."""
     from softsensor.model import DryerModel
 
-    base = load_plant_config(args.config)
-    config = load_parameters(args.params, base)
+    base, config = load_config_and_params(args)
     fit = read_fit(args.params)
     calibration = _calibration_settings(args, base)
     if args.cost is None and isinstance(fit.get("cost_kind"), str) \
@@ -334,7 +348,7 @@ def validate_main(args: argparse.Namespace) -> int:
                       float(cal_cost) if isinstance(cal_cost, (int, float)) else None, model)
     doc = result.summary()
     if args.report:
-        from softsensor.calibration.report import validation_page
+        from softsensor.apps.calibration_report import validation_page
 
         doc["report"] = str(validation_page(result, config, args.report))
     _emit(doc, args.json)

@@ -9,7 +9,7 @@
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
 * ``index.md``: the verdict, the evidence table and the figures (the same page layout as the
-  calibration report, :func:`softsensor.calibration.figures.write_page`).
+  calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
 
 Temperatures on the axes are in °C for reading; the program keeps K everywhere else.
 """
@@ -24,7 +24,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from softsensor.calibration.figures import markdown_table, write_page  # noqa: E402
+from softsensor.apps.calibration_figures import markdown_table, write_page  # noqa: E402
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402

@@ -13,20 +13,11 @@ import argparse
 import asyncio
 import logging
 import signal
-import sys
 
+from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError
 
 log = logging.getLogger(__name__)
-
-
-def _load_config(args: argparse.Namespace):
-    from softsensor.plantconfig import load_parameters, load_plant_config
-
-    cfg = load_plant_config(args.config)
-    if args.params:
-        cfg = load_parameters(args.params, cfg)
-    return cfg
 
 
 def _plc(value: str | None) -> tuple[str | None, int | None]:
@@ -47,7 +38,7 @@ def _run(args: argparse.Namespace) -> int:
     from softsensor.service.logs import configure_logging
     from softsensor.service.settings import service_settings
 
-    cfg = _load_config(args)
+    cfg = load_config_and_params(args).config
     host, port = _plc(args.plc)
     settings = service_settings(cfg).with_overrides(
         unit=args.unit, tagmap=args.tagmap, plc_host=host, plc_port=port,
@@ -111,12 +102,12 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from softsensor.bus.replay import parse_rate
+    from softsensor.service.day_replay import parse_rate
     from softsensor.service.offline_replay import replay_to_file
     from softsensor.service.settings import service_settings
 
     parse_rate(args.rate)  # a bad rate fails before anything starts
-    cfg = _load_config(args)
+    cfg = load_config_and_params(args).config
     settings = service_settings(cfg)
     if not getattr(args, "verbose", False):
         for name in ("softsensor.service", "softsensor.estimation", "softsensor.ingest"):
@@ -153,8 +144,3 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     """Register the ``run`` and ``replay`` verbs (called by :mod:`softsensor.cli`)."""
     _add_run(sub)
     _add_replay(sub)
-
-
-if __name__ == "__main__":  # pragma: no cover - use the softsensor command
-    from softsensor.cli import main
-    sys.exit(main())

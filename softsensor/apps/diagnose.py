@@ -10,7 +10,8 @@ polish does the rest; the paper's 200 trials take minutes more for little gain) 
 ``--window-hours`` window with the most natural variability. With ``--params`` the parameter
 file is used as it is, its ``[discrepancy]`` (what the calibration left on held-out data,
 written by ``softsensor calibrate``) sizing the calibration-error alternative of
-:mod:`.calibration_error`; ``--calibrate-on`` carries its own calibration's the same way.
+:mod:`softsensor.diagnosis.calibration_error`; ``--calibrate-on`` carries its own
+calibration's the same way.
 
 REPORT.json (CONTRACT section 5) is written to ``--json`` and printed on stdout; progress goes
 to stderr. Every error is a one-line :class:`~softsensor.errors.SoftsensorError`.
@@ -25,10 +26,11 @@ import time
 from pathlib import Path
 from typing import Any
 
+from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.errors import ConfigError
 from softsensor.jsonable import jsonable
-from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
-from softsensor.signals import OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+from softsensor.plantconfig import PARAMETER_NAMES
+from softsensor.signals import OUTPUT_NAMES
 
 #: Optuna trials of the calibration on CAL (before the local polish).
 DEFAULT_TRIALS = 40
@@ -79,14 +81,12 @@ def diagnose_main(args: argparse.Namespace) -> int:
     """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
     from softsensor.diagnosis.pipeline import diagnose
     from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
-    from softsensor.recording.mcap_day import read_day
 
     _check_paths(args)
-    cfg = load_plant_config(args.config)
+    cfg = load_config_and_params(args).config
     t0 = time.perf_counter()
     calibration: dict[str, Any]
     if args.params:
-        cfg = load_parameters(args.params, cfg)
         from softsensor.calibration.params_file import read_fit
 
         fit = read_fit(args.params)
@@ -96,7 +96,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
     else:
         cfg, calibration = _calibrate(cfg, args)
     t_cal = time.perf_counter() - t0
-    day = read_day(args.day, topics=[TOPIC_SCAN, TOPIC_LAB])
+    day = read_day_inputs(args.day)
     d = diagnose(cfg, day, source=str(args.day),
                  fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION)
     doc = d.to_json()
@@ -104,7 +104,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
     doc["calibration"] = calibration
     doc["timings_s"]["calibration"] = round(t_cal, 2)
     if args.report:
-        from softsensor.diagnosis.report import write_report
+        from softsensor.apps.diagnosis_report import write_report
 
         doc["report"] = str(write_report(d, args.report, doc))
     text = json.dumps(jsonable(doc), indent=2)
@@ -121,8 +121,9 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
     summary for the report."""
     import optuna
 
+    from softsensor.apps.calibrate import load_segments
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import DataSelection, calibrate, load_segments
+    from softsensor.calibration.pipeline import DataSelection, calibrate
     from softsensor.calibration.settings import calibration_settings
 
     if not args.window_hours > 0:

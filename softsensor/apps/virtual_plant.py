@@ -1,6 +1,7 @@
-"""``softsensor plant-server``: a virtual plant as a Modbus TCP PLC (tests and demos).
+"""``softsensor simulate`` (a virtual plant's day as MCAP) and ``softsensor plant-server`` (a
+virtual plant as a Modbus TCP PLC, for tests and demos).
 
-Also the plant choice shared with ``softsensor simulate``: ``--plant independent`` (default;
+Both choose the plant the same way: ``--plant independent`` (default;
 :mod:`softsensor.plant.independent`, a dryer simulated apart from the model, member
 ``--plant-seed``) or ``--plant model`` (:mod:`softsensor.plant.simulator`, the model itself
 with known parameters, ``--params``).
@@ -13,6 +14,7 @@ import asyncio
 import logging
 import signal
 
+from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError
 from softsensor.plant.day import SimulatedDay
 from softsensor.plant.effects import EFFECTS
@@ -36,15 +38,10 @@ def add_plant_options(p: argparse.ArgumentParser) -> None:
 
 def load_plant(args: argparse.Namespace) -> PlantConfig:
     """The plant config of ``args``, with ``--params`` applied (``--plant model`` only)."""
-    from softsensor.plantconfig import load_parameters, load_plant_config
-
     if args.params and args.plant != "model":
         raise ConfigError("--params applies to --plant model only (the independent plant "
                           "has no model parameters)")
-    cfg = load_plant_config(args.config)
-    if args.params:
-        cfg = load_parameters(args.params, cfg)
-    return cfg
+    return load_config_and_params(args).config
 
 
 def simulate_plant(cfg: PlantConfig, args: argparse.Namespace) -> SimulatedDay:
@@ -100,7 +97,38 @@ def _plant_server(args: argparse.Namespace) -> int:
     return asyncio.run(_serve(args))
 
 
+def _simulate(args: argparse.Namespace) -> int:
+    cfg = load_plant(args)
+    day = simulate_plant(cfg, args)
+    day.write(args.out)
+    eff = day.effect
+    what = "clean day" if eff["effect"] == "none" else (
+        f"effect {eff['effect']} magnitude {eff['magnitude']:g} {eff['unit']}"
+        + (f" on {eff['channel']}" if eff.get("channel") else ""))
+    plant = ("plant independent, plant seed " + str(args.plant_seed)
+             if args.plant == "independent" else "plant model")
+    print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h, "
+          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}")
+    return 0
+
+
+def _add_simulate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("simulate", help="run a virtual plant and record a day as MCAP")
+    p.add_argument("--hours", type=float, default=48.0, help="length of the record [h]")
+    p.add_argument("--seed", type=int, default=0, help="seed of every random stream of the day")
+    p.add_argument("--effect", default=None, metavar="CAUSE",
+                   help=f"hide one effect in the day: {', '.join(EFFECTS)}")
+    p.add_argument("--magnitude", type=float, default=None,
+                   help="size of the effect (units and ranges: softsensor.plant.effects)")
+    add_plant_options(p)
+    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
+    p.add_argument("--out", required=True, help="MCAP file to write")
+    p.set_defaults(func=_simulate)
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
+    """Register ``simulate`` and ``plant-server`` on the ``softsensor`` parser."""
+    _add_simulate(sub)
     p = sub.add_parser("plant-server", help="serve a virtual plant over Modbus TCP")
     p.add_argument("--host", default="127.0.0.1", help="address to bind (default loopback)")
     p.add_argument("--port", type=int, default=5020, help="TCP port (0: any free port)")

@@ -1,4 +1,5 @@
-"""Report pages: the figures of :mod:`.figures` plus the tables, as Markdown in one folder.
+"""Calibration report pages: the figures of :mod:`.calibration_figures` plus the tables, as
+Markdown in one folder.
 
 ``calibrate --report DIR`` writes the calibration page (Figs. 2 to 5, parameters, fit, the
 chosen window and why, the identifiability table and the weighted FIM of the paper's
@@ -12,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softsensor.calibration import figures
+from softsensor.apps import calibration_figures as figures
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,

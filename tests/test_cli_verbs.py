@@ -1,0 +1,39 @@
+"""The command line registers every verb module, and a module that fails to import stops it
+with one line naming the module instead of silently dropping its verbs."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from softsensor import cli
+
+CONTRACT_VERBS = {"simulate", "calibrate", "replay", "diagnose"}
+
+
+def test_every_verb_module_registers_its_verbs() -> None:
+    parser = cli.build_parser()
+    verbs = set(parser._subparsers._group_actions[0].choices)  # the one sub-parser group
+    assert CONTRACT_VERBS <= verbs
+    assert {"identify", "validate", "run", "plant-server"} <= verbs
+
+
+@pytest.mark.parametrize(("module", "missing"), [
+    ("broken_verbs", "softsensor_no_such_dependency"),  # a dependency of the module is absent
+    ("softsensor.apps.no_such_verbs", "softsensor.apps.no_such_verbs"),  # the module itself
+])
+def test_a_verb_module_that_fails_to_import_is_named(module: str, missing: str, tmp_path: Path,
+                                                     monkeypatch, capsys) -> None:
+    (tmp_path / "broken_verbs.py").write_text("import softsensor_no_such_dependency\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.delitem(sys.modules, "broken_verbs", raising=False)
+    monkeypatch.setattr(cli, "VERB_MODULES", ("softsensor.apps.virtual_plant", module))
+    with pytest.raises(cli.VerbImportError, match=module):
+        cli.build_parser()
+    assert cli.main(["simulate", "--out", str(tmp_path / "d.mcap")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert module in err[0] and missing in err[0]
+    assert not (tmp_path / "d.mcap").exists()
