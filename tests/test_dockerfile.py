@@ -257,7 +257,8 @@ def test_image_builds_runs_its_help_and_replays_part_of_the_demo_day(tmp_path: P
     # the build compiled the model into NUMBA_CACHE_DIR: a fresh container loads it
     warm = ("import time; t = time.perf_counter(); from softsensor.model import DryerModel; "
             "from softsensor.plantconfig import load_plant_config; "
-            "m = DryerModel(load_plant_config()); m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1)); "
+            "m = DryerModel(load_plant_config()); "
+            "m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1)); "
             "print(time.perf_counter() - t)")
     r = _docker("run", "--rm", "--entrypoint", "python", tag, "-c", warm)
     assert r.returncode == 0, r.stderr[-2000:]
