@@ -67,6 +67,7 @@ _PLUGGED: tuple[tuple[str, str], ...] = (
     ("softsensor.calibration.commands", "add_commands"),
     ("softsensor.service.commands", "add_commands"),
     ("softsensor.diagnosis.commands", "add_commands"),
+    ("softsensor.historian_commands", "add_commands"),
 )
 
 
