@@ -249,6 +249,11 @@ def test_timestamp_unit_mistake_is_refused_with_a_hint(tmp_path, capsys) -> None
                _csv([seconds]))
     assert "gives 1970-01-" in err and "before 2000" in err, err
     assert "source.time_unit = 'ms'" in err and "as s it would be 2026-01-05T10:00:00Z" in err
+    nanoseconds = str(pd.Timestamp("2026-01-05T10:00:00Z").value)
+    err = _err(capsys, tmp_path, wide_map(tmp_path, extra='time_unit = "s"\n'),
+               _csv([nanoseconds]))
+    assert "more than a day in the future" in err, err
+    assert "as ns it would be 2026-01-05T10:00:00Z" in err, err
 
 
 def test_text_that_is_neither_number_nor_bad_string_is_refused(tmp_path, capsys) -> None:

@@ -102,10 +102,12 @@ def _from_numbers(values: np.ndarray, spec: TimeSpec, where: str) -> np.ndarray:
     if not np.all(np.isfinite(values)):
         i = int(np.flatnonzero(~np.isfinite(values))[0])
         raise IngestError(f"{where} row {i + 1}: {spec.column} is empty or not a time")
-    ns = np.round(values.astype(float) * TIME_UNITS[spec.unit]) if values.dtype.kind == "f" \
-        else values.astype(np.int64) * TIME_UNITS[spec.unit]
-    _check_range(np.asarray(ns, dtype=float), spec, where, values)
-    return np.asarray(ns).astype(np.int64)
+    size = TIME_UNITS[spec.unit]
+    approx = values.astype(float) * size  # checked in float first: int64 would wrap around
+    _check_range(approx, spec, where, values)
+    if values.dtype.kind in "iu":
+        return values.astype(np.int64) * size
+    return np.round(approx).astype(np.int64)
 
 
 def _localize(naive: pd.DatetimeIndex, spec: TimeSpec, where: str) -> pd.DatetimeIndex:
