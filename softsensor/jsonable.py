@@ -1,7 +1,9 @@
-"""Turning analysis results into plain JSON: the one converter the report writers share."""
+"""Plain JSON from analysis results and message bodies: the one converter the bus, the MCAP
+writer and the report writers share."""
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
@@ -9,17 +11,23 @@ import numpy as np
 
 
 def jsonable(x: Any) -> Any:
-    """``x`` with numpy scalars made Python numbers, tuples made lists, keys made strings, and
-    non-finite floats made ``None`` (JSON has no NaN)."""
+    """``x`` with numpy scalars made Python numbers, arrays and tuples made lists, keys made
+    strings, and non-finite floats made ``None`` (JSON has no NaN, and every MCAP and Zenoh
+    reader must parse what we write)."""
     if isinstance(x, dict):
         return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
         return [jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        x = float(x)
+    if isinstance(x, np.ndarray):
+        return [jsonable(v) for v in x.tolist()]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float):
         return x if math.isfinite(x) else None
-    if isinstance(x, np.bool_):
-        return bool(x)
-    if isinstance(x, np.integer):
-        return int(x)
     return x
+
+
+def dumps(x: Any, indent: int | None = None) -> str:
+    """``x`` as strict JSON text (:func:`jsonable` first; compact unless ``indent``)."""
+    separators = (",", ":") if indent is None else None
+    return json.dumps(jsonable(x), allow_nan=False, indent=indent, separators=separators)

@@ -14,13 +14,12 @@ Both sides import this module: the adapters (:mod:`softsensor.recording`, :mod:`
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from typing import Any
 
 from softsensor.errors import IngestError
-from softsensor.jsonable import jsonable
+from softsensor.jsonable import dumps
 from softsensor.signals import SCAN_SIGNALS
 
 #: Non-signal fields a scan body may carry besides the signals (a Zenoh ``time_ns``, a counter).
@@ -106,12 +105,9 @@ class LabResult:
 
 
 def encode_body(body: dict[str, Any]) -> bytes:
-    """Encode a message body as compact JSON bytes; non-finite floats become ``null`` and numpy
-    scalars Python numbers (JSON has no NaN, and every MCAP and Zenoh reader must parse it)."""
-    try:
-        return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
-    except (ValueError, TypeError):
-        return json.dumps(jsonable(body), allow_nan=False, separators=(",", ":")).encode()
+    """Encode a message body as compact JSON bytes (:func:`softsensor.jsonable.dumps`:
+    non-finite floats become ``null``, numpy values Python ones)."""
+    return dumps(body).encode()
 
 
 __all__ = ["SCAN_EXTRA_FIELDS", "LabResult", "Window", "encode_body", "is_number",

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import sys
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -42,14 +41,14 @@ from softsensor.calibration.settings import (
     calibration_settings,
 )
 from softsensor.errors import ConfigError
-from softsensor.jsonable import jsonable
+from softsensor.jsonable import dumps
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
 
 
 def _emit(doc: dict[str, Any], json_path: str | None) -> None:
-    text = json.dumps(jsonable(doc), indent=2)
+    text = dumps(doc, indent=2)
     if json_path:
         p = Path(json_path)
         if not p.parent.is_dir():
@@ -313,7 +312,7 @@ def identify_main(args: argparse.Namespace) -> int:
         p = Path(args.json)
         if not p.parent.is_dir():
             raise ConfigError(f"--json {p}: directory {p.parent} does not exist")
-        p.write_text(json.dumps(jsonable(doc), indent=2) + "\n", encoding="utf-8")
+        p.write_text(dumps(doc, indent=2) + "\n", encoding="utf-8")
     return 0
 
 

@@ -20,7 +20,6 @@ to stderr. Every error is a one-line :class:`~softsensor.errors.SoftsensorError`
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -28,7 +27,7 @@ from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.errors import ConfigError
-from softsensor.jsonable import jsonable
+from softsensor.jsonable import dumps
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
 
@@ -107,7 +106,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
         from softsensor.apps.diagnosis_report import write_report
 
         doc["report"] = str(write_report(d, args.report, doc))
-    text = json.dumps(jsonable(doc), indent=2)
+    text = dumps(doc, indent=2)
     Path(args.json).write_text(text + "\n", encoding="utf-8")
     print(text)
     print(f"diagnose: {args.day}: cause {doc['cause']}"

@@ -121,25 +121,6 @@ _PERMISSIVE_SCHEMA = {"type": "object", "additionalProperties": True}
 
 
 # ----------------------------------------------------------------------------------------------
-# JSON encoding
-
-
-def _sanitize(value: Any) -> Any:
-    """Return ``value`` with NaN/inf floats as None and numpy scalars/arrays as Python types."""
-    if isinstance(value, dict):
-        return {str(k): _sanitize(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_sanitize(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_sanitize(v) for v in value.tolist()]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
-# ----------------------------------------------------------------------------------------------
 # Writing
 
 
