@@ -53,6 +53,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from softsensor.calibration.dataset import LabPoints
@@ -132,57 +133,42 @@ class Extension(ABC):
 def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction],
                 bounds: tuple[float, float], step: float, tol: float,
                 max_runs: int = 10) -> tuple[float, float]:
-    """Least squares in one bounded parameter ``x`` by Gauss-Newton with secant updates.
+    """Least squares in one bounded parameter ``x`` (:func:`scipy.optimize.least_squares`,
+    trust-region reflective).
 
     ``make(x, k_end)`` returns the prediction of the first ``k_end`` windows; ``x = 0`` is the
     baseline model. The residual vector is the whitened fit-part residuals
-    (:meth:`Problem.fit_residual_vector`). The slope ``J = dr/dx`` starts from a forward
-    difference of size ``step`` and is refreshed from each accepted step (secant), so a
-    fit costs a few model runs of the fit part (at most ``max_runs``); a step that does not
-    lower the sum of squares is halved; a parameter value whose model run fails is treated
-    as infinitely bad. Stops when a step is below ``tol``. Returns ``(x, chi2)``.
+    (:meth:`Problem.fit_residual_vector`). ``x`` is scaled by ``step`` (the size of a change
+    that moves the outputs visibly) and starts at ``step``, not at the baseline: near zero an
+    effect can be flatter than the model's resolution (a lag of seconds against 10 s scans)
+    and a slope taken there would stop the fit. The forward-difference slope is taken over a
+    tenth of ``step`` (or of ``x``, if larger), and the fit stops when a step is below ``tol`` or after about ``max_runs`` model runs
+    of the fit part. A parameter value whose model run fails counts as far worse than the
+    baseline. Returns ``(x, chi2)``, never worse than the baseline's ``chi2``.
     """
     k = problem.split.sim_end(problem.windows.n_windows)
-    lo, hi = bounds
+    r0 = problem.fit_residual_vector(problem.baseline)
+    runs: dict[float, np.ndarray] = {0.0: r0}
+    failed = np.full_like(r0, 1e3 * (1.0 + float(np.max(np.abs(r0), initial=0.0))))
 
-    def vector(x: float) -> np.ndarray | None:
-        try:
-            r = problem.fit_residual_vector(make(float(x), k))
-        except SoftsensorError:
-            return None
-        return r if np.all(np.isfinite(r)) else None
+    def residual(z: np.ndarray) -> np.ndarray:
+        x = float(z[0]) * step
+        if x not in runs:
+            try:
+                r = problem.fit_residual_vector(make(x, k))
+            except SoftsensorError:
+                r = failed
+            runs[x] = r if np.all(np.isfinite(r)) else failed
+        return runs[x]
 
-    x = 0.0
-    r = problem.fit_residual_vector(problem.baseline)
-    f = float(r @ r)
-    h = step if hi >= step else -step
-    r_h = vector(h)
-    runs = 1
-    if r_h is None:
-        return x, f
-    J = (r_h - r) / h
-    if float(r_h @ r_h) < f:
-        x, r, f = h, r_h, float(r_h @ r_h)
-    while runs < max_runs:
-        jj = float(J @ J)
-        if jj <= 0.0:
-            break
-        dx = -float(J @ r) / jj
-        x_new = float(np.clip(x + dx, lo, hi))
-        dx = x_new - x
-        accepted = False
-        while abs(dx) >= tol and runs < max_runs:
-            r_new = vector(x + dx)
-            runs += 1
-            if r_new is not None and float(r_new @ r_new) < f:
-                J = (r_new - r) / dx
-                x, r, f = x + dx, r_new, float(r_new @ r_new)
-                accepted = True
-                break
-            dx *= 0.5
-        if not accepted or abs(dx) < tol:
-            break
-    return x, f
+    lo, hi = bounds[0] / step, bounds[1] / step
+    fit = least_squares(residual, x0=[float(np.clip(1.0, lo, hi))], bounds=(lo, hi),
+                        method="trf", diff_step=0.1, x_scale=1.0, xtol=tol / step,
+                        ftol=1e-6, gtol=1e-8, max_nfev=max(1, max_runs // 2))
+    x = float(fit.x[0]) * step
+    f = float(fit.fun @ fit.fun)
+    f0 = float(r0 @ r0)
+    return (x, f) if f < f0 else (0.0, f0)
 
 
 class SensorOffset(Extension):
