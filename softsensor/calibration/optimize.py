@@ -16,6 +16,12 @@
   that TPE learns to avoid that corner (user attribute ``solver_failed``).
 * Batches: ``batch`` trials are asked at once and simulated through one batched model call
   per chunk (ask/tell interface).
+* Cores: a batch's members run in the model's threads, one per core
+  (:func:`~softsensor.model.dryer.for_members`; the kernels release the GIL). With the inlet
+  moisture estimated every trial is two members (as it is and with the inlet moisture
+  raised), so the default ``batch = 1`` already keeps two cores busy, and TPE sees every
+  result before it proposes the next trial (``benchmarks/calibrate.py`` measures one core
+  against two).
 * Storage: in memory, a journal file, or any database URL Optuna accepts (sqlite,
   PostgreSQL, MySQL). Several processes or machines join one study through the same storage
   and study name; ``n_trials`` is the number of *finished* (complete or pruned) trials the

@@ -11,12 +11,15 @@ the inputs are piecewise constant. By default the Jacobian is a dense finite-dif
 (one right-hand side per state and Jacobian); ``jac="sparse"`` passes the pattern of
 :meth:`StateLayout.sparsity` instead, which groups columns and is much cheaper.
 
-The cell rates are the compiled model's own (:func:`kernels.cell_rates`,
+The right-hand side, :func:`derivatives`, is compiled by numba like the fast model's kernels
+(``compiled=False`` runs the same source in the Python interpreter), so that the comparison
+of the two (``benchmarks/model.py``) measures the reformulation, not the compiler. Its cell
+rates are the compiled model's own (:func:`kernels.cell_rates`,
 :func:`kernels.inflow_coefficients`, :func:`kernels.outside_conductance`,
-:func:`kernels.inlet_air`, called here as plain Python), so at steady state both reach the same
-algebraic equations (the :mod:`~softsensor.model.kernels` module docstring lists them); what
-differs is only the time integration: here every state is dynamic, there the fibre and air sit
-at their quasi-steady profile and the wall is stepped by Crank-Nicolson.
+:func:`kernels.inlet_air`), so at steady state both reach the same algebraic equations (the
+:mod:`~softsensor.model.kernels` module docstring lists them); what differs is only the time
+integration: here every state is dynamic, there the fibre and air sit at their quasi-steady
+profile and the wall is stepped by Crank-Nicolson.
 
 Balances of cell ``i`` (inflow from cell ``i-1``, or from the inlet for ``i = 0``), energy in
 enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
@@ -49,6 +52,8 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
+from numba.extending import register_jitable
 from scipy.integrate import solve_ivp
 from scipy.sparse import lil_matrix
 
@@ -116,10 +121,68 @@ class StateLayout:
         return S.tocsr()
 
 
+@register_jitable
 def _dh_f_dX(X: float, T_f: float, X_fsp: float) -> float:
     """``dh_f/dX`` at constant ``T_f`` [J/kg dry fibre per kg/kg], central difference."""
     h = 1e-6
     return (wd.enthalpy(X + h, T_f, X_fsp) - wd.enthalpy(X - h, T_f, X_fsp)) / (2.0 * h)
+
+
+@njit(cache=True, nogil=True)
+def derivatives(y, u, theta, aux, geo, n_d, dy):
+    """``dy/dt`` of the method of lines into ``dy`` (module docstring's balances).
+
+    ``y``, ``dy``: the :class:`StateLayout` vector of ``n = len(y) // 5`` cells, ``n_d`` of
+    them tube; ``u`` (8,), ``theta`` (7,), ``aux`` (N_AUX,), ``geo`` the packed geometry.
+    Compiled (numba, releases the GIL); ``derivatives.py_func`` is the same source run by the
+    Python interpreter, which :class:`MethodOfLines` uses with ``compiled=False``.
+    """
+    n = y.shape[0] // 5
+    m_a = u[kernels.U_MAIR]
+    m_f = u[kernels.U_MFIB]
+    T_amb = u[kernels.U_TAMB]
+    x_fsp = geo[X_FSP]
+    G = theta[kernels.K_K] * geo[G_COND]
+    # inflow of cell 0: the inlet streams
+    Y_in, h_a_in = kernels.inlet_air(u, geo)
+    X_in = u[kernels.U_XIN]
+    Ta_in = u[kernels.U_TAIR]
+    Tf_in = u[kernels.U_TFIB]
+    h_f_in = wd.enthalpy(X_in, Tf_in, x_fsp)
+    for i in range(n):
+        # field-major: X, T_f, Y, T_a, T_w of cell i (StateLayout)
+        X, Tf, Y, Ta, Tw = y[i], y[n + i], y[2 * n + i], y[3 * n + i], y[4 * n + i]
+        kind = 0 if i < n_d else 1
+        w = kernels.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
+        v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, theta, geo)
+        Tf_m = w * Tf + (1.0 - w) * Tf_in
+        Ta_m = w * Ta + (1.0 - w) * Ta_in
+        R, Q, M_f, M_a = kernels.cell_rates(kind, w * X + (1.0 - w) * X_in, Tf_m,
+                                            w * Y + (1.0 - w) * Y_in, Ta_m, v_s, m_a, m_f,
+                                            theta, geo)
+        h_f = wd.enthalpy(X, Tf, x_fsp)
+        h_a = ha.enthalpy(Ta, Y)
+        h_v = ha.vapour_enthalpy(Tf_m)
+        Q_w = UAw * (Ta_m - Tw)
+        dX = (m_f * (X_in - X) - R) / M_f
+        dY = (m_a * (Y_in - Y) + R) / M_a
+        dhf = (m_f * (h_f_in - h_f) + Q - R * h_v) / M_f
+        dha = (m_a * (h_a_in - h_a) - Q - Q_w + R * h_v) / M_a
+        dy[i] = dX
+        dy[n + i] = (dhf - _dh_f_dX(X, Tf, x_fsp) * dX) / wd.heat_capacity(X, Tf, x_fsp)
+        dy[2 * n + i] = dY
+        dy[3 * n + i] = (dha - ha.vapour_enthalpy(Ta) * dY) / ha.heat_capacity(Ta, Y)
+        U_out = kernels.outside_conductance(Tw, u, theta, aux, geo, kind)
+        wall = Q_w - U_out * (Tw - T_amb)
+        if kind == 0:
+            if i > 0:
+                wall += G * (y[4 * n + i - 1] - Tw)
+            if i < n_d - 1:
+                wall += G * (y[4 * n + i + 1] - Tw)
+            dy[4 * n + i] = wall / geo[C_W_CELL]
+        else:
+            dy[4 * n + i] = wall / geo[C_SH_CELL]
+        X_in, Y_in, Ta_in, Tf_in, h_f_in, h_a_in = X, Y, Ta, Tf, h_f, h_a
 
 
 class MethodOfLines:
@@ -129,65 +192,26 @@ class MethodOfLines:
     ----------
     model : DryerModel
         Supplies the geometry (``n_d``, ``n_c``, packed constants) and the consistent start.
+    compiled : bool
+        Evaluate :func:`derivatives` compiled (default), or its source interpreted by Python
+        (``derivatives.py_func``: the same arithmetic, 100s of times slower).
     """
 
-    def __init__(self, model: DryerModel) -> None:
+    def __init__(self, model: DryerModel, compiled: bool = True) -> None:
         self.model = model
         self.geo = model.geometry.packed
         self.layout = StateLayout(model.geometry.n_d, model.geometry.n_c)
+        self.compiled = compiled
+        self._derivatives = derivatives if compiled else derivatives.py_func
         self.nfev = 0
 
     def rhs(self, t: float, y: np.ndarray, u: np.ndarray, theta: np.ndarray,
             aux: np.ndarray) -> np.ndarray:
         """``dy/dt`` for inputs ``u`` (8,), parameters ``theta`` (7,), extension ``aux``."""
         self.nfev += 1
-        L, geo = self.layout, self.geo
-        n_d, n = L.n_d, L.n_cells
-        X, Tf, Y, Ta, Tw = (y[L.field(f)] for f in _FIELDS)
-        m_a = u[kernels.U_MAIR]
-        m_f = u[kernels.U_MFIB]
-        T_amb = u[kernels.U_TAMB]
-        x_fsp = geo[X_FSP]
-        G = theta[kernels.K_K] * geo[G_COND]
-        dy = np.empty_like(y)
-        dX, dTf, dY, dTa, dTw = (dy[L.field(f)] for f in _FIELDS)
-        # inflow of cell 0: the inlet streams
-        Y_in, h_a_in = kernels.inlet_air(u, geo)
-        X_in = u[kernels.U_XIN]
-        Ta_in = u[kernels.U_TAIR]
-        Tf_in = u[kernels.U_TFIB]
-        h_f_in = wd.enthalpy(X_in, Tf_in, x_fsp)
-        for i in range(n):
-            kind = 0 if i < n_d else 1
-            w = kernels.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
-            v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, theta, geo)
-            Tf_m = w * Tf[i] + (1.0 - w) * Tf_in
-            Ta_m = w * Ta[i] + (1.0 - w) * Ta_in
-            R, Q, M_f, M_a = kernels.cell_rates(kind, w * X[i] + (1.0 - w) * X_in, Tf_m,
-                                                w * Y[i] + (1.0 - w) * Y_in, Ta_m, v_s, m_a,
-                                                m_f, theta, geo)
-            h_f = wd.enthalpy(X[i], Tf[i], x_fsp)
-            h_a = ha.enthalpy(Ta[i], Y[i])
-            h_v = ha.vapour_enthalpy(Tf_m)
-            Q_w = UAw * (Ta_m - Tw[i])
-            dX[i] = (m_f * (X_in - X[i]) - R) / M_f
-            dY[i] = (m_a * (Y_in - Y[i]) + R) / M_a
-            dhf = (m_f * (h_f_in - h_f) + Q - R * h_v) / M_f
-            dha = (m_a * (h_a_in - h_a) - Q - Q_w + R * h_v) / M_a
-            dTf[i] = (dhf - _dh_f_dX(X[i], Tf[i], x_fsp) * dX[i]) / wd.heat_capacity(
-                X[i], Tf[i], x_fsp)
-            dTa[i] = (dha - ha.vapour_enthalpy(Ta[i]) * dY[i]) / ha.heat_capacity(Ta[i], Y[i])
-            U_out = kernels.outside_conductance(Tw[i], u, theta, aux, geo, kind)
-            wall = Q_w - U_out * (Tw[i] - T_amb)
-            if kind == 0:
-                if i > 0:
-                    wall += G * (Tw[i - 1] - Tw[i])
-                if i < n_d - 1:
-                    wall += G * (Tw[i + 1] - Tw[i])
-                dTw[i] = wall / geo[C_W_CELL]
-            else:
-                dTw[i] = wall / geo[C_SH_CELL]
-            X_in, Y_in, Ta_in, Tf_in, h_f_in, h_a_in = X[i], Y[i], Ta[i], Tf[i], h_f, h_a
+        dy = np.empty(self.layout.size)
+        self._derivatives(np.ascontiguousarray(y, dtype=float), u, theta, aux, self.geo,
+                          self.layout.n_d, dy)
         return dy
 
     def outputs(self, y: np.ndarray) -> np.ndarray:
@@ -229,10 +253,32 @@ def initial_vector(model: DryerModel, u: np.ndarray, theta: np.ndarray,
         p["X_f"], p["T_f"], p["Y_a"], p["T_a"], p["T_w"])
 
 
+def _checked_inputs(model: DryerModel, U: np.ndarray, theta: np.ndarray | None,
+                    aux: np.ndarray | None, jac: str
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``U`` (K, 8), ``theta`` per window (K, 7) and ``aux`` (N_AUX,) of :func:`simulate_mol`,
+    validated (the compiled right-hand side does not check bounds)."""
+    U = np.atleast_2d(np.asarray(U, float))
+    if U.shape[-1] != len(INPUT_NAMES) or U.ndim != 2:
+        raise ValueError(f"U must have shape (K, {len(INPUT_NAMES)}), got {U.shape}")
+    theta = model.theta0 if theta is None else np.asarray(theta, float)
+    TH = np.ascontiguousarray(np.broadcast_to(theta, (U.shape[0], 7)))
+    aux = np.zeros(N_AUX) if aux is None else np.asarray(aux, float)
+    if aux.shape != (N_AUX,):
+        raise ValueError(f"aux must have shape ({N_AUX},), got {aux.shape}")
+    if not (np.all(np.isfinite(U)) and np.all(np.isfinite(TH))):
+        bad = INPUT_NAMES[int(np.flatnonzero(~np.isfinite(U).all(axis=0))[0])] \
+            if not np.all(np.isfinite(U)) else "theta"
+        raise SolverError(f"method of lines: {bad} is not finite")
+    if jac not in ("dense", "sparse"):
+        raise ValueError(f"jac must be 'dense' or 'sparse', got {jac!r}")
+    return U, TH, aux
+
+
 def simulate_mol(model: DryerModel, U: np.ndarray, theta: np.ndarray | None = None,
                  aux: np.ndarray | None = None, y0: np.ndarray | None = None,
                  dt: float | None = None, jac: str = "dense", rtol: float = 1e-6,
-                 ) -> MolResult:
+                 compiled: bool = True) -> MolResult:
     """Integrate the full method of lines over windows of piecewise-constant inputs.
 
     Parameters
@@ -254,27 +300,18 @@ def simulate_mol(model: DryerModel, U: np.ndarray, theta: np.ndarray | None = No
         :meth:`StateLayout.sparsity`.
     rtol : float
         Relative tolerance of BDF; absolute ones from :meth:`MethodOfLines.atol`.
+    compiled : bool
+        Right-hand side compiled (default) or interpreted (:class:`MethodOfLines`).
 
     Raises
     ------
     SolverError
         When BDF fails in a window (with the solver's message) or the inputs are not finite.
     """
-    U = np.atleast_2d(np.asarray(U, float))
-    if U.shape[-1] != len(INPUT_NAMES) or U.ndim != 2:
-        raise ValueError(f"U must have shape (K, {len(INPUT_NAMES)}), got {U.shape}")
+    U, TH, aux = _checked_inputs(model, U, theta, aux, jac)
     K = U.shape[0]
-    theta = model.theta0 if theta is None else np.asarray(theta, float)
-    TH = np.broadcast_to(theta, (K, 7))
-    aux = np.zeros(N_AUX) if aux is None else np.asarray(aux, float)
-    if not (np.all(np.isfinite(U)) and np.all(np.isfinite(TH))):
-        bad = INPUT_NAMES[int(np.flatnonzero(~np.isfinite(U).all(axis=0))[0])] \
-            if not np.all(np.isfinite(U)) else "theta"
-        raise SolverError(f"method of lines: {bad} is not finite")
-    if jac not in ("dense", "sparse"):
-        raise ValueError(f"jac must be 'dense' or 'sparse', got {jac!r}")
     dt = model.window if dt is None else float(dt)
-    mol = MethodOfLines(model)
+    mol = MethodOfLines(model, compiled)
     y = initial_vector(model, U[0], TH[0], aux) if y0 is None else np.asarray(y0, float).copy()
     sparsity = mol.layout.sparsity() if jac == "sparse" else None
     atol = mol.atol()
