@@ -142,9 +142,10 @@ def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction
     that moves the outputs visibly) and starts at ``step``, not at the baseline: near zero an
     effect can be flatter than the model's resolution (a lag of seconds against 10 s scans)
     and a slope taken there would stop the fit. The forward-difference slope is taken over a
-    tenth of ``step`` (or of ``x``, if larger), and the fit stops when a step is below ``tol`` or after about ``max_runs`` model runs
-    of the fit part. A parameter value whose model run fails counts as far worse than the
-    baseline. Returns ``(x, chi2)``, never worse than the baseline's ``chi2``.
+    tenth of ``step`` (or of ``x``, if larger), and the fit stops when a step is below ``tol``
+    or after about ``max_runs`` model runs of the fit part. A parameter value whose model run
+    fails counts as far worse than the baseline. Returns ``(x, chi2)``, never worse than the
+    baseline's ``chi2``.
     """
     k = problem.split.sim_end(problem.windows.n_windows)
     r0 = problem.fit_residual_vector(problem.baseline)
