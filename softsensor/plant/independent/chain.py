@@ -26,6 +26,7 @@ from softsensor.plant.independent.flow import (
     D_Y,
     N_DIAG,
     OK,
+    gas_humidity_energy,
     gas_state,
     march,
 )
@@ -194,7 +195,7 @@ def solve_instant(p: np.ndarray, y_in: np.ndarray, seg: np.ndarray, n_tube: int,
     out[O_TAUG_DUCT] = times[1] - out[O_TAUG_TUBE]
     out[O_UG_DUCT] = diag[D_UG]
     # stage A: the outer vortex; new conserved totals at its start, heat counter reset
-    e_g = p[P_E0] - p[P_RATIO] * y[IE] - y[IQ]
+    e_g = gas_humidity_energy(y, p)[1]
     p[P_X0] = y[IX]
     p[P_Y0] = diag[D_Y]
     p[P_E0] = e_g + p[P_RATIO] * y[IE]
@@ -217,7 +218,7 @@ def solve_instant(p: np.ndarray, y_in: np.ndarray, seg: np.ndarray, n_tube: int,
     out[O_TG_A] = diag[D_TG]
     out[O_Y_A] = diag[D_Y]
     out[O_Q_A] = m_gas * y[IQ]
-    e_a = p[P_E0] - p[P_RATIO] * y[IE] - y[IQ]
+    e_a = gas_humidity_energy(y, p)[1]
     res = np.empty(12)
     inner_vortex(p[P_CDG:P_CDG + 5], m_gas, e_a, diag[D_Y], cyc[C_M_LEAK], cyc[C_T_AMB],
                  cyc[C_H_AMB], cyc[C_UA_B], cyc[C_T_SHB], res)

@@ -104,11 +104,21 @@ def _inner_h(T_g: float, Y: float, rho: float, u_g: float, mu: float, k: float,
 
 
 @njit(cache=True)
+def gas_humidity_energy(y: np.ndarray, p: np.ndarray) -> tuple[float, float]:
+    """Gas humidity ``Y`` [kg/kg] and specific energy ``e_g`` [J/kg dry gas] of the march
+    state ``y``: the water and energy the fibre has given up since the totals ``P_X0``,
+    ``P_Y0``, ``P_E0`` were set, less the heat lost to the wall (module doc). The one place
+    these balances are written."""
+    Y = p[P_Y0] - p[P_RATIO] * (y[IX] - p[P_X0])
+    e_g = p[P_E0] - p[P_RATIO] * y[IE] - y[IQ]
+    return Y, e_g
+
+
+@njit(cache=True)
 def gas_state(y: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
     """Gas temperature, fibre temperature, humidity, gas velocity and inner wall h of ``y``."""
     X = y[IX]
-    Y = p[P_Y0] - p[P_RATIO] * (X - p[P_X0])
-    e_g = p[P_E0] - p[P_RATIO] * y[IE] - y[IQ]
+    Y, e_g = gas_humidity_energy(y, p)
     cdg = p[P_CDG:P_CDG + 5]
     T_g = gas_temperature(cdg, e_g, Y)
     out[D_TG] = T_g
@@ -125,8 +135,7 @@ def gas_state(y: np.ndarray, p: np.ndarray, out: np.ndarray) -> None:
 def rhs(y: np.ndarray, p: np.ndarray, dy: np.ndarray) -> None:
     """Derivative of the march state with respect to ``z`` [1/m] or ``s`` [-] (module doc)."""
     X = y[IX]
-    Y = p[P_Y0] - p[P_RATIO] * (X - p[P_X0])
-    e_g = p[P_E0] - p[P_RATIO] * y[IE] - y[IQ]
+    Y, e_g = gas_humidity_energy(y, p)
     cdg = p[P_CDG:P_CDG + 5]
     pres = p[P_PRESSURE]
     m_dg = p[P_M_DG]
