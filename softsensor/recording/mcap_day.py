@@ -34,6 +34,7 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.writer import CompressionType, Writer
 
 from softsensor.errors import IngestError
+from softsensor.jsonable import jsonable
 from softsensor.messages import SCAN_EXTRA_FIELDS, LabResult, scan_values
 from softsensor.messages import is_number as _is_number
 from softsensor.signals import (
@@ -124,27 +125,12 @@ _PERMISSIVE_SCHEMA = {"type": "object", "additionalProperties": True}
 # JSON encoding
 
 
-def _sanitize(value: Any) -> Any:
-    """Return ``value`` with NaN/inf floats as None and numpy scalars/arrays as Python types."""
-    if isinstance(value, dict):
-        return {str(k): _sanitize(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_sanitize(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_sanitize(v) for v in value.tolist()]
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def encode_body(body: dict[str, Any]) -> bytes:
     """Encode a message body as JSON bytes; non-finite floats become ``null``."""
     try:
         return json.dumps(body, allow_nan=False, separators=(",", ":")).encode()
     except (ValueError, TypeError):
-        return json.dumps(_sanitize(body), allow_nan=False, separators=(",", ":")).encode()
+        return json.dumps(jsonable(body), allow_nan=False, separators=(",", ":")).encode()
 
 
 # ----------------------------------------------------------------------------------------------
