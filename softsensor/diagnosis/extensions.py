@@ -34,8 +34,8 @@ inlet_moisture     the inlet moisture as an estimated disturbance: the UKF of
 Every fit minimises the whitened fit-part residuals of :meth:`Problem.chi2
 <softsensor.diagnosis.problem.Problem.chi2>`: what the calibration-error alternative
 (:mod:`.calibration_error`) cannot predict. The continuous parameters are fitted by
-:func:`_fit_scalar` (Gauss-Newton with secant updates: a handful of model runs of the fit
-part). The inlet-moisture extension is a state
+:func:`_fit_scalar` (bounded :func:`scipy.optimize.least_squares`: a handful of model runs of
+the fit part). The inlet-moisture extension is a state
 estimator, not a fixed trajectory: a trajectory fitted on the fit part would say nothing about
 the held-out part. Its prediction of window ``k`` uses the temperatures of the windows before
 ``k`` only and never a lab result, so its held-out residuals are as honest as the others'.
@@ -53,6 +53,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from softsensor.calibration.dataset import LabPoints
@@ -132,57 +133,52 @@ class Extension(ABC):
 def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction],
                 bounds: tuple[float, float], step: float, tol: float,
                 max_runs: int = 10) -> tuple[float, float]:
-    """Least squares in one bounded parameter ``x`` by Gauss-Newton with secant updates.
+    """Least squares in one bounded parameter ``x`` by :func:`scipy.optimize.least_squares`.
 
     ``make(x, k_end)`` returns the prediction of the first ``k_end`` windows; ``x = 0`` is the
-    baseline model. The residual vector is the whitened fit-part residuals
-    (:meth:`Problem.fit_residual_vector`). The slope ``J = dr/dx`` starts from a forward
-    difference of size ``step`` and is refreshed from each accepted step (secant), so a
-    fit costs a few model runs of the fit part (at most ``max_runs``); a step that does not
-    lower the sum of squares is halved; a parameter value whose model run fails is treated
-    as infinitely bad. Stops when a step is below ``tol``. Returns ``(x, chi2)``.
+    baseline model and the starting point (one ``step`` inside when it is a bound). The
+    residual vector is the whitened fit-part residuals (:meth:`Problem.fit_residual_vector`).
+    Trust-region reflective keeps ``x`` inside ``bounds``; the slope ``dr/dx`` is a forward
+    difference of size ``step`` (towards the inside of the bounds), the unit in which the
+    trust region is scaled. The search stops when a step is small beside ``x`` (``xtol =
+    tol / (hi - lo)``), when the sum of squares falls by less than 1e-4 of itself, or after
+    ``max_runs`` evaluations of the residuals. A value whose model run fails gets residuals
+    far above the baseline's, so it is never accepted. Returns ``(x, chi2)``, never worse
+    than the baseline's.
     """
     k = problem.split.sim_end(problem.windows.n_windows)
     lo, hi = bounds
+    r0 = problem.fit_residual_vector(problem.baseline)
+    f0 = float(r0 @ r0)
+    # a failed run scores 100 times the baseline's sum of squares, spread over the residuals
+    failed = np.full(r0.shape, 10.0 * math.sqrt(max(f0, 1.0) / max(r0.size, 1)))
+    cache: dict[float, np.ndarray] = {0.0: r0}
 
-    def vector(x: float) -> np.ndarray | None:
-        try:
-            r = problem.fit_residual_vector(make(float(x), k))
-        except SoftsensorError:
-            return None
-        return r if np.all(np.isfinite(r)) else None
+    def residuals(x: float) -> np.ndarray:
+        x = float(x)
+        if x not in cache:
+            try:
+                r = problem.fit_residual_vector(make(x, k))
+            except SoftsensorError:
+                r = failed
+            cache[x] = r if np.all(np.isfinite(r)) else failed
+        return cache[x]
 
-    x = 0.0
-    r = problem.fit_residual_vector(problem.baseline)
+    def slope(z: np.ndarray) -> np.ndarray:
+        x = float(z[0])
+        h = step if x + step <= hi else -step
+        return ((residuals(x + h) - residuals(x)) / h)[:, None]
+
+    # trf starts strictly inside the bounds with a trust region of |x0| (in units of step),
+    # or of one step from x0 = 0: a baseline on a bound starts one step inside instead
+    x0 = lo + step if lo == 0.0 else hi - step if hi == 0.0 else 0.0
+    sol = least_squares(lambda z: residuals(z[0]), [x0], jac=slope, bounds=([lo], [hi]),
+                        method="trf", x_scale=[step], xtol=tol / max(hi - lo, tol),
+                        ftol=1e-4, max_nfev=max_runs)
+    x = float(np.clip(sol.x[0], lo, hi))
+    r = residuals(x)
     f = float(r @ r)
-    h = step if hi >= step else -step
-    r_h = vector(h)
-    runs = 1
-    if r_h is None:
-        return x, f
-    J = (r_h - r) / h
-    if float(r_h @ r_h) < f:
-        x, r, f = h, r_h, float(r_h @ r_h)
-    while runs < max_runs:
-        jj = float(J @ J)
-        if jj <= 0.0:
-            break
-        dx = -float(J @ r) / jj
-        x_new = float(np.clip(x + dx, lo, hi))
-        dx = x_new - x
-        accepted = False
-        while abs(dx) >= tol and runs < max_runs:
-            r_new = vector(x + dx)
-            runs += 1
-            if r_new is not None and float(r_new @ r_new) < f:
-                J = (r_new - r) / dx
-                x, r, f = x + dx, r_new, float(r_new @ r_new)
-                accepted = True
-                break
-            dx *= 0.5
-        if not accepted or abs(dx) < tol:
-            break
-    return x, f
+    return (x, f) if f < f0 else (0.0, f0)
 
 
 class SensorOffset(Extension):
