@@ -1,7 +1,8 @@
 """Typed, validated TOML sections: the one place config files are turned into dataclasses.
 
 Each TOML section maps onto one frozen dataclass. Fields without a default are required;
-unknown keys are rejected; numbers are range-checked from the field's metadata. Every error is
+unknown keys are rejected; numbers are range-checked and choices checked from the field's
+metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. Every error is
 a one-line :class:`~softsensor.errors.ConfigError` naming the file and the dotted key, e.g.
 ``config/dryer1.toml: tube.length must be > 0, got -3``.
 """
@@ -21,10 +22,26 @@ from softsensor.errors import ConfigError
 T = TypeVar("T")
 
 
+#: Field metadata naming the TOML key of a field whose Python name differs (``type`` is a
+#: builtin's name, so :class:`~softsensor.ingest.tagmap.TagSpec` calls it ``data_type``).
+TOML_KEY = "toml_key"
+_BOUNDS = ("gt", "ge", "lt", "le")
+
+
 def num(default: Any = dataclasses.MISSING, *, gt: float | None = None,
         ge: float | None = None, lt: float | None = None, le: float | None = None) -> Any:
     """A dataclass field with bounds checked on load (``gt``/``ge``/``lt``/``le``)."""
-    meta = {k: v for k, v in (("gt", gt), ("ge", ge), ("lt", lt), ("le", le)) if v is not None}
+    meta = {k: v for k, v in zip(_BOUNDS, (gt, ge, lt, le), strict=True) if v is not None}
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def choice(options: typing.Iterable[str], default: Any = dataclasses.MISSING, *,
+           toml_key: str | None = None) -> Any:
+    """A dataclass field whose value must be one of ``options`` (read from ``toml_key`` when
+    the TOML key is not the field's name)."""
+    meta: dict[str, Any] = {"one_of": tuple(options)}
+    if toml_key is not None:
+        meta[TOML_KEY] = toml_key
     return dataclasses.field(default=default, metadata=meta)
 
 
@@ -43,6 +60,11 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 
 
 def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any:
+    if "one_of" in meta:
+        if isinstance(value, bool) or value not in meta["one_of"]:
+            raise ConfigError(f"{source}: {key} must be one of {', '.join(meta['one_of'])}, "
+                              f"got {value!r}")
+        return value
     origin = typing.get_origin(typ)
     if origin in (typing.Union, types.UnionType):
         args = [a for a in typing.get_args(typ) if a is not type(None)]
@@ -66,7 +88,7 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
         if not isinstance(value, str) or not value:
             raise ConfigError(f"{source}: {key} must be a non-empty string, got {value!r}")
         return value
-    for op, bound in meta.items():
+    for op, bound in ((op, meta[op]) for op in _BOUNDS if op in meta):
         ok = {"gt": value > bound, "ge": value >= bound, "lt": value < bound,
               "le": value <= bound}[op]
         if not ok:
@@ -75,24 +97,31 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
     return value
 
 
-def build_section(cls: type[T], table: Any, key: str, source: str) -> T:
-    """Build the frozen dataclass ``cls`` from the TOML ``table`` found at dotted ``key``."""
+def build_section(cls: type[T], table: Any, key: str, source: str,
+                  given: typing.Mapping[str, Any] | None = None) -> T:
+    """Build the frozen dataclass ``cls`` from the TOML ``table`` found at dotted ``key``.
+
+    ``given`` holds field values that do not come from the table (e.g. the name of the table
+    itself); their fields are not TOML keys.
+    """
     if not isinstance(table, dict):
         raise ConfigError(f"{source}: [{key}] must be a table, got {type(table).__name__}")
+    given = dict(given or {})
     hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls)}
+    fields = {f.metadata.get(TOML_KEY, f.name): f for f in dataclasses.fields(cls)
+              if f.name not in given}
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise ConfigError(f"{source}: {key}.{unknown[0]} is not a known key "
                           f"(known: {', '.join(fields)})")
-    values: dict[str, Any] = {}
-    for name, f in fields.items():
-        if name not in table:
+    values: dict[str, Any] = given
+    for toml_key, f in fields.items():
+        if toml_key not in table:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ConfigError(f"{source}: {key}.{name} is missing")
+                raise ConfigError(f"{source}: {key}.{toml_key} is missing")
             continue
-        values[name] = _check_value(table[name], hints[name], f"{key}.{name}", source,
-                                    dict(f.metadata))
+        values[f.name] = _check_value(table[toml_key], hints[f.name], f"{key}.{toml_key}",
+                                      source, dict(f.metadata))
     obj = cls(**values)
     check = getattr(obj, "check", None)
     if check is not None:

@@ -10,12 +10,16 @@ Both sides import this module: the adapters (:mod:`softsensor.recording`, :mod:`
 * :class:`LabResult`: one laboratory moisture result with its sample and log times;
 * :func:`encode_body`: a body as the JSON bytes sent on the bus and written to MCAP (one
   encoding for both, so a recorded day replays byte for byte).
+* :func:`lab_from_body`: a ``/plant/lab`` body (live from the bus, a dropped lab file or a
+  recorded day) to a :class:`LabResult`, or :class:`IngestError` with the one-line reason it
+  is refused (a missing or non-finite moisture is refused, never turned into NaN).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from typing import Any
 
 from softsensor.errors import IngestError
@@ -110,5 +114,132 @@ def encode_body(body: dict[str, Any]) -> bytes:
     return dumps(body).encode()
 
 
-__all__ = ["SCAN_EXTRA_FIELDS", "LabResult", "Window", "encode_body", "is_number",
-           "scan_values"]
+#: Plausible range of a lab moisture result [kg/kg dry basis].
+MOISTURE_RANGE: tuple[float, float] = (0.0, 2.0)
+#: Sample times before this are refused (likely seconds or ms given as ns) [ns since epoch].
+EARLIEST_SAMPLE_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z
+#: How far a sample time may lie after the time its result arrived (clock skew) [ns].
+FUTURE_TOLERANCE_NS = 3600 * 10**9
+_EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+# ----------------------------------------------------------------------------------------------
+# Lab bodies: one parser for the live and the recorded path
+
+
+def parse_sample_time(value: Any, where: str = "lab") -> int:
+    """A sample time [ns since epoch, UTC] from ns (int or digits) or ISO-8601 (naive = UTC)."""
+    if isinstance(value, bool) or value is None:
+        raise IngestError(f"{where}: sample_time {value!r} is not a time")
+    if isinstance(value, float):
+        if not value.is_integer():
+            raise IngestError(f"{where}: sample_time {value!r} is not an integer of ns")
+        value = int(value)
+    if isinstance(value, int):
+        return value
+    if not isinstance(value, str):
+        raise IngestError(f"{where}: sample_time {value!r} is not a time")
+    text = value.strip()
+    if text.lstrip("-").isdigit():
+        return int(text)
+    try:
+        dt = datetime.fromisoformat(text)
+    except ValueError as exc:
+        raise IngestError(
+            f"{where}: sample_time {text!r} is neither ISO-8601 nor ns since the epoch") from exc
+    if dt.tzinfo is None:
+        dt = dt.replace(tzinfo=UTC)
+    delta = dt - _EPOCH
+    return (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+
+
+def _moisture(value: Any, where: str) -> float:
+    raw = value
+    if isinstance(value, bool) or value is None:
+        raise IngestError(f"{where}: moisture_out {value!r} is not a number")
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError as exc:
+            raise IngestError(f"{where}: moisture_out {value!r} is not a number") from exc
+    if not isinstance(value, (int, float)):
+        raise IngestError(f"{where}: moisture_out {value!r} is not a number")
+    x = float(value)
+    if not math.isfinite(x):
+        raise IngestError(f"{where}: moisture_out {raw!r} is not finite")
+    lo, hi = MOISTURE_RANGE
+    if not lo <= x <= hi:
+        raise IngestError(f"{where}: moisture_out {x:g} kg/kg is outside the plausible range "
+                          f"{lo:g}..{hi:g}")
+    return x
+
+
+def _sample_id(value: Any, where: str) -> str:
+    if isinstance(value, bool) or not isinstance(value, (str, int)):
+        raise IngestError(f"{where}: sample_id {value!r} is not a string")
+    text = str(value).strip()
+    if not text:
+        raise IngestError(f"{where}: sample_id is empty")
+    return text
+
+
+def make_lab_result(sample_time: Any, moisture_out: Any, sample_id: Any, *,
+                    log_time_ns: int | None = None, where: str = "lab") -> LabResult:
+    """Validate one entry into a :class:`LabResult`; :class:`IngestError` with the reason.
+
+    ``log_time_ns`` is when the result became available [ns since epoch]; a sample time more
+    than :data:`FUTURE_TOLERANCE_NS` after it is refused.
+    """
+    st = parse_sample_time(sample_time, where)
+    if st < EARLIEST_SAMPLE_NS:
+        raise IngestError(f"{where}: sample_time {st} ns is before 2000 "
+                          "(seconds or ms given instead of ns?)")
+    if log_time_ns is not None and st > log_time_ns + FUTURE_TOLERANCE_NS:
+        raise IngestError(f"{where}: sample_time {st} ns is after the result arrived "
+                          f"({log_time_ns} ns)")
+    return LabResult(sample_time_ns=st, moisture_out=_moisture(moisture_out, where),
+                     sample_id=_sample_id(sample_id, where), log_time_ns=log_time_ns)
+
+
+def lab_from_body(body: dict[str, Any], log_time_ns: int | None = None,
+                  where: str = "lab") -> LabResult:
+    """A :class:`LabResult` from a JSON object (bus body or file entry).
+
+    The sample time is ``sample_time_ns`` or ``sample_time``; ``log_time_ns`` defaults to the
+    body's ``time_ns`` when present.
+    """
+    if not isinstance(body, dict):
+        raise IngestError(f"{where}: lab entry is a JSON {type(body).__name__}, not an object")
+    missing = [k for k in ("moisture_out", "sample_id") if k not in body]
+    if "sample_time_ns" not in body and "sample_time" not in body:
+        missing.insert(0, "sample_time_ns")
+    if missing:
+        raise IngestError(f"{where}: lab entry lacks {', '.join(missing)}")
+    st = body["sample_time_ns"] if "sample_time_ns" in body else body["sample_time"]
+    if log_time_ns is None and isinstance(body.get("time_ns"), int):
+        log_time_ns = body["time_ns"]
+    return make_lab_result(st, body["moisture_out"], body["sample_id"],
+                           log_time_ns=log_time_ns, where=where)
+
+
+def lab_body(lab: LabResult) -> dict[str, Any]:
+    """The ``/plant/lab`` body (CONTRACT section 2) of a lab result."""
+    return {"sample_time_ns": lab.sample_time_ns, "moisture_out": lab.moisture_out,
+            "sample_id": lab.sample_id}
+
+
+
+__all__ = [
+    "EARLIEST_SAMPLE_NS",
+    "FUTURE_TOLERANCE_NS",
+    "MOISTURE_RANGE",
+    "SCAN_EXTRA_FIELDS",
+    "LabResult",
+    "Window",
+    "encode_body",
+    "is_number",
+    "lab_body",
+    "lab_from_body",
+    "make_lab_result",
+    "parse_sample_time",
+    "scan_values",
+]

@@ -4,6 +4,7 @@ PARAMS.toml. Pure numpy/pandas, no model runs."""
 from __future__ import annotations
 
 import math
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -212,6 +213,21 @@ def test_params_file_round_trip(tmp_path, config):
     loaded = load_parameters(path, config)
     np.testing.assert_allclose(loaded.parameter_vector(), list(values.values()))
     assert read_fit(path)["trials"] == 200
-    assert dumps({"a": {"s": 'quote " and \\ back'}}) == '[a]\ns = "quote \\" and \\\\ back"\n'
     with pytest.raises(ConfigError, match="does not exist"):
         write_params(tmp_path / "nope" / "P.toml", doc)
+
+
+def test_dumps_round_trips_through_tomllib():
+    doc = {"a": {"s": 'quote " and \\ back\nnew line', "i": 3, "f": 0.1 + 0.2, "b": False,
+                 "inf": -math.inf, "list": ["x", "y"], "nums": [1.5, 2.0], "gone": None,
+                 "sub": {"deep": 1e-300, "none": None}},
+           "empty": {}}
+    text = dumps(doc, "head\n\ntail")
+    assert text.startswith("# head\n#\n# tail\n")
+    back = tomllib.loads(text)
+    expected = {"a": {k: v for k, v in doc["a"].items() if k != "gone"}, "empty": {}}
+    expected["a"]["sub"] = {"deep": 1e-300}
+    assert back == expected
+    assert math.isnan(tomllib.loads(dumps({"x": math.nan}))["x"])
+    with pytest.raises(TypeError, match="cannot write to TOML"):
+        dumps({"x": object()})

@@ -89,6 +89,18 @@ def test_bus_body() -> None:
     assert lab_body(lab) == {"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "L1"}
     with pytest.raises(IngestError, match="plant/dryer1/lab: lab entry lacks sample_time_ns"):
         lab_from_body({"moisture_out": 0.1, "sample_id": "x"}, where="plant/dryer1/lab")
+    with pytest.raises(IngestError, match="plant/dryer1/lab: lab entry lacks moisture_out"):
+        lab_from_body({"sample_time_ns": T_NS, "sample_id": "x"}, where="plant/dryer1/lab")
+    with pytest.raises(IngestError, match="moisture_out None is not a number"):
+        lab_from_body(dict(body, moisture_out=None))
+
+
+def test_one_lab_parser_for_live_and_recorded_bodies() -> None:
+    import softsensor.messages
+    import softsensor.recording.mcap_day
+
+    assert lab_from_body is softsensor.messages.lab_from_body
+    assert softsensor.recording.mcap_day.lab_from_body is softsensor.messages.lab_from_body
 
 
 def test_lab_input_dedup_and_reasons() -> None:

@@ -218,13 +218,38 @@ def test_extra_fields_allowed() -> None:
     assert v["T_amb"] == 280.0 and math.isnan(v["m_air"]) and set(v) == set(SCAN_SIGNALS)
 
 
-def test_malformed_lab(tmp_path: Path) -> None:
+def test_refused_lab_bodies_are_reported_and_skipped(tmp_path: Path, caplog) -> None:
     path = tmp_path / "lab.mcap"
+    good = {"sample_time_ns": T0, "moisture_out": 0.1, "sample_id": "ok"}
     with DayWriter(path) as w:
-        w.write(TOPIC_LAB, T0, {"sample_time_ns": "yesterday", "moisture_out": 0.1,
-                                "sample_id": "a"})
-    with pytest.raises(IngestError, match=r"lab\.mcap.*sample_time_ns"):
-        read_day(path)
+        w.write(TOPIC_SCAN, T0, _scan(0))
+        w.write(TOPIC_LAB, T0 + 1, {"sample_time_ns": "yesterday", "moisture_out": 0.1,
+                                    "sample_id": "a"})
+        w.write(TOPIC_LAB, T0 + 2, {"sample_time_ns": T0, "moisture_out": None,
+                                    "sample_id": "b"})
+        w.write(TOPIC_LAB, T0 + 3, {"sample_time_ns": T0, "sample_id": "c"})
+        w.write(TOPIC_LAB, T0 + 4, {"sample_time_ns": T0, "moisture_out": math.inf,
+                                    "sample_id": "d"})  # written as null
+        w.write(TOPIC_LAB, T0 + 5, good)
+        w.write(TOPIC_SCAN, T0 + PERIOD, _scan(1))
+    with caplog.at_level("WARNING", logger="softsensor.recording.mcap_day"):
+        d = read_day(path)
+    # never NaN: only the good result is kept, and nothing else is lost
+    assert list(d.labs["sample_id"]) == ["ok"] and d.labs["moisture_out"].iloc[0] == 0.1
+    assert len(d.scans) == 2 and d.topic(TOPIC_LAB) == [(T0 + 5, good)]
+    assert len(d.refused_labs) == 4
+    for sid, why in zip("abcd", ["sample_time", "moisture_out None is not a number",
+                                 "lacks moisture_out", "moisture_out None is not a number"],
+                        strict=True):
+        line = next(r for r in d.refused_labs if r.endswith(f"(sample_id {sid})"))
+        assert why in line and line.startswith(f"{path}: {TOPIC_LAB} at ") and "\n" not in line
+    assert "4 lab result(s) refused and skipped" in caplog.text
+    # the streaming reader applies the same rule
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="softsensor.recording.mcap_day"):
+        got = [(topic, t) for topic, t, _ in iter_messages(path)]
+    assert got == [(TOPIC_SCAN, T0), (TOPIC_LAB, T0 + 5), (TOPIC_SCAN, T0 + PERIOD)]
+    assert caplog.text.count("lab result skipped") == 4
 
 
 def test_writer_flush_makes_data_readable_before_close(tmp_path: Path) -> None:

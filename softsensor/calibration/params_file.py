@@ -21,62 +21,38 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
                                on its own error, :class:`~.pipeline.Discrepancy`)
 
-Python's standard library reads TOML but does not write it; :func:`dumps` writes the small
-subset used here (tables of numbers, booleans, strings and lists of strings).
+Python's standard library reads TOML but does not write it; :func:`dumps` writes it with
+``tomli-w``.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
+
+import tomli_w
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
 
-def _value(v: Any, key: str) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        if math.isnan(v):
-            return "nan"
-        if math.isinf(v):
-            return "inf" if v > 0 else "-inf"
-        return repr(v)
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x, key) for x in v) + "]"
-    raise TypeError(f"{key}: cannot write {type(v).__name__} to TOML")
+def _drop_none(d: Mapping[str, Any]) -> dict[str, Any]:
+    """``d`` without its ``None`` leaves (TOML has no null: an absent key means "not known")."""
+    return {k: _drop_none(v) if isinstance(v, Mapping) else v
+            for k, v in d.items() if v is not None}
 
 
 def dumps(doc: Mapping[str, Any], comment: str | None = None) -> str:
-    """TOML text of nested dicts (tables) whose leaves are scalars or lists of scalars."""
-    lines: list[str] = []
-    if comment:
-        lines += [f"# {c}" if c else "#" for c in comment.splitlines()]
-
-    def table(prefix: str, d: Mapping[str, Any]) -> None:
-        scalars = [(k, v) for k, v in d.items() if not isinstance(v, Mapping)]
-        subs = [(k, v) for k, v in d.items() if isinstance(v, Mapping)]
-        if prefix and (scalars or not subs):
-            lines.append("")
-            lines.append(f"[{prefix}]")
-        for k, v in scalars:
-            if v is None:
-                continue
-            lines.append(f"{k} = {_value(v, f'{prefix}.{k}')}")
-        for k, v in subs:
-            table(f"{prefix}.{k}" if prefix else k, v)
-
-    table("", doc)
-    return "\n".join(lines).lstrip("\n") + "\n"
+    """TOML text of nested dicts (tables); ``None`` leaves are left out, ``comment`` lines
+    head the file. Non-finite floats are written as TOML's ``nan``/``inf``."""
+    head = "".join(f"# {c}\n" if c else "#\n" for c in (comment or "").splitlines())
+    try:
+        return head + tomli_w.dumps(_drop_none(doc))
+    except TypeError as exc:
+        raise TypeError(f"cannot write to TOML: {exc}") from exc
 
 
 def params_document(config: PlantConfig, values: Mapping[str, float],

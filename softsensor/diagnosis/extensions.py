@@ -34,8 +34,8 @@ inlet_moisture     the inlet moisture as an estimated disturbance: the UKF of
 Every fit minimises the whitened fit-part residuals of :meth:`Problem.chi2
 <softsensor.diagnosis.problem.Problem.chi2>`: what the calibration-error alternative
 (:mod:`.calibration_error`) cannot predict. The continuous parameters are fitted by
-:func:`_fit_scalar` (Gauss-Newton with secant updates: a handful of model runs of the fit
-part). The inlet-moisture extension is a state
+:func:`_fit_scalar` (bounded :func:`scipy.optimize.least_squares`: a handful of model runs of
+the fit part). The inlet-moisture extension is a state
 estimator, not a fixed trajectory: a trajectory fitted on the fit part would say nothing about
 the held-out part. Its prediction of window ``k`` uses the temperatures of the windows before
 ``k`` only and never a lab result, so its held-out residuals are as honest as the others'.
@@ -133,42 +133,51 @@ class Extension(ABC):
 def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction],
                 bounds: tuple[float, float], step: float, tol: float,
                 max_runs: int = 10) -> tuple[float, float]:
-    """Least squares in one bounded parameter ``x`` (:func:`scipy.optimize.least_squares`,
-    trust-region reflective).
+    """Least squares in one bounded parameter ``x`` by :func:`scipy.optimize.least_squares`.
 
     ``make(x, k_end)`` returns the prediction of the first ``k_end`` windows; ``x = 0`` is the
-    baseline model. The residual vector is the whitened fit-part residuals
-    (:meth:`Problem.fit_residual_vector`). ``x`` is scaled by ``step`` (the size of a change
-    that moves the outputs visibly) and starts at ``step``, not at the baseline: near zero an
-    effect can be flatter than the model's resolution (a lag of seconds against 10 s scans)
-    and a slope taken there would stop the fit. The forward-difference slope is taken over a
-    tenth of ``step`` (or of ``x``, if larger), and the fit stops when a step is below ``tol``
-    or after about ``max_runs`` model runs of the fit part. A parameter value whose model run
-    fails counts as far worse than the baseline. Returns ``(x, chi2)``, never worse than the
-    baseline's ``chi2``.
+    baseline model and the starting point (one ``step`` inside when it is a bound). The
+    residual vector is the whitened fit-part residuals (:meth:`Problem.fit_residual_vector`).
+    Trust-region reflective keeps ``x`` inside ``bounds``; the slope ``dr/dx`` is a forward
+    difference of size ``step`` (towards the inside of the bounds), the unit in which the
+    trust region is scaled. The search stops when a step is small beside ``x`` (``xtol =
+    tol / (hi - lo)``), when the sum of squares falls by less than 1e-4 of itself, or after
+    ``max_runs`` evaluations of the residuals. A value whose model run fails gets residuals
+    far above the baseline's, so it is never accepted. Returns ``(x, chi2)``, never worse
+    than the baseline's.
     """
     k = problem.split.sim_end(problem.windows.n_windows)
+    lo, hi = bounds
     r0 = problem.fit_residual_vector(problem.baseline)
-    runs: dict[float, np.ndarray] = {0.0: r0}
-    failed = np.full_like(r0, 1e3 * (1.0 + float(np.max(np.abs(r0), initial=0.0))))
+    f0 = float(r0 @ r0)
+    # a failed run scores 100 times the baseline's sum of squares, spread over the residuals
+    failed = np.full(r0.shape, 10.0 * math.sqrt(max(f0, 1.0) / max(r0.size, 1)))
+    cache: dict[float, np.ndarray] = {0.0: r0}
 
-    def residual(z: np.ndarray) -> np.ndarray:
-        x = float(z[0]) * step
-        if x not in runs:
+    def residuals(x: float) -> np.ndarray:
+        x = float(x)
+        if x not in cache:
             try:
                 r = problem.fit_residual_vector(make(x, k))
             except SoftsensorError:
                 r = failed
-            runs[x] = r if np.all(np.isfinite(r)) else failed
-        return runs[x]
+            cache[x] = r if np.all(np.isfinite(r)) else failed
+        return cache[x]
 
-    lo, hi = bounds[0] / step, bounds[1] / step
-    fit = least_squares(residual, x0=[float(np.clip(1.0, lo, hi))], bounds=(lo, hi),
-                        method="trf", diff_step=0.1, x_scale=1.0, xtol=tol / step,
-                        ftol=1e-6, gtol=1e-8, max_nfev=max(1, max_runs // 2))
-    x = float(fit.x[0]) * step
-    f = float(fit.fun @ fit.fun)
-    f0 = float(r0 @ r0)
+    def slope(z: np.ndarray) -> np.ndarray:
+        x = float(z[0])
+        h = step if x + step <= hi else -step
+        return ((residuals(x + h) - residuals(x)) / h)[:, None]
+
+    # trf starts strictly inside the bounds with a trust region of |x0| (in units of step),
+    # or of one step from x0 = 0: a baseline on a bound starts one step inside instead
+    x0 = lo + step if lo == 0.0 else hi - step if hi == 0.0 else 0.0
+    sol = least_squares(lambda z: residuals(z[0]), [x0], jac=slope, bounds=([lo], [hi]),
+                        method="trf", x_scale=[step], xtol=tol / max(hi - lo, tol),
+                        ftol=1e-4, max_nfev=max_runs)
+    x = float(np.clip(sol.x[0], lo, hi))
+    r = residuals(x)
+    f = float(r @ r)
     return (x, f) if f < f0 else (0.0, f0)
 
 

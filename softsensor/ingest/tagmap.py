@@ -28,21 +28,21 @@ A tag map is a TOML file with two sections (see ``config/tagmap_dryer1.toml``)::
     valid_max = 700.0
     frozen_after_s = 0            # optional per-tag override; 0 disables the frozen check
 
-Loaded once into frozen dataclasses and validated; unknown keys, unknown signals and bad values
-raise :class:`~softsensor.errors.ConfigError` with one line naming the file and the dotted key.
+Loaded once into frozen dataclasses by :func:`softsensor.configfile.build_section` (the
+mechanism every config file uses); unknown keys, unknown signals and bad values raise
+:class:`~softsensor.errors.ConfigError` with one line naming the file and the dotted key.
 A tag map may hold a subset of the scan signals (the scan body then carries that subset).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from softsensor.configfile import build_section, choice, num, read_toml
 from softsensor.errors import ConfigError
 from softsensor.ingest.registers import DATA_TYPES, ORDERS, UNITS
 from softsensor.signals import SCAN_SIGNALS
@@ -55,42 +55,70 @@ MAX_READ_REGISTERS = 125
 
 TABLES: dict[str, int] = {"holding": 3, "input": 4}  # table -> read function code
 
-_MISSING = object()
-
-
 @dataclass(frozen=True)
 class ModbusSettings:
     """Section ``[modbus]``: where the PLC is and how to poll it."""
 
     host: str  #: PLC host name or address
-    port: int  #: TCP port (502 on a real PLC)
-    poll_period_s: float = 10.0  #: scan period [s]
-    timeout_s: float = 1.0  #: per request and per connect attempt [s]
-    retries: int = 1  #: retries of an unanswered request
-    reconnect_delay_s: float = 1.0  #: first reconnect back-off [s], doubled per failure
-    reconnect_delay_max_s: float = 30.0  #: cap of the reconnect back-off [s]
-    frozen_after_s: float = 300.0  #: a value unchanged bit-for-bit this long is flagged [s]
-    max_gap_registers: int = 4  #: unused registers bridged to merge two reads
-    max_registers_per_read: int = MAX_READ_REGISTERS  #: cap of one read request
+    port: int = num(ge=1, le=65535)  #: TCP port (502 on a real PLC)
+    poll_period_s: float = num(10.0, gt=0)  #: scan period [s]
+    timeout_s: float = num(1.0, gt=0)  #: per request and per connect attempt [s]
+    retries: int = num(1, ge=0, le=10)  #: retries of an unanswered request
+    #: first reconnect back-off [s], doubled per failure
+    reconnect_delay_s: float = num(1.0, gt=0)
+    reconnect_delay_max_s: float = num(30.0, gt=0)  #: cap of the reconnect back-off [s]
+    #: a value unchanged bit-for-bit this long is flagged [s]
+    frozen_after_s: float = num(300.0, gt=0)
+    #: unused registers bridged to merge two reads
+    max_gap_registers: int = num(4, ge=0, le=MAX_READ_REGISTERS)
+    #: cap of one read request
+    max_registers_per_read: int = num(MAX_READ_REGISTERS, ge=4, le=MAX_READ_REGISTERS)
+
+    def check(self) -> str | None:
+        """Cross-field rule (called by ``build_section``); the message names the key."""
+        if self.reconnect_delay_max_s < self.reconnect_delay_s:
+            return (f"reconnect_delay_max_s must be >= reconnect_delay_s "
+                    f"({self.reconnect_delay_s:g}), got {self.reconnect_delay_max_s:g}")
+        return None
 
 
 @dataclass(frozen=True)
 class TagSpec:
     """Section ``[tags.<signal>]``: one scan signal's place and format in the PLC."""
 
-    signal: str  #: scan signal name (CONTRACT section 1)
-    unit_id: int  #: Modbus unit id (pymodbus ``device_id``)
-    table: str  #: ``holding`` or ``input``
-    address: int  #: first register, 0-based PDU address
-    data_type: str  #: key ``type`` in TOML, one of ``registers.DATA_TYPES``
-    word_order: str  #: ``big`` or ``little``
-    byte_order: str  #: ``big`` or ``little`` (byte swap inside each register)
-    scale: float  #: eng = raw * scale + offset
-    offset: float  #: [engineering unit]
-    unit: str  #: engineering unit, one of ``registers.UNITS``
-    valid_min: float  #: lowest valid value [SI]
-    valid_max: float  #: highest valid value [SI]
-    frozen_after_s: float | None  #: per-tag frozen limit [s]; None = global, 0 = never
+    signal: str  #: scan signal name (CONTRACT section 1), the name of the table
+    unit_id: int = num(ge=0, le=255)  #: Modbus unit id (pymodbus ``device_id``)
+    table: str = choice(TABLES)  #: ``holding`` or ``input``
+    address: int = num(ge=0, le=65535)  #: first register, 0-based PDU address
+    #: key ``type`` in TOML, one of ``registers.DATA_TYPES``
+    data_type: str = choice(DATA_TYPES, toml_key="type")
+    unit: str = choice(UNITS)  #: engineering unit, one of ``registers.UNITS``
+    valid_min: float = num()  #: lowest valid value [SI]
+    valid_max: float = num()  #: highest valid value [SI]
+    word_order: str = choice(ORDERS, "big")  #: ``big`` or ``little``
+    #: ``big`` or ``little`` (byte swap inside each register)
+    byte_order: str = choice(ORDERS, "big")
+    scale: float = num(1.0)  #: eng = raw * scale + offset
+    offset: float = num(0.0)  #: [engineering unit]
+    #: per-tag frozen limit [s]; None = global, 0 = never
+    frozen_after_s: float | None = num(None, ge=0)
+
+    def check(self) -> str | None:
+        """Cross-field rules (called by ``build_section``); the message names the key."""
+        if self.address + self.count - 1 > 65535:
+            return (f"address leaves no room for {self.count} registers of {self.data_type}, "
+                    f"got {self.address}")
+        si_unit = SCAN_SIGNALS[self.signal]
+        if self.si_unit != si_unit:
+            ok = [u for u, (si, _f, _s) in UNITS.items() if si == si_unit]
+            return (f"unit must convert to {si_unit} (one of {', '.join(ok)}), "
+                    f"got {self.unit!r}")
+        if not self.valid_max > self.valid_min:
+            return (f"valid_max must be > valid_min ({self.valid_min:g}), "
+                    f"got {self.valid_max:g}")
+        if self.scale == 0:
+            return "scale must not be 0"
+        return None
 
     @property
     def count(self) -> int:
@@ -161,133 +189,14 @@ class ReadRequest:
 
 
 # ---------------------------------------------------------------------------------------------
-# loading and validation
-
-
-class _Checker:
-    """Typed lookups in one TOML table that raise ConfigError naming ``source: dotted.key``."""
-
-    def __init__(self, table: Mapping[str, Any], prefix: str, source: str):
-        self.table, self.prefix, self.source = table, prefix, source
-
-    def fail(self, key: str, msg: str) -> ConfigError:
-        return ConfigError(f"{self.source}: {self.prefix}{key} {msg}")
-
-    def reject_unknown(self, allowed: set[str]) -> None:
-        for key in self.table:
-            if key not in allowed:
-                raise self.fail(key, f"is not a known key (known: {', '.join(sorted(allowed))})")
-
-    def get(self, key: str, default: Any) -> Any:
-        if key in self.table:
-            return self.table[key]
-        if default is _MISSING:
-            raise self.fail(key, "is missing")
-        return default
-
-    def integer(self, key: str, lo: int, hi: int, default: Any = _MISSING) -> int:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-            raise self.fail(key, f"must be an integer {lo}..{hi}, got {v!r}")
-        return v
-
-    def number(self, key: str, default: Any = _MISSING, *, gt: float | None = None,
-               ge: float | None = None, nonzero: bool = False) -> float:
-        v = self.get(key, default)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            raise self.fail(key, f"must be a finite number, got {v!r}")
-        if gt is not None and not v > gt:
-            raise self.fail(key, f"must be > {gt:g}, got {v!r}")
-        if ge is not None and not v >= ge:
-            raise self.fail(key, f"must be >= {ge:g}, got {v!r}")
-        if nonzero and v == 0:
-            raise self.fail(key, "must not be 0")
-        return float(v)
-
-    def choice(self, key: str, options: Any, default: Any = _MISSING) -> str:
-        v = self.get(key, default)
-        if v not in options:
-            raise self.fail(key, f"must be one of {', '.join(options)}, got {v!r}")
-        return v
-
-    def text(self, key: str, default: Any = _MISSING) -> str:
-        v = self.get(key, default)
-        if not isinstance(v, str) or not v:
-            raise self.fail(key, f"must be a non-empty string, got {v!r}")
-        return v
-
-
-def _settings(table: Any, source: str) -> ModbusSettings:
-    if not isinstance(table, Mapping):
-        raise ConfigError(f"{source}: modbus must be a table, got {table!r}")
-    c = _Checker(table, "modbus.", source)
-    c.reject_unknown({f.name for f in dataclasses.fields(ModbusSettings)})
-    d = ModbusSettings("", 0)  # defaults
-    s = ModbusSettings(
-        host=c.text("host"),
-        port=c.integer("port", 1, 65535),
-        poll_period_s=c.number("poll_period_s", d.poll_period_s, gt=0),
-        timeout_s=c.number("timeout_s", d.timeout_s, gt=0),
-        retries=c.integer("retries", 0, 10, d.retries),
-        reconnect_delay_s=c.number("reconnect_delay_s", d.reconnect_delay_s, gt=0),
-        reconnect_delay_max_s=c.number("reconnect_delay_max_s", d.reconnect_delay_max_s, gt=0),
-        frozen_after_s=c.number("frozen_after_s", d.frozen_after_s, gt=0),
-        max_gap_registers=c.integer("max_gap_registers", 0, MAX_READ_REGISTERS,
-                                    d.max_gap_registers),
-        max_registers_per_read=c.integer("max_registers_per_read", 4, MAX_READ_REGISTERS,
-                                         d.max_registers_per_read),
-    )
-    if s.reconnect_delay_max_s < s.reconnect_delay_s:
-        raise c.fail("reconnect_delay_max_s", f"must be >= reconnect_delay_s "
-                     f"({s.reconnect_delay_s:g}), got {s.reconnect_delay_max_s:g}")
-    return s
-
-
-_TAG_KEYS = {"unit_id", "table", "address", "type", "word_order", "byte_order", "scale",
-             "offset", "unit", "valid_min", "valid_max", "frozen_after_s"}
+# loading and validation (softsensor.configfile: the one config schema mechanism)
 
 
 def _tag(signal: str, table: Any, source: str) -> TagSpec:
-    prefix = f"tags.{signal}."
     if signal not in SCAN_SIGNALS:
         raise ConfigError(f"{source}: tags.{signal} is not a scan signal "
                           f"(known: {', '.join(SCAN_SIGNALS)})")
-    if not isinstance(table, Mapping):
-        raise ConfigError(f"{source}: tags.{signal} must be a table, got {table!r}")
-    c = _Checker(table, prefix, source)
-    c.reject_unknown(_TAG_KEYS)
-    data_type = c.choice("type", tuple(DATA_TYPES))
-    address = c.integer("address", 0, 65535)
-    n = DATA_TYPES[data_type][1]
-    if address + n - 1 > 65535:
-        raise c.fail("address", f"leaves no room for {n} registers of {data_type}, "
-                     f"got {address}")
-    unit = c.choice("unit", tuple(UNITS))
-    si_unit = SCAN_SIGNALS[signal]
-    if UNITS[unit][0] != si_unit:
-        ok = [u for u, (si, _f, _s) in UNITS.items() if si == si_unit]
-        raise c.fail("unit", f"must convert to {si_unit} (one of {', '.join(ok)}), "
-                     f"got {unit!r}")
-    vmin = c.number("valid_min")
-    vmax = c.number("valid_max")
-    if not vmax > vmin:
-        raise c.fail("valid_max", f"must be > valid_min ({vmin:g}), got {vmax:g}")
-    frozen = table.get("frozen_after_s")
-    return TagSpec(
-        signal=signal,
-        unit_id=c.integer("unit_id", 0, 255),
-        table=c.choice("table", tuple(TABLES)),
-        address=address,
-        data_type=data_type,
-        word_order=c.choice("word_order", ORDERS, "big"),
-        byte_order=c.choice("byte_order", ORDERS, "big"),
-        scale=c.number("scale", 1.0, nonzero=True),
-        offset=c.number("offset", 0.0),
-        unit=unit,
-        valid_min=vmin,
-        valid_max=vmax,
-        frozen_after_s=None if frozen is None else c.number("frozen_after_s", ge=0),
-    )
+    return build_section(TagSpec, table, f"tags.{signal}", source, given={"signal": signal})
 
 
 def parse_tagmap(data: Mapping[str, Any], source: str = "<tagmap>") -> TagMap:
@@ -301,7 +210,7 @@ def parse_tagmap(data: Mapping[str, Any], source: str = "<tagmap>") -> TagMap:
     for key in ("modbus", "tags"):
         if key not in data:
             raise ConfigError(f"{source}: {key} is missing")
-    settings = _settings(data["modbus"], source)
+    settings = build_section(ModbusSettings, data["modbus"], "modbus", source)
     tags_table = data["tags"]
     if not isinstance(tags_table, Mapping) or not tags_table:
         raise ConfigError(f"{source}: tags must hold at least one [tags.<signal>] table")
@@ -317,17 +226,7 @@ def parse_tagmap(data: Mapping[str, Any], source: str = "<tagmap>") -> TagMap:
 
 def load_tagmap(path: str | Path = DEFAULT_TAGMAP) -> TagMap:
     """Read and validate the tag map TOML file at ``path``."""
-    p = Path(path)
-    try:
-        with p.open("rb") as f:
-            data = tomllib.load(f)
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such tag map file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"{p}: malformed TOML: {exc}") from exc
-    except OSError as exc:
-        raise ConfigError(f"{p}: cannot read: {exc.strerror}") from exc
-    return parse_tagmap(data, str(path))
+    return parse_tagmap(read_toml(path), str(path))
 
 
 # ---------------------------------------------------------------------------------------------

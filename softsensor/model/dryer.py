@@ -37,6 +37,9 @@ from softsensor.model.geometry import N_AUX, Geometry, geometry
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import INPUT_NAMES
 
+#: Lengths of the input and parameter axes (their one definition: the name tuples).
+_N_U, _N_THETA = len(INPUT_NAMES), len(PARAMETER_NAMES)
+
 _STATUS_TEXT = {
     kernels.NEWTON_FAILED: "the cell balances did not converge",
     kernels.BAD_INPUT: "inputs or parameters are not physical (non-finite, non-positive flow "
@@ -184,7 +187,7 @@ class DryerModel:
         """
         theta = self.theta0 if theta is None else theta
         (u2, th2, ax2), batch = self._prepare(u, theta, self._aux(aux),
-                                              trailing=(len(INPUT_NAMES), 7, N_AUX))
+                                              trailing=(_N_U, _N_THETA, N_AUX))
         B = u2.shape[0]
         states = np.empty((B, self.n_state))
         y = np.empty((B, 3))
@@ -204,7 +207,7 @@ class DryerModel:
         if not np.all(dt > 0):
             raise ValueError(f"dt must be > 0, got {dt}")
         (x2, u2, th2, ax2), batch = self._prepare(
-            state, u, theta, self._aux(aux), trailing=(self.n_state, len(INPUT_NAMES), 7, N_AUX))
+            state, u, theta, self._aux(aux), trailing=(self.n_state, _N_U, _N_THETA, N_AUX))
         B = u2.shape[0]
         dt = np.ascontiguousarray(np.broadcast_to(dt, batch).reshape(B))
         y = np.empty((B, 3))
@@ -259,8 +262,9 @@ class DryerModel:
             aux = np.expand_dims(aux, -2)
         batch = np.broadcast_shapes(U.shape[:-2], theta.shape[:-2], aux.shape[:-2],
                                     () if state0 is None else np.shape(state0)[:-1])
-        Ub = np.ascontiguousarray(np.broadcast_to(U, batch + (K, U.shape[-1])).reshape(-1, K, 8))
-        Tb = np.ascontiguousarray(np.broadcast_to(theta, batch + (K, 7)).reshape(-1, K, 7))
+        Ub = np.ascontiguousarray(np.broadcast_to(U, batch + (K, _N_U)).reshape(-1, K, _N_U))
+        Tb = np.ascontiguousarray(
+            np.broadcast_to(theta, batch + (K, _N_THETA)).reshape(-1, K, _N_THETA))
         Ab = np.ascontiguousarray(np.broadcast_to(aux, batch + (K, N_AUX)).reshape(-1, K, N_AUX))
         B = Ub.shape[0]
         if state0 is None:

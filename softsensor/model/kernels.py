@@ -155,10 +155,17 @@ from softsensor.model.geometry import (
     D,
     P,
 )
+from softsensor.plantconfig import PARAMETER_NAMES
+from softsensor.signals import INPUT_NAMES
 
-# Input and parameter indices (softsensor.signals.INPUT_NAMES, plantconfig.PARAMETER_NAMES).
-U_TAIR, U_MAIR, U_MFIB, U_TFIB, U_MSTEAM, U_TAMB, U_HAMB, U_XIN = range(8)
-K_D, K_C, K_H, K_K, K_P, K_HM, K_HC = range(7)
+# Input and parameter indices, from the one definition of each ordering (numba reads these
+# module globals as compile-time constants).
+U_TAIR, U_MAIR, U_MFIB, U_TFIB, U_MSTEAM, U_TAMB, U_HAMB, U_XIN = (
+    INPUT_NAMES.index(n) for n in ("T_air_in", "m_air", "m_fiber", "T_fiber_in", "m_steam",
+                                   "T_amb", "H_amb", "moisture_in"))
+K_D, K_C, K_H, K_K, K_P, K_HM, K_HC = (
+    PARAMETER_NAMES.index(n) for n in ("mult_D", "mult_C", "mult_h", "mult_k", "mult_p",
+                                       "hm_cyc", "hc_cyc"))
 
 # Solver status codes
 OK, NEWTON_FAILED, BAD_INPUT, STEADY_FAILED = 0, 1, 2, 3
@@ -386,6 +393,10 @@ def _newton_cell(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i, UAw, v_s, m_a, 
     returned ``(X, T_f)`` as :func:`_cell_residual` gives them (the caller need not evaluate
     the cell again) and the Jacobian last used. The residual at an accepted trial point is the
     next iteration's residual (not evaluated twice).
+
+    Kept as one compiled loop (about 95 lines): the iterate, the four Jacobian entries and the
+    residual are scalar locals shared by the chord, Broyden and backtracking steps; split
+    functions would pass them back and forth as tuples on the model's innermost path.
     """
     F1, F2, Y, Ta, hf, Tam = _cell_residual(kind, X, Tf, Xp, Tfp, Yp, Tap, Efp, Etot, Tw_i,
                                             UAw, v_s, m_a, m_f, theta, geo)
@@ -598,6 +609,9 @@ def solve_profile(u, theta, geo, Tw, Tsh, Xo, Tfo, Yo, Tao, UAo, Tmo, jac, warm=
     answer, the fast Newton starts from the upstream cell's Jacobian (tube and cyclone cells
     apart) and from the change across the upstream cell repeated (the profile is smooth), the
     reference sequence from the upstream state.
+
+    Kept as one compiled pass down the cells (about 63 lines): the upstream cell's outlet and
+    Jacobian are the loop's carried scalars, and the tube-to-cyclone switch happens inside it.
     """
     n_d = int(geo[N_D])
     n_c = int(geo[N_C])

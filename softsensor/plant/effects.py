@@ -31,9 +31,14 @@ the same meaning in its own physics.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
 
 from softsensor.errors import ConfigError
+from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import INJECTABLE_EFFECTS
 
 
@@ -83,3 +88,91 @@ def resolve_effect(effect: str | None, magnitude: float | None) -> tuple[str | N
         raise ConfigError(f"--magnitude {magnitude:g} {spec.unit} is outside the valid range "
                           f"{lo:g}..{hi:g} of effect {effect}")
     return effect, float(magnitude)
+
+
+# ----------------------------------------------------------------------------------------------
+# How each effect is injected into a matched-plant day (softsensor.plant.simulator)
+
+_MULT_D = PARAMETER_NAMES.index("mult_D")
+_MULT_H = PARAMETER_NAMES.index("mult_h")
+
+
+@dataclass
+class Injection:
+    """What the hidden effect changes in a matched-plant day; an effect's function edits it.
+
+    ``t`` are the control-step times [s from the start], ``theta`` the true parameters per
+    step (n, 7), ``moisture_in`` the true inlet moisture per step [kg/kg]; ``bias`` the offset
+    of each outlet temperature sensor [K]; ``beta_amb`` the model aux ``BETA_AMB`` [1/K];
+    ``lag_tau`` the ``T_air_in`` sensor's time constant [s] (0: none); ``lab_shift`` the error
+    of the stamped lab sample time [s]; ``info`` what ``/truth/effect`` records.
+    """
+
+    t: np.ndarray
+    theta: np.ndarray
+    moisture_in: np.ndarray
+    nominal_moisture_in: float
+    info: dict[str, Any]
+    bias: dict[str, float] = field(
+        default_factory=lambda: {"T_dryer_out": 0.0, "T_cyclone_out": 0.0})
+    beta_amb: float = 0.0
+    lag_tau: float = 0.0
+    lab_shift: float = 0.0
+
+
+def _inlet_moisture(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    # imported here: the scenario module imports the model, and this module stays light for
+    # the command line's list of effects
+    from softsensor.plant.scenario import inlet_moisture_trajectory
+
+    inj.moisture_in = inlet_moisture_trajectory(rng, inj.t, inj.nominal_moisture_in, x)
+
+
+def _sensor_bias(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    channel = str(rng.choice(["T_dryer_out", "T_cyclone_out"]))
+    sign = float(rng.choice([-1.0, 1.0]))
+    inj.bias[channel] = sign * x
+    inj.info.update(channel=channel, sign=sign)
+
+
+def _fouling_drift(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    frac = inj.t / inj.t[-1]
+    inj.theta[:, _MULT_D] *= 1.0 - x * frac
+    inj.theta[:, _MULT_H] *= 1.0 - x * frac
+
+
+def _input_lag(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    inj.lag_tau = x * 60.0
+
+
+def _ambient_heat_loss(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    inj.beta_amb = x / 10.0
+
+
+def _lab_delay(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    inj.lab_shift = float(rng.choice([-1.0, 1.0])) * x * 60.0
+    inj.info.update(sign=float(np.sign(inj.lab_shift)))
+
+
+def _unexplained(inj: Injection, rng: np.random.Generator, x: float) -> None:
+    # alternating chip batches: mult_D switches between 1 +- x every 1.5 to 3 h
+    sign = float(rng.choice([-1.0, 1.0]))
+    edges = [0.0]
+    while edges[-1] < inj.t[-1]:
+        edges.append(edges[-1] + rng.uniform(1.5, 3.0) * 3600.0)
+    block = np.searchsorted(np.array(edges), inj.t, side="right") - 1
+    inj.theta[:, _MULT_D] *= 1.0 + x * sign * np.where(block % 2 == 0, 1.0, -1.0)
+    inj.info.update(sign=sign)
+
+
+#: Effect name -> ``inject(injection, rng, magnitude)``, drawing signs and timing from ``rng``.
+INJECT: dict[str, Callable[[Injection, np.random.Generator, float], None]] = {
+    "inlet_moisture": _inlet_moisture,
+    "sensor_bias": _sensor_bias,
+    "lab_delay": _lab_delay,
+    "fouling_drift": _fouling_drift,
+    "input_lag": _input_lag,
+    "ambient_heat_loss": _ambient_heat_loss,
+    "unexplained": _unexplained,
+}
+assert set(INJECT) == set(EFFECTS)

@@ -29,11 +29,11 @@ from softsensor.model import DryerModel
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
 from softsensor.plant.day import DEFAULT_START_NS, TOPIC_TRUTH_EFFECT, SimulatedDay
-from softsensor.plant.effects import EFFECTS, resolve_effect
-from softsensor.plant.scenario import inlet_moisture_trajectory, make_scenario
-from softsensor.plant.settings import virtual_plant_settings
-from softsensor.plantconfig import PlantConfig
-from softsensor.signals import SCAN_SIGNALS
+from softsensor.plant.effects import EFFECTS, INJECT, Injection, resolve_effect
+from softsensor.plant.scenario import Scenario, make_scenario
+from softsensor.plant.settings import VirtualPlantSettings, virtual_plant_settings
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
 
 #: ``SimulatedDay`` and the day constants live in :mod:`softsensor.plant.day` (no model import);
 #: they stay importable from here.
@@ -89,55 +89,44 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     rng_noise = np.random.default_rng([seed, 2])
     rng_lab = np.random.default_rng([seed, 3])
     sc = make_scenario(config, s, hours, rng_scen)
-    n = len(sc.t)
-    dt = s.control_period
-    model = DryerModel(config)
-    theta = np.tile(config.parameter_vector(), (n, 1))
-    aux = np.zeros(N_AUX)
-    moisture_in = sc.moisture_in.copy()
-    bias = {"T_dryer_out": 0.0, "T_cyclone_out": 0.0}
+    theta = np.tile(config.parameter_vector(), (len(sc.t), 1))
     info: dict[str, Any] = {"effect": effect or "none", "magnitude": magnitude,
                             "unit": EFFECTS[effect].unit if effect else "", "seed": seed,
                             "channel": None,
-                            "parameters": dict(zip(("mult_D", "mult_C", "mult_h", "mult_k",
-                                                    "mult_p", "hm_cyc", "hc_cyc"),
-                                                   map(float, theta[0]), strict=True))}
-    lag_tau = 0.0
-    lab_shift = 0.0
-    if effect == "inlet_moisture":
-        moisture_in = inlet_moisture_trajectory(rng_eff, sc.t, config.nominal.moisture_in,
-                                                magnitude)
-    elif effect == "sensor_bias":
-        channel = str(rng_eff.choice(["T_dryer_out", "T_cyclone_out"]))
-        sign = float(rng_eff.choice([-1.0, 1.0]))
-        bias[channel] = sign * magnitude
-        info.update(channel=channel, sign=sign)
-    elif effect == "fouling_drift":
-        frac = sc.t / sc.t[-1]
-        theta[:, 0] *= 1.0 - magnitude * frac
-        theta[:, 2] *= 1.0 - magnitude * frac
-    elif effect == "input_lag":
-        lag_tau = magnitude * 60.0
-    elif effect == "ambient_heat_loss":
-        aux[BETA_AMB] = magnitude / 10.0
-    elif effect == "lab_delay":
-        lab_shift = float(rng_eff.choice([-1.0, 1.0])) * magnitude * 60.0
-        info.update(sign=float(np.sign(lab_shift)))
-    elif effect == "unexplained":
-        # alternating chip batches: mult_D switches between 1 +- magnitude every 1.5 to 3 h
-        sign = float(rng_eff.choice([-1.0, 1.0]))
-        edges = [0.0]
-        while edges[-1] < sc.t[-1]:
-            edges.append(edges[-1] + rng_eff.uniform(1.5, 3.0) * 3600.0)
-        block = np.searchsorted(np.array(edges), sc.t, side="right") - 1
-        theta[:, 0] *= 1.0 + magnitude * sign * np.where(block % 2 == 0, 1.0, -1.0)
-        info.update(sign=sign)
+                            "parameters": dict(zip(PARAMETER_NAMES, map(float, theta[0]),
+                                                   strict=True))}
+    inj = Injection(t=sc.t, theta=theta, moisture_in=sc.moisture_in.copy(),
+                    nominal_moisture_in=config.nominal.moisture_in, info=info)
+    if effect:
+        INJECT[effect](inj, rng_eff, magnitude)
+    true, meas_air = _closed_loop(config, s, sc, inj, rng_noise)
+    scans, truth = _scans_and_truth(s, sc, inj, true, meas_air, rng_noise, hours, start_ns)
+    labs = _lab_samples(rng_lab, s, hours, start_ns, sc.t, true[:, 3], inj.lab_shift, seed)
+    return SimulatedDay(scans=scans, labs=labs, truth=truth, effect=info)
 
+
+def _closed_loop(config: PlantConfig, s: VirtualPlantSettings, sc: Scenario, inj: Injection,
+                 rng_noise: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Step the plant and its outlet-temperature loop over the scenario.
+
+    Returns the true values per control step, columns (``T_air_in``, ``T_dryer_out``,
+    ``T_cyclone_out``, ``moisture_out``, ``moisture_in``, ``flap_cmd``), and the ``T_air_in``
+    sensor's noise-free reading (lagged under ``input_lag``).
+    """
+    n = len(sc.t)
+    dt = s.control_period
+    model = DryerModel(config)
+    theta, bias, moisture_in = inj.theta, inj.bias, inj.moisture_in
+    aux = np.zeros(N_AUX)
+    aux[BETA_AMB] = inj.beta_amb
     hg = config.hot_gas
+    series = {"m_air": sc.m_air, "m_fiber": sc.m_fiber, "T_fiber_in": sc.T_fiber_in,
+              "m_steam": sc.m_steam, "T_amb": sc.T_amb, "H_amb": sc.H_amb,
+              "moisture_in": moisture_in}
 
     def inputs(k: int, T_air: float) -> np.ndarray:
-        return np.array([T_air, sc.m_air[k], sc.m_fiber[k], sc.T_fiber_in[k], sc.m_steam[k],
-                         sc.T_amb[k], sc.H_amb[k], moisture_in[k]])
+        return np.array([T_air if name == "T_air_in" else series[name][k]
+                         for name in INPUT_NAMES])
 
     # start in steady state, the loop holding the measured outlet temperature at T_sp
     u0 = inputs(0, config.nominal.T_air_in)
@@ -161,8 +150,8 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
         except SolverError as exc:
             raise SolverError(f"virtual plant: model failed at t={sc.t[k]:.0f} s: {exc}") from exc
         true[k] = (T_air, y[0], y[1], y[2], moisture_in[k], cmd)
-        if lag_tau > 0:
-            T_air_sensor += (T_air - T_air_sensor) * (1.0 - math.exp(-dt / lag_tau))
+        if inj.lag_tau > 0:
+            T_air_sensor += (T_air - T_air_sensor) * (1.0 - math.exp(-dt / inj.lag_tau))
         else:
             T_air_sensor = T_air
         meas_air[k] = T_air_sensor
@@ -172,34 +161,45 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
         frac = hg.fraction_min + (hg.fraction_max - hg.fraction_min) * pos / 100.0
         nxt = min(k + 1, n - 1)
         T_air = mixed_air(frac, hg.temperature, hg.humidity, sc.T_amb[nxt], sc.H_amb[nxt])[0]
+    return true, meas_air
 
-    # scans every scan_period, holding the plant's last control step
+
+def _scans_and_truth(s: VirtualPlantSettings, sc: Scenario, inj: Injection, true: np.ndarray,
+                     meas_air: np.ndarray, rng_noise: np.random.Generator, hours: float,
+                     start_ns: int) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Scans every ``scan_period`` with sensor noise, holding the plant's last control step,
+    and the ground truth at the same times."""
+    dt = s.control_period
+    n = len(sc.t)
     per = int(round(dt / s.scan_period)) if dt >= s.scan_period else 1
     n_scan = int(round(hours * 3600.0 / s.scan_period)) + 1
     ks = np.minimum(np.arange(n_scan) // per, n - 1)
     t_scan = start_ns + np.round(np.arange(n_scan) * s.scan_period * 1e9).astype(np.int64)
-    rn = rng_noise.standard_normal((n_scan, len(SCAN_SIGNALS)))
+    # one column of standard normals per scan signal, in SCAN_SIGNALS order
+    rn = dict(zip(SCAN_SIGNALS, rng_noise.standard_normal((n_scan, len(SCAN_SIGNALS))).T,
+                  strict=True))
     nt, nf, nh = s.noise_temperature, s.noise_flow, s.noise_humidity
-    scans = pd.DataFrame({
-        "T_air_in": meas_air[ks] + nt * rn[:, 0],
-        "m_air": sc.m_air[ks] * (1 + nf * rn[:, 1]),
-        "m_fiber": sc.m_fiber[ks] * (1 + nf * rn[:, 2]),
-        "T_fiber_in": sc.T_fiber_in[ks] + nt * rn[:, 3],
-        "m_steam": sc.m_steam[ks] * (1 + nf * rn[:, 4]),
-        "T_amb": sc.T_amb[ks] + nt * rn[:, 5],
-        "H_amb": sc.H_amb[ks] * (1 + nh * rn[:, 6]),
+    columns = {
+        "T_air_in": meas_air[ks] + nt * rn["T_air_in"],
+        "m_air": sc.m_air[ks] * (1 + nf * rn["m_air"]),
+        "m_fiber": sc.m_fiber[ks] * (1 + nf * rn["m_fiber"]),
+        "T_fiber_in": sc.T_fiber_in[ks] + nt * rn["T_fiber_in"],
+        "m_steam": sc.m_steam[ks] * (1 + nf * rn["m_steam"]),
+        "T_amb": sc.T_amb[ks] + nt * rn["T_amb"],
+        "H_amb": sc.H_amb[ks] * (1 + nh * rn["H_amb"]),
         "flap_cmd": true[ks, 5],
         "T_sp": sc.T_sp[ks],
-        "T_dryer_out": true[ks, 1] + bias["T_dryer_out"] + nt * rn[:, 9],
-        "T_cyclone_out": true[ks, 2] + bias["T_cyclone_out"] + nt * rn[:, 10],
-    }, index=pd.Index(t_scan, name="log_time_ns"))
+        "T_dryer_out": true[ks, 1] + inj.bias["T_dryer_out"] + nt * rn["T_dryer_out"],
+        "T_cyclone_out": true[ks, 2] + inj.bias["T_cyclone_out"] + nt * rn["T_cyclone_out"],
+    }
+    scans = pd.DataFrame({name: columns[name] for name in SCAN_SIGNALS},
+                         index=pd.Index(t_scan, name="log_time_ns"))
     truth = pd.DataFrame({
         "moisture_in": true[ks, 4], "moisture_out": true[ks, 3], "T_air_in": true[ks, 0],
         "T_dryer_out": true[ks, 1], "T_cyclone_out": true[ks, 2],
         "m_fiber": sc.m_fiber[ks],
     }, index=scans.index.copy())
-    labs = _lab_samples(rng_lab, s, hours, start_ns, sc.t, true[:, 3], lab_shift, seed)
-    return SimulatedDay(scans=scans, labs=labs, truth=truth, effect=info)
+    return scans, truth
 
 
 def _lab_samples(rng: np.random.Generator, s, hours: float, start_ns: int, t: np.ndarray,

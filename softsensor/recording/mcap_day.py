@@ -8,8 +8,11 @@ small, so a writer that dies loses at most its open chunk. A float NaN in a body
 Reading: :func:`read_day` loads a whole day into a :class:`RecordedDay` (scans as a DataFrame of
 SI values, lab results, ground truth when present, and every other topic as decoded bodies);
 :func:`iter_messages` streams ``(topic, log_time_ns, body)`` in log-time order. Every problem
-with the file (missing, not an MCAP, corrupt, truncated, unknown signal, malformed lab body)
-raises :class:`~softsensor.errors.IngestError` with a one-line message naming the file.
+with the file (missing, not an MCAP, corrupt, truncated, unknown signal) raises
+:class:`~softsensor.errors.IngestError` with a one-line message naming the file. A lab body is
+parsed by :func:`softsensor.messages.lab_from_body`, the live path's parser: one it refuses is
+reported (a warning with its sample id and reason, :attr:`RecordedDay.refused_labs`) and
+skipped; the rest of the day is kept.
 
 Times are nanoseconds since the Unix epoch, UTC, everywhere.
 """
@@ -34,7 +37,13 @@ from mcap.reader import NonSeekingReader, SeekingReader
 from mcap.writer import CompressionType, Writer
 
 from softsensor.errors import IngestError
-from softsensor.messages import SCAN_EXTRA_FIELDS, LabResult, encode_body, scan_values
+from softsensor.messages import (
+    SCAN_EXTRA_FIELDS,
+    LabResult,
+    encode_body,
+    lab_from_body,
+    scan_values,
+)
 from softsensor.messages import is_number as _is_number
 from softsensor.signals import (
     HEALTH_STATES,
@@ -234,30 +243,25 @@ class DayWriter:
 
 
 # ----------------------------------------------------------------------------------------------
-# Decoding bodies (pure)
+# Lab bodies: refused ones are reported and skipped
 
 
-def lab_result(body: dict[str, Any], log_time_ns: int | None = None,
-               where: str = "lab") -> LabResult:
-    """A :class:`LabResult` from a ``/plant/lab`` body; :class:`IngestError` if malformed."""
-    if not isinstance(body, dict):
-        raise IngestError(f"{where}: lab body is {type(body).__name__}, not an object")
-    st = body.get("sample_time_ns")
-    if not isinstance(st, int) or isinstance(st, bool):
-        if isinstance(st, float) and st.is_integer():
-            st = int(st)
-        else:
-            raise IngestError(f"{where}: lab field sample_time_ns must be an integer, got {st!r}")
-    mo = body.get("moisture_out")
-    if mo is None:
-        mo = math.nan
-    elif not _is_number(mo):
-        raise IngestError(f"{where}: lab field moisture_out must be a number, got {mo!r}")
-    sid = body.get("sample_id")
-    if sid is None:
-        raise IngestError(f"{where}: lab field sample_id is missing")
-    return LabResult(sample_time_ns=st, moisture_out=float(mo), sample_id=str(sid),
-                     log_time_ns=log_time_ns)
+def _sample_name(body: Any) -> str:
+    """The sample id of a lab body for a report, or ``?`` when it has none."""
+    sid = body.get("sample_id") if isinstance(body, dict) else None
+    return "?" if sid is None else str(sid)
+
+
+def _recorded_lab(body: Any, log_time_ns: int, where: str, refused: list[str]
+                  ) -> LabResult | None:
+    """The :class:`LabResult` of a recorded ``/plant/lab`` body, or None when
+    :func:`~softsensor.messages.lab_from_body` refuses it (the live path's rule); the reason,
+    with the sample id, is appended to ``refused``."""
+    try:
+        return lab_from_body(body, log_time_ns, where)
+    except IngestError as exc:
+        refused.append(f"{exc} (sample_id {_sample_name(body)})")
+        return None
 
 
 # ----------------------------------------------------------------------------------------------
@@ -347,8 +351,10 @@ def iter_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
     """Stream ``(topic, log_time_ns, body)`` of a recorded day in log-time order.
 
     ``start_ns`` / ``end_ns`` select the log times ``[start_ns, end_ns)`` [ns since epoch].
-    Scan bodies are checked with :func:`scan_values` and lab bodies with :func:`lab_result`,
-    so an unknown signal raises :class:`IngestError` when its message is reached. A truncated
+    Scan bodies are checked with :func:`scan_values`, so an unknown signal raises
+    :class:`IngestError` when its message is reached. Lab bodies are checked with
+    :func:`~softsensor.messages.lab_from_body`: a refused one (missing or non-finite moisture,
+    malformed field) is skipped with a warning naming its sample id and reason. A truncated
     file raises at once unless ``allow_truncated``, in which case every complete message
     before the cut is yielded (and a warning logged).
     """
@@ -359,7 +365,10 @@ def iter_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
         if topic == TOPIC_SCAN:
             scan_values(body, where)
         elif topic == TOPIC_LAB:
-            lab_result(body, t, where)
+            refused: list[str] = []
+            if _recorded_lab(body, t, where, refused) is None:
+                log.warning("lab result skipped: %s", refused[0])
+                continue
         yield topic, t, body
 
 
@@ -383,6 +392,12 @@ class RecordedDay:
         Nothing that estimates, calibrates or diagnoses may read it.
     truncated : bool
         True when the file was cut short and only the messages before the cut were read.
+    messages : dict
+        Bodies per topic as ``(log_time_ns, body)``; refused lab bodies are not among them.
+    refused_labs : list of str
+        One line per ``/plant/lab`` body refused by
+        :func:`~softsensor.messages.lab_from_body` (reason and sample id): skipped, not in
+        ``labs``, and logged as a warning.
     """
 
     path: Path
@@ -391,6 +406,7 @@ class RecordedDay:
     truth: pd.DataFrame | None
     truncated: bool = False
     messages: dict[str, list[tuple[int, dict[str, Any]]]] = field(default_factory=dict)
+    refused_labs: list[str] = field(default_factory=list)
 
     def topic(self, name: str) -> list[tuple[int, dict[str, Any]]]:
         """Messages of one topic as ``(log_time_ns, body)`` in log-time order ([] if absent)."""
@@ -473,6 +489,7 @@ def read_day(path: str | os.PathLike[str], *, topics: Iterable[str] | None = Non
     scan_t: list[int] = []
     scan_rows: list[dict[str, float]] = []
     labs: list[LabResult] = []
+    refused: list[str] = []
     messages: dict[str, list[tuple[int, dict[str, Any]]]] = {}
     for topic, t, body in _raw_messages(p, sel, allow_truncated, _mark):
         where = f"{p}: {topic} at {t} ns"
@@ -480,8 +497,14 @@ def read_day(path: str | os.PathLike[str], *, topics: Iterable[str] | None = Non
             scan_rows.append(scan_values(body, where))
             scan_t.append(t)
         elif topic == TOPIC_LAB:
-            labs.append(lab_result(body, t, where))
+            lab = _recorded_lab(body, t, where, refused)
+            if lab is None:
+                continue
+            labs.append(lab)
         messages.setdefault(topic, []).append((t, body))
+    if refused:
+        log.warning("%s: %d lab result(s) refused and skipped: %s", p, len(refused),
+                    "; ".join(refused))
     return RecordedDay(
         path=p,
         scans=_scans_frame(scan_t, scan_rows),
@@ -489,6 +512,7 @@ def read_day(path: str | os.PathLike[str], *, topics: Iterable[str] | None = Non
         truth=_truth_frame(messages.get(TOPIC_TRUTH, [])),
         truncated=truncated,
         messages=messages,
+        refused_labs=refused,
     )
 
 
@@ -500,7 +524,6 @@ __all__ = [
     "DayWriter",
     "RecordedDay",
     "iter_messages",
-    "lab_result",
     "read_day",
     "scan_values",
 ]

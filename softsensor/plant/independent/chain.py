@@ -147,6 +147,9 @@ def solve_instant(p: np.ndarray, y_in: np.ndarray, seg: np.ndarray, n_tube: int,
     ``p`` holds the stream set up for the tube inlet (totals ``x0, y0, e0`` of the inlet
     mixture, ``mode`` tube); it is modified in place (segment and cyclone entries).
     ``tol_scale`` multiplies the march tolerances (1 for the day, smaller for steady states).
+
+    Kept as one compiled pass (about 93 lines): tube segments, duct and cyclone are solved in
+    flow order, each handing its outlet stream in ``p`` to the next, once per instant.
     """
     atol = _ATOL * tol_scale
     rtol = _RTOL * tol_scale

@@ -236,6 +236,9 @@ def march(y: np.ndarray, length: float, h0: float, p: np.ndarray, atol: np.ndarr
 
     ``times[0]`` accumulates the fibre residence time [s] (trapezoidal rule over the
     accepted steps; tube mode only). Returns ``(status, last accepted step, steps)``.
+
+    Kept as one compiled step loop (about 98 lines): the Runge-Kutta stages, the error
+    estimate and the step-size control share the scratch arrays allocated once here.
     """
     n = N_STATE
     f0 = np.empty(n)
