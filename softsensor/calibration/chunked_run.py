@@ -46,6 +46,24 @@ def chunk_bounds(n_windows: int, n_chunks: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n_windows, n + 1)).astype(int))
 
 
+def _lab_sample(model: DryerModel, u_sample: np.ndarray, u_window: np.ndarray, dt: float,
+                theta: np.ndarray, aux: np.ndarray | None,
+                state: np.ndarray | None) -> np.ndarray:
+    """``moisture_out`` (B,) at a lab sample ``dt`` seconds into its window: one step from
+    the window's start at the sample's inputs (B, 8), or, for the members where those fail,
+    at the window's."""
+    y, _ = model.simulate(u_sample[:, None], theta, aux=aux, state0=state, dt=dt,
+                          raise_on_failure=False)
+    out = y[:, 0, 2]
+    bad = np.flatnonzero(np.isnan(out))
+    if bad.size:  # the sample-time inputs failed: the window's inputs instead
+        y, _ = model.simulate(u_window[bad][:, None], theta[bad], aux=aux, dt=dt,
+                              state0=None if state is None else state[bad],
+                              raise_on_failure=False)
+        out[bad] = y[:, 0, 2]
+    return out
+
+
 def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k1: int,
                   state0: np.ndarray | None, du: np.ndarray | None = None, *,
                   U: np.ndarray | None = None, aux: np.ndarray | None = None,
@@ -84,32 +102,19 @@ def simulate_span(model: DryerModel, seg: Segment, theta: np.ndarray, k0: int, k
     aux = None if aux is None else np.asarray(aux, float)
     dU = np.zeros((B, U.shape[1])) if du is None else np.asarray(du, float)
 
-    def at(k: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """Parameters (B, 7) and aux of window ``k``."""
-        th = theta[:, k] if per_window else theta
-        return th, None if aux is None or aux.ndim == 1 else aux[k]
-
     in_span = np.flatnonzero((labs.window >= k0) & (labs.window < k1))
     cuts = sorted({k0, k1, *(int(w) for w in labs.window[in_span] if w > k0)})
     Y = np.empty((B, k1 - k0, 3))
     lab = np.full((B, in_span.size), np.nan)
     state = state0
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
-        th_a, aux_a = at(a)
-        aux_a = aux if aux_a is None else aux_a
+        # parameters (B, 7) and aux of window a, for its lab samples
+        th_a = theta[:, a] if per_window else theta
+        aux_a = aux[a] if aux is not None and aux.ndim == 2 else aux
         for j, li in enumerate(in_span):
             if labs.window[li] == a:
-                # a lab sample in window a: one step from the window's start to its time
-                dt = float(labs.offset[li])
-                y, _ = model.simulate((labs.inputs[li] + dU)[:, None], th_a, aux=aux_a,
-                                      state0=state, dt=dt, raise_on_failure=False)
-                lab[:, j] = y[:, 0, 2]
-                bad = np.flatnonzero(np.isnan(lab[:, j]))
-                if bad.size:  # the sample-time inputs failed: the window's inputs instead
-                    y, _ = model.simulate((U[a] + dU[bad])[:, None], th_a[bad], aux=aux_a,
-                                          dt=dt, state0=None if state is None else state[bad],
-                                          raise_on_failure=False)
-                    lab[bad, j] = y[:, 0, 2]
+                lab[:, j] = _lab_sample(model, labs.inputs[li] + dU, U[a] + dU,
+                                        float(labs.offset[li]), th_a, aux_a, state)
         # U gets a leading batch axis so theta (B, 7) is read as constant parameters and
         # theta (B, K, 7) and aux (K, N_AUX) per window
         Ua = U[a:b][None] if du is None else U[a:b][None] + dU[:, None, :]

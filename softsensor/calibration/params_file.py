@@ -90,14 +90,18 @@ def write_params(path: str | Path, document: Mapping[str, Any], comment: str | N
     return p
 
 
-def read_discrepancy(path: str | Path) -> dict[str, float]:
-    """The ``[discrepancy]`` section of a PARAMS.toml ({} when absent)."""
-    data = read_toml(path)
-    table = data.get("discrepancy", {})
+def _section(path: str | Path, name: str) -> dict[str, Any]:
+    """The ``[name]`` table of a PARAMS.toml ({} when absent)."""
+    table = read_toml(path).get(name, {})
     if not isinstance(table, dict):
-        raise ConfigError(f"{path}: [discrepancy] must be a table")
+        raise ConfigError(f"{path}: [{name}] must be a table")
+    return table
+
+
+def read_discrepancy(path: str | Path) -> dict[str, float]:
+    """The ``[discrepancy]`` section of a PARAMS.toml ({} when absent), every value a number."""
     out = {}
-    for k, v in table.items():
+    for k, v in _section(path, "discrepancy").items():
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ConfigError(f"{path}: discrepancy.{k} must be a number, got {v!r}")
         out[str(k)] = float(v)
@@ -106,11 +110,7 @@ def read_discrepancy(path: str | Path) -> dict[str, float]:
 
 def read_fit(path: str | Path) -> dict[str, Any]:
     """The ``[fit]`` section of a PARAMS.toml ({} when absent)."""
-    data = read_toml(path)
-    fit = data.get("fit", {})
-    if not isinstance(fit, dict):
-        raise ConfigError(f"{path}: [fit] must be a table")
-    return fit
+    return _section(path, "fit")
 
 
 __all__ = ["dumps", "params_document", "read_discrepancy", "read_fit", "write_params"]

@@ -27,7 +27,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -462,6 +463,38 @@ def _validation_section(new: ValidationResult, old: ValidationResult | None
     return out
 
 
+@contextmanager
+def _phase(name: str, timings: dict[str, float], say: Callable[[str], None]) -> Iterator[None]:
+    """Announce a calibration phase and record its wall time in ``timings[name]``."""
+    say(name)
+    t0 = time.perf_counter()
+    yield
+    timings[name] = time.perf_counter() - t0
+
+
+def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
+            theta: np.ndarray, config: PlantConfig, spec: ObjectiveSpec) -> Refinement:
+    """Refine TPE's best point; an improvement joins the study as a trial (user attribute
+    ``origin = "refine"``), so that the study's best trial is the result."""
+    refinement = refine(model, fit_segs, theta, config.bounds(), spec)
+    if refinement.improved:
+        study.add_trial(optuna.trial.create_trial(
+            params=dict(zip(PARAMETER_NAMES, map(float, refinement.theta), strict=True)),
+            distributions=search_space(config), value=refinement.evaluation.objective,
+            user_attrs={"origin": "refine", "simulations": refinement.simulations}))
+    return refinement
+
+
+def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
+                   theta: np.ndarray, current: np.ndarray, fit_cost: float,
+                   model: DryerModel) -> tuple[ValidationResult, ValidationResult, Discrepancy]:
+    """The result and the current parameters on the held-out data, and the result's
+    discrepancy there (the [discrepancy] the estimator and the diagnosis use)."""
+    val = validate(held, config, spec, theta, fit_cost, model)
+    cur_val = validate(held, config, spec, current, None, model)
+    return val, cur_val, discrepancy(val.evaluation, held)
+
+
 def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudySettings,
               calibration: CalibrationSettings, *, choices: Sequence[WindowChoice] = (),
               validation_segments: Sequence[Segment] | None = None,
@@ -482,10 +515,9 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     say = progress or (lambda phase: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    if validation_segments is None:
-        fit_segs, held = split_holdout(segments, calibration.holdout_fraction)
-    else:
-        fit_segs, held = list(segments), list(validation_segments)
+    fit_segs, held = (split_holdout(segments, calibration.holdout_fraction)
+                      if validation_segments is None
+                      else (list(segments), list(validation_segments)))
     current = config.parameter_vector() if current_theta is None else np.asarray(current_theta)
     spec = objective_spec(model, fit_segs, config, calibration)
     say("study")
@@ -498,33 +530,22 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     theta = theta_of(best.params)
     refinement = None
     if polish:
-        say("refine")
-        t1 = time.perf_counter()
-        refinement = refine(model, fit_segs, theta, config.bounds(), spec)
-        timings["refine"] = time.perf_counter() - t1
+        with _phase("refine", timings, say):
+            refinement = _polish(study, model, fit_segs, theta, config, spec)
         if refinement.improved:
             theta = refinement.theta
-            study.add_trial(optuna.trial.create_trial(
-                params=dict(zip(PARAMETER_NAMES, map(float, theta), strict=True)),
-                distributions=search_space(config), value=refinement.evaluation.objective,
-                user_attrs={"origin": "refine", "simulations": refinement.simulations}))
     evs = evaluate_parameters(model, fit_segs, np.stack([theta, current]), spec)
     runs = simulate_segments(model, fit_segs, theta)
     val = cur_val = disc = None
     if held:
-        say("validate")
-        t2 = time.perf_counter()
-        val = validate(held, config, spec, theta, evs[0].fit.cost, model)
-        cur_val = validate(held, config, spec, current, None, model)
-        disc = discrepancy(val.evaluation, held)
-        timings["validate"] = time.perf_counter() - t2
+        with _phase("validate", timings, say):
+            val, cur_val, disc = _validate_both(held, config, spec, theta, current,
+                                                evs[0].fit.cost, model)
     ident = importance = sens = None
     if identify_result:
-        say("identify")
-        t3 = time.perf_counter()
-        ident, sens = identify(model, fit_segs, theta, spec, config.bounds())
-        importance = parameter_importance(study)
-        timings["identify"] = time.perf_counter() - t3
+        with _phase("identify", timings, say):
+            ident, sens = identify(model, fit_segs, theta, spec, config.bounds())
+            importance = parameter_importance(study)
     timings["total"] = time.perf_counter() - t0
     return CalibrationResult(
         config=config, theta=theta, evaluation=evs[0], spec=spec, calibration=calibration,

@@ -88,15 +88,11 @@ class Diagnosis:
         return cross_fitted(self.problem, self.fitted[cause].prediction,
                             self.other_fold[cause].prediction)
 
-    def to_json(self) -> dict[str, Any]:
-        """REPORT.json (CONTRACT section 5) plus the project's extra fields."""
+    def _ranking_json(self) -> list[dict[str, Any]]:
+        """REPORT.json's ``ranking``: every cause with its weight and evidence, the fitted
+        ones with their scores and parameters on both folds, the skipped ones with why."""
         v = self.verdict
-        win = v.winner
-        any_score = next(iter(self.scores.values()))
-        base = any_score.baseline
-        ext = win.extended if win is not None else base
-        p = self.problem
-        ranking = []
+        ranking: list[dict[str, Any]] = []
         for cause, weight, sc in v.ranking:
             fitted = self.fitted.get(cause) if sc is not None else None
             entry: dict[str, Any] = {
@@ -117,6 +113,17 @@ class Diagnosis:
             ranking.append({"cause": cause, "score": 0.0, "eligible": False,
                             "evidence": evidence_text(cause, self.summary, None, None)
                             + f". Not fitted: {reason}"})
+        return ranking
+
+    def to_json(self) -> dict[str, Any]:
+        """REPORT.json (CONTRACT section 5) plus the project's extra fields."""
+        v = self.verdict
+        win = v.winner
+        any_score = next(iter(self.scores.values()))
+        base = any_score.baseline
+        ext = win.extended if win is not None else base
+        p = self.problem
+        ranking = self._ranking_json()
         split = p.split
         out: dict[str, Any] = {
             "cause": v.cause,
