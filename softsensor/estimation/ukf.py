@@ -6,9 +6,9 @@ carries ``moisture_in`` as a state and corrects it every 600 s tick with the two
 outlet temperatures (the model, fed the *measured* ``T_air_in``, needs the right inlet
 moisture to reproduce them), and with the lab's outlet moisture whenever a result arrives,
 tens of minutes after its sample time. Because a real dryer is never the model, the state also
-carries the model's own slowly varying error, a common and two per-channel temperature offsets
-and an outlet-moisture bias (:mod:`.discrepancy`, priors from the calibration's residuals on
-data it was not fitted on).
+carries the model's own slowly varying error: an offset of the heat input it sees (common to
+both temperatures), two per-channel temperature offsets and an outlet-moisture bias
+(:mod:`.discrepancy`, priors from the calibration's residuals on data it was not fitted on).
 
 One tick
 --------
@@ -45,15 +45,15 @@ One tick
    conditions the published outputs and the wall temperatures (not filtered: a "consider"
    state that mostly settles within a tick) on the innovation with the state.
 
-Why filterpy's functions and not its ``UnscentedKalmanFilter``: the class evaluates ``fx`` and
-``hx`` once per sigma point, where the model here runs once, batched, over the distinct model
-inputs of all sigma points (nine model solves instead of eleven separate calls); covariance
+Why filterpy's functions and not its ``UnscentedKalmanFilter``: the class calls ``hx`` once
+per sigma point (eleven model calls a tick), where the model here runs once, batched over the
+five distinct model inputs of the sigma points and the four derivative probes; covariance
 matching changes ``P`` after the model has been run at the sigma points and before the update;
 and the measurement vector changes size. With the class each of these means writing its ``P``
-and ``sigmas_f`` between ``predict`` and ``update``. Its building blocks (``predict``,
-``MerweScaledSigmaPoints``, ``unscented_transform``, ``update``) are called here with their
-documented arguments; ``tests/test_ukf.py`` checks the result against the class with the model
-in ``hx``.
+and ``sigmas_f`` between ``predict`` and ``update``, or a cached ``hx`` that ignores its
+argument. Its building blocks (``predict``, ``MerweScaledSigmaPoints``, ``unscented_transform``,
+``update``) are called here with their documented arguments; ``tests/test_ukf.py`` checks a
+tick against the class with the model in ``hx``.
 
 Published (``/softsensor/estimate``): the now-cast ``moisture_out`` (model + bias, posterior mean
 at the window's end) with ``moisture_out_std`` (its uncertainty plus the short-term jitter a
@@ -538,10 +538,11 @@ class UkfEstimator:
         j_lab = 0
         for m, r in enumerate(rows):
             if r < 2:
-                out[:, m] = sig.y[:, r] + sigmas[:, _ROW_OFFSET[r]]
+                model = sig.y[:, r]
             else:
-                out[:, m] = sig.lab[:, j_lab] + sigmas[:, _ROW_OFFSET[r]]
+                model = sig.lab[:, j_lab]
                 j_lab += 1
+            out[:, m] = model + sigmas[:, _ROW_OFFSET[r]]
         return out
 
     def _match_covariance(self, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
