@@ -501,6 +501,23 @@ def test_a_model_that_has_lost_the_plant_publishes_the_last_lab_flagged():
     assert abs(end["moisture_out"] - truth[-1, 1]) < 0.01
 
 
+def test_the_fallback_at_a_lab_tick_is_that_lab_whether_it_came_on_time_or_late():
+    """A lost model publishes the last lab result; at the tick whose window holds a result,
+    that is the result itself, and the same whether it was delivered on time (applied at the
+    tick) or late (the tick re-filtered)."""
+    plant = LinearDryer(mo_offset=0.06)
+    wins, truth = synthetic_day(60, seed=23, plant=plant)
+    samples = {k: lab(k, truth[k, 1], f"L{k}") for k in range(8, 50, 10)}
+    on_time = run(make(**CALIBRATED), wins, {k: [r] for k, r in samples.items()})
+    late = run(make(**CALIBRATED), wins, {k + 2: [r] for k, r in samples.items()})
+    anchored = [k for k in samples if on_time[k]["fallback"]]
+    assert len(anchored) >= 3
+    for k in anchored:
+        assert on_time[k]["moisture_out"] == pytest.approx(samples[k].moisture_out)
+        assert on_time[k]["detail"].count(f"last lab result L{k} ") == 1
+    assert late[-1] == on_time[-1]
+
+
 def test_the_inlet_moisture_and_its_sigma_points_stay_in_their_range():
     """A plant whose temperatures ask for an inlet moisture above the range: the estimate
     approaches the bound and never passes it, and the guard says so."""
