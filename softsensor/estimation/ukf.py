@@ -92,7 +92,7 @@ import itertools
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
@@ -117,6 +117,7 @@ from softsensor.estimation.discrepancy import (
     process_noise,
     transition,
 )
+from softsensor.estimation.jump_matching import jumps, widen
 from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
 from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
@@ -140,9 +141,6 @@ _ROW_OFFSET = (X_TDRY, X_TCYC, X_BIAS)
 #: Finite-difference steps of the model states for the partial derivatives: the inlet moisture
 #: (in the filter's coordinate) [kg/kg] and the heat input [K].
 _FD_STEP = {X_IN: 1e-3, X_HEAT: 0.5}
-#: Two jumps whose effects on the measurements have a cosine above this (``S^-1`` metric)
-#: cannot be told apart by them.
-SAME_JUMP = 0.95
 
 
 class WindowModel(Protocol):
@@ -217,18 +215,6 @@ class _LabSteps:
     dt: np.ndarray
 
 
-class _Jump(NamedTuple):
-    """A candidate jump of one state (:meth:`UkfEstimator._match_covariance`): its index, the
-    innovation's component along it in standard deviations ``t``, ``h' S^-1 h``, ``h`` and
-    ``S^-1 h``."""
-
-    state: int
-    t: float
-    info: float
-    h: np.ndarray
-    w: np.ndarray
-
-
 class UkfEstimator:
     """Unscented Kalman filter of the inlet moisture and the model's error (module docstring).
 
@@ -277,6 +263,10 @@ class UkfEstimator:
         self._nominal = x0
         self._reversion = np.eye(n) - self._F
         P0 = np.diag(np.r_[s.moisture_in_std0**2, self.priors.sigma**2])
+        # how many standard deviations of innovation along a state's jump widen its variance
+        self._jump_threshold = {X_IN: s.moisture_in_adapt, X_HEAT: s.offset_adapt,
+                                X_TDRY: s.offset_adapt, X_TCYC: s.offset_adapt,
+                                X_BIAS: s.moisture_out_bias_adapt}
         self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
@@ -548,40 +538,26 @@ class UkfEstimator:
     def _match_covariance(self, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
                           meas: _Measurements) -> tuple[np.ndarray, str]:
         """Widen the prior variance of the one state whose jump best explains the innovation,
-        when the innovation says it moved more than its process noise allows (covariance
-        matching, Mehra 1972); returns the new ``P`` and a note ('' when nothing changed).
+        when the innovation says it moved more than its process noise allows
+        (:mod:`.jump_matching`); returns the new ``P`` and a note ('' when nothing changed).
 
-        For each candidate state ``i`` (:meth:`_jumps`), ``t_i`` is the innovation's
-        component along what a jump of ``x_i`` would do, in standard deviations, and ``t_i^2``
-        the drop of the normalised innovation squared that such a jump buys (a generalised
-        likelihood ratio). The candidate with the largest ``|t_i|`` is the best single
-        explanation: a step of the inlet moisture moves both temperatures (and the lab) as the
-        model says, a thermometer that steps moves one channel. When its ``|t|`` exceeds its
-        threshold (``estimator.moisture_in_adapt``, ``offset_adapt``,
-        ``moisture_out_bias_adapt``), ``P_ii`` grows by ``(t^2 - 1) / (h' S^-1 h)``, after
-        which that component is one standard deviation. Taking one jump, the best, keeps a
-        single thermometer's step from being read as an inlet-moisture step plus the other
-        thermometer's opposite offset; among jumps these measurements cannot tell apart
-        (cosine above :data:`SAME_JUMP` in the ``S^-1`` metric) the inlet moisture's is taken.
+        The candidates are the inlet moisture, the heat input, each measured temperature
+        channel's offset and, with a lab, the bias; their thresholds
+        ``estimator.moisture_in_adapt``, ``offset_adapt`` and ``moisture_out_bias_adapt``;
+        among jumps the measurements cannot tell apart the inlet moisture's is taken.
         """
-        found = self._jumps(sigmas, sig, meas)
-        if not found:
+        pts = self._points
+        zp, S = unscented_transform(self._measurement_sigmas(sigmas, sig, meas.rows),
+                                    pts.Wm, pts.Wc, meas.R)
+        seen = set(meas.rows)
+        candidates = [X_IN, X_HEAT] + [_ROW_OFFSET[r] for r in range(3) if r in seen]
+        found = jumps({i: self._partial(i, sig, meas.rows) for i in candidates}, S,
+                      meas.z - zp)
+        P, taken = widen(P, found, self._jump_threshold, preferred=X_IN)
+        if not taken:
             return P, ""
-        best = max(found, key=lambda c: abs(c.t))
-        if abs(best.t) <= self._jump_threshold(best.state):
-            return P, ""
-        # the states whose jump looks the same to these measurements (an inlet-moisture step
-        # and a heat-input step both move the two temperatures together) cannot be told
-        # apart by them; the inlet moisture is the one that steps (a new pile of chips), the
-        # heat input's error drifts with the conditions, so the inlet moisture takes the jump
-        # and later lab results, which see it through the outlet moisture, confirm or undo it
-        inlet = [c for c in found
-                 if c.state == X_IN and abs(c.h @ best.w) / math.sqrt(c.info * best.info)
-                 > SAME_JUMP and abs(c.t) > self._jump_threshold(c.state)]
-        P = P.copy()
         parts = []
-        for c in inlet or [best]:
-            P[c.state, c.state] += (c.t * c.t - 1.0) / c.info
+        for c in taken:
             what = {X_IN: "inlet moisture", X_BIAS: "outlet-moisture bias"}.get(
                 c.state, STATE_NAMES[c.state].replace("_", " "))
             parts.append(f"{what} ({abs(c.t):.1f} sigma, prior widened to "
@@ -589,32 +565,6 @@ class UkfEstimator:
         msg = "measurements far from the model along the " + ", ".join(parts)
         log.info(msg)
         return P, msg
-
-    def _jumps(self, sigmas: np.ndarray, sig: _Sigma, meas: _Measurements) -> list[_Jump]:
-        """The candidate jumps the measurements can see: the inlet moisture, the heat input,
-        each measured temperature channel's offset and, with a lab, the bias. With ``h =
-        dz / dx_i`` (the others held: :meth:`_partial`), ``S`` the innovation covariance and
-        ``nu`` the innovation, ``t_i = h' S^-1 nu / sqrt(h' S^-1 h)``."""
-        pts = self._points
-        zp, S = unscented_transform(self._measurement_sigmas(sigmas, sig, meas.rows),
-                                    pts.Wm, pts.Wc, meas.R)
-        nu = meas.z - zp
-        seen = set(meas.rows)
-        candidates = [X_IN, X_HEAT] + [_ROW_OFFSET[r] for r in range(3) if r in seen]
-        found = []
-        for i in candidates:
-            h = self._partial(i, sig, meas.rows)
-            w = np.linalg.solve(S, h)
-            info = float(h @ w)
-            if info > 0:
-                found.append(_Jump(i, float(w @ nu) / math.sqrt(info), info, h, w))
-        return found
-
-    def _jump_threshold(self, i: int) -> float:
-        """How many standard deviations of innovation along state ``i``'s jump widen it."""
-        s = self.settings
-        return {X_IN: s.moisture_in_adapt, X_BIAS: s.moisture_out_bias_adapt}.get(
-            i, s.offset_adapt)
 
     @staticmethod
     def _partial(i: int, sig: _Sigma, rows: list[int]) -> np.ndarray:
