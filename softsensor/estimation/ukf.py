@@ -31,11 +31,12 @@ One tick
    variance ``sensor_std^2 / n_good + model_std^2``), and per lab result ``y_lab(...) +
    moisture_out_bias`` (variance ``lab_std^2 + moisture_out_jitter_std^2``); a missing
    temperature or a tick without lab drops its row, so the size varies tick to tick.
-4. *Covariance matching* before the update (Mehra 1972): when the innovation along what a
-   change of the inlet moisture (of one channel's offset; of the bias, with a lab) would do is
-   more than ``moisture_in_adapt`` (``offset_adapt``; ``moisture_out_bias_adapt``) standard
-   deviations, that state's prior variance grows until it is one: a step of the inlet moisture
-   or of one thermometer is taken at once. The model is then run at the new sigma points.
+4. *Covariance matching* before the update (Mehra 1972, :mod:`.jump_matching`): when the
+   innovation along what a change of the inlet moisture (of one channel's offset; of the bias,
+   with a lab) would do is more than ``moisture_in_adapt`` (``offset_adapt``;
+   ``moisture_out_bias_adapt``) standard deviations, that state's prior variance grows until
+   it is one: a step of the inlet moisture or of one thermometer is taken at once. The model
+   is then run at the new sigma points.
 5. *Update*: filterpy's ``unscented_transform`` of the joint sigma points (state, published
    outputs, the model's own temperatures, walls, predicted measurements) gives their mean and
    joint covariance, whose off-diagonal blocks are the cross-covariances with the
@@ -606,9 +607,10 @@ class UkfEstimator:
             innovation = Innovation(float(nu @ np.linalg.solve(S, nu)), m,
                                     _per_channel(meas.names, norm))
         out = slice(n, n + 3)
-        return _Posterior(mean[:n], _symmetric(cov[:n, :n]), mean[out], np.diag(cov)[out].copy(),
-                          mean[n + 3:n + 5], mean[n + 5:n + 5 + sig.wall.shape[1]], innovation,
-                          norm, list(meas.channels))
+        return _Posterior(mean[:n].copy(), _symmetric(cov[:n, :n]), mean[out],
+                          np.diag(cov)[out].copy(), mean[n + 3:n + 5],
+                          mean[n + 5:n + 5 + sig.wall.shape[1]], innovation, norm,
+                          list(meas.channels))
 
     def _measurements(self, temps: TemperatureMeasurement, labs: list[LabResult]
                       ) -> _Measurements:
