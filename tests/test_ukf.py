@@ -15,6 +15,8 @@ import math
 
 import numpy as np
 import pytest
+from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import predict as kf_predict
 
 from softsensor.errors import ConfigError, EstimationError
 from softsensor.estimation.base import LabResult, Window
@@ -28,6 +30,7 @@ from softsensor.estimation.discrepancy import (
 )
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
+from softsensor.estimation.window_inputs import InputHold
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import SCAN_SIGNALS
 
@@ -181,6 +184,72 @@ def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
         assert body["nis_dof"] == len(rows)
         assert not body["fallback"]
     assert np.allclose(est._state.P, P, rtol=1e-6, atol=1e-14)
+
+
+class CurvedDryer(LinearDryer):
+    """:class:`LinearDryer` with outputs curved in the inlet moisture and the heat input, so
+    that the unscented transform is no longer exact and the weights of its covariance matter."""
+
+    def outputs(self, U: np.ndarray) -> np.ndarray:
+        y = super().outputs(U)
+        U = np.asarray(U, float)
+        dx = U[..., 7] - U0.moisture_in
+        dt = U[..., 0] - U0.T_air_in
+        y[..., :2] += (60.0 * dx**2 + 0.05 * dt**2)[..., None]
+        y[..., 2] += 0.8 * dx**2
+        return y
+
+
+def test_tick_equals_filterpys_unscented_kalman_filter_with_the_model_in_hx():
+    """One tick of a curved model with both temperatures and a lab result: the estimator
+    (batched model run over the distinct model inputs, joint unscented transform, Kalman update
+    of that Gaussian) gives the posterior, innovation and NIS of filterpy's own
+    UnscentedKalmanFilter run on the same prior with the model in ``hx``, one sigma point at a
+    time, to round-off."""
+    s = dataclasses.replace(EstimatorSettings(), offset_adapt=1e9, **NO_ADAPT)
+    model = CurvedDryer()
+    est = UkfEstimator(CFG, s, model=model)
+    wins, truth = synthetic_day(1, seed=5, plant=model)
+    result = lab(0, truth[0, 1] + 0.01, "L1")
+    assert est.add_lab(result) is None
+    body = est.tick(wins[0])
+    assert body["labs_applied"] == ["L1"] and body["nis_dof"] == 3
+    # the same prior, by filterpy's linear predict
+    pri = ErrorPriors.from_config(CFG, s, est.heat_gain)
+    a = np.exp(-600.0 / pri.tau)
+    r = 600.0 / (s.moisture_in_tau_h * 3600.0)
+    F = np.diag(np.r_[math.exp(-r), a])
+    Q = np.diag(np.r_[s.walk_per_window(s.moisture_in_walk, 600.0) ** 2
+                      * (1 - math.exp(-2 * r)) / (2 * r), pri.sigma**2 * (1 - a**2)])
+    x_nom = np.array([CFG.nominal.moisture_in, 0.0, 0.0, 0.0, 0.0])
+    P0 = np.diag(np.r_[s.moisture_in_std0**2, pri.sigma**2])
+    x, P = kf_predict(x_nom, P0, F, Q, u=x_nom, B=np.eye(5) - F)
+    u = InputHold(CFG.nominal_inputs()).inputs(wins[0])[0]
+
+    def hx(xs: np.ndarray) -> np.ndarray:
+        ui = u.copy()
+        ui[7] = est.inlet.forward(xs[0])
+        ui[0] += xs[1]
+        y = model.outputs(ui)
+        return np.array([y[0] + xs[2], y[1] + xs[3], y[2] + xs[4]])
+
+    points = MerweScaledSigmaPoints(5, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
+    ukf = UnscentedKalmanFilter(5, 3, 600.0, hx, lambda xs, dt: xs, points)
+    ukf.x, ukf.P, ukf.Q = x, P, np.zeros((5, 5))
+    ukf.predict()  # the identity with no noise: sigma points of the prior
+    r_T = s.temperature_sensor_std**2 / 60 + s.temperature_model_std**2
+    r_L = s.lab_std**2 + s.moisture_out_jitter_std**2
+    z = np.array([wins[0].means["T_dryer_out"], wins[0].means["T_cyclone_out"],
+                  result.moisture_out])
+    ukf.update(z, np.diag([r_T, r_T, r_L]))
+    # the model's curvature matters (the predicted temperatures are not the model at the
+    # mean) and the measurements move the inlet moisture
+    assert np.all(np.abs(points.Wm @ ukf.sigmas_h - hx(x))[:2] > 0.5)
+    assert abs(ukf.x[0] - x[0]) > 1e-3
+    np.testing.assert_allclose(est._state.x, ukf.x, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(est._state.P, ukf.P, rtol=1e-8, atol=1e-14)
+    assert body["nis"] == pytest.approx(float(ukf.y @ ukf.SI @ ukf.y), rel=1e-9)
+    assert body["T_air_in_offset"] == pytest.approx(ukf.x[1], rel=1e-9)
 
 
 def test_filter_tracks_the_inlet_moisture_of_a_linear_plant():
@@ -430,6 +499,23 @@ def test_a_model_that_has_lost_the_plant_publishes_the_last_lab_flagged():
     assert end["moisture_out"] == pytest.approx(last.moisture_out)
     assert end["moisture_out_std"] > EstimatorSettings().lab_std
     assert abs(end["moisture_out"] - truth[-1, 1]) < 0.01
+
+
+def test_the_fallback_at_a_lab_tick_is_that_lab_whether_it_came_on_time_or_late():
+    """A lost model publishes the last lab result; at the tick whose window holds a result,
+    that is the result itself, and the same whether it was delivered on time (applied at the
+    tick) or late (the tick re-filtered)."""
+    plant = LinearDryer(mo_offset=0.06)
+    wins, truth = synthetic_day(60, seed=23, plant=plant)
+    samples = {k: lab(k, truth[k, 1], f"L{k}") for k in range(8, 50, 10)}
+    on_time = run(make(**CALIBRATED), wins, {k: [r] for k, r in samples.items()})
+    late = run(make(**CALIBRATED), wins, {k + 2: [r] for k, r in samples.items()})
+    anchored = [k for k in samples if on_time[k]["fallback"]]
+    assert len(anchored) >= 3
+    for k in anchored:
+        assert on_time[k]["moisture_out"] == pytest.approx(samples[k].moisture_out)
+        assert on_time[k]["detail"].count(f"last lab result L{k} ") == 1
+    assert late[-1] == on_time[-1]
 
 
 def test_the_inlet_moisture_and_its_sigma_points_stay_in_their_range():

@@ -141,17 +141,18 @@ def transition(window_s: float, priors: ErrorPriors, inlet_tau_s: float) -> np.n
     return np.diag(np.r_[math.exp(-window_s / inlet_tau_s), a])
 
 
-def process_noise(window_s: float, priors: ErrorPriors, walk_s: float, inlet_tau_s: float,
-                  inflation: np.ndarray) -> np.ndarray:
-    """Process noise ``Q`` (diagonal) over one window: the inlet moisture's walk ``walk_s``
-    per window (in the filter's coordinate; ``walk_s^2 (1 - a^2) / (2 dt / tau)`` with its
-    mean reversion) and ``sigma^2 (1 - a^2)`` of each error state, multiplied by the adaptive
-    ``inflation`` (4,) of that state."""
+def process_noise(window_s: float, priors: ErrorPriors, walk_s: float, inlet_tau_s: float
+                  ) -> np.ndarray:
+    """Diagonal (5,) of the process noise ``Q`` over one window, before the adaptive inflation
+    (constant for given settings; the filter multiplies the error states' entries by
+    :meth:`AdaptiveNoise.inflation` each tick): the inlet moisture's walk ``walk_s`` per window
+    (in the filter's coordinate; ``walk_s^2 (1 - a^2) / (2 dt / tau)`` with its mean
+    reversion) and ``sigma^2 (1 - a^2)`` of each error state."""
     a = np.exp(-window_s / priors.tau)
-    q_err = priors.sigma**2 * (1.0 - a**2) * inflation
+    q_err = priors.sigma**2 * (1.0 - a**2)
     r = window_s / inlet_tau_s
     q_in = walk_s**2 * (1.0 - math.exp(-2.0 * r)) / (2.0 * r)
-    return np.diag(np.r_[q_in, q_err])
+    return np.r_[q_in, q_err]
 
 
 @dataclass

@@ -75,12 +75,14 @@ def sample_inputs_from_bins(bins: np.ndarray, window_start_ns: int, bin_ns: int,
     return u
 
 
-def sample_inputs(window: Window, u_window: np.ndarray, sample_time_ns: int,
+def sample_inputs(window: Window, u_window: np.ndarray, sample_times_ns: list[int],
                   span_s: float) -> np.ndarray:
-    """:func:`sample_inputs_from_bins` for a :class:`~softsensor.messages.Window`."""
-    return sample_inputs_from_bins(bin_matrix(window), window.start_ns,
-                                   int(round(window.bin_s * NS)), u_window, sample_time_ns,
-                                   int(round(span_s * NS)))
+    """:func:`sample_inputs_from_bins` for a :class:`~softsensor.messages.Window`, one row
+    ``(L, 8)`` per sample time; the window's bins are read once for all of them."""
+    bins = bin_matrix(window)
+    bin_ns, span_ns = int(round(window.bin_s * NS)), int(round(span_s * NS))
+    return np.array([sample_inputs_from_bins(bins, window.start_ns, bin_ns, u_window, t, span_ns)
+                     for t in sample_times_ns], dtype=float).reshape(-1, len(u_window))
 
 
 __all__ = ["MIN_OFFSET_S", "bin_matrix", "sample_inputs", "sample_inputs_from_bins",

@@ -6,35 +6,55 @@ carries ``moisture_in`` as a state and corrects it every 600 s tick with the two
 outlet temperatures (the model, fed the *measured* ``T_air_in``, needs the right inlet
 moisture to reproduce them), and with the lab's outlet moisture whenever a result arrives,
 tens of minutes after its sample time. Because a real dryer is never the model, the state also
-carries the model's own slowly varying error, a common and two per-channel temperature offsets
-and an outlet-moisture bias (:mod:`.discrepancy`, priors from the calibration's residuals on
-data it was not fitted on).
+carries the model's own slowly varying error: an offset of the heat input it sees (common to
+both temperatures), two per-channel temperature offsets and an outlet-moisture bias
+(:mod:`.discrepancy`, priors from the calibration's residuals on data it was not fitted on).
 
 One tick
 --------
 1. *Predict* (linear, exact): the inlet moisture a mean-reverting walk, the error states
    first-order processes: ``x = F x + (I - F) x_nominal``, ``P = F P F' + Q``
-   (``filterpy.kalman.predict``), ``Q`` inflated per channel by the innovation-based
-   adaptation (:class:`~.discrepancy.AdaptiveNoise`).
+   (``filterpy.kalman.predict`` with the nominal state as its control input), ``Q``'s constant
+   diagonal (:func:`~.discrepancy.process_noise`, computed once) inflated per channel by the
+   innovation-based adaptation (:class:`~.discrepancy.AdaptiveNoise`).
 2. *Sigma points* of the prior (filterpy's ``MerweScaledSigmaPoints``). Only the inlet moisture
-   moves the model, and it is the first state, so the sigma points hold three distinct inlet
-   moistures (the mean and the two along the first column of the Cholesky factor): the model is
-   stepped over the window for those three only, in one batched call, from the current wall
-   temperatures; a lab result sampled in the window adds one short step per inlet moisture to
-   its sample time (:mod:`.lab_alignment`, the calibration's alignment).
-3. *Measurements*: ``T_dryer_out = y_d(X_in) + T_offset + T_dryer_out_offset``,
-   ``T_cyclone_out = y_c(X_in) + T_offset + T_cyclone_out_offset`` (window means, variance
-   ``sensor_std^2 / n_good + model_std^2``), and per lab result ``y_lab(X_in) +
-   moisture_out_bias`` (variance ``lab_std^2 + moisture_out_jitter_std^2``). Measurement sizes
-   vary; the update uses filterpy's ``unscented_transform`` for the predicted measurement and
-   its covariance and the sigma points' deviations for the cross-covariance.
-4. *Covariance matching* before the update (Mehra 1972): when the innovation along what a
-   change of the inlet moisture (of one channel's offset; of the bias, with a lab) would do is
-   more than ``moisture_in_adapt`` (``offset_adapt``; ``moisture_out_bias_adapt``) standard
-   deviations, that state's prior variance grows until it is one: a step of the inlet moisture
-   or of one thermometer is taken at once.
-5. *Update*, and the wall temperatures (not filtered; a "consider" state that mostly settles
-   within a tick) conditioned on the innovation like the outputs.
+   and the heat input's offset enter the model (:data:`~.discrepancy.MODEL_STATES`, the first
+   two states; the others add to its outputs), so the sigma points hold five distinct pairs of
+   them (the mean and two along each of the first two columns of the Cholesky factor). The
+   model is stepped over the window for those five only, plus four points about the mean, each
+   model state moved alone, for the partial derivatives of step 4: one batched call, from the
+   current wall temperatures, with ``moisture_in`` and ``T_air_in`` plus the heat offset as its
+   inputs. A lab result sampled in the window adds one batched short step to its sample time,
+   with the inputs just before the sample (:mod:`.lab_alignment`, the calibration's alignment).
+3. *Measurements*: ``T_dryer_out = y_d(X_in, T_air_in + T_air_in_offset) +
+   T_dryer_out_offset``, ``T_cyclone_out = y_c(...) + T_cyclone_out_offset`` (window means,
+   variance ``sensor_std^2 / n_good + model_std^2``), and per lab result ``y_lab(...) +
+   moisture_out_bias`` (variance ``lab_std^2 + moisture_out_jitter_std^2``); a missing
+   temperature or a tick without lab drops its row, so the size varies tick to tick.
+4. *Covariance matching* before the update (Mehra 1972, :mod:`.jump_matching`): when the
+   innovation along what a change of the inlet moisture (of one channel's offset; of the bias,
+   with a lab) would do is more than ``moisture_in_adapt`` (``offset_adapt``;
+   ``moisture_out_bias_adapt``) standard deviations, that state's prior variance grows until
+   it is one: a step of the inlet moisture or of one thermometer is taken at once. The model
+   is then run at the new sigma points.
+5. *Update*: filterpy's ``unscented_transform`` of the joint sigma points (state, published
+   outputs, the model's own temperatures, walls, predicted measurements) gives their mean and
+   joint covariance, whose off-diagonal blocks are the cross-covariances with the
+   measurements; ``filterpy.kalman.update``, with a measurement matrix that selects the
+   predicted measurements, conditions that Gaussian on the measured values. This is the
+   unscented update written as the linear Kalman update of the joint Gaussian, and it
+   conditions the published outputs and the wall temperatures (not filtered: a "consider"
+   state that mostly settles within a tick) on the innovation with the state.
+
+Why filterpy's functions and not its ``UnscentedKalmanFilter``: the class calls ``hx`` once
+per sigma point (eleven model calls a tick), where the model here runs once, batched over the
+five distinct model inputs of the sigma points and the four derivative probes; covariance
+matching changes ``P`` after the model has been run at the sigma points and before the update;
+and the measurement vector changes size. With the class each of these means writing its ``P``
+and ``sigmas_f`` between ``predict`` and ``update``, or a cached ``hx`` that ignores its
+argument. Its building blocks (``predict``, ``MerweScaledSigmaPoints``, ``unscented_transform``,
+``update``) are called here with their documented arguments; ``tests/test_ukf.py`` checks a
+tick against the class with the model in ``hx``.
 
 Published (``/softsensor/estimate``): the now-cast ``moisture_out`` (model + bias, posterior mean
 at the window's end) with ``moisture_out_std`` (its uncertainty plus the short-term jitter a
@@ -69,20 +89,23 @@ the reason (a second one in a row on the same side is taken: the model is off, n
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
 from filterpy.kalman import predict as kf_predict
+from filterpy.kalman import update as kf_update
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
 from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.discrepancy import (
     ADAPT_CHANNELS,
+    MODEL_STATES,
     STATE_NAMES,
     X_BIAS,
     X_HEAT,
@@ -95,6 +118,7 @@ from softsensor.estimation.discrepancy import (
     process_noise,
     transition,
 )
+from softsensor.estimation.jump_matching import jumps, widen
 from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
 from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
@@ -112,14 +136,12 @@ log = logging.getLogger(__name__)
 _MO = OUTPUT_NAMES.index("moisture_out")
 _T_AIR_IN = INPUT_NAMES.index("T_air_in")
 _CHECKPOINT_VERSION = 2
-#: The error state added to each measured channel (T_dryer_out, T_cyclone_out, a lab result).
-_OFFSETS = ((X_TDRY,), (X_TCYC,), (X_BIAS,))
+#: The error state added to each kind of measurement row (0: T_dryer_out, 1: T_cyclone_out,
+#: 2: a lab result's outlet moisture).
+_ROW_OFFSET = (X_TDRY, X_TCYC, X_BIAS)
 #: Finite-difference steps of the model states for the partial derivatives: the inlet moisture
 #: (in the filter's coordinate) [kg/kg] and the heat input [K].
 _FD_STEP = {X_IN: 1e-3, X_HEAT: 0.5}
-#: Two jumps whose effects on the measurements have a cosine above this (``S^-1`` metric)
-#: cannot be told apart by them.
-SAME_JUMP = 0.95
 
 
 class WindowModel(Protocol):
@@ -138,32 +160,60 @@ class WindowModel(Protocol):
 
 
 @dataclass
+class _Measurements:
+    """One tick's measurement rows: their kind (0, 1: temperature channels; 2: a lab result,
+    in the order of the tick's labs), measured values, ``R``, channel names and the adaptive
+    channel (:data:`~.discrepancy.ADAPT_CHANNELS`) of each row."""
+
+    rows: list[int]
+    z: np.ndarray
+    R: np.ndarray
+    names: list[str]
+    channels: list[int]
+
+
+@dataclass
 class _Posterior:
-    """What an update produced: state, published outputs (T_d, T_c, moisture_out with their
+    """What a tick produced: state, published outputs (T_d, T_c, moisture_out with their
     error states) and their variances, the model's own temperatures, the walls, the innovation
-    and each measurement row's normalised innovation."""
+    and each measurement row's normalised innovation with its adaptive channel."""
 
     x: np.ndarray
     P: np.ndarray
     y_mean: np.ndarray
     y_var: np.ndarray
     model_T: np.ndarray
-    wall: np.ndarray
-    innovation: Innovation
-    normalised: np.ndarray
+    wall: np.ndarray | None
+    innovation: Innovation = field(default_factory=Innovation)
+    normalised: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    channels: list[int] = field(default_factory=list)
+
+    @classmethod
+    def predicted(cls, x: np.ndarray, P: np.ndarray, wall: np.ndarray | None) -> _Posterior:
+        """The prior alone (no model outputs): a tick that could not correct."""
+        return cls(x, P, np.full(3, np.nan), np.full(3, np.nan), np.full(2, np.nan), wall)
 
 
 @dataclass
 class _Sigma:
     """The model at a set of sigma points: window-end outputs (3) and walls per point, per
     lab the outlet moisture at its sample time, and the outputs' derivatives (3 + L) with
-    respect to each model state with the other held (:data:`MODEL_STATES` order)."""
+    respect to each model state with the other held (:data:`~.discrepancy.MODEL_STATES`)."""
 
     y: np.ndarray        # (N, 3)
     wall: np.ndarray     # (N, n_state)
     lab: np.ndarray      # (N, L)
     d_in: np.ndarray     # (3 + L,)
     d_heat: np.ndarray   # (3 + L,)
+
+
+@dataclass
+class _LabSteps:
+    """Per lab result of a tick, the model inputs just before its sample (L, 8) and the step
+    from the window's start to its sample time (L,) [s] (:mod:`.lab_alignment`)."""
+
+    u: np.ndarray
+    dt: np.ndarray
 
 
 class UkfEstimator:
@@ -202,15 +252,22 @@ class UkfEstimator:
         self.priors = ErrorPriors.from_config(config, s, self.heat_gain)
         n = len(STATE_NAMES)
         self._points = MerweScaledSigmaPoints(n, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
-        self._inlet_tau = s.moisture_in_tau_h * 3600.0
-        self._F = transition(self.window_s, self.priors, self._inlet_tau)
-        self._walk = s.walk_per_window(s.moisture_in_walk, self.window_s)
-        x_nom = float(config.nominal.moisture_in)
+        inlet_tau = s.moisture_in_tau_h * 3600.0
+        self._F = transition(self.window_s, self.priors, inlet_tau)
+        # the process noise's diagonal is fixed by the settings; only its inflation changes
+        self._q = process_noise(self.window_s, self.priors,
+                                s.walk_per_window(s.moisture_in_walk, self.window_s), inlet_tau)
         x0 = np.zeros(n)
-        x0[X_IN] = float(self.inlet.inverse(x_nom))
-        # the inlet moisture's deviation from the nominal decays (mean reversion)
-        self._drift = (np.eye(n) - self._F) @ x0
+        x0[X_IN] = float(self.inlet.inverse(float(config.nominal.moisture_in)))
+        # the inlet moisture's deviation from the nominal decays (mean reversion): the nominal
+        # state is the prediction's control input, ``(I - F)`` its control matrix
+        self._nominal = x0
+        self._reversion = np.eye(n) - self._F
         P0 = np.diag(np.r_[s.moisture_in_std0**2, self.priors.sigma**2])
+        # how many standard deviations of innovation along a state's jump widen its variance
+        self._jump_threshold = {X_IN: s.moisture_in_adapt, X_HEAT: s.offset_adapt,
+                                X_TDRY: s.offset_adapt, X_TCYC: s.offset_adapt,
+                                X_BIAS: s.moisture_out_bias_adapt}
         self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
@@ -241,7 +298,7 @@ class UkfEstimator:
                 labs.append(lab)
         u, held = self._hold.inputs(window)
         rec = TickRecord(window, u, held, self._state, labs)
-        self._state = self._run(rec)
+        self._state = self._run(rec, len(self._history))
         self._history.append(rec)
         if len(self._history) > self.max_history:
             del self._history[: len(self._history) - self.max_history]
@@ -354,98 +411,93 @@ class UkfEstimator:
     def _refilter(self, j: int) -> None:
         """Re-run the history from tick ``j`` (a late lab was attached there) to now."""
         state = self._history[j].start
-        for rec in self._history[j:]:
+        for k in range(j, len(self._history)):
+            rec = self._history[k]
             rec.start = state
-            state = self._run(rec)
+            state = self._run(rec, k)
         self._state = state
 
     # ------------------------------------------------------------------ one tick
-    def _run(self, rec: TickRecord) -> FilterState:
-        """Filter one tick from ``rec.start``; fill ``rec.body``/``rec.innovation``; new state."""
+    def _run(self, rec: TickRecord, k: int) -> FilterState:
+        """Filter one tick from ``rec.start`` (tick ``k`` of the history, appended after the
+        last when new); fill ``rec.body``/``rec.innovation``; return the new state."""
         s = self.settings
-        start = rec.start
-        adapt = AdaptiveNoise.from_json(start.adapt)
-        temps = temperatures(rec.window, s.temperature_sensor_std, s.temperature_model_std)
-        wall, detail = start.wall, ""
-        if wall is None:
-            u0 = rec.u.copy()
-            u0[MOISTURE_IN] = float(self.inlet.forward(start.x[X_IN]))
-            try:
-                wall = self.model.steady_state(u0, self.theta)[0]
-            except (SoftsensorError, ValueError) as exc:  # predict only, retry next tick
-                detail = f"model initialisation failed: {exc}"
-        Q = process_noise(self.window_s, self.priors, self._walk, self._inlet_tau,
-                          adapt.inflation())
-        x, P = kf_predict(start.x, start.P, self._F, Q)
-        x = x + self._drift
+        adapt = AdaptiveNoise.from_json(rec.start.adapt)
+        Q = np.diag(self._q * np.r_[1.0, adapt.inflation()])
+        x, P = kf_predict(rec.start.x, rec.start.P, self._F, Q, u=self._nominal,
+                          B=self._reversion)
         P = _symmetric(P)
-        innovation, notes = Innovation(), []
-        y_mean = y_var = np.full(3, np.nan)
-        model_T = np.full(2, np.nan)
-        new_wall = wall
-        failed = bool(detail)
+        wall, detail = self._start_wall(rec)
+        out, notes = _Posterior.predicted(x, P, wall), []
         if wall is not None:
-            rows, z, R, names, kinds = self._measurements(temps, rec.labs)
-            sig, sigmas, detail = self._sigma_outputs(x, P, rec, wall, detail)
-            if sig is not None:
-                if rows:
-                    candidates = [i for i in (X_IN, X_HEAT, X_TDRY, X_TCYC, X_BIAS)
-                                  if not ((i == X_BIAS and not rec.labs)
-                                          or (i == X_TDRY and 0 not in rows)
-                                          or (i == X_TCYC and 1 not in rows))]
-                    P_new, note = self._match_covariance(candidates, P, sigmas, sig, rows, z, R)
-                    if note:
-                        notes.append(note)
-                        P = P_new
-                        sig, sigmas, detail = self._sigma_outputs(x, P, rec, wall, detail)
-            if sig is None:
-                failed = True
-            else:
-                post = self._update(x, P, sigmas, sig, rows, z, R, names)
-                x, P, y_mean, y_var = post.x, post.P, post.y_mean, post.y_var
-                model_T, new_wall, innovation = post.model_T, post.wall, post.innovation
-                for nu, kind in zip(post.normalised, kinds, strict=True):
-                    adapt.update(kind, float(nu) ** 2, s.adapt_ticks, s.adapt_limit)
-        _check_covariance(P, rec.window.end_ns)
-        rec.innovation = innovation
-        rec.body = self._body(rec, x, P, y_mean, y_var, model_T, detail, failed)
+            out, detail, notes = self._correct(x, P, rec, wall)
+            for nu, channel in zip(out.normalised, out.channels, strict=True):
+                adapt.update(channel, float(nu) ** 2, s.adapt_ticks, s.adapt_limit)
+        _check_covariance(out.P, rec.window.end_ns)
+        rec.innovation = out.innovation
+        rec.body = self._body(rec, k, out, detail)
         rec.body["notes"] = notes
-        return FilterState(x, P, None if new_wall is None else np.array(new_wall, float),
+        return FilterState(out.x, out.P, None if out.wall is None else np.array(out.wall, float),
                            adapt.to_json())
 
-    def _sigma_outputs(self, x: np.ndarray, P: np.ndarray, rec: TickRecord, wall: np.ndarray,
-                       detail: str) -> tuple[_Sigma | None, np.ndarray, str]:
-        """Sigma points of ``(x, P)`` and the model at them (module docstring, step 2); None
-        and the reason when a solve failed.
+    def _start_wall(self, rec: TickRecord) -> tuple[np.ndarray | None, str]:
+        """The wall temperatures at the start of the tick: the state's, or on the first tick
+        (and after a failed start) the model's steady state; None and why when that fails
+        (predict only, retried next tick)."""
+        if rec.start.wall is not None:
+            return rec.start.wall, ""
+        u0 = rec.u.copy()
+        u0[MOISTURE_IN] = float(self.inlet.forward(rec.start.x[X_IN]))
+        try:
+            return self.model.steady_state(u0, self.theta)[0], ""
+        except (SoftsensorError, ValueError) as exc:
+            return None, f"model initialisation failed: {exc}"
 
-        The model runs once per distinct pair (inlet moisture, heat input) among the sigma
-        points (five: the mean and two along each of the first two Cholesky columns), plus
-        four points about the mean, each model state moved alone, for the partial derivatives
-        covariance matching needs.
-        """
+    def _correct(self, x: np.ndarray, P: np.ndarray, rec: TickRecord, wall: np.ndarray
+                 ) -> tuple[_Posterior, str, list[str]]:
+        """Steps 2 to 5 of the module docstring from the prior ``(x, P)``: the posterior, or
+        when the model could not be solved the prior and why; and the covariance-matching
+        note, if any."""
+        s = self.settings
+        meas = self._measurements(temperatures(rec.window, s.temperature_sensor_std,
+                                               s.temperature_model_std), rec.labs)
+        steps = _LabSteps(
+            sample_inputs(rec.window, rec.u, [r.sample_time_ns for r in rec.labs],
+                          self.config.solver.lab_span),
+            sample_offset(rec.window.start_ns,
+                          np.array([r.sample_time_ns for r in rec.labs], np.int64)))
+        sig, sigmas, failure = self._sigma_outputs(x, P, rec.u, wall, steps)
+        notes = []
+        if sig is not None and meas.rows:
+            P_matched, note = self._match_covariance(P, sigmas, sig, meas)
+            if note:
+                notes.append(note)
+                P = P_matched
+                sig, sigmas, failure = self._sigma_outputs(x, P, rec.u, wall, steps)
+        if sig is None:
+            return _Posterior.predicted(x, P, wall), failure, notes
+        return self._update(sigmas, sig, meas), "", notes
+
+    def _sigma_outputs(self, x: np.ndarray, P: np.ndarray, u: np.ndarray, wall: np.ndarray,
+                       steps: _LabSteps) -> tuple[_Sigma | None, np.ndarray, str]:
+        """Sigma points of ``(x, P)`` and the model at them (module docstring, step 2); None
+        and the reason when a solve failed."""
         sigmas = self._points.sigma_points(x, P)
-        mean = x[[X_IN, X_HEAT]]
-        probes = [mean + sign * _FD_STEP[i] * (np.arange(2) == j)
-                  for j, i in enumerate((X_IN, X_HEAT)) for sign in (1.0, -1.0)]
-        pairs = np.vstack([sigmas[:, [X_IN, X_HEAT]], probes])
-        unique, index = np.unique(pairs, axis=0, return_inverse=True)
+        model = list(MODEL_STATES)
+        mean = x[model]
+        probes = [mean + sign * _FD_STEP[i] * (np.arange(len(model)) == j)
+                  for j, i in enumerate(MODEL_STATES) for sign in (1.0, -1.0)]
+        unique, index = np.unique(np.vstack([sigmas[:, model], probes]), axis=0,
+                                  return_inverse=True)
         index = np.ravel(index)
         X = self.inlet.forward(unique[:, 0])
-        U = np.repeat(rec.u[None, None, :], len(unique), axis=0)
-        U[:, 0, MOISTURE_IN] = X
-        U[:, 0, _T_AIR_IN] += unique[:, 1]
-        Y, walls = self.model.simulate(U, self.theta, state0=wall, raise_on_failure=False)
+        Y, walls = self.model.simulate(self._model_inputs(u, X, unique[:, 1]), self.theta,
+                                       state0=wall, raise_on_failure=False)
         Y = Y[:, 0, :]
-        lab = np.empty((len(unique), len(rec.labs)))
-        for j, r in enumerate(rec.labs):
-            u_lab = sample_inputs(rec.window, rec.u, r.sample_time_ns,
-                                  self.config.solver.lab_span)
-            Ul = np.repeat(u_lab[None, None, :], len(unique), axis=0)
-            Ul[:, 0, MOISTURE_IN] = X
-            Ul[:, 0, _T_AIR_IN] += unique[:, 1]
-            dt = float(sample_offset(rec.window.start_ns, r.sample_time_ns))
-            yl, _ = self.model.simulate(Ul, self.theta, state0=wall, dt=dt,
-                                        raise_on_failure=False)
+        lab = np.empty((len(unique), len(steps.dt)))
+        for j, (u_lab, dt) in enumerate(zip(steps.u, steps.dt, strict=True)):
+            yl, _ = self.model.simulate(self._model_inputs(u_lab, X, unique[:, 1]), self.theta,
+                                        state0=wall, dt=float(dt), raise_on_failure=False)
             lab[:, j] = yl[:, 0, _MO]
         if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(lab))):
             bad = int(np.flatnonzero(~(np.isfinite(Y).all(1) & np.isfinite(lab).all(1)))[0])
@@ -455,82 +507,62 @@ class UkfEstimator:
         n = len(sigmas)
         probe = index[n:]
         d = [(out[probe[2 * j]] - out[probe[2 * j + 1]]) / (2.0 * _FD_STEP[i])
-             for j, i in enumerate((X_IN, X_HEAT))]
+             for j, i in enumerate(MODEL_STATES)]
         return (_Sigma(Y[index[:n]], np.asarray(walls)[index[:n]], lab[index[:n]], d[0], d[1]),
-                sigmas, detail)
+                sigmas, "")
 
-    def _measurement_sigmas(self, sigmas: np.ndarray, sig: _Sigma, rows: list[int]
-                            ) -> np.ndarray:
-        """Predicted measurements (N, m) at the sigma points: the model plus the error
-        states (rows < 2: temperature channels; rows >= 2: lab results in order)."""
+    @staticmethod
+    def _model_inputs(u: np.ndarray, moisture_in: np.ndarray, heat: np.ndarray
+                      ) -> np.ndarray:
+        """Model inputs ``(K, 1, 8)``: ``u`` with each inlet moisture and ``T_air_in`` moved
+        by each heat-input offset."""
+        U = np.repeat(np.asarray(u, float)[None, None, :], len(moisture_in), axis=0)
+        U[:, 0, MOISTURE_IN] = moisture_in
+        U[:, 0, _T_AIR_IN] += heat
+        return U
+
+    @staticmethod
+    def _measurement_sigmas(sigmas: np.ndarray, sig: _Sigma, rows: list[int]) -> np.ndarray:
+        """Predicted measurements (N, m) at the sigma points: the model plus the error state
+        of each row (module docstring, step 3)."""
         out = np.empty((len(sigmas), len(rows)))
         j_lab = 0
         for m, r in enumerate(rows):
             if r < 2:
-                out[:, m] = sig.y[:, r] + sigmas[:, list(_OFFSETS[r])].sum(axis=1)
+                model = sig.y[:, r]
             else:
-                out[:, m] = sig.lab[:, j_lab] + sigmas[:, X_BIAS]
+                model = sig.lab[:, j_lab]
                 j_lab += 1
+            out[:, m] = model + sigmas[:, _ROW_OFFSET[r]]
         return out
 
-    def _match_covariance(self, candidates: list[int], P: np.ndarray, sigmas: np.ndarray,
-                          sig: _Sigma, rows: list[int], z: np.ndarray, R: np.ndarray
-                          ) -> tuple[np.ndarray, str]:
+    def _match_covariance(self, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
+                          meas: _Measurements) -> tuple[np.ndarray, str]:
         """Widen the prior variance of the one state whose jump best explains the innovation,
-        when the innovation says it moved more than its process noise allows (covariance
-        matching, Mehra 1972); returns the new ``P`` and a note ('' when nothing changed).
+        when the innovation says it moved more than its process noise allows
+        (:mod:`.jump_matching`); returns the new ``P`` and a note ('' when nothing changed).
 
-        For each candidate state ``i``, with ``h = dz / dx_i`` the sensitivity of the
-        measurements to that state alone (the others held: :meth:`_partial`), ``S`` the
-        innovation covariance and ``nu`` the innovation, ``t_i = h' S^-1 nu / sqrt(h' S^-1 h)``
-        is the innovation's component along what a jump of ``x_i`` would do, in standard
-        deviations, and ``t_i^2`` the drop of the normalised innovation squared that such a jump
-        buys (a generalised likelihood ratio). The candidate with the largest ``|t_i|`` is the
-        best single explanation: a step of the inlet moisture moves both temperatures (and the
-        lab) as the model says, a thermometer that steps moves one channel. When its ``|t|``
-        exceeds its threshold (``estimator.moisture_in_adapt``, ``offset_adapt``,
-        ``moisture_out_bias_adapt``), ``P_ii`` grows by ``(t^2 - 1) / (h' S^-1 h)``, after
-        which that component is one standard deviation. Taking one jump, the best, keeps a
-        single thermometer's step from being read as an inlet-moisture step plus the other
-        thermometer's opposite offset; among jumps these measurements cannot tell apart
-        (cosine above :data:`SAME_JUMP` in the ``S^-1`` metric) the inlet moisture's is taken.
+        The candidates are the inlet moisture, the heat input, each measured temperature
+        channel's offset and, with a lab, the bias; their thresholds
+        ``estimator.moisture_in_adapt``, ``offset_adapt`` and ``moisture_out_bias_adapt``;
+        among jumps the measurements cannot tell apart the inlet moisture's is taken.
         """
         pts = self._points
-        h_sig = self._measurement_sigmas(sigmas, sig, rows)
-        zp, S = unscented_transform(h_sig, pts.Wm, pts.Wc, R)
-        nu = z - zp
-        found = []
-        for i in candidates:
-            h = self._partial(i, sig, rows)
-            w = np.linalg.solve(S, h)
-            info = float(h @ w)
-            if info > 0:
-                found.append((i, float(w @ nu) / math.sqrt(info), info, h, w))
-        if not found:
+        zp, S = unscented_transform(self._measurement_sigmas(sigmas, sig, meas.rows),
+                                    pts.Wm, pts.Wc, meas.R)
+        seen = set(meas.rows)
+        candidates = [X_IN, X_HEAT] + [_ROW_OFFSET[r] for r in range(3) if r in seen]
+        found = jumps({i: self._partial(i, sig, meas.rows) for i in candidates}, S,
+                      meas.z - zp)
+        P, taken = widen(P, found, self._jump_threshold, preferred=X_IN)
+        if not taken:
             return P, ""
-        best = max(found, key=lambda c: abs(c[1]))
-        thr = {X_IN: self.settings.moisture_in_adapt,
-               X_BIAS: self.settings.moisture_out_bias_adapt}
-        if abs(best[1]) <= thr.get(best[0], self.settings.offset_adapt):
-            return P, ""
-        # the states whose jump looks the same to these measurements (an inlet-moisture step
-        # and a heat-input step both move the two temperatures together) cannot be told
-        # apart by them; the inlet moisture is the one that steps (a new pile of chips), the
-        # heat input's error drifts with the conditions, so the inlet moisture takes the jump
-        # and later lab results, which see it through the outlet moisture, confirm or undo it
-        same = [c for c in found
-                if abs(c[3] @ best[4]) / math.sqrt(c[2] * best[2]) > SAME_JUMP
-                and abs(c[1]) > thr.get(c[0], self.settings.offset_adapt)]
-        inlet = [c for c in same if c[0] == X_IN]
-        chosen = inlet if inlet else [best]
-        P = P.copy()
         parts = []
-        for i, t, info, _h, _w in chosen:
-            P[i, i] += (t * t - 1.0) / info
+        for c in taken:
             what = {X_IN: "inlet moisture", X_BIAS: "outlet-moisture bias"}.get(
-                i, STATE_NAMES[i].replace("_", " "))
-            parts.append(f"{what} ({abs(t):.1f} sigma, prior widened to "
-                         f"{math.sqrt(P[i, i]):.4g})")
+                c.state, STATE_NAMES[c.state].replace("_", " "))
+            parts.append(f"{what} ({abs(c.t):.1f} sigma, prior widened to "
+                         f"{math.sqrt(P[c.state, c.state]):.4g})")
         msg = "measurements far from the model along the " + ", ".join(parts)
         log.info(msg)
         return P, msg
@@ -540,8 +572,8 @@ class UkfEstimator:
         """``dz / dx_i`` with the other states held: one on their rows for the error states
         added to the outputs, the model's central difference for the inlet moisture and the
         heat input (:meth:`_sigma_outputs`)."""
-        if i not in (X_IN, X_HEAT):
-            return np.array([1.0 if i in _OFFSETS[r] else 0.0 for r in rows])
+        if i not in MODEL_STATES:
+            return np.array([1.0 if _ROW_OFFSET[r] == i else 0.0 for r in rows])
         d = sig.d_in if i == X_IN else sig.d_heat
         out, j_lab = [], 0
         for r in rows:
@@ -552,69 +584,58 @@ class UkfEstimator:
                 j_lab += 1
         return np.array(out)
 
-    def _update(self, x: np.ndarray, P: np.ndarray, sigmas: np.ndarray, sig: _Sigma,
-                rows: list[int], z: np.ndarray, R: np.ndarray, names: list[str]
-                ) -> _Posterior:
+    def _update(self, sigmas: np.ndarray, sig: _Sigma, meas: _Measurements) -> _Posterior:
         """The unscented update of the state, the outputs and the walls (module docstring,
-        steps 3 and 5)."""
+        steps 3 and 5): filterpy's unscented transform of the joint sigma points, then its
+        Kalman update of that Gaussian by the measured rows."""
         pts = self._points
-        wm, wc = pts.Wm, pts.Wc
-        # outputs the body publishes, with their error states: T_d, T_c, moisture_out
-        g = np.column_stack([sig.y[:, 0] + sigmas[:, X_TDRY],
-                             sig.y[:, 1] + sigmas[:, X_TCYC],
-                             sig.y[:, _MO] + sigmas[:, X_BIAS], sig.wall])
-        # the model's own temperatures (without offsets) for the body
-        g_model = sig.y[:, :2]
-        post = wm @ g
-        dg = g - post
-        y_var = (wc[:, None] * dg[:, :3] ** 2).sum(0)
-        model_T = wm @ g_model
-        innovation = Innovation()
-        norm = np.zeros(0)
-        if rows:
-            h_sig = self._measurement_sigmas(sigmas, sig, rows)
-            zp, S = unscented_transform(h_sig, wm, wc, R)
-            dh = h_sig - zp
-            Pxz = ((wc[:, None] * (sigmas - x)).T @ dh)
-            SI = np.linalg.inv(S)
-            K = Pxz @ SI
-            nu = z - zp
-            x = x + K @ nu
-            P = _symmetric(P - K @ S @ K.T)
-            gain = ((wc[:, None] * dg).T @ dh) @ SI
-            post = post + gain @ nu
-            y_var = y_var - np.einsum("ij,jk,ik->i", gain[:3], S, gain[:3])
-            gain_m = ((wc[:, None] * (g_model - model_T)).T @ dh) @ SI
-            model_T = model_T + gain_m @ nu
+        n, m = sigmas.shape[1], len(meas.rows)
+        # published outputs with their error states (T_d, T_c, moisture_out), the model's own
+        # temperatures (without offsets), the walls, the predicted measurements
+        published = sig.y + sigmas[:, list(_ROW_OFFSET)]
+        joint = np.hstack([sigmas, published, sig.y[:, :2], sig.wall,
+                           self._measurement_sigmas(sigmas, sig, meas.rows)])
+        mean, cov = unscented_transform(joint, pts.Wm, pts.Wc)
+        innovation, norm = Innovation(), np.zeros(0)
+        if m:
+            nu = meas.z - mean[-m:]
+            S = cov[-m:, -m:] + meas.R
+            H = np.zeros((m, joint.shape[1]))
+            H[:, -m:] = np.eye(m)
+            mean, cov = kf_update(mean, cov, meas.z, meas.R, H)
             norm = nu / np.sqrt(np.diag(S))
-            innovation = Innovation(float(nu @ SI @ nu), len(rows), _per_channel(names, norm))
-        return _Posterior(x, P, post[:3].copy(), y_var, model_T, post[3:], innovation, norm)
+            innovation = Innovation(float(nu @ np.linalg.solve(S, nu)), m,
+                                    _per_channel(meas.names, norm))
+        out = slice(n, n + 3)
+        return _Posterior(mean[:n].copy(), _symmetric(cov[:n, :n]), mean[out],
+                          np.diag(cov)[out].copy(), mean[n + 3:n + 5],
+                          mean[n + 5:n + 5 + sig.wall.shape[1]], innovation, norm,
+                          list(meas.channels))
 
     def _measurements(self, temps: TemperatureMeasurement, labs: list[LabResult]
-                      ) -> tuple[list[int], np.ndarray, np.ndarray, list[str], list[int]]:
-        """Rows (0, 1: temperature channels; 2: a lab result), measured values, full-size
-        ``R``, channel names and the adaptive channel of each row."""
+                      ) -> _Measurements:
+        """The tick's measurement rows: the measured temperature channels, then each lab."""
+        s = self.settings
         rows = list(temps.channels)
         values = list(temps.values)
         var = list(temps.variances)
         names = [OUTPUT_NAMES[c] for c in temps.channels]
-        kinds = list(temps.channels)
+        channels = list(temps.channels)
         for lab in labs:
             rows.append(2)
             values.append(lab.moisture_out)
-            var.append(self.settings.lab_std**2 + self.settings.moisture_out_jitter_std**2)
+            var.append(s.lab_std**2 + s.moisture_out_jitter_std**2)
             names.append("moisture_out (lab)")
-            kinds.append(ADAPT_CHANNELS.index("moisture_out"))
-        return rows, np.array(values, float), np.diag(var), names, kinds
+            channels.append(ADAPT_CHANNELS.index("moisture_out"))
+        return _Measurements(rows, np.array(values, float), np.diag(var), names, channels)
 
     # ------------------------------------------------------------------ the body
     def _inlet_moments(self, x: np.ndarray, P: np.ndarray) -> tuple[float, float]:
         """Mean and standard deviation of the inlet moisture (through the soft clip)."""
-        sig = self._points.sigma_points(x, P)[:, X_IN]
-        X = self.inlet.forward(sig)
-        mean = float(self._points.Wm @ X)
-        var = float(self._points.Wc @ (X - mean) ** 2)
-        return mean, math.sqrt(max(var, 0.0))
+        pts = self._points
+        X = self.inlet.forward(pts.sigma_points(x, P)[:, X_IN])
+        mean, var = unscented_transform(X[:, None], pts.Wm, pts.Wc)
+        return float(mean[0]), math.sqrt(max(float(var[0, 0]), 0.0))
 
     def _lost(self, x: np.ndarray, failed: bool) -> str:
         """Why the model has lost the plant ('' when it has not): the guard's rules. Only the
@@ -647,50 +668,51 @@ class UkfEstimator:
                            f"the error expected): check its sensor")
         return "; ".join(out)
 
-    def _fallback(self, end_ns: int) -> tuple[float, float, str] | None:
-        """The lab-anchored estimate: the latest accepted lab result sampled by ``end_ns``,
-        its band widened with the time since (None without a lab in the history)."""
-        latest = None
-        for r in self._history:
-            for lab in r.labs:
-                if lab.sample_time_ns <= end_ns and (latest is None or lab.sample_time_ns
-                                                     > latest.sample_time_ns):
-                    latest = lab
-        if latest is None:
+    def _fallback(self, rec: TickRecord, k: int) -> tuple[float, float, str] | None:
+        """The lab-anchored estimate at tick ``k`` (``rec``): the latest lab result applied
+        there or before, its band widened with the time since (None without one). A tick's
+        results are sampled in its window and after the previous tick's, so the latest is in
+        the nearest tick that has any."""
+        earlier = (self._history[i] for i in range(k - 1, -1, -1))
+        labs = next((r.labs for r in itertools.chain([rec], earlier) if r.labs), None)
+        if labs is None:
             return None
+        latest = max(labs, key=lambda lab: lab.sample_time_ns)
         s = self.settings
-        hours = max(end_ns - latest.sample_time_ns, 0) / 3.6e12
+        hours = max(rec.window.end_ns - latest.sample_time_ns, 0) / 3.6e12
         std = math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2
                         + s.fallback_drift**2 * hours)
         return float(latest.moisture_out), std, latest.sample_id
 
-    def _body(self, rec: TickRecord, x: np.ndarray, P: np.ndarray, y_mean: np.ndarray,
-              y_var: np.ndarray, model_T: np.ndarray, detail: str, failed: bool
-              ) -> dict[str, Any]:
-        """The estimate body of one tick (``lab_updated`` is set by :meth:`tick`)."""
+    def _health(self, rec: TickRecord, k: int, detail: str) -> tuple[str, str]:
+        """Status and detail of tick ``k`` (``rec``) before the guard: stale, degraded by
+        ``detail`` (a failed model), or the chi-square test of the last
+        ``consistency_ticks`` innovations."""
         s = self.settings
-        window = rec.window
-        jitter = s.moisture_out_jitter_std
-        recent = [r.innovation for r in self._history if r.window.end_ns < window.end_ns]
-        recent = recent[max(0, len(recent) - (s.consistency_ticks - 1)):]
-        verdict = chi_square_test([*recent, rec.innovation], s.consistency_alpha)
-        if window.stale:
-            status = "stale"
-            reasons = "; ".join(f"{k}: {v}" for k, v in window.reasons.items())
-            detail = "stale window, predicting without correction" + (
+        if rec.window.stale:
+            reasons = "; ".join(f"{key}: {v}" for key, v in rec.window.reasons.items())
+            return "stale", "stale window, predicting without correction" + (
                 f": {reasons}" if reasons else "")
-        elif detail:
-            status = "degraded"
-        else:
-            status, detail = verdict.status, verdict.detail
-            if rec.held:
-                detail += f"; holding last value of {', '.join(rec.held)}"
-        mo = float(y_mean[_MO]) if math.isfinite(y_mean[_MO]) else math.nan
-        mo_std = math.sqrt(max(y_var[_MO], 0.0) + jitter**2) if math.isfinite(mo) else math.nan
+        if detail:
+            return "degraded", detail
+        recent = [r.innovation for r in self._history[max(0, k - (s.consistency_ticks - 1)):k]]
+        verdict = chi_square_test([*recent, rec.innovation], s.consistency_alpha)
+        detail = verdict.detail
+        if rec.held:
+            detail += f"; holding last value of {', '.join(rec.held)}"
+        return verdict.status, detail
+
+    def _guard(self, rec: TickRecord, k: int, out: _Posterior, failed: bool, status: str,
+               detail: str) -> tuple[float, float, bool, str, str]:
+        """The published ``moisture_out``, its standard deviation, whether it is the
+        lab-anchored fallback, and status and detail after the guard (module docstring)."""
+        mo = float(out.y_mean[_MO]) if math.isfinite(out.y_mean[_MO]) else math.nan
+        mo_std = (math.sqrt(max(out.y_var[_MO], 0.0) + self.settings.moisture_out_jitter_std**2)
+                  if math.isfinite(mo) else math.nan)
         fallback = False
-        lost = "" if window.stale else self._lost(x, failed)
+        lost = "" if rec.window.stale else self._lost(out.x, failed)
         if lost or not math.isfinite(mo):
-            anchor = self._fallback(window.end_ns)
+            anchor = self._fallback(rec, k)
             if anchor is not None:
                 mo, mo_std, sid = anchor
                 fallback = True
@@ -701,19 +723,29 @@ class UkfEstimator:
             elif lost:
                 status = "degraded"
                 detail = f"model lost the plant ({lost}); no lab result yet; " + detail
-        suspect = "" if window.stale else self._suspect(x)
+        suspect = "" if rec.window.stale else self._suspect(out.x)
         if suspect:
             status = "degraded"
             detail = f"{suspect}; {detail}"
+        return mo, mo_std, fallback, status, detail
+
+    def _body(self, rec: TickRecord, k: int, out: _Posterior, detail: str) -> dict[str, Any]:
+        """The estimate body of tick ``k`` (``rec``); ``detail`` says why the model failed
+        ('' when it did not). ``lab_updated`` is set by :meth:`tick`."""
+        s = self.settings
+        status, health = self._health(rec, k, detail)
+        mo, mo_std, fallback, status, health = self._guard(rec, k, out, bool(detail), status,
+                                                           health)
         clipped = math.isfinite(mo) and not s.lab_min <= mo <= s.lab_max
         if clipped:
             mo = min(max(mo, s.lab_min), s.lab_max)
+        x, P = out.x, out.P
         x_in, x_in_std = self._inlet_moments(x, P)
         inn = rec.innovation
         return {
             "moisture_out": _num(mo),
             "moisture_out_std": _num(mo_std),
-            "moisture_out_window_std": _num(math.sqrt(max(y_var[_MO], 0.0))),
+            "moisture_out_window_std": _num(math.sqrt(max(out.y_var[_MO], 0.0))),
             "moisture_in": x_in,
             "moisture_in_std": x_in_std,
             "moisture_out_bias": float(x[X_BIAS]),
@@ -722,10 +754,10 @@ class UkfEstimator:
             "T_offset": float(self.heat_gain * x[X_HEAT]),
             "T_dryer_out_offset": float(x[X_TDRY]),
             "T_cyclone_out_offset": float(x[X_TCYC]),
-            "T_dryer_out_model": _num(y_mean[0]),
-            "T_cyclone_out_model": _num(y_mean[1]),
-            "T_dryer_out_model_raw": _num(float(model_T[0])),
-            "T_cyclone_out_model_raw": _num(float(model_T[1])),
+            "T_dryer_out_model": _num(out.y_mean[0]),
+            "T_cyclone_out_model": _num(out.y_mean[1]),
+            "T_dryer_out_model_raw": _num(float(out.model_T[0])),
+            "T_cyclone_out_model_raw": _num(float(out.model_T[1])),
             "fallback": fallback,
             "clipped": clipped,
             "nis": inn.nis if inn.dof else None,
@@ -733,10 +765,10 @@ class UkfEstimator:
             "labs_applied": [r.sample_id for r in rec.labs],
             "lab_updated": bool(rec.labs),
             "status": status,
-            "detail": detail,
+            "detail": health,
             "discrepancy_priors": self.priors.source,
-            "window_start_ns": int(window.start_ns),
-            "window_end_ns": int(window.end_ns),
+            "window_start_ns": int(rec.window.start_ns),
+            "window_end_ns": int(rec.window.end_ns),
             "estimator": self.kind,
         }
 
