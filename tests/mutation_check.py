@@ -9,8 +9,7 @@ run on the unmutated copy: it must pass there, or a kill would mean nothing.
     python tests/mutation_check.py              # every mutation, a table, exit 1 if one lives
     python tests/mutation_check.py --only NAME  # some of them
 
-``tests/test_mutation_check.py`` (slow) runs it. The UKF (``estimation/ukf.py``) is not
-listed yet.
+``tests/test_mutation_check.py`` (slow) runs it.
 """
 
 from __future__ import annotations
@@ -46,6 +45,7 @@ T_HA, T_WOOD, T_TR = ("tests/test_humid_air.py",), ("tests/test_wood.py",), \
 T_BAL = ("tests/test_balances.py",)
 T_MOL = ("tests/test_model_reference.py", "-k", "agrees")
 T_EST = ("tests/test_estimation_parts.py",)
+T_UKF = ("tests/test_ukf.py",)
 
 MUTATIONS: tuple[Mutation, ...] = (
     Mutation("humidity ratio drops the partial pressure", HA,
@@ -85,8 +85,8 @@ MUTATIONS: tuple[Mutation, ...] = (
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + Uo)",
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + 0.9 * Uo)", T_BAL),
     Mutation("error states' noise: 1 - a for 1 - a^2", EST + "discrepancy.py",
-             "q_err = priors.sigma**2 * (1.0 - a**2) * inflation",
-             "q_err = priors.sigma**2 * (1.0 - a) * inflation", T_EST),
+             "q_err = priors.sigma**2 * (1.0 - a**2)",
+             "q_err = priors.sigma**2 * (1.0 - a)", T_EST),
     Mutation("heat-input prior times the gain", EST + "discrepancy.py",
              "sigma[0] /= max(heat_gain, 1e-3)", "sigma[0] *= max(heat_gain, 1e-3)", T_EST),
     Mutation("inlet transform's derivative twice as wide", EST + "discrepancy.py",
@@ -105,6 +105,14 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("consistency: one degree of freedom too many", EST + "consistency.py",
              "limit = float(chi2.isf(alpha, dof))", "limit = float(chi2.isf(alpha, dof + 1))",
              T_EST),
+    Mutation("UKF: the joint covariance with the mean's weights", EST + "ukf.py",
+             "mean, cov = unscented_transform(joint, pts.Wm, pts.Wc)",
+             "mean, cov = unscented_transform(joint, pts.Wm, pts.Wm)", T_UKF),
+    Mutation("UKF: a measurement row without its offset state", EST + "ukf.py",
+             "out[:, m] = model + sigmas[:, _ROW_OFFSET[r]]", "out[:, m] = model", T_UKF),
+    Mutation("UKF: the update trusts the measurements ten times more", EST + "ukf.py",
+             "mean, cov = kf_update(mean, cov, meas.z, meas.R, H)",
+             "mean, cov = kf_update(mean, cov, meas.z, 0.1 * meas.R, H)", T_UKF),
 )
 
 

@@ -40,8 +40,7 @@ PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01]),
 def test_error_states_keep_their_prior_variance_over_any_window(window_s):
     # P = F P F + Q with P = diag(sigma^2): an Ornstein-Uhlenbeck process discretised exactly
     F = transition(window_s, PRIORS, inlet_tau_s=48 * 3600.0)
-    Q = process_noise(window_s, PRIORS, walk_s=0.01, inlet_tau_s=48 * 3600.0,
-                      inflation=np.ones(4))
+    Q = np.diag(process_noise(window_s, PRIORS, walk_s=0.01, inlet_tau_s=48 * 3600.0))
     P = np.diag(PRIORS.sigma**2)
     np.testing.assert_allclose((F[1:, 1:] @ P @ F[1:, 1:] + Q[1:, 1:]), P, rtol=1e-12)
     assert F[1, 1] == pytest.approx(math.exp(-window_s / PRIORS.tau[0]), rel=1e-12)
@@ -50,7 +49,7 @@ def test_error_states_keep_their_prior_variance_over_any_window(window_s):
 def test_inlet_walk_is_mean_reverting_with_the_walks_short_term_variance():
     window_s, tau, walk = 600.0, 48 * 3600.0, 0.02
     F = transition(window_s, PRIORS, inlet_tau_s=tau)
-    Q = process_noise(window_s, PRIORS, walk_s=walk, inlet_tau_s=tau, inflation=np.ones(4))
+    Q = np.diag(process_noise(window_s, PRIORS, walk_s=walk, inlet_tau_s=tau))
     assert F[0, 0] == pytest.approx(math.exp(-window_s / tau), rel=1e-12)
     # a window much shorter than tau: a random walk of walk^2 per window
     assert Q[0, 0] == pytest.approx(walk**2, rel=window_s / tau)
@@ -58,14 +57,6 @@ def test_inlet_walk_is_mean_reverting_with_the_walks_short_term_variance():
     # walk^2 tau / (2 window)
     assert Q[0, 0] / (1.0 - F[0, 0] ** 2) == pytest.approx(walk**2 * tau / (2 * window_s),
                                                            rel=1e-12)
-
-
-def test_inflation_scales_each_error_states_noise():
-    base = process_noise(600.0, PRIORS, 0.01, 48 * 3600.0, np.ones(4))
-    infl = np.array([2.0, 3.0, 4.0, 5.0])
-    more = process_noise(600.0, PRIORS, 0.01, 48 * 3600.0, infl)
-    np.testing.assert_allclose(np.diag(more)[1:], np.diag(base)[1:] * infl, rtol=1e-12)
-    assert more[0, 0] == base[0, 0]
 
 
 def test_heat_input_prior_is_the_common_temperature_error_over_the_gain(config):
