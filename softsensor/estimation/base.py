@@ -11,9 +11,13 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
-from softsensor.messages import LabResult, Window
+import numpy as np
 
-__all__ = ["Estimator", "LabResult", "Window"]
+from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.messages import LabResult, Window
+from softsensor.plantconfig import PlantConfig
+
+__all__ = ["Estimator", "LabResult", "ModelEstimator", "Window", "WindowModel"]
 
 
 class Estimator(Protocol):
@@ -38,3 +42,35 @@ class Estimator(Protocol):
     def restore(self, snapshot: dict[str, Any]) -> None:
         """Continue from a snapshot written by :meth:`checkpoint`."""
         ...
+
+
+class WindowModel(Protocol):
+    """What an estimator needs from a model (:class:`softsensor.model.DryerModel` has it)."""
+
+    theta0: np.ndarray
+    window: float
+
+    def steady_state(self, u: np.ndarray, theta: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
+                 aux: np.ndarray | None = None, state0: np.ndarray | None = None,
+                 dt: float | None = None, raise_on_failure: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]: ...
+
+
+class ModelEstimator:
+    """What every model-based estimator holds: its plant configuration, its settings (the
+    config's ``[estimator]`` table unless given), the model (``DryerModel(config)`` unless
+    given; tests pass others), the model's parameters and its window length [s]."""
+
+    def __init__(self, config: PlantConfig, settings: EstimatorSettings | None = None,
+                 model: WindowModel | None = None) -> None:
+        if model is None:
+            from softsensor.model import DryerModel
+            model = DryerModel(config)
+        self.config = config
+        self.settings = settings if settings is not None else estimator_settings(config)
+        self.model = model
+        self.theta = np.asarray(model.theta0, float)
+        self.window_s = float(model.window)

@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 
 from softsensor.errors import EstimationError, SoftsensorError
-from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.lab_history import LabBook, lab_problem
-from softsensor.estimation.settings import EstimatorSettings, estimator_settings
-from softsensor.estimation.ukf import WindowModel
+from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
@@ -33,7 +32,7 @@ _MO = OUTPUT_NAMES.index("moisture_out")
 _CHECKPOINT_VERSION = 1
 
 
-class OpenLoopEstimator:
+class OpenLoopEstimator(ModelEstimator):
     """The calibrated model run open loop with the nominal inlet moisture (module docstring).
 
     Parameters
@@ -50,14 +49,7 @@ class OpenLoopEstimator:
 
     def __init__(self, config: PlantConfig, settings: EstimatorSettings | None = None,
                  model: WindowModel | None = None) -> None:
-        if model is None:
-            from softsensor.model import DryerModel
-            model = DryerModel(config)
-        self.config = config
-        self.settings = settings if settings is not None else estimator_settings(config)
-        self.model = model
-        self.theta = np.asarray(model.theta0, float)
-        self.window_s = float(model.window)
+        super().__init__(config, settings, model)
         self.moisture_in = float(config.nominal.moisture_in)
         self._hold = InputHold(config.nominal_inputs())
         self._wall: np.ndarray | None = None

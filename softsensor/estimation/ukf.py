@@ -93,7 +93,7 @@ import itertools
 import logging
 import math
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
@@ -101,7 +101,7 @@ from filterpy.kalman import predict as kf_predict
 from filterpy.kalman import update as kf_update
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
-from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.discrepancy import (
     ADAPT_CHANNELS,
@@ -121,7 +121,7 @@ from softsensor.estimation.discrepancy import (
 from softsensor.estimation.jump_matching import jumps, widen
 from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
 from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
-from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.window_inputs import (
     MOISTURE_IN,
     InputHold,
@@ -142,21 +142,6 @@ _ROW_OFFSET = (X_TDRY, X_TCYC, X_BIAS)
 #: Finite-difference steps of the model states for the partial derivatives: the inlet moisture
 #: (in the filter's coordinate) [kg/kg] and the heat input [K].
 _FD_STEP = {X_IN: 1e-3, X_HEAT: 0.5}
-
-
-class WindowModel(Protocol):
-    """What the filter needs from a model (:class:`softsensor.model.DryerModel` has it)."""
-
-    theta0: np.ndarray
-    window: float
-
-    def steady_state(self, u: np.ndarray, theta: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]: ...
-
-    def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
-                 aux: np.ndarray | None = None, state0: np.ndarray | None = None,
-                 dt: float | None = None, raise_on_failure: bool = True
-                 ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 @dataclass
@@ -216,7 +201,7 @@ class _LabSteps:
     dt: np.ndarray
 
 
-class UkfEstimator:
+class UkfEstimator(ModelEstimator):
     """Unscented Kalman filter of the inlet moisture and the model's error (module docstring).
 
     Parameters
@@ -235,14 +220,9 @@ class UkfEstimator:
 
     def __init__(self, config: PlantConfig, settings: EstimatorSettings | None = None,
                  model: WindowModel | None = None) -> None:
-        if model is None:
-            from softsensor.model import DryerModel
-            model = DryerModel(config)
-        self.config = config
-        self.settings = s = settings if settings is not None else estimator_settings(config)
-        self.model = model
-        self.theta = np.asarray(model.theta0, float)
-        self.window_s = float(model.window)
+        super().__init__(config, settings, model)
+        s = self.settings
+        model = self.model
         self.max_history = s.history_ticks(self.window_s)
         if s.consistency_ticks > self.max_history:
             raise ConfigError(f"{config.source}: estimator.consistency_ticks must be <= the "
