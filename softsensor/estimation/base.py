@@ -9,15 +9,19 @@ sample time. Estimators are pure: no I/O, no clocks; time is whatever the window
 
 from __future__ import annotations
 
+import logging
 from typing import Any, Protocol
 
 import numpy as np
 
+from softsensor.estimation.lab_history import LabBook, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.messages import LabResult, Window
 from softsensor.plantconfig import PlantConfig
 
 __all__ = ["Estimator", "LabResult", "ModelEstimator", "Window", "WindowModel"]
+
+log = logging.getLogger(__name__)
 
 
 class Estimator(Protocol):
@@ -74,3 +78,17 @@ class ModelEstimator:
         self.model = model
         self.theta = np.asarray(model.theta0, float)
         self.window_s = float(model.window)
+        self._labs = LabBook()
+
+    def _screen_lab(self, lab: LabResult) -> str | None:
+        """The reason ``lab`` is refused (out of range, a duplicate ``sample_id``), or ``None``
+        after remembering its id; needs the estimator's ``_labs``
+        (:class:`~.lab_history.LabBook`)."""
+        problem = lab_problem(lab, self.settings)
+        if problem:
+            log.warning("%s; rejected", problem)
+            return problem
+        if self._labs.is_duplicate(lab):
+            return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
+        self._labs.remember(lab)
+        return None

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation
 from softsensor.estimation.settings import EstimatorSettings
+from softsensor.messages import LabResult, Window
 
 
 def lab_problem(lab: LabResult, settings: EstimatorSettings) -> str | None:

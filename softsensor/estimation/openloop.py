@@ -20,7 +20,7 @@ import numpy as np
 
 from softsensor.errors import EstimationError, SoftsensorError
 from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
-from softsensor.estimation.lab_history import LabBook, lab_problem
+from softsensor.estimation.lab_history import LabBook
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
 from softsensor.plantconfig import PlantConfig
@@ -56,7 +56,6 @@ class OpenLoopEstimator(ModelEstimator):
         self._last_end: int | None = None
         #: (start_ns, end_ns, moisture_out) of the kept ticks, for lab residuals
         self._outputs: list[tuple[int, int, float]] = []
-        self._labs = LabBook()
         self._residuals: list[tuple[str, float]] = []
 
     def tick(self, window: Window) -> dict[str, Any]:
@@ -110,13 +109,9 @@ class OpenLoopEstimator(ModelEstimator):
 
     def add_lab(self, lab: LabResult) -> str | None:
         """Validate ``lab`` (it never changes the open-loop estimate); reason when refused."""
-        problem = lab_problem(lab, self.settings)
+        problem = self._screen_lab(lab)
         if problem:
-            log.warning("%s; rejected", problem)
             return problem
-        if self._labs.is_duplicate(lab):
-            return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
-        self._labs.remember(lab)
         if self._outputs and lab.sample_time_ns <= self._outputs[0][0]:
             return (f"lab {lab.sample_id!r}: sample time is older than the kept history "
                     f"({self.settings.history_hours:g} h); skipped")

@@ -120,7 +120,7 @@ from softsensor.estimation.discrepancy import (
 )
 from softsensor.estimation.jump_matching import jumps, widen
 from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
-from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord, lab_problem
+from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.window_inputs import (
     MOISTURE_IN,
@@ -251,7 +251,6 @@ class UkfEstimator(ModelEstimator):
         self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
-        self._labs = LabBook()
         self._dirty: int | None = None
         self._gate_streak = 0
 
@@ -293,13 +292,9 @@ class UkfEstimator(ModelEstimator):
 
         Returns ``None`` when accepted (applied at the next tick), else the reason.
         """
-        problem = lab_problem(lab, self.settings)
+        problem = self._screen_lab(lab)
         if problem:
-            log.warning("%s; rejected", problem)
             return problem
-        if self._labs.is_duplicate(lab):
-            return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
-        self._labs.remember(lab)
         if not self._history or lab.sample_time_ns > self._history[-1].window.end_ns:
             self._labs.add_pending(lab)
             return None
