@@ -14,6 +14,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from softsensor.errors import EstimationError
 from softsensor.estimation.lab_history import LabBook, lab_problem
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.messages import LabResult, Window
@@ -68,6 +69,9 @@ class ModelEstimator:
     config's ``[estimator]`` table unless given), the model (``DryerModel(config)`` unless
     given; tests pass others), the model's parameters and its window length [s]."""
 
+    #: The estimator's name in its estimate bodies and checkpoints.
+    kind: str = ""
+
     def __init__(self, config: PlantConfig, settings: EstimatorSettings | None = None,
                  model: WindowModel | None = None) -> None:
         if model is None:
@@ -92,3 +96,11 @@ class ModelEstimator:
             return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
         self._labs.remember(lab)
         return None
+
+    def _check_snapshot(self, snapshot: dict[str, Any], version: int) -> None:
+        """:class:`EstimationError` unless ``snapshot`` is a checkpoint of this kind and
+        ``version``."""
+        if snapshot.get("kind") != self.kind or snapshot.get("version") != version:
+            raise EstimationError(f"checkpoint is of kind {snapshot.get('kind')!r} version "
+                                  f"{snapshot.get('version')!r}, expected {self.kind!r} "
+                                  f"version {version}")

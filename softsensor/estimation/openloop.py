@@ -138,10 +138,7 @@ class OpenLoopEstimator(ModelEstimator):
 
     def restore(self, snapshot: dict[str, Any]) -> None:
         """Continue from :meth:`checkpoint` output; EstimationError if it does not fit."""
-        if snapshot.get("kind") != self.kind or snapshot.get("version") != _CHECKPOINT_VERSION:
-            raise EstimationError(f"checkpoint is of kind {snapshot.get('kind')!r} version "
-                                  f"{snapshot.get('version')!r}, expected {self.kind!r} "
-                                  f"version {_CHECKPOINT_VERSION}")
+        self._check_snapshot(snapshot, _CHECKPOINT_VERSION)
         try:
             wall = snapshot["wall"]
             self._wall = None if wall is None else np.array(wall, float)

@@ -328,10 +328,7 @@ class UkfEstimator(ModelEstimator):
 
     def restore(self, snapshot: dict[str, Any]) -> None:
         """Continue from :meth:`checkpoint` output; EstimationError if it does not fit."""
-        if snapshot.get("kind") != self.kind or snapshot.get("version") != _CHECKPOINT_VERSION:
-            raise EstimationError(f"checkpoint is of kind {snapshot.get('kind')!r} version "
-                                  f"{snapshot.get('version')!r}, expected {self.kind!r} "
-                                  f"version {_CHECKPOINT_VERSION}")
+        self._check_snapshot(snapshot, _CHECKPOINT_VERSION)
         try:
             state = FilterState.from_json(snapshot["state"])
             history = [TickRecord.from_json(r) for r in snapshot["history"]]
