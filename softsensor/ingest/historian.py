@@ -244,6 +244,75 @@ class ScanTable:
         return med, bool(np.all(np.abs(d - med) <= 0.01 * med))
 
 
+#: Per signal: values, bad flags and the scan each row goes to.
+_Raw = dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]]
+
+
+def _wide(frame: pd.DataFrame, hmap: HistorianMap, t_all: np.ndarray,
+          bad_strings: frozenset[str], good: frozenset[str], where: str
+          ) -> tuple[np.ndarray, _Raw]:
+    """Scan times and per-signal values of a wide export (one column per signal)."""
+    src = hmap.source
+    raw: _Raw = {}
+    order = np.argsort(t_all, kind="stable")
+    times = t_all[order]
+    dup = np.flatnonzero(np.diff(times) == 0)
+    if len(dup):
+        i = int(order[dup[0] + 1])
+        raise IngestError(f"{where} row {i + 1}: time {iso_utc(int(t_all[i]))} repeats "
+                          "an earlier row")
+    pos = np.empty(len(order), dtype=np.int64)
+    pos[order] = np.arange(len(order))
+    for name, sm in hmap.signals.items():
+        if sm.column is None:
+            continue
+        key = f"signals.{name}.column"
+        vals, bad = _values(_column(frame, sm.column, key, where), sm.column, bad_strings,
+                            src.decimal, where, "source.bad_values")
+        if sm.quality_column is not None:
+            q = _bad_quality(_column(frame, sm.quality_column,
+                                     f"signals.{name}.quality_column", where), good)
+            bad |= q
+            vals = np.where(q, np.nan, vals)
+        raw[name] = (vals, bad, pos)
+    return times, raw
+
+
+def _long(frame: pd.DataFrame, hmap: HistorianMap, t_all: np.ndarray,
+          bad_strings: frozenset[str], good: frozenset[str], where: str
+          ) -> tuple[np.ndarray, _Raw, int]:
+    """Scan times, per-signal values and the rows of unmapped tags of a long export
+    (timestamp, tag, value[, quality])."""
+    src = hmap.source
+    raw: _Raw = {}
+    tags = _text(_column(frame, src.tag_column or "", "source.tag_column", where))
+    vals_all, bad_all = _values(
+        _column(frame, src.value_column or "", "source.value_column", where),
+        src.value_column or "", bad_strings, src.decimal, where, "source.bad_values")
+    if src.quality_column is not None:
+        q = _bad_quality(_column(frame, src.quality_column, "source.quality_column", where),
+                         good)
+        bad_all |= q
+        vals_all = np.where(q, np.nan, vals_all)
+    by_tag = {sm.tag: name for name, sm in hmap.signals.items() if sm.tag is not None}
+    mapped = tags.isin(list(by_tag)).to_numpy()
+    skipped = int((~mapped).sum())
+    times = np.unique(t_all[mapped])
+    if not len(times):
+        raise IngestError(f"{where}: none of the map's tags ({', '.join(by_tag)}) is in "
+                          f"{src.tag_column}")
+    for tag, name in by_tag.items():
+        rows = np.flatnonzero((tags == tag).to_numpy())
+        pos = np.searchsorted(times, t_all[rows])
+        if len(np.unique(pos)) != len(pos):
+            _, first = np.unique(pos, return_index=True)
+            i = int(rows[np.setdiff1d(np.arange(len(pos)), first)[0]])
+            raise IngestError(f"{where} row {i + 1}: tag {tag!r} has two values at "
+                              f"{iso_utc(int(t_all[i]))}")
+        raw[name] = (vals_all[rows], bad_all[rows], pos)
+    return times, raw, skipped
+
+
 def convert_scans(frame: pd.DataFrame, hmap: HistorianMap, where: str) -> ScanTable:
     """Scans of a historian export ``frame`` laid out by ``hmap`` (see the module doc)."""
     src = hmap.source
@@ -254,56 +323,11 @@ def convert_scans(frame: pd.DataFrame, hmap: HistorianMap, where: str) -> ScanTa
     good = frozenset(s.lower() for s in src.good_quality)
     t_all = timestamps_ns(_column(frame, src.time_column, "source.time_column", where),
                           spec, where)
-    raw: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # value, bad, row->scan
     if src.layout == "wide":
-        order = np.argsort(t_all, kind="stable")
-        times = t_all[order]
-        dup = np.flatnonzero(np.diff(times) == 0)
-        if len(dup):
-            i = int(order[dup[0] + 1])
-            raise IngestError(f"{where} row {i + 1}: time {iso_utc(int(t_all[i]))} repeats "
-                              "an earlier row")
-        pos = np.empty(len(order), dtype=np.int64)
-        pos[order] = np.arange(len(order))
-        for name, sm in hmap.signals.items():
-            if sm.column is None:
-                continue
-            key = f"signals.{name}.column"
-            vals, bad = _values(_column(frame, sm.column, key, where), sm.column, bad_strings,
-                                src.decimal, where, "source.bad_values")
-            if sm.quality_column is not None:
-                q = _bad_quality(_column(frame, sm.quality_column,
-                                         f"signals.{name}.quality_column", where), good)
-                bad |= q
-                vals = np.where(q, np.nan, vals)
-            raw[name] = (vals, bad, pos)
+        times, raw = _wide(frame, hmap, t_all, bad_strings, good, where)
         skipped = 0
     else:
-        tags = _text(_column(frame, src.tag_column or "", "source.tag_column", where))
-        vals_all, bad_all = _values(
-            _column(frame, src.value_column or "", "source.value_column", where),
-            src.value_column or "", bad_strings, src.decimal, where, "source.bad_values")
-        if src.quality_column is not None:
-            q = _bad_quality(_column(frame, src.quality_column, "source.quality_column", where),
-                             good)
-            bad_all |= q
-            vals_all = np.where(q, np.nan, vals_all)
-        by_tag = {sm.tag: name for name, sm in hmap.signals.items() if sm.tag is not None}
-        mapped = tags.isin(list(by_tag)).to_numpy()
-        skipped = int((~mapped).sum())
-        times = np.unique(t_all[mapped])
-        if not len(times):
-            raise IngestError(f"{where}: none of the map's tags ({', '.join(by_tag)}) is in "
-                              f"{src.tag_column}")
-        for tag, name in by_tag.items():
-            rows = np.flatnonzero((tags == tag).to_numpy())
-            pos = np.searchsorted(times, t_all[rows])
-            if len(np.unique(pos)) != len(pos):
-                _, first = np.unique(pos, return_index=True)
-                i = int(rows[np.setdiff1d(np.arange(len(pos)), first)[0]])
-                raise IngestError(f"{where} row {i + 1}: tag {tag!r} has two values at "
-                                  f"{iso_utc(int(t_all[i]))}")
-            raw[name] = (vals_all[rows], bad_all[rows], pos)
+        times, raw, skipped = _long(frame, hmap, t_all, bad_strings, good, where)
     n = len(times)
     out = ScanTable(times_ns=times, values={}, rows_read=len(frame), skipped_rows=skipped)
     for name in SCAN_SIGNALS:

@@ -219,6 +219,50 @@ class DryerModel:
         self._check(status, u2)
         return x2.reshape(batch + (self.n_state,)), y.reshape(batch + (3,))
 
+    def _batched(self, U: np.ndarray, theta: np.ndarray | None, aux: np.ndarray | None,
+                 state0: np.ndarray | None
+                 ) -> tuple[tuple[int, ...], np.ndarray, np.ndarray, np.ndarray]:
+        """The batch shape of :meth:`simulate`'s arguments and its inputs, parameters and aux
+        broadcast to it and flattened to (B, K, ...), contiguous for the kernels."""
+        theta = self.theta0 if theta is None else np.asarray(theta, float)
+        U = np.asarray(U, float)
+        if U.ndim < 2 or U.shape[-1] != len(INPUT_NAMES):
+            raise ValueError(f"U must have shape (..., K, {len(INPUT_NAMES)}), got {U.shape}")
+        K = U.shape[-2]
+        if theta.ndim == 1 or theta.shape[-2:-1] != (K,) or theta.ndim < U.ndim:
+            theta = np.expand_dims(theta, -2)
+        aux = self._aux(aux)
+        if aux.ndim == 1 or aux.ndim < U.ndim:
+            aux = np.expand_dims(aux, -2)
+        batch = np.broadcast_shapes(U.shape[:-2], theta.shape[:-2], aux.shape[:-2],
+                                    () if state0 is None else np.shape(state0)[:-1])
+        Ub = np.ascontiguousarray(np.broadcast_to(U, batch + (K, _N_U)).reshape(-1, K, _N_U))
+        Tb = np.ascontiguousarray(
+            np.broadcast_to(theta, batch + (K, _N_THETA)).reshape(-1, K, _N_THETA))
+        Ab = np.ascontiguousarray(np.broadcast_to(aux, batch + (K, N_AUX)).reshape(-1, K, N_AUX))
+        return batch, Ub, Tb, Ab
+
+    def _start_states(self, Ub: np.ndarray, Tb: np.ndarray, Ab: np.ndarray,
+                      state0: np.ndarray | None, batch: tuple[int, ...],
+                      raise_on_failure: bool) -> tuple[np.ndarray, np.ndarray]:
+        """Each member's initial state (``state0`` broadcast, or the steady state at its first
+        window's inputs) and its solver status (a failed steady state: 350 K placeholders)."""
+        B = Ub.shape[0]
+        if state0 is not None:
+            states = np.ascontiguousarray(
+                np.broadcast_to(np.asarray(state0, float), batch + (self.n_state,))
+                .reshape(-1, self.n_state)).copy()
+            return states, np.zeros(B, dtype=np.int64)
+        states = np.empty((B, self.n_state))
+        y0 = np.empty((B, 3))
+        status = np.empty(B, dtype=np.int64)
+        self._steady(np.ascontiguousarray(Ub[:, 0]), np.ascontiguousarray(Tb[:, 0]),
+                     np.ascontiguousarray(Ab[:, 0]), states, y0, status)
+        if raise_on_failure:
+            self._check(status, Ub[:, 0])
+        states[status != kernels.OK] = 350.0
+        return states, status
+
     def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
                  aux: np.ndarray | None = None, state0: np.ndarray | None = None,
                  dt: float | None = None, raise_on_failure: bool = True
@@ -250,37 +294,9 @@ class DryerModel:
         state : array, shape (..., n_state)
             State after the last window.
         """
-        theta = self.theta0 if theta is None else np.asarray(theta, float)
-        U = np.asarray(U, float)
-        if U.ndim < 2 or U.shape[-1] != len(INPUT_NAMES):
-            raise ValueError(f"U must have shape (..., K, {len(INPUT_NAMES)}), got {U.shape}")
-        K = U.shape[-2]
-        if theta.ndim == 1 or theta.shape[-2:-1] != (K,) or theta.ndim < U.ndim:
-            theta = np.expand_dims(theta, -2)
-        aux = self._aux(aux)
-        if aux.ndim == 1 or aux.ndim < U.ndim:
-            aux = np.expand_dims(aux, -2)
-        batch = np.broadcast_shapes(U.shape[:-2], theta.shape[:-2], aux.shape[:-2],
-                                    () if state0 is None else np.shape(state0)[:-1])
-        Ub = np.ascontiguousarray(np.broadcast_to(U, batch + (K, _N_U)).reshape(-1, K, _N_U))
-        Tb = np.ascontiguousarray(
-            np.broadcast_to(theta, batch + (K, _N_THETA)).reshape(-1, K, _N_THETA))
-        Ab = np.ascontiguousarray(np.broadcast_to(aux, batch + (K, N_AUX)).reshape(-1, K, N_AUX))
-        B = Ub.shape[0]
-        if state0 is None:
-            states = np.empty((B, self.n_state))
-            y0 = np.empty((B, 3))
-            status = np.empty(B, dtype=np.int64)
-            self._steady(np.ascontiguousarray(Ub[:, 0]), np.ascontiguousarray(Tb[:, 0]),
-                         np.ascontiguousarray(Ab[:, 0]), states, y0, status)
-            if raise_on_failure:
-                self._check(status, Ub[:, 0])
-            states[status != kernels.OK] = 350.0
-        else:
-            states = np.ascontiguousarray(
-                np.broadcast_to(np.asarray(state0, float), batch + (self.n_state,))
-                .reshape(-1, self.n_state)).copy()
-            status = np.zeros(B, dtype=np.int64)
+        batch, Ub, Tb, Ab = self._batched(U, theta, aux, state0)
+        states, status = self._start_states(Ub, Tb, Ab, state0, batch, raise_on_failure)
+        B, K = Ub.shape[:2]
         failed0 = status != kernels.OK
         dt = self.window if dt is None else float(dt)
         Y = np.empty((B, K, 3))
