@@ -21,6 +21,7 @@ clean day of the same seeds; the plant's structure comes from the plant seed alo
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -54,6 +55,8 @@ from softsensor.signals import SCAN_SIGNALS
 _READ_SIGNALS = tuple(n for n in SCAN_SIGNALS if n not in ("flap_cmd", "T_sp"))
 #: Columns of the truth frame beyond the contract's six.
 TRUTH_EXTRA = ("moisture_tube_out", "flap_position", "m_air", "T_amb")
+#: Column of each scan signal in a scan row.
+_COL = {name: i for i, name in enumerate(SCAN_SIGNALS)}
 
 
 def _check_arguments(hours: float, plant_seed: int) -> None:
@@ -130,28 +133,132 @@ class _Plant:
         return self.cyclone_volume * rho / (o[chain.O_M_CYC] * (1.0 + o[chain.O_Y_CYC]))
 
 
+@dataclass
+class _Loop:
+    """The closed loop's state between scans: transport delays of the mixed gas and of the
+    outputs, the controller, the flap drive, the sensors' lags and the PI's filtered PV."""
+
+    gas: list[DelayLine]
+    lines: dict[str, DelayLine]
+    pid: VelocityPI
+    drive: FlapDrive
+    lags: dict[str, FirstOrderLag]
+    pv_filter: FirstOrderLag
+    pv: float
+    kc: float
+    ti: float
+
+
+def _start_loop(plant: _Plant, member: Commissioned, s: VirtualPlantSettings, day: Day,
+                inj: Injection) -> _Loop:
+    """The plant at rest, the loop holding the *measured* outlet at the set point."""
+    process, st = plant.process, member.structure
+    frac0, res0 = operating_point(
+        process, lambda f: plant.inputs(0, *process.mixed_gas(
+            f, float(day.T_hot[0]), float(day.Y_hot[0]), float(day.T_amb[0]),
+            float(day.H_amb[0]))), float(day.T_sp[0]) - inj.bias["T_dryer_out"],
+        member.nominal["hot_gas_share"])
+    pos0 = process.flap_position(frac0)
+    e0, Y0, w0 = plant.mixed(0, pos0)
+    T_in0 = process.gas_temperature(e0, Y0, w0)
+    lines = {"T_dryer_out": DelayLine(res0.T_dryer_out),
+             "T_cyclone_out": DelayLine(res0.T_cyclone_out),
+             "moisture_out": DelayLine(res0.moisture_out),
+             "moisture_tube_out": DelayLine(res0.moisture_tube_out)}
+    kc, ti = loop_tuning(member, s)
+    tau = st.sensor_tau
+    lags = {"T_air_in": FirstOrderLag(tau["T_air_in"], T_in0),
+            "T_air_in_extra": FirstOrderLag(inj.input_lag, T_in0),
+            "T_dryer_out": FirstOrderLag(tau["T_dryer_out"], res0.T_dryer_out),
+            "T_cyclone_out": FirstOrderLag(tau["T_cyclone_out"], res0.T_cyclone_out),
+            "T_fiber_in": FirstOrderLag(tau["T_fiber_in"], float(day.T_fiber_in[0])),
+            "T_amb": FirstOrderLag(tau["T_amb"], float(day.T_amb[0]))}
+    return _Loop([DelayLine(v) for v in (e0, Y0, w0)], lines,
+                 VelocityPI(kc, ti, output=pos0), FlapDrive(s.actuator_tau, s.actuator_rate, pos0),
+                 lags, FirstOrderLag(PV_FILTER, float(day.T_sp[0])), float(day.T_sp[0]), kc, ti)
+
+
+def _step_process(plant: _Plant, loop: _Loop, st: Any, k: int, t: float, dt: float,
+                  truth_k: np.ndarray, moisture_in: float, day: Day) -> tuple[float, float, float]:
+    """One scan period of the process: the mixed gas through its dead time, the instant
+    profile, the outputs into their transport delays; fills the truth row. Returns the true
+    ``T_air_in`` and the delayed outlet temperatures."""
+    process = plant.process
+    pos = loop.drive.position
+    for line, v in zip(loop.gas, plant.mixed(k, pos), strict=True):
+        line.push(t + st.dead_time, v)
+    e_in, Y_in, w_in = (line.at(t) for line in loop.gas)
+    res = process.instant(plant.inputs(k, e_in, Y_in, w_in))
+    o, lines = res.out, loop.lines
+    tg_tube, tg_duct = o[chain.O_TAUG_TUBE], o[chain.O_TAUG_DUCT]
+    lines["T_dryer_out"].push(t + tg_tube, res.T_dryer_out)
+    lines["T_cyclone_out"].push(t + tg_tube + tg_duct + plant.cyclone_gas_time(res),
+                                res.T_cyclone_out)
+    lines["moisture_out"].push(t + o[chain.O_TAUP_TUBE] + o[chain.O_TAUP_DUCT] + st.t_hold,
+                               res.moisture_out)
+    lines["moisture_tube_out"].push(t + o[chain.O_TAUP_TUBE], res.moisture_tube_out)
+    process.advance(res, dt)
+    T_air = process.gas_temperature(e_in, Y_in, w_in)
+    T_do = lines["T_dryer_out"].at(t)
+    T_co = lines["T_cyclone_out"].at(t)
+    truth_k[:6] = (moisture_in, lines["moisture_out"].at(t), T_air, T_do, T_co, day.m_fiber[k])
+    truth_k[6:] = (lines["moisture_tube_out"].at(t), pos, day.m_air[k], day.T_amb[k])
+    return T_air, T_do, T_co
+
+
+def _measure(row: np.ndarray, z: np.ndarray, missing: np.ndarray, lags: dict[str, FirstOrderLag],
+             truth: tuple[float, float, float], day: Day, k: int, inj: Injection,
+             s: VirtualPlantSettings, dt: float) -> None:
+    """One scan's sensor readings in ``row`` (SCAN_SIGNALS order): lagged, biased under
+    ``sensor_bias``, noisy (``z``), NaN where the read failed."""
+    col = _COL
+    T_air, T_do, T_co = truth
+    nt = s.noise_temperature
+    air = lags["T_air_in_extra"].update(lags["T_air_in"].update(T_air, dt), dt)
+    row[col["T_air_in"]] = air + nt * z[col["T_air_in"]]
+    row[col["T_dryer_out"]] = (lags["T_dryer_out"].update(T_do, dt)
+                               + inj.bias["T_dryer_out"] + nt * z[col["T_dryer_out"]])
+    row[col["T_cyclone_out"]] = (lags["T_cyclone_out"].update(T_co, dt)
+                                 + inj.bias["T_cyclone_out"] + nt * z[col["T_cyclone_out"]])
+    row[col["T_fiber_in"]] = (lags["T_fiber_in"].update(float(day.T_fiber_in[k]), dt)
+                              + nt * z[col["T_fiber_in"]])
+    row[col["T_amb"]] = lags["T_amb"].update(float(day.T_amb[k]), dt) + nt * z[col["T_amb"]]
+    row[col["m_air"]] = day.m_air[k] * (1.0 + s.noise_flow * z[col["m_air"]])
+    row[col["m_fiber"]] = day.m_fiber[k] * (1.0 + s.noise_flow * z[col["m_fiber"]])
+    row[col["m_steam"]] = day.m_steam[k] * (1.0 + s.noise_flow * z[col["m_steam"]])
+    row[col["H_amb"]] = day.H_amb[k] * (1.0 + s.noise_humidity * z[col["H_amb"]])
+    for j, name in enumerate(_READ_SIGNALS):
+        if missing[j]:
+            row[col[name]] = math.nan
+
+
+def _control(row: np.ndarray, loop: _Loop, k: int, per_control: int, day: Day,
+             dt: float) -> None:
+    """The PI on the filtered measured outlet (a failed read holds the filter), every
+    ``per_control`` scans; the flap command and set point into ``row``; the drive moves."""
+    col = _COL
+    if not math.isnan(row[col["T_dryer_out"]]):
+        loop.pv = loop.pv_filter.update(row[col["T_dryer_out"]], dt)
+    if k % per_control == 0:
+        loop.pid.update(float(day.T_sp[k]), loop.pv, dt * per_control)
+    row[col["flap_cmd"]] = loop.pid.output
+    row[col["T_sp"]] = day.T_sp[k]
+    loop.drive.update(loop.pid.output, dt)
+
+
 def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
                              effect: str | None = None, magnitude: float | None = None, *,
                              plant_seed: int = 0, start_ns: int = DEFAULT_START_NS
                              ) -> SimulatedDay:
     """Run the independent plant for ``hours`` and return the recorded day.
 
-    Parameters
-    ----------
-    config : PlantConfig
-        Geometry (``tube``, ``cyclone``), nominal point, ambient pressure and the
-        ``[virtual_plant]`` settings; its fibre, hot gas and parameters are not used.
-    hours : float
-        Length of the record [h].
-    seed : int
-        The day: disturbances, effect timing, noise, failed reads, lab.
-    effect, magnitude :
-        One effect of :data:`softsensor.plant.effects.EFFECTS` and its magnitude (default
-        when omitted); ``None`` for a clean day.
-    plant_seed : int
-        The plant: which family member (:mod:`.family`), commissioned once and cached.
-    start_ns : int
-        Time of the first scan [ns since the Unix epoch, UTC].
+    ``config``: geometry (``tube``, ``cyclone``), nominal point, ambient pressure and the
+    ``[virtual_plant]`` settings (its fibre, hot gas and parameters are not used). ``seed``:
+    the day (disturbances, effect timing, noise, failed reads, lab). ``effect``,
+    ``magnitude``: one effect of :data:`softsensor.plant.effects.EFFECTS` (default magnitude
+    when omitted; ``None``: a clean day). ``plant_seed``: the plant, which family member
+    (:mod:`.family`), commissioned once and cached. ``start_ns``: time of the first scan
+    [ns since the Unix epoch, UTC].
     """
     _check_arguments(hours, plant_seed)
     effect, magnitude = resolve_effect(effect, magnitude)
@@ -165,102 +272,28 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
     inj = inject(effect, magnitude, rng_eff, day.t, seed)
     moisture_in = np.clip(day.moisture_in + inj.moisture_dev, 0.8, 1.3)
     plant = _Plant(member, config, day, inj, moisture_in)
-    process = plant.process
     n = len(day.t)
-
-    # start at rest: the loop holds the *measured* outlet at the set point
-    frac0, res0 = operating_point(
-        process, lambda f: plant.inputs(0, *process.mixed_gas(
-            f, float(day.T_hot[0]), float(day.Y_hot[0]), float(day.T_amb[0]),
-            float(day.H_amb[0]))), float(day.T_sp[0]) - inj.bias["T_dryer_out"],
-        member.nominal["hot_gas_share"])
-    pos0 = process.flap_position(frac0)
-    e0, Y0, w0 = plant.mixed(0, pos0)
-    T_in0 = process.gas_temperature(e0, Y0, w0)
-    gas = [DelayLine(v) for v in (e0, Y0, w0)]
-    lines = {"T_dryer_out": DelayLine(res0.T_dryer_out),
-             "T_cyclone_out": DelayLine(res0.T_cyclone_out),
-             "moisture_out": DelayLine(res0.moisture_out),
-             "moisture_tube_out": DelayLine(res0.moisture_tube_out)}
-    kc, ti = loop_tuning(member, s)
-    pid = VelocityPI(kc, ti, output=pos0)
-    drive = FlapDrive(s.actuator_tau, s.actuator_rate, pos0)
-    tau = st.sensor_tau
-    lags = {"T_air_in": FirstOrderLag(tau["T_air_in"], T_in0),
-            "T_air_in_extra": FirstOrderLag(inj.input_lag, T_in0),
-            "T_dryer_out": FirstOrderLag(tau["T_dryer_out"], res0.T_dryer_out),
-            "T_cyclone_out": FirstOrderLag(tau["T_cyclone_out"], res0.T_cyclone_out),
-            "T_fiber_in": FirstOrderLag(tau["T_fiber_in"], float(day.T_fiber_in[0])),
-            "T_amb": FirstOrderLag(tau["T_amb"], float(day.T_amb[0]))}
-    pv_filter = FirstOrderLag(PV_FILTER, float(day.T_sp[0]))
-    pv = float(day.T_sp[0])
+    loop = _start_loop(plant, member, s, day, inj)
     noise = rng_noise.standard_normal((n, len(SCAN_SIGNALS)))
     missing = rng_miss.random((n, len(_READ_SIGNALS))) < P_MISSING
-    col = {name: i for i, name in enumerate(SCAN_SIGNALS)}
     per_control = max(1, int(round(s.control_period / dt)))
-    nt = s.noise_temperature
-
     scans = np.empty((n, len(SCAN_SIGNALS)))
     truth = np.empty((n, 6 + len(TRUTH_EXTRA)))
     for k in range(n):
-        t = float(day.t[k])
-        pos = drive.position
-        for line, v in zip(gas, plant.mixed(k, pos), strict=True):
-            line.push(t + st.dead_time, v)
-        e_in, Y_in, w_in = (line.at(t) for line in gas)
-        res = process.instant(plant.inputs(k, e_in, Y_in, w_in))
-        o = res.out
-        tg_tube, tg_duct = o[chain.O_TAUG_TUBE], o[chain.O_TAUG_DUCT]
-        lines["T_dryer_out"].push(t + tg_tube, res.T_dryer_out)
-        lines["T_cyclone_out"].push(t + tg_tube + tg_duct + plant.cyclone_gas_time(res),
-                                    res.T_cyclone_out)
-        lines["moisture_out"].push(t + o[chain.O_TAUP_TUBE] + o[chain.O_TAUP_DUCT] + st.t_hold,
-                                   res.moisture_out)
-        lines["moisture_tube_out"].push(t + o[chain.O_TAUP_TUBE], res.moisture_tube_out)
-        process.advance(res, dt)
-
-        T_air = process.gas_temperature(e_in, Y_in, w_in)
-        T_do = lines["T_dryer_out"].at(t)
-        T_co = lines["T_cyclone_out"].at(t)
-        truth[k, :6] = (moisture_in[k], lines["moisture_out"].at(t), T_air, T_do, T_co,
-                        day.m_fiber[k])
-        truth[k, 6:] = (lines["moisture_tube_out"].at(t), pos, day.m_air[k], day.T_amb[k])
-
-        z = noise[k]
-        air = lags["T_air_in_extra"].update(lags["T_air_in"].update(T_air, dt), dt)
-        row = scans[k]
-        row[col["T_air_in"]] = air + nt * z[col["T_air_in"]]
-        row[col["T_dryer_out"]] = (lags["T_dryer_out"].update(T_do, dt)
-                                   + inj.bias["T_dryer_out"] + nt * z[col["T_dryer_out"]])
-        row[col["T_cyclone_out"]] = (lags["T_cyclone_out"].update(T_co, dt)
-                                     + inj.bias["T_cyclone_out"] + nt * z[col["T_cyclone_out"]])
-        row[col["T_fiber_in"]] = (lags["T_fiber_in"].update(float(day.T_fiber_in[k]), dt)
-                                  + nt * z[col["T_fiber_in"]])
-        row[col["T_amb"]] = lags["T_amb"].update(float(day.T_amb[k]), dt) + nt * z[col["T_amb"]]
-        row[col["m_air"]] = day.m_air[k] * (1.0 + s.noise_flow * z[col["m_air"]])
-        row[col["m_fiber"]] = day.m_fiber[k] * (1.0 + s.noise_flow * z[col["m_fiber"]])
-        row[col["m_steam"]] = day.m_steam[k] * (1.0 + s.noise_flow * z[col["m_steam"]])
-        row[col["H_amb"]] = day.H_amb[k] * (1.0 + s.noise_humidity * z[col["H_amb"]])
-        for j, name in enumerate(_READ_SIGNALS):
-            if missing[k, j]:
-                row[col[name]] = math.nan
-        if not math.isnan(row[col["T_dryer_out"]]):  # a failed read holds the filter
-            pv = pv_filter.update(row[col["T_dryer_out"]], dt)
-        if k % per_control == 0:
-            pid.update(float(day.T_sp[k]), pv, dt * per_control)
-        row[col["flap_cmd"]] = pid.output
-        row[col["T_sp"]] = day.T_sp[k]
-        drive.update(pid.output, dt)
+        true = _step_process(plant, loop, st, k, float(day.t[k]), dt, truth[k],
+                             moisture_in[k], day)
+        _measure(scans[k], noise[k], missing[k], loop.lags, true, day, k, inj, s, dt)
+        _control(scans[k], loop, k, per_control, day, dt)
 
     index = pd.Index(start_ns + np.round(day.t * 1e9).astype(np.int64), name="log_time_ns")
     scan_frame = pd.DataFrame(scans, columns=list(SCAN_SIGNALS), index=index)
     truth_frame = pd.DataFrame(truth, columns=["moisture_in", "moisture_out", "T_air_in",
                                                "T_dryer_out", "T_cyclone_out", "m_fiber",
                                                *TRUTH_EXTRA], index=index.copy())
-    labs = lab_results(rng_lab, s, hours, start_ns, lines["moisture_out"].at, inj.lab_shift,
-                       f"IP{plant_seed}-D{seed}")
+    labs = lab_results(rng_lab, s, hours, start_ns, loop.lines["moisture_out"].at,
+                       inj.lab_shift, f"IP{plant_seed}-D{seed}")
     info: dict[str, Any] = dict(inj.info)
     info.update(plant="independent", plant_seed=int(plant_seed),
                 structure=member.describe(),
-                loop={"kc_pct_per_K": round(kc, 5), "ti_s": round(ti, 3)})
+                loop={"kc_pct_per_K": round(loop.kc, 5), "ti_s": round(loop.ti, 3)})
     return SimulatedDay(scans=scan_frame, labs=labs, truth=truth_frame, effect=info)
