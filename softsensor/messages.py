@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from softsensor.errors import IngestError
@@ -121,6 +121,12 @@ EARLIEST_SAMPLE_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z
 #: How far a sample time may lie after the time its result arrived (clock skew) [ns].
 FUTURE_TOLERANCE_NS = 3600 * 10**9
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
+
+def iso_utc(ns: int) -> str:
+    """``2026-01-05T00:00:00Z`` for a time in ns since the Unix epoch (messages' times in the
+    words a person reads)."""
+    return (_EPOCH + timedelta(microseconds=int(ns) // 1000)).strftime("%Y-%m-%dT%H:%M:%SZ")
+
 
 # ----------------------------------------------------------------------------------------------
 # Lab bodies: one parser for the live and the recorded path
@@ -237,6 +243,7 @@ __all__ = [
     "Window",
     "encode_body",
     "is_number",
+    "iso_utc",
     "lab_body",
     "lab_from_body",
     "make_lab_result",

@@ -25,3 +25,10 @@ def test_numpy_and_non_finite_values_become_plain_json():
 def test_compact_on_the_wire_indented_for_people():
     assert encode_body({"x": 1, "y": [1, 2]}) == b'{"x":1,"y":[1,2]}'
     assert dumps({"x": 1}, indent=2) == '{\n  "x": 1\n}'
+
+
+def test_times_read_as_utc_seconds():
+    from softsensor.messages import iso_utc
+
+    assert iso_utc(1_767_571_200_999_999_999) == "2026-01-05T00:00:00Z"  # truncated, not rounded
+    assert iso_utc(-1) == "1969-12-31T23:59:59Z"

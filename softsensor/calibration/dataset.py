@@ -43,7 +43,7 @@ from softsensor.estimation.lab_alignment import (
 )
 from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
 from softsensor.estimation.windowing import NS, window_settings, windows_from_frame
-from softsensor.messages import Window
+from softsensor.messages import Window, iso_utc
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
 
@@ -193,7 +193,7 @@ class Segment:
         end = self.start_ns + k1 * self.window_ns
         keep = (self.lab_time_ns > start) & (self.lab_time_ns <= end)
         return Segment(
-            source=f"{self.source.split('[')[0]}[{_iso(start)} .. {_iso(end)}]",
+            source=f"{self.source.split('[')[0]}[{iso_utc(start)} .. {iso_utc(end)}]",
             start_ns=start, window=self.window, U=self.U[k0:k1], Y=self.Y[k0:k1],
             lab_time_ns=self.lab_time_ns[keep], lab_value=self.lab_value[keep],
             lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k),
@@ -204,12 +204,8 @@ class Segment:
         if len(self.lab_value) < minimum:
             raise IngestError(
                 f"{self.source}: {len(self.lab_value)} lab sample(s) ({TOPIC_LAB}) between "
-                f"{_iso(self.start_ns)} and {_iso(self.end_ns)}; at least {minimum} needed to "
-                f"calibrate moisture_out")
-
-
-def _iso(t_ns: int) -> str:
-    return pd.Timestamp(int(t_ns), unit="ns", tz="UTC").strftime("%Y-%m-%dT%H:%MZ")
+                f"{iso_utc(self.start_ns)} and {iso_utc(self.end_ns)}; at least {minimum} "
+                f"needed to calibrate moisture_out")
 
 
 def trim_stale(windows: Sequence[Window], config: PlantConfig, source: str) -> list[Window]:

@@ -18,8 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.calibration.dataset import MEASURED_INPUTS, SCANNED_OUTPUTS, Segment, _iso
+from softsensor.calibration.dataset import MEASURED_INPUTS, SCANNED_OUTPUTS, Segment
 from softsensor.errors import IngestError
+from softsensor.messages import iso_utc
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 #: Candidate windows start every this many hours.
@@ -53,7 +54,7 @@ class WindowChoice:
     @property
     def reason(self) -> str:
         """One line for the output: which window and why."""
-        span = f"{_iso(self.segment.start_ns)} .. {_iso(self.segment.end_ns)}"
+        span = f"{iso_utc(self.segment.start_ns)} .. {iso_utc(self.segment.end_ns)}"
         if self.whole_record:
             return (f"whole record {span} ({self.segment.hours:.1f} h, {self.n_labs} lab "
                     f"samples): not longer than the calibration window")

@@ -37,7 +37,7 @@ from softsensor.ingest.historian_map import (
 )
 from softsensor.ingest.lab_input import make_lab_result
 from softsensor.ingest.units import moisture_dry_basis, to_signal_si
-from softsensor.messages import LabResult
+from softsensor.messages import LabResult, iso_utc
 from softsensor.signals import SCAN_SIGNALS
 
 #: Earliest plausible time [ns since epoch]: 2000-01-01T00:00:00Z.
@@ -47,11 +47,6 @@ FUTURE_SLACK_NS = 86_400 * 10**9
 
 _OFFSET = re.compile(r"(?:Z|[+-]\d\d:?\d\d)$", re.IGNORECASE)
 _NUMERIC = re.compile(r"^[+-]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?$")
-
-
-def iso_utc(ns: int) -> str:
-    """``2026-01-05T00:00:00Z`` for a time in ns since the epoch."""
-    return pd.Timestamp(int(ns), unit="ns", tz="UTC").strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 @dataclass(frozen=True)
