@@ -15,8 +15,7 @@ from pathlib import Path
 
 from softsensor.errors import ConfigError, IngestError
 from softsensor.ingest.historian import LabTable, ScanTable
-from softsensor.ingest.lab_input import lab_body
-from softsensor.messages import iso_utc
+from softsensor.messages import iso_utc, lab_body
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
 
 

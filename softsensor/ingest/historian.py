@@ -35,9 +35,8 @@ from softsensor.ingest.historian_map import (
     HistorianMap,
     LabMap,
 )
-from softsensor.ingest.lab_input import make_lab_result
 from softsensor.ingest.units import moisture_dry_basis, to_signal_si
-from softsensor.messages import LabResult, iso_utc
+from softsensor.messages import LabResult, iso_utc, make_lab_result
 from softsensor.signals import SCAN_SIGNALS
 
 #: Earliest plausible time [ns since epoch]: 2000-01-01T00:00:00Z.

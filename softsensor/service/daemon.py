@@ -36,9 +36,10 @@ import zenoh
 from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
 from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
-from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, lab_body
+from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
+from softsensor.messages import lab_body
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder

@@ -45,7 +45,7 @@ from softsensor.estimation.lab_history import (
     window_to_json,
 )
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
-from softsensor.ingest.lab_input import lab_from_body
+from softsensor.messages import lab_from_body
 from softsensor.service.estimators import estimator_kind
 
 log = logging.getLogger(__name__)
