@@ -111,12 +111,14 @@ class Solver:
 
     window: float = num(600.0, gt=0)           # s, model window (estimator tick)
     wall_substeps: int = num(4, ge=1, le=1000)
-    scan_period: float = num(10.0, gt=0, le=600)  # s, nominal period of the plant's scans
+    # s, period of the plant's scans; None (the key absent): measured from each recorded day
+    # (the median spacing of its scans), the Modbus poll period live
+    scan_period: float | None = num(None, gt=0, le=600)
     min_good_fraction: float = num(0.5, ge=0, le=1)  # of a window's expected scans to use it
     lab_span: float = num(120.0, gt=0, le=3600)  # s of scans before a lab sample: its inputs
 
     def check(self) -> str | None:
-        if self.scan_period > self.window:
+        if self.scan_period is not None and self.scan_period > self.window:
             return f"scan_period must be <= window ({self.window:g} s), got {self.scan_period:g}"
         return None
 

@@ -13,9 +13,10 @@ import argparse
 import asyncio
 import logging
 import signal
+import sys
 
 from softsensor.apps.loading import load_config_and_params
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, IngestError
 
 log = logging.getLogger(__name__)
 
@@ -116,6 +117,11 @@ def _replay(args: argparse.Namespace) -> int:
                              start=args.start, end=args.end,
                              allow_truncated=args.allow_truncated, settings=settings)
     print(summary.line(), flush=True)
+    problem = summary.problem()
+    if problem is not None and problem[0] == "error":
+        raise IngestError(problem[1] + f" ({args.out} is kept)")
+    if problem is not None:
+        print(f"warning: {problem[1]}", file=sys.stderr, flush=True)
     return 0
 
 

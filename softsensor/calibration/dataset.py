@@ -4,7 +4,9 @@ The paper (section 3.3) feeds the model "resampling 600 s" data. The windows are
 one windowing of the program (:mod:`softsensor.estimation.windowing`, the estimator's): aligned
 to multiples of the window length since the Unix epoch, half-open ``(start, end]``, the mean of
 the good scans of every signal, a signal with fewer good scans than ``solver.min_good_fraction``
-of the expected ``window / solver.scan_period`` dropped. Every window's model inputs are its
+of the expected ``window / scan period`` dropped (the scan period is ``solver.scan_period``
+when set, else the day's own: the median spacing of its scans, so 1 s to 5 min historian
+exports window alike). Every window's model inputs are its
 input means, held when missing as the estimator holds them
 (:class:`~softsensor.estimation.window_inputs.InputHold`); its measured temperatures are its
 means, missing where the window or the channel has too few good scans. Window means, not
@@ -42,7 +44,12 @@ from softsensor.estimation.lab_alignment import (
     window_index,
 )
 from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
-from softsensor.estimation.windowing import NS, window_settings, windows_from_frame
+from softsensor.estimation.windowing import (
+    NS,
+    measured_scan_period,
+    window_settings,
+    windows_from_frame,
+)
 from softsensor.messages import Window, iso_utc
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
@@ -214,13 +221,11 @@ def trim_stale(windows: Sequence[Window], config: PlantConfig, source: str) -> l
     :class:`IngestError` when none is usable, naming why."""
     usable = [i for i, w in enumerate(windows) if not w.stale]
     if not usable:
-        settings = window_settings(config)
         reasons = windows[0].reasons if windows else {}
         why = "; ".join(f"{k}: {v}" for k, v in list(reasons.items())[:2]) or "no scans"
         raise IngestError(
-            f"{source}: no {settings.period_s:g} s window has enough good scans of every model "
-            f"input (first window: {why}); is solver.scan_period ({settings.scan_period_s:g} s) "
-            f"the data's scan period?")
+            f"{source}: no {config.solver.window:g} s window has enough good scans of every "
+            f"model input (first window: {why})")
     return list(windows[usable[0]:usable[-1] + 1])
 
 
@@ -298,8 +303,8 @@ def complete_windows(day: DayLike, config: PlantConfig, source: str) -> list[Win
     for name in MEASURED_INPUTS + SCANNED_OUTPUTS:
         if name not in scans.columns or not np.isfinite(scans[name].to_numpy(float)).any():
             raise IngestError(f"{source}: signal {name} has no good value in {TOPIC_SCAN}")
-    settings = window_settings(config)
     t = scans.index.to_numpy(dtype=np.int64)
+    settings = window_settings(config, measured_scan_period(t))
     first, last = int(t.min()), int(t.max())
     windows = [w for w in windows_from_frame(scans.sort_index(), settings)
                if w.start_ns >= first and w.end_ns <= last]

@@ -6,7 +6,7 @@ on a boundary belongs to the window that ends there. For each window the accumul
 the good values (non-null, finite) of every signal of :data:`~softsensor.signals.SCAN_SIGNALS`.
 
 A signal with fewer good values than ``min_fraction`` of the expected scans
-(``period_s / scan_period_s``, 60 by default; 50 % -> 30) gets the mean ``None`` and a reason.
+(``period_s / scan_period_s``, 60 for 10 s scans; 50 % -> 30) gets the mean ``None`` and a reason.
 The window is ``stale`` when fewer scans than that arrived, or when a signal of ``required``
 (by default the measured model inputs) is ``None``; ``Window.reasons`` then also says why under
 the key ``"scans"`` or the signal's name. Windows without any scan (a gap in the data) are
@@ -38,6 +38,8 @@ NS = 10**9
 MODEL_SIGNALS: tuple[str, ...] = tuple(n for n in INPUT_NAMES if n in SCAN_SIGNALS)
 #: Default length of the sub-window bins of the measured inputs [s].
 BIN_S = 60.0
+#: Scan period assumed when neither the config nor the data give one [s] (CONTRACT section 1).
+NOMINAL_SCAN_PERIOD_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -108,10 +110,31 @@ class WindowSettings:
         return math.ceil(self.min_fraction * self.expected_scans - 1e-9)
 
 
-def window_settings(config: PlantConfig, **overrides: Any) -> WindowSettings:
-    """The windowing of ``config`` (``[solver]``: window, scan period, good share)."""
+def measured_scan_period(times_ns: Iterable[int]) -> float | None:
+    """The scan period [s] of a record: the median spacing of its distinct scan times.
+
+    The median, not the mean, so that gaps (a stopped historian, a PLC outage) and the odd
+    duplicated or jittered timestamp do not move it. None for fewer than two distinct times.
+    """
+    t = sorted(set(int(x) for x in times_ns))
+    if len(t) < 2:
+        return None
+    steps = sorted(b - a for a, b in zip(t[:-1], t[1:], strict=True))
+    return steps[len(steps) // 2] / NS
+
+
+def window_settings(config: PlantConfig, measured_s: float | None = None,
+                    **overrides: Any) -> WindowSettings:
+    """The windowing of ``config`` (``[solver]``: window, scan period, good share).
+
+    The scan period is ``solver.scan_period`` when the config sets it, else ``measured_s``
+    (the data's own period, :func:`measured_scan_period`), else
+    :data:`NOMINAL_SCAN_PERIOD_S`; never longer than the window.
+    """
     s = config.solver
-    kwargs: dict[str, Any] = {"period_s": s.window, "scan_period_s": s.scan_period,
+    period = s.scan_period if s.scan_period is not None else measured_s
+    period = NOMINAL_SCAN_PERIOD_S if period is None else min(float(period), s.window)
+    kwargs: dict[str, Any] = {"period_s": s.window, "scan_period_s": period,
                               "min_fraction": s.min_good_fraction}
     kwargs.update(overrides)
     return WindowSettings(**kwargs)

@@ -272,6 +272,15 @@ def _recorded_lab(body: Any, log_time_ns: int, where: str, refused: list[str]
 _READ_ERRORS = (McapError, struct.error, ValueError, EOFError, OSError, zstandard.ZstdError)
 
 
+def _not_mcap(path: Path) -> str:
+    """The error for a file that is not MCAP, with the way to convert what it likely is."""
+    hint = ""
+    if path.suffix.lower() in (".csv", ".txt", ".parquet", ".xlsx", ".json"):
+        hint = ("; a historian or LIMS export is converted first with `softsensor import "
+                "--map MAP.toml --scans FILE --out DAY.mcap` (README: bring your own plant)")
+    return f"{path}: not an MCAP file (bad magic bytes){hint}"
+
+
 def _open(path: Path) -> IO[bytes]:
     try:
         return open(path, "rb")  # noqa: SIM115 - closed by callers
@@ -302,7 +311,7 @@ def _raw_messages(path: Path, topics: list[str] | None, allow_truncated: bool,
         try:
             reader = SeekingReader(f, validate_crcs=True)
         except _READ_ERRORS as exc:
-            raise IngestError(f"{path}: not an MCAP file (bad magic bytes)") from exc
+            raise IngestError(_not_mcap(path)) from exc
         intact = True
         try:
             reader.get_summary()
@@ -334,7 +343,7 @@ def _raw_messages(path: Path, topics: list[str] | None, allow_truncated: bool,
                 got.append((msg.log_time, len(got), channel.topic, channel.message_encoding,
                             msg.data))
         except InvalidMagic as exc:
-            raise IngestError(f"{path}: not an MCAP file (bad magic bytes)") from exc
+            raise IngestError(_not_mcap(path)) from exc
         except _READ_ERRORS as exc:
             log.warning("%s: truncated after %d complete messages (%s: %s)", path, len(got),
                         type(exc).__name__, exc)

@@ -39,7 +39,8 @@ from softsensor.bus.zenoh_bus import (
     wait_for_peers,
 )
 from softsensor.errors import IngestError, SoftsensorError
-from softsensor.estimation.windowing import WindowSettings
+from softsensor.estimation.windowing import WindowSettings, measured_scan_period
+from softsensor.estimation.windowing import window_settings as core_window_settings
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
@@ -100,6 +101,9 @@ class ReplaySummary:
     day: Path
     out: Path
     estimator: str
+    scan_period_s: float = math.nan
+    min_good: int = 0
+    expected_scans: int = 0
     n_replayed: int = 0
     n_recorded: int = 0
     ticks: int = 0
@@ -118,10 +122,27 @@ class ReplaySummary:
         """Recorded time span over wall time [-]."""
         return self.span_s / self.wall_s if self.wall_s > 0 else math.inf
 
+    def problem(self) -> tuple[str, str] | None:
+        """``("error", why)`` when no tick was estimated from data (every window stale),
+        ``("warning", why)`` when more than half were stale, else None."""
+        if self.ticks == 0:
+            return "error", f"{self.day}: no window was ticked (is the day shorter than one?)"
+        share = self.stale_ticks / self.ticks
+        if share < 0.5:
+            return None
+        why = (f"{self.stale_ticks} of {self.ticks} windows stale: a window needs "
+               f"{self.min_good} good scans of every model input out of the "
+               f"{self.expected_scans} expected at the scan period {self.scan_period_s:g} s "
+               f"(set solver.scan_period if that is not the day's)")
+        if self.stale_ticks == self.ticks:
+            return "error", f"{self.day}: nothing estimated from data, {why}"
+        return "warning", f"{self.day}: {why}"
+
     def line(self) -> str:
         """The one-paragraph summary the verb prints."""
         text = (f"replayed {self.day}: {self.n_replayed} messages over {self.span_s / 3600:.1f} "
-                f"h in {self.wall_s:.1f} s ({self.speedup:,.0f}x real time, after a "
+                f"h (scan period {self.scan_period_s:g} s) in {self.wall_s:.1f} s "
+                f"({self.speedup:,.0f}x real time, after a "
                 f"{self.warmup_s:.1f} s warm-up); {self.estimator}: "
                 f"{self.ticks} ticks ({self.stale_ticks} stale), {self.lab_updates} lab "
                 f"updates ({self.labs_accepted} lab results accepted, {self.labs_refused} "
@@ -147,13 +168,28 @@ def _wait(cond: Callable[[], bool], progress: Callable[[], int], what: str) -> N
 
 def window_settings(cfg: PlantConfig, settings: ServiceSettings,
                     scan_period_s: float | None = None) -> WindowSettings:
-    """Window length from ``solver.window``; scan period [s] given or from the tag map."""
-    if scan_period_s is None:
+    """The service's windowing: the core's (:func:`~softsensor.estimation.windowing.
+    window_settings`) with the ``[service]`` good share. The scan period is
+    ``solver.scan_period`` when set, else ``scan_period_s`` (live: the poll period; replay:
+    measured from the day), else the tag map's poll period [s]."""
+    if scan_period_s is None and cfg.solver.scan_period is None:
         tagmap = load_tagmap(settings.tagmap) if settings.tagmap else load_tagmap()
         scan_period_s = tagmap.modbus.poll_period_s
-    return WindowSettings(period_s=cfg.solver.window,
-                          scan_period_s=min(scan_period_s, cfg.solver.window),
-                          min_fraction=settings.min_good_fraction)
+    return core_window_settings(cfg, scan_period_s, min_fraction=settings.min_good_fraction)
+
+
+def day_scan_period(day: str | os.PathLike[str], start_ns: int | None = None,
+                    end_ns: int | None = None, allow_truncated: bool = False,
+                    n_max: int = 2000) -> float | None:
+    """The scan period [s] of a recorded day, measured on its first ``n_max`` scans in the
+    selected range (:func:`~softsensor.estimation.windowing.measured_scan_period`)."""
+    times = []
+    for _topic, t, _body in iter_messages(day, topics=[TOPIC_SCAN], start_ns=start_ns,
+                                          end_ns=end_ns, allow_truncated=allow_truncated):
+        times.append(t)
+        if len(times) >= n_max:
+            break
+    return measured_scan_period(times)
 
 
 def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None = None,
@@ -212,11 +248,16 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
     _check_day(day, out, start_ns, end_ns, allow_truncated)
     settings = settings or service_settings(cfg)
-    service = make_service(cfg, settings, estimator)
-    summary = ReplaySummary(day=day, out=out, estimator=service.kind)
+    measured = day_scan_period(day, start_ns, end_ns, allow_truncated)
+    service = make_service(cfg, settings, estimator, measured)
+    summary = ReplaySummary(day=day, out=out, estimator=service.kind,
+                            scan_period_s=service.window.scan_period_s,
+                            min_good=service.window.min_good,
+                            expected_scans=service.window.expected_scans)
     # compile every kernel a tick calls before the first message goes out: a first tick that
     # compiles holds the estimator thread for tens of seconds, which _wait would call a stall
-    summary.warmup_s = warm_up(lambda: make_service(cfg, settings, estimator), cfg).seconds
+    summary.warmup_s = warm_up(lambda: make_service(cfg, settings, estimator, measured),
+                               cfg).seconds
 
     def _keep(o: Output) -> None:
         if o.kind == "estimate":
@@ -305,5 +346,5 @@ def _stream(day: Path, recorder: FileRecorder, service: EstimatorService,
     return stats
 
 
-__all__ = ["FileRecorder", "ReplaySummary", "make_service", "replay_to_file", "truth_rmse",
-           "window_settings"]
+__all__ = ["FileRecorder", "ReplaySummary", "day_scan_period", "make_service", "replay_to_file",
+           "truth_rmse", "window_settings"]
