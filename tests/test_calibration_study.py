@@ -259,3 +259,28 @@ def test_cli_errors_are_one_line(tmp_path, capsys, config):
         err = capsys.readouterr().err.strip()
         assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
     assert not out.exists()
+
+
+def test_search_model_with_one_wall_substep_keeps_the_settings_claim():
+    """The TPE search runs the model with ``[calibration] search_wall_substeps`` (1): on the
+    demo day its outputs stay within the settings' claim (0.01 K, 2e-5 kg/kg) of the full
+    model's, and it is a copy, so the full model keeps its substeps for polish and validation.
+    """
+    from softsensor.calibration.pipeline import search_model
+    from softsensor.calibration.settings import calibration_settings
+    from softsensor.model import DryerModel
+    from softsensor.plantconfig import load_plant_config
+    from softsensor.recording.mcap_day import read_day
+
+    cfg = load_plant_config()
+    seg = segment_from_day(read_day(Path(__file__).parents[1] / "replay" / "demo-day.mcap"),
+                           cfg, source="demo")
+    full = DryerModel(cfg, threads=1)
+    fast = search_model(full, calibration_settings(cfg))
+    assert fast is not full and fast.wall_substeps == 1
+    assert full.wall_substeps == cfg.solver.wall_substeps == 4
+    Y_full, _ = full.simulate(seg.U[None])
+    Y_fast, _ = fast.simulate(seg.U[None])
+    d = np.abs(Y_fast - Y_full)[0].max(axis=0)
+    assert d[0] < 0.01 and d[1] < 0.01 and d[2] < 2e-5, d
+    assert d[0] > 0  # the copy really runs with fewer substeps

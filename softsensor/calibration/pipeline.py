@@ -24,6 +24,7 @@ return.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import time
@@ -495,6 +496,17 @@ def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: Objective
     return val, cur_val, discrepancy(val.evaluation, held)
 
 
+def search_model(model: DryerModel, calibration: CalibrationSettings) -> DryerModel:
+    """``model`` with the search's wall substeps (``calibration.search_wall_substeps``): a
+    shallow copy sharing the geometry, or ``model`` itself when they are the same."""
+    n = calibration.search_wall_substeps
+    if n == 0 or n == model.wall_substeps:
+        return model
+    fast = copy.copy(model)
+    fast.wall_substeps = n
+    return fast
+
+
 def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudySettings,
               calibration: CalibrationSettings, *, choices: Sequence[WindowChoice] = (),
               validation_segments: Sequence[Segment] | None = None,
@@ -522,7 +534,8 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     spec = objective_spec(model, fit_segs, config, calibration)
     say("study")
     study, _created = open_study(settings, config, data_fingerprint(fit_segs, config, spec))
-    report = run_trials(study, model, fit_segs, config, settings, spec)
+    report = run_trials(study, search_model(model, calibration), fit_segs, config, settings,
+                        spec)
     timings["study"] = time.perf_counter() - t0
     best = study.best_trial
     tpe_best = {"trial": best.number, "objective": best.value,

@@ -57,6 +57,12 @@ class CalibrationSettings:
     bound_margin : float
         A parameter within this fraction of a bound (``value <= low (1 + m)`` or
         ``value >= high / (1 + m)``) is flagged as at its bound.
+    search_wall_substeps : int
+        Crank-Nicolson substeps of the wall per window in the TPE search; the search's best
+        point is then polished, validated and reported with ``solver.wall_substeps``. The wall
+        moves by a fraction of a kelvin per window, so one substep changes the outputs of the
+        demo day by less than 0.01 K and 2e-5 kg/kg against four, and halves the search's time
+        (``benchmarks/calibrate.py``). 0: ``solver.wall_substeps``.
     """
 
     cost: str = "eq4"
@@ -68,6 +74,7 @@ class CalibrationSettings:
     inlet_walk: float = num(0.015, ge=0, lt=2)
     holdout_fraction: float = num(0.25, ge=0, lt=0.9)
     bound_margin: float = num(0.02, gt=0, lt=1)
+    search_wall_substeps: int = num(1, ge=0, le=1000)
 
     def check(self) -> str | None:
         if self.cost not in COSTS:
