@@ -109,12 +109,17 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
 def test_recovery_24h(tmp_path, capsys):
     summary, verdicts, calibrated = _recover(tmp_path, capsys, 24.0, 40, seed=21, report=True,
                                              val_factor=3.0, cost_factor=1.25)
-    page = (tmp_path / "report" / "index.md").read_text()
+    page = (tmp_path / "report" / "index.html").read_text()
     for fig in ("fig2_sensitivity.png", "fig3_profile_steps.png", "fig4_study.png",
                 "fig5_calibration.png"):
         assert (tmp_path / "report" / fig).stat().st_size > 10_000
-        assert f"![]({fig})" in page
+    # the figures are inside the page (one file to mail), none left as a link
+    assert page.count('src="data:image/png;base64,') == 4 and ".png\"" not in page
     assert "What the data can and cannot pin down" in page and "Table 3" in page
+    # the plain-language verdict comes first, in plant units
+    first = page.index('<p class="verdict">')
+    assert first < page.index("<h2>") and "New parameters written." in page[first:]
+    assert "°C" in page[first:page.index("</p>", first)]
     assert summary["windows"][0]["reason"].startswith("whole record")
     assert 0 < summary["pruned_share"] < 1
 

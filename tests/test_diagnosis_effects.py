@@ -200,9 +200,15 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
                                                 replay("sensor_bias", seed, mag, 24.0))
     assert rep["calibration"]["trials"] == 12 and (tmp_path / "params.toml").is_file()
     page = tmp_path / "page"
-    for name in ("index.md", "residuals.png", "trajectories.png", "gain.png"):
+    for name in ("index.html", "residuals.png", "trajectories.png", "gain.png"):
         assert (page / name).stat().st_size > 1000, name
-    assert "sensor_bias" in (page / "index.md").read_text()
+    html = (page / "index.html").read_text()
+    assert "sensor_bias" in html and html.count("data:image/png;base64,") == 3
+    # the verdict first, in plant language: which thermometer, how far, which way
+    verdict = html[html.index('<p class="verdict">'):]
+    verdict = verdict[:verdict.index("</p>")]
+    assert f"({rep['channel']}) reads" in verdict and "°C" in verdict, verdict
+    assert ("high" if day.effect["sign"] > 0 else "low") in verdict, verdict
     # the calibrated parameters reproduce the report through --params
     out2 = tmp_path / "REPORT2.json"
     r2 = _cli("diagnose", "--params", str(tmp_path / "params.toml"), str(path), "--json",

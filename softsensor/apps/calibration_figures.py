@@ -1,16 +1,21 @@
 """Figures a process engineer looks at after a calibration (the paper's Figs. 2 to 6).
 
 Each function writes one PNG (matplotlib, Agg backend, no display needed) and returns its
-path; :func:`write_page` puts the figures and tables on one Markdown page. Times on the axes
+path; :func:`write_page` puts the figures (embedded) and tables on one self-contained HTML
+page, a plain-language verdict first. Times on the axes
 are hours from the start of the shown data; temperatures in °C for reading (the program keeps
 K everywhere else), moisture in kg/kg dry basis.
 """
 
 from __future__ import annotations
 
+import base64
+import html
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+import markdown
 import matplotlib
 
 matplotlib.use("Agg")
@@ -177,15 +182,46 @@ def markdown_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> s
     return "\n".join(out)
 
 
+_PAGE_STYLE = """
+body { font-family: sans-serif; max-width: 70em; margin: 2em auto; color: #222; }
+.verdict { font-size: 1.25em; padding: 0.8em 1em; background: #eef4fb;
+           border-left: 6px solid #2a6fb0; }
+table { border-collapse: collapse; margin: 0.5em 0; }
+th, td { border: 1px solid #bbb; padding: 0.25em 0.6em; text-align: left; }
+img { max-width: 100%; }
+"""
+
+
+def _embed_figures(html: str, directory: Path) -> str:
+    """``<img src="fig.png">`` of files in ``directory`` as data URIs: one file to send."""
+    def inline(m: re.Match[str]) -> str:
+        f = directory / m.group(1)
+        if not f.is_file():
+            return m.group(0)
+        data = base64.b64encode(f.read_bytes()).decode("ascii")
+        return f'src="data:image/png;base64,{data}"'
+
+    return re.sub(r'src="([^"/]+\.png)"', inline, html)
+
+
 def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, str]],
-               name: str = "index.md") -> Path:
-    """A Markdown page of ``(heading, body)`` sections; bodies may embed ``![](fig.png)``."""
+               verdict: str | None = None, name: str = "index.html") -> Path:
+    """A self-contained HTML page: ``verdict`` (plain language, first), then ``(heading,
+    body)`` sections written in Markdown (tables, ``![](fig.png)`` figures, which are embedded
+    in the page). Markdown is rendered by Python-Markdown; text is escaped."""
     d = Path(directory)
-    text = [f"# {title}", ""]
-    for heading, body in sections:
-        text += [f"## {heading}", "", body.rstrip(), ""]
+    md = markdown.Markdown(extensions=["tables"])
+    body = [f"<h1>{html.escape(title)}</h1>"]
+    if verdict:
+        body.append(f'<p class="verdict">{html.escape(verdict)}</p>')
+    for heading, text in sections:
+        body.append(f"<h2>{html.escape(heading)}</h2>")
+        body.append(md.reset().convert(html.escape(text.rstrip(), quote=False)))
+    page = (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8">'
+            f"<title>{html.escape(title)}</title><style>{_PAGE_STYLE}</style></head>"
+            f"<body>\n" + "\n".join(body) + "\n</body></html>\n")
     p = d / name
-    p.write_text("\n".join(text), encoding="utf-8")
+    p.write_text(_embed_figures(page, d), encoding="utf-8")
     return p
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from softsensor.apps import calibration_figures as figures
+from softsensor.apps.verdicts import calibration_verdict
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -125,7 +126,14 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     figures.profile_step_figure(model, result.theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
                      "![](fig3_profile_steps.png)"))
-    return figures.write_page(d, "Calibration report", sections)
+    new, old, where = result.validation, result.current_validation, "held-out data"
+    if new is None or old is None:  # nothing held out: the calibration data themselves
+        new, old, where = result, result.current_evaluation, "calibration data"
+    labs = np.concatenate([seg.lab_value for seg in result.segments])
+    verdict = calibration_verdict(
+        new.fit.rmse, None if old is None else old.fit.rmse, result.accepted,
+        result.at_bounds, float(np.median(labs)) if labs.size else 0.1, where=where)
+    return figures.write_page(d, "Calibration report", sections, verdict=verdict)
 
 
 def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConfig,
@@ -144,7 +152,8 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
     figures.profile_step_figure(model, theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
                      "![](fig3_profile_steps.png)"))
-    return figures.write_page(d, "Identifiability report", sections)
+    return figures.write_page(d, "Identifiability report", sections,
+                              verdict=identifiability_verdict(ident))
 
 
 def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path
@@ -163,7 +172,24 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
         ("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"),
     ]
     title = ", ".join(s.source for s in result.segments)
-    return figures.write_page(d, f"Validation report: {title}", sections)
+    verdict = (f"On this independent data the calibrated model's errors (RMSE) are dryer "
+               f"outlet {result.fit.rmse['T_dryer_out']:.2f} °C, cyclone outlet "
+               f"{result.fit.rmse['T_cyclone_out']:.2f} °C and outlet moisture "
+               f"{100 * result.fit.rmse['moisture_out']:.2f} % points (dry basis)"
+               + ("." if result.ratio is None
+                  else f"; {ratio} times its cost on the calibration data."))
+    return figures.write_page(d, f"Validation report: {title}", sections, verdict=verdict)
+
+
+def identifiability_verdict(ident: Identifiability) -> str:
+    """Which parameters the data pin down, in one sentence."""
+    good, poor = ident.identifiable, ident.poorly_identifiable
+    text = (f"The data pin down {', '.join(good)}." if good
+            else "The data pin down none of the seven parameters on their own.")
+    if poor:
+        text += (f" Not identifiable from these data: {', '.join(poor)} (their values come "
+                 f"from the prior and the bounds; a designed experiment would help).")
+    return text
 
 
 __all__ = ["calibration_page", "fit_table", "identifiability_table", "identify_page",

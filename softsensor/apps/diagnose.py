@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
+from softsensor.apps.verdicts import diagnosis_verdict
 from softsensor.errors import ConfigError
 from softsensor.jsonable import dumps
 from softsensor.plantconfig import PARAMETER_NAMES
@@ -111,7 +112,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
     print(text)
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
-          + f", held-out gain {doc['gain']:+.3f}", file=sys.stderr)
+          + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)}", file=sys.stderr)
     return 0
 
 

@@ -1,4 +1,4 @@
-"""The diagnosis page (``softsensor diagnose --report DIR``): PNG figures and a Markdown page.
+"""The diagnosis page (``softsensor diagnose --report DIR``): PNG figures and an HTML page.
 
 * ``residuals.png``: baseline residuals of every channel over the day (window means for the
   temperatures, lab results at their stamped sample times), with the winning extension's
@@ -8,7 +8,9 @@
   extension (as scored);
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
-* ``index.md``: the verdict, the evidence table and the figures (the same page layout as the
+* ``index.html``: a plain-language verdict first (:func:`softsensor.apps.verdicts.
+  diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"), then the
+  statistics, the evidence table and the figures, embedded (the same page layout as the
   calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
 
 Temperatures on the axes are in °C for reading; the program keeps K everywhere else.
@@ -25,6 +27,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from softsensor.apps.calibration_figures import markdown_table, write_page  # noqa: E402
+from softsensor.apps.verdicts import diagnosis_verdict  # noqa: E402
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
@@ -132,7 +135,7 @@ def gain_figure(d: Diagnosis, path: Path) -> Path:
 
 
 def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None) -> Path:
-    """Write the figures and ``index.md`` into ``directory`` (created); returns the page."""
+    """Write the figures and ``index.html`` into ``directory`` (created); returns the page."""
     out = Path(directory)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -153,24 +156,25 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
     rm = markdown_table(["channel", "baseline RMSE", "extended RMSE"],
                         [[n, _fmt(doc["baseline_rmse"][n]), _fmt(doc["extended_rmse"][n])]
                          for n in OUTPUT_NAMES])
-    verdict = (f"**Cause: `{doc['cause']}`**"
-               + (f" on `{doc['channel']}`" if doc.get("channel") else "")
-               + f". Held-out cost (paper eq. 4; each part of the day predicted by the "
-               f"extension fitted on the other part) {doc['baseline_cost']:.4f} -> "
-               f"{doc['extended_cost']:.4f}, gain {doc['gain']:+.3f}. "
-               f"{doc['held_out']['note']}.")
+    stats = (f"**Cause: `{doc['cause']}`**"
+             + (f" on `{doc['channel']}`" if doc.get("channel") else "")
+             + f". Held-out cost (paper eq. 4; each part of the day predicted by the "
+             f"extension fitted on the other part) {doc['baseline_cost']:.4f} -> "
+             f"{doc['extended_cost']:.4f}, gain {doc['gain']:+.3f}. "
+             f"{doc['held_out']['note']}.")
     if doc.get("extension"):
-        verdict += f" Extension: {doc['extension']['description']}."
+        stats += f" Extension: {doc['extension']['description']}."
     if doc.get("structure"):
-        verdict += f" Baseline residuals structured: {doc['structure']}."
+        stats += f" Baseline residuals structured: {doc['structure']}."
     sections = [
-        ("Verdict", verdict + "\n\n" + rm),
+        ("Statistics", stats + "\n\n" + rm),
         ("Evidence", table),
         ("Residuals per channel", "![residuals](residuals.png)"),
         ("Trajectories before and after the extension", "![trajectories](trajectories.png)"),
         ("Held-out gain of every extension", "![gain](gain.png)"),
     ]
-    return write_page(out, f"Diagnosis of {doc.get('day', 'the day')}", sections)
+    return write_page(out, f"Diagnosis of {doc.get('day', 'the day')}", sections,
+                      verdict=diagnosis_verdict(doc))
 
 
 def _fmt(v: float | None) -> str:

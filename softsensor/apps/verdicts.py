@@ -1,0 +1,134 @@
+"""Plain-language verdicts for the people who run the dryer: what the program found and what
+to check, in plant units (°C, % moisture, minutes), first on every report page and in the
+one-line summary a verb prints on stderr.
+
+The statistics behind each sentence stay below it on the page and in the JSON (SI there,
+docs/interface.md section 5). Moisture is given in % on the basis the reader chooses: ``wet``
+(w = X / (1 + X), what most plants' labs report) or ``dry`` (X, the program's kg/kg).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+#: What each thermometer is called on the plant floor.
+SENSOR_NAMES: dict[str, str] = {
+    "T_dryer_out": "dryer outlet thermometer (T_dryer_out)",
+    "T_cyclone_out": "cyclone outlet thermometer (T_cyclone_out)",
+    "T_air_in": "inlet air thermometer (T_air_in)",
+}
+MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
+
+
+def moisture_pct(x: float, basis: str = "wet") -> float:
+    """Dry-basis moisture ``x`` [kg/kg] as % on ``basis`` (``wet``: 100 X / (1 + X))."""
+    if basis not in MOISTURE_BASES:
+        raise ValueError(f"moisture basis must be one of {MOISTURE_BASES}, got {basis!r}")
+    return 100.0 * (x / (1.0 + x) if basis == "wet" else x)
+
+
+def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
+    """A dry-basis moisture difference ``dx`` [kg/kg] near ``x`` as % points on ``basis``."""
+    return moisture_pct(x + dx, basis) - moisture_pct(x, basis)
+
+
+def _params(doc: Mapping[str, Any]) -> dict[str, float]:
+    for r in doc.get("ranking", []):
+        if r.get("cause") == doc.get("cause"):
+            return dict(r.get("params") or {})
+    return {}
+
+
+def _sensor_bias(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    b = float(p.get("offset_K", math.nan))
+    name = SENSOR_NAMES.get(str(doc.get("channel")), f"{doc.get('channel')} thermometer")
+    side = "high" if b > 0 else "low"
+    return (f"The {name} reads {abs(b):.1f} °C {side}: check it (calibration, thermowell, "
+            f"wiring) before trusting it or the estimates that use it.")
+
+
+def _lab_delay(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    m = float(p.get("shift_min", math.nan))
+    when = "later" if m > 0 else "earlier"
+    return (f"The lab samples look to have been taken about {abs(m):.0f} min {when} than "
+            f"their recorded sample time: check how sample times are entered in the LIMS "
+            f"(clock, time zone, result time used as sample time).")
+
+
+def _fouling(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    d = float(p.get("loss_by_end", math.nan))
+    trend = "fell" if d >= 0 else "rose"
+    return (f"Heat and mass transfer in the dryer tube {trend} by about {abs(d):.0%} over the "
+            f"record: the tube may be fouling; compare with the last cleaning.")
+
+
+def _lag(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    tau = float(p.get("tau_min", math.nan))
+    return (f"The {SENSOR_NAMES['T_air_in']} lags the air by about {tau:.0f} min: check its "
+            f"thermowell and mounting (a slow sensor misleads the model and the controller).")
+
+
+def _ambient(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    beta = float(p.get("beta_amb_per_K", math.nan))
+    return (f"Heat loss to the outside changes with the weather more than the model says "
+            f"({beta * 10:+.0%} per 10 °C colder): check the cladding and insulation of the "
+            f"tube and cyclones.")
+
+
+def _inlet(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    return ("The inlet fibre moisture varied during the record more than the model assumed: "
+            "watch the estimated inlet moisture and check the chip supply and steaming.")
+
+
+_SENTENCES: dict[str, Callable[[Mapping[str, float], Mapping[str, Any]], str]] = {
+    "sensor_bias": _sensor_bias, "lab_delay": _lab_delay, "fouling_drift": _fouling,
+    "input_lag": _lag, "ambient_heat_loss": _ambient, "inlet_moisture": _inlet,
+}
+
+
+def diagnosis_verdict(doc: Mapping[str, Any]) -> str:
+    """The diagnosis (REPORT.json, docs/interface.md section 5) as one or two sentences."""
+    cause = doc.get("cause")
+    if cause == "none":
+        return ("The calibrated model explains this record to within the sensors' noise: "
+                "nothing to check.")
+    if cause == "unexplained":
+        return ("The model misses this record in a way none of the known causes explains: "
+                "look at the residual figures below and at what changed in the plant.")
+    sentence = _SENTENCES.get(str(cause))
+    if sentence is None:
+        return f"Cause found: {cause}."
+    gain = doc.get("gain")
+    tail = "" if gain is None else (f" Accounting for it predicts the held-out part of the "
+                                    f"record {100 * float(gain):.0f} % better.")
+    return sentence(_params(doc), doc) + tail
+
+
+def calibration_verdict(rmse_new: Mapping[str, float] | None,
+                        rmse_old: Mapping[str, float] | None, written: bool,
+                        at_bounds: list[str], x_ref: float, basis: str = "wet",
+                        where: str = "held-out data") -> str:
+    """The calibration's outcome in plant units: the errors on ``where`` before and after,
+    and whether the parameters were written. ``x_ref`` [kg/kg dry] is the moisture at which
+    kg/kg errors are turned into % points."""
+    head = ("New parameters written." if written
+            else "New parameters NOT written: they predict the held-out data worse.")
+    parts = [head]
+    if rmse_new and rmse_old:
+        def k(name: str) -> str:
+            return f"{rmse_old[name]:.2f} -> {rmse_new[name]:.2f} °C"
+
+        m_old = moisture_pct_points(rmse_old["moisture_out"], x_ref, basis)
+        m_new = moisture_pct_points(rmse_new["moisture_out"], x_ref, basis)
+        parts.append(f"Errors on the {where} (RMSE, current -> calibrated): dryer outlet "
+                     f"{k('T_dryer_out')}, cyclone outlet {k('T_cyclone_out')}, outlet "
+                     f"moisture {m_old:.2f} -> {m_new:.2f} % points ({basis} basis).")
+    if at_bounds:
+        parts.append(f"At a search bound (not pinned by the data): {', '.join(at_bounds)}.")
+    return " ".join(parts)
+
+
+__all__ = ["MOISTURE_BASES", "SENSOR_NAMES", "calibration_verdict", "diagnosis_verdict",
+           "moisture_pct", "moisture_pct_points"]
