@@ -226,3 +226,35 @@ def test_run_refuses_bad_input_in_one_line(tmp_path, capsys):
         assert cli_main(["run", "--lab-dir", str(tmp_path / "lab"), *args]) == 2, args
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and re.search(pattern, err), err
+
+
+def test_a_copied_config_folder_runs_with_its_own_tag_map(tmp_path):
+    """Issue 13: a copied ``config/`` with an edited tag map was silently run with the
+    packaged one. The tag map beside the config file is used, a relative ``tagmap`` key is
+    taken relative to the config file, and one that does not exist is an error naming it."""
+    from softsensor.errors import ConfigError
+    from softsensor.plantconfig import load_plant_config
+    from softsensor.service.daemon import daemon_tagmap
+    from softsensor.service.settings import service_settings
+
+    root = Path(__file__).resolve().parents[1] / "config"
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "dryer1.toml").write_text((root / "dryer1.toml").read_text())
+    (site / "tagmap_dryer1.toml").write_text(
+        (root / "tagmap_dryer1.toml").read_text().replace('port = 502', 'port = 15020', 1))
+    settings = service_settings(load_plant_config(site / "dryer1.toml"))
+    assert Path(settings.tagmap) == site / "tagmap_dryer1.toml"
+    assert daemon_tagmap(settings).modbus.port == 15020
+    # a relative key, from another working directory
+    (site / "maps").mkdir()
+    (site / "tagmap_dryer1.toml").rename(site / "maps" / "plc.toml")
+    cfg = site / "dryer1.toml"
+    cfg.write_text(cfg.read_text() + '\n[service]\ntagmap = "maps/plc.toml"\n')
+    settings = service_settings(load_plant_config(cfg))
+    assert daemon_tagmap(settings).modbus.port == 15020
+    cfg.write_text(cfg.read_text().replace("maps/plc.toml", "maps/none.toml"))
+    with pytest.raises(ConfigError, match="none.toml"):
+        daemon_tagmap(service_settings(load_plant_config(cfg)))
+    # the packaged config keeps the packaged tag map
+    assert daemon_tagmap(service_settings(load_plant_config())).modbus.port == 502

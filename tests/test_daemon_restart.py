@@ -122,6 +122,9 @@ log_format = "json"
         try:
             assert hello.startswith("softsensor run: unit=dryer1 estimator=ukf zenoh=tcp/127.0")
             assert "resumed=false" in hello
+            # which files it runs on (issue 13): this config, no params, the packaged tag map
+            assert f"config={config} params=none tagmap=" in hello, hello
+            assert hello.rstrip().endswith("tagmap_dryer1.toml"), hello
             killed = _wait_ticks(ckpt, 3, first)
         finally:
             first.send_signal(signal.SIGKILL)

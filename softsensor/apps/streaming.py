@@ -53,7 +53,9 @@ def _run(args: argparse.Namespace) -> int:
     def _ready(info: DaemonInfo) -> None:
         print(f"softsensor run: unit={info.unit} estimator={info.estimator} "
               f"zenoh={','.join(info.endpoints) or 'none'} plc={info.plc} "
-              f"data_dir={info.data_dir} resumed={str(info.resumed).lower()}", flush=True)
+              f"data_dir={info.data_dir} resumed={str(info.resumed).lower()} "
+              f"config={cfg.source} params={args.params or 'none'} "
+              f"tagmap={settings.tagmap or 'built-in'}", flush=True)
 
     async def _main() -> None:
         stop = asyncio.Event()

@@ -3,9 +3,11 @@
 One frozen dataclass validated by :func:`softsensor.configfile.build_section` (unknown keys
 rejected, ranges checked, errors naming ``service.<key>`` and the file). Every field has a
 default, so a plant config without the table runs the daemon on loopback with the packaged tag
-map. Relative paths are taken relative to the working directory of the daemon (``/data`` in
-the container). Command-line options of ``softsensor run`` override single fields
-(:meth:`ServiceSettings.with_overrides`).
+map (or the ``tagmap_<unit>.toml`` beside the config file). A relative ``tagmap`` is taken
+relative to the config file; the other relative paths relative to the working directory of
+the daemon (``/data`` in the container). Command-line options of ``softsensor run`` override
+single fields (:meth:`ServiceSettings.with_overrides`; ``--tagmap`` relative to the working
+directory, as any command-line path).
 
 Example ``config/dryer1.toml`` fragment::
 
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from softsensor.configfile import build_section, num
@@ -47,7 +50,8 @@ class ServiceSettings:
     unit : str or None
         Unit name in Zenoh keys and file names; default the config's ``unit.name``.
     tagmap : str or None
-        Modbus tag map (TOML); default the packaged ``tagmap_dryer1.toml``.
+        Modbus tag map (TOML), relative to the config file; default the
+        ``tagmap_<unit>.toml`` beside the config file, else the packaged ``tagmap_dryer1.toml``.
     plc_host, plc_port : str, int or None
         Override the tag map's ``[modbus]`` endpoint.
     data_dir : str
@@ -164,8 +168,23 @@ class ServiceSettings:
 
 
 def service_settings(cfg: PlantConfig) -> ServiceSettings:
-    """The validated ``[service]`` table of ``cfg`` (defaults when absent)."""
+    """The validated ``[service]`` table of ``cfg`` (defaults when absent).
+
+    The tag map is looked for beside the config file: a relative ``tagmap`` is taken
+    relative to it, and without the key a ``tagmap_<unit>.toml`` there is used (else the
+    packaged one). So a copied config folder (``dryer1.toml`` beside its edited
+    ``tagmap_dryer1.toml``) runs with its own tag map wherever the daemon starts; the data
+    paths stay relative to the working directory.
+    """
     table = cfg.extra.get("service", {})
+    if isinstance(table, dict) and Path(cfg.source).is_file():
+        here = Path(cfg.source).parent
+        tagmap = table.get("tagmap")
+        beside = here / f"tagmap_{table.get('unit') or cfg.unit.name}.toml"
+        if isinstance(tagmap, str) and not Path(tagmap).is_absolute():
+            table = {**table, "tagmap": str(here / tagmap)}
+        elif tagmap is None and beside.is_file():
+            table = {**table, "tagmap": str(beside)}
     return build_section(ServiceSettings, table, "service", cfg.source)
 
 
