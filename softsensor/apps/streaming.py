@@ -35,6 +35,7 @@ def _plc(value: str | None) -> tuple[str | None, int | None]:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from softsensor.ingest.tagmap import DEFAULT_TAGMAP
     from softsensor.service.daemon import Daemon, DaemonInfo
     from softsensor.service.logs import configure_logging
     from softsensor.service.settings import service_settings
@@ -55,7 +56,7 @@ def _run(args: argparse.Namespace) -> int:
               f"zenoh={','.join(info.endpoints) or 'none'} plc={info.plc} "
               f"data_dir={info.data_dir} resumed={str(info.resumed).lower()} "
               f"config={cfg.source} params={args.params or 'none'} "
-              f"tagmap={settings.tagmap or 'built-in'}", flush=True)
+              f"tagmap={settings.tagmap or DEFAULT_TAGMAP}", flush=True)
 
     async def _main() -> None:
         stop = asyncio.Event()
