@@ -74,7 +74,10 @@ def test_calibrate_and_diagnose_run_on_the_one_minute_day(imported, tmp_path, ca
     assert rc == 0
     doc = json.loads(report.read_text())
     assert doc["cause"] in {r["cause"] for r in doc["ranking"]}
-    assert "cause" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    # a phase line as each of the minutes-long phases starts, then the verdict
+    assert "diagnose: baseline" in err and "diagnose: extension 6 of 6" in err, err
+    assert f"cause {doc['cause']}" in err.splitlines()[-1]
 
 
 def test_a_day_with_no_estimate_from_data_exits_2(imported, tmp_path, capsys):

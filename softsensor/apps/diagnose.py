@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +57,7 @@ def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
                         f"{DEFAULT_CAL_WINDOW_HOURS:g})")
     p.add_argument("--save-params", default=None, metavar="PARAMS.toml",
                    help="also write the parameters calibrated on CAL here")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument("--fit-fraction", type=float, default=None,
                    help="share of DAY in the first part of the split (default 0.6, "
                         "problem.DEFAULT_FIT_FRACTION)")
@@ -98,7 +100,8 @@ def diagnose_main(args: argparse.Namespace) -> int:
     t_cal = time.perf_counter() - t0
     day = read_day_inputs(args.day)
     d = diagnose(cfg, day, source=str(args.day),
-                 fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION)
+                 fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION,
+                 progress=None if args.quiet else _progress("diagnose"))
     doc = d.to_json()
     calibration["seconds"] = round(t_cal, 2)
     doc["calibration"] = calibration
@@ -114,6 +117,17 @@ def diagnose_main(args: argparse.Namespace) -> int:
           + (f" on {doc['channel']}" if doc.get("channel") else "")
           + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)}", file=sys.stderr)
     return 0
+
+
+def _progress(prefix: str) -> Callable[[str], None]:
+    """A progress printer: one stderr line per phase, with the seconds since the first."""
+    t0 = time.perf_counter()
+
+    def say(phase: str) -> None:
+        print(f"{prefix}: {phase} ... ({time.perf_counter() - t0:.0f} s)", file=sys.stderr,
+              flush=True)
+
+    return say
 
 
 def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
@@ -135,7 +149,8 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
         print(f"diagnose: calibrate: {c.reason}", file=sys.stderr)
     settings = StudySettings(n_trials=args.trials, seed=args.seed, progress=False)
     result = calibrate(segments, cfg, settings, calibration_settings(cfg), choices=choices,
-                       identify_result=False)
+                       identify_result=False,
+                       progress=None if args.quiet else _progress("diagnose: calibrate"))
     # what the calibration left on held-out data sizes the diagnosis's calibration-error
     # alternative, as it does through a PARAMS.toml's [discrepancy]
     cal_cfg = result.calibrated_config()

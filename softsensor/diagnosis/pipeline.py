@@ -23,6 +23,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -222,7 +223,8 @@ def implausible(cause: str, summary: ResidualSummary) -> str | None:
 def diagnose(config: PlantConfig, day: DayLike, *,
              fit_fraction: float = DEFAULT_FIT_FRACTION,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
-             model: DryerModel | None = None) -> Diagnosis:
+             model: DryerModel | None = None,
+             progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose ``day`` with the calibrated ``config`` (module docstring).
 
     Parameters
@@ -236,8 +238,13 @@ def diagnose(config: PlantConfig, day: DayLike, *,
         The day to diagnose (``scans`` and ``labs``; ground truth is never read).
     fit_fraction : float
         Share of the windows the extensions are fitted on.
+    progress : callable, optional
+        Called with a short phase description as each phase starts (the verb prints them:
+        a diagnosis takes minutes).
     """
+    say = progress or (lambda _phase: None)
     t0 = time.perf_counter()
+    say("baseline: the calibrated model over the day")
     timings: dict[str, float] = {}
     model = model if model is not None else DryerModel(config)
     windows = day_windows(day, config, source)
@@ -251,11 +258,12 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     other_fold: dict[str, Fitted] = {}
     scores: dict[str, Score] = {}
     skipped: dict[str, str] = {}
-    for ext in extensions:
+    for i, ext in enumerate(extensions, 1):
         reason = implausible(ext.cause, summary)
         if reason is not None:
             skipped[ext.cause] = reason
             continue
+        say(f"extension {i} of {len(extensions)}: {ext.cause}")
         t1 = time.perf_counter()
         f, b = ext.fit_both(problem)
         fitted[f.cause], other_fold[f.cause] = f, b
