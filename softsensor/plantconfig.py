@@ -202,7 +202,7 @@ _SECTIONS = {
     "environment": Environment, "nominal": Nominal, "solver": Solver, "cost": Cost,
 }
 #: Sections owned by other parts of the program (validated there), kept as raw tables.
-EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration")
+EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration", "display")
 
 
 def _parameters(table: Any, source: str) -> dict[str, ParameterSpec]:

@@ -3,8 +3,9 @@
 Each function writes one PNG (matplotlib, Agg backend, no display needed) and returns its
 path; :func:`write_page` puts the figures (embedded) and tables on one self-contained HTML
 page, a plain-language verdict first. Times on the axes
-are hours from the start of the shown data; temperatures in °C for reading (the program keeps
-K everywhere else), moisture in kg/kg dry basis.
+of measured data are the plant's local clock time, temperatures °C and moisture % on the
+``[display]`` basis (:mod:`softsensor.display`; the program keeps SI everywhere else); the
+model-analysis figures (sensitivities, profiles) keep hours from the start and kg/kg.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import markdown
 import matplotlib
 
 matplotlib.use("Agg")
+import matplotlib.dates as mdates  # noqa: E402
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from optuna.trial import TrialState  # noqa: E402
@@ -26,6 +28,12 @@ from optuna.trial import TrialState  # noqa: E402
 from softsensor.calibration.cost import ModelRun  # noqa: E402
 from softsensor.calibration.dataset import Segment  # noqa: E402
 from softsensor.calibration.identifiability import Sensitivities  # noqa: E402
+from softsensor.display import (  # noqa: E402
+    DisplaySettings,
+    celsius,
+    local_times,
+    moisture_pct,
+)
 from softsensor.model import DryerModel  # noqa: E402
 from softsensor.plantconfig import PARAMETER_NAMES  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
@@ -143,35 +151,45 @@ def study_figure(study, importance: Mapping[str, float], path: str | Path) -> Pa
     return _save(fig, Path(path))
 
 
+def clock_axis(ax, display: DisplaySettings) -> None:
+    """Date axis in the plant's local clock time."""
+    loc = mdates.AutoDateLocator(tz=display.zone)
+    ax.xaxis.set_major_locator(loc)
+    ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc, tz=display.zone))
+
+
 def trajectory_figure(segments: Sequence[Segment], runs: Sequence[ModelRun],
-                      path: str | Path, title: str) -> Path:
-    """Figs. 5 and 6: model against measurements, every channel, every segment in a row."""
+                      path: str | Path, title: str,
+                      display: DisplaySettings | None = None) -> Path:
+    """Figs. 5 and 6: model against measurements, every channel, every segment at its own
+    local clock time; temperatures in °C, moisture in % on the display basis."""
+    display = display or DisplaySettings()
+    basis = display.moisture_basis
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
-    offset = 0.0
     for s, (seg, run) in enumerate(zip(segments, runs, strict=True)):
         Y = run.Y[0]
-        t = _hours(seg) + offset
+        t = local_times(seg.window_ends_ns(), display)
+        first = s == 0
         for c, ax in enumerate(axes[:2]):
-            ax.plot(t, seg.Y[:, c] - C0, ".", ms=3, color="tab:blue",
-                    label="measured (600 s mean)" if s == 0 else None)
-            ax.plot(t, Y[:, c] - C0, "-", color="tab:red", lw=1.2,
-                    label="model" if s == 0 else None)
-        lab_t = (seg.lab_time_ns - seg.start_ns) / 3.6e12 + offset
-        axes[2].plot(t, Y[:, 2], "-", color="tab:red", lw=1.2, label="model" if s == 0 else None)
-        axes[2].plot(lab_t, seg.lab_value, "s", ms=5, color="tab:green",
-                     label="lab (at sample time)" if s == 0 else None)
-        axes[2].plot(lab_t, run.lab[0], "x", ms=6, color="tab:red",
-                     label="model at sample time" if s == 0 else None)
-        offset = t[-1]
-        if s:
-            for ax in axes:
-                ax.axvline(t[0] - seg.window / 3600.0, color="0.5", ls=":")
+            ax.plot(t, celsius(seg.Y[:, c]), ".", ms=3, color="tab:blue",
+                    label="measured (600 s mean)" if first else None)
+            ax.plot(t, celsius(Y[:, c]), "-", color="tab:red", lw=1.2,
+                    label="model" if first else None)
+        lab_t = local_times(seg.lab_time_ns, display)
+        axes[2].plot(t, moisture_pct(Y[:, 2], basis), "-", color="tab:red", lw=1.2,
+                     label="model" if first else None)
+        axes[2].plot(lab_t, moisture_pct(seg.lab_value, basis), "s", ms=5, color="tab:green",
+                     label="lab (at sample time)" if first else None)
+        axes[2].plot(lab_t, moisture_pct(run.lab[0], basis), "x", ms=6, color="tab:red",
+                     label="model at sample time" if first else None)
+    units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": display.moisture_unit}
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
-        ax.set_ylabel(f"{name} [{_UNITS[name]}]")
+        ax.set_ylabel(f"{name} [{units[name]}]")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    clock_axis(axes[-1], display)
     axes[0].set_title(title)
-    axes[-1].set_xlabel("time [h]")
+    axes[-1].set_xlabel(f"local time ({display.time_zone})")
     return _save(fig, Path(path))
 
 
@@ -225,5 +243,5 @@ def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, 
     return p
 
 
-__all__ = ["markdown_table", "profile_step_figure", "sensitivity_figure", "study_figure",
-           "trajectory_figure", "write_page"]
+__all__ = ["clock_axis", "markdown_table", "profile_step_figure", "sensitivity_figure",
+           "study_figure", "trajectory_figure", "write_page"]

@@ -22,6 +22,7 @@ from softsensor.calibration.identifiability import (
     Sensitivities,
 )
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
+from softsensor.display import display_settings
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -110,7 +111,8 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
     figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",
-                              "Calibration: model at the calibrated parameters vs measurements")
+                              "Calibration: model at the calibrated parameters vs measurements",
+                              display_settings(cfg))
     sections.append(("Calibration trajectories (Fig. 5)", "![](fig5_calibration.png)"))
     figures.study_figure(result.study, result.importance or {}, d / "fig4_study.png")
     sections.append(("Cost by trial and parameter importance (Fig. 4)",
@@ -161,7 +163,7 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
     d = _dir(directory)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
                               "Validation: calibrated model (nominal inlet moisture) vs "
-                              "independent data")
+                              "independent data", display_settings(config))
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     sections = [
         ("Fit with the inlet moisture fitted to the temperatures",

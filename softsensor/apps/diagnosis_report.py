@@ -13,7 +13,9 @@
   statistics, the evidence table and the figures, embedded (the same page layout as the
   calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
 
-Temperatures on the axes are in °C for reading; the program keeps K everywhere else.
+What a person reads is in plant units (:mod:`softsensor.display`, the ``[display]`` table):
+°C, moisture in % on the display basis, time axes in the plant's local clock time; the
+program keeps SI everywhere else.
 """
 
 from __future__ import annotations
@@ -26,14 +28,22 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from softsensor.apps.calibration_figures import markdown_table, write_page  # noqa: E402
+from softsensor.apps.calibration_figures import (  # noqa: E402
+    clock_axis,
+    markdown_table,
+    write_page,
+)
 from softsensor.apps.verdicts import diagnosis_verdict  # noqa: E402
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
+from softsensor.display import (  # noqa: E402
+    celsius,
+    display_settings,
+    local_times,
+    moisture_pct,
+    moisture_pct_points,
+)
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
-
-C0 = 273.15
-_UNITS = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
 
 
 def _save(fig, path: Path) -> Path:
@@ -47,9 +57,17 @@ def residual_figure(d: Diagnosis, path: Path) -> Path:
     """Residuals per channel, baseline and winning extension, split marked."""
     p = d.problem
     w = p.windows
-    t = w.hours
+    disp = display_settings(p.config)
+    t = local_times(w.end_ns, disp)
+    t_lab = local_times(w.lab_time_ns, disp)
     t_split = t[p.split.k_fit - 1]
     base = p.residuals(p.baseline)
+
+    def points(r: np.ndarray) -> np.ndarray:
+        """A lab residual [kg/kg dry] as % points on the display basis, at the lab value."""
+        x = w.lab_value
+        return moisture_pct(x, disp.moisture_basis) - moisture_pct(x - r, disp.moisture_basis)
+
     win = d.winner
     ext = p.residuals(d.cross_fitted(win.cause)) if win is not None else None
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
@@ -60,21 +78,26 @@ def residual_figure(d: Diagnosis, path: Path) -> Path:
                     label=f"with {win.cause} extension")
         for s in (1, -1):
             ax.axhline(s * 2 * d.sigma[c], color="0.6", ls=":", lw=0.8)
-    axes[2].plot(w.lab_hours, base.lab, "s", ms=5, color="tab:red", label="calibrated model")
+    axes[2].plot(t_lab, points(base.lab), "s", ms=5, color="tab:red", label="calibrated model")
     if ext is not None:
-        axes[2].plot(w.lab_hours, ext.lab, "o", ms=4, color="tab:blue",
+        axes[2].plot(t_lab, points(ext.lab), "o", ms=4, color="tab:blue",
                      label=f"with {win.cause} extension")
+    x_mid = float(np.median(w.lab_value)) if w.lab_value.size else 0.1
     for s in (1, -1):
-        axes[2].axhline(s * 2 * d.sigma[2], color="0.6", ls=":", lw=0.8)
+        axes[2].axhline(moisture_pct_points(s * 2 * d.sigma[2], x_mid, disp.moisture_basis),
+                        color="0.6", ls=":", lw=0.8)
+    units = {"T_dryer_out": "°C", "T_cyclone_out": "°C",
+             "moisture_out": f"{disp.moisture_unit} points"}
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
         ax.axvline(t_split, color="k", ls="--", lw=1,
                    label="split (each side scored by the fit on the other)")
         ax.axhline(0.0, color="0.3", lw=0.6)
-        ax.set_ylabel(f"{name} residual [{_UNITS[name]}]")
+        ax.set_ylabel(f"{name} residual [{units[name]}]")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
+    clock_axis(axes[-1], disp)
     axes[0].set_title(f"Measured minus model; dotted: 2 noise levels; verdict: {d.cause}")
-    axes[-1].set_xlabel("time from the first scan [h]")
+    axes[-1].set_xlabel(f"local time ({disp.time_zone})")
     return _save(fig, path)
 
 
@@ -82,34 +105,37 @@ def trajectory_figure(d: Diagnosis, path: Path) -> Path:
     """Measurements, calibrated model and extended model."""
     p = d.problem
     w = p.windows
-    t = w.hours
+    disp = display_settings(p.config)
+    basis = disp.moisture_basis
+    t = local_times(w.end_ns, disp)
     win = d.winner
     pred = d.cross_fitted(win.cause) if win is not None else None
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
     for c, ax in enumerate(axes[:2]):
-        ax.plot(t, w.Y[:, c] - C0, ".", ms=3, color="0.4", label="measured (600 s mean)")
-        ax.plot(t, p.baseline.Y[:, c] - C0, "-", lw=1.1, color="tab:red",
+        ax.plot(t, celsius(w.Y[:, c]), ".", ms=3, color="0.4", label="measured (600 s mean)")
+        ax.plot(t, celsius(p.baseline.Y[:, c]), "-", lw=1.1, color="tab:red",
                 label="calibrated model")
         if win is not None:
-            ax.plot(t, pred.Y[:, c] - C0, "-", lw=1.1, color="tab:blue",
+            ax.plot(t, celsius(pred.Y[:, c]), "-", lw=1.1, color="tab:blue",
                     label=f"with {win.cause} extension")
-    t_mid = t - 0.5 * w.window_s / 3600.0
-    axes[2].plot(w.lab_hours, w.lab_value, "s", ms=5, color="tab:green",
-                 label="lab (stamped sample time)")
-    axes[2].plot(t_mid, p.baseline.Y[:, 2], "-", lw=1.1, color="tab:red",
-                 label="calibrated model")
+    t_mid = local_times(w.end_ns - int(0.5 * w.window_s * 1e9), disp)
+    axes[2].plot(local_times(w.lab_time_ns, disp), moisture_pct(w.lab_value, basis), "s",
+                 ms=5, color="tab:green", label="lab (stamped sample time)")
+    axes[2].plot(t_mid, moisture_pct(p.baseline.Y[:, 2], basis), "-", lw=1.1,
+                 color="tab:red", label="calibrated model")
     if win is not None:
-        axes[2].plot(t_mid, pred.Y[:, 2], "-", lw=1.1, color="tab:blue",
+        axes[2].plot(t_mid, moisture_pct(pred.Y[:, 2], basis), "-", lw=1.1, color="tab:blue",
                      label=f"with {win.cause} extension")
-    units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": "kg/kg"}
+    units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": disp.moisture_unit}
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
         ax.axvline(t[p.split.k_fit - 1], color="k", ls="--", lw=1)
         ax.set_ylabel(f"{name} [{units[name]}]")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="best")
+    clock_axis(axes[-1], disp)
     axes[0].set_title("Trajectories before and after the winning extension (dashed: the "
                       "split; each side predicted by the fit on the other)")
-    axes[-1].set_xlabel("time from the first scan [h]")
+    axes[-1].set_xlabel(f"local time ({disp.time_zone})")
     return _save(fig, path)
 
 

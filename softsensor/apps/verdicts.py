@@ -13,25 +13,14 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from softsensor.display import moisture_pct_points
+
 #: What each thermometer is called on the plant floor.
 SENSOR_NAMES: dict[str, str] = {
     "T_dryer_out": "dryer outlet thermometer (T_dryer_out)",
     "T_cyclone_out": "cyclone outlet thermometer (T_cyclone_out)",
     "T_air_in": "inlet air thermometer (T_air_in)",
 }
-MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
-
-
-def moisture_pct(x: float, basis: str = "wet") -> float:
-    """Dry-basis moisture ``x`` [kg/kg] as % on ``basis`` (``wet``: 100 X / (1 + X))."""
-    if basis not in MOISTURE_BASES:
-        raise ValueError(f"moisture basis must be one of {MOISTURE_BASES}, got {basis!r}")
-    return 100.0 * (x / (1.0 + x) if basis == "wet" else x)
-
-
-def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
-    """A dry-basis moisture difference ``dx`` [kg/kg] near ``x`` as % points on ``basis``."""
-    return moisture_pct(x + dx, basis) - moisture_pct(x, basis)
 
 
 def _params(doc: Mapping[str, Any]) -> dict[str, float]:
@@ -130,5 +119,4 @@ def calibration_verdict(rmse_new: Mapping[str, float] | None,
     return " ".join(parts)
 
 
-__all__ = ["MOISTURE_BASES", "SENSOR_NAMES", "calibration_verdict", "diagnosis_verdict",
-           "moisture_pct", "moisture_pct_points"]
+__all__ = ["SENSOR_NAMES", "calibration_verdict", "diagnosis_verdict"]

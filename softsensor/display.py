@@ -1,0 +1,99 @@
+"""What people read: plant units and local clock time (the ``[display]`` table).
+
+The program computes in SI (K, kg/kg dry basis, ns since the epoch, UTC) and keeps SI in every
+file and message other programs read (docs/interface.md). Summaries, report pages, figures and
+the daemon's operator outputs show °C, moisture in % on the basis the plant's lab uses, and the
+plant's local clock time instead.
+
+Example ``config/dryer1.toml`` fragment::
+
+    [display]
+    time_zone = "Europe/Stockholm"   # IANA name; figure axes and report times in it
+    moisture_basis = "wet"           # "wet": w = X / (1 + X) in %; "dry": X in %
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
+
+import numpy as np
+
+from softsensor.configfile import build_section
+from softsensor.plantconfig import PlantConfig
+
+MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
+#: 0 °C in kelvin [K].
+C0 = 273.15
+
+
+@dataclass(frozen=True)
+class DisplaySettings:
+    """The ``[display]`` table (module docstring).
+
+    Attributes
+    ----------
+    time_zone : str
+        IANA time zone of the plant's clock (``UTC`` by default).
+    moisture_basis : str
+        ``wet`` (% of the wet mass, what most labs report) or ``dry`` (% of the dry mass).
+    """
+
+    time_zone: str = "UTC"
+    moisture_basis: str = "wet"
+
+    def check(self) -> str | None:
+        if self.moisture_basis not in MOISTURE_BASES:
+            return (f"moisture_basis must be one of {', '.join(MOISTURE_BASES)}, "
+                    f"got {self.moisture_basis!r}")
+        try:
+            ZoneInfo(self.time_zone)
+        except (ZoneInfoNotFoundError, ValueError):
+            return f"time_zone {self.time_zone!r} is not an IANA time zone (e.g. Europe/Berlin)"
+        return None
+
+    @property
+    def zone(self) -> ZoneInfo:
+        return ZoneInfo(self.time_zone)
+
+    @property
+    def moisture_unit(self) -> str:
+        """``% wb`` or ``% db``: the label of a moisture shown in this basis."""
+        return f"% {self.moisture_basis[0]}b"
+
+
+def display_settings(cfg: PlantConfig) -> DisplaySettings:
+    """The validated ``[display]`` table of ``cfg`` (UTC and wet basis when absent)."""
+    return build_section(DisplaySettings, cfg.extra.get("display", {}), "display", cfg.source)
+
+
+def moisture_pct(x: float | np.ndarray, basis: str = "wet") -> float | np.ndarray:
+    """Dry-basis moisture ``X`` [kg/kg] in % on ``basis``: 100 X / (1 + X) wet, 100 X dry."""
+    if basis not in MOISTURE_BASES:
+        raise ValueError(f"moisture basis must be one of {MOISTURE_BASES}, got {basis!r}")
+    x = np.asarray(x, dtype=float)
+    return 100.0 * (x / (1.0 + x) if basis == "wet" else x)
+
+
+def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
+    """A dry-basis moisture difference ``dx`` [kg/kg] near ``x`` as % points on ``basis``."""
+    return float(moisture_pct(x + dx, basis) - moisture_pct(x, basis))
+
+
+def celsius(T: float | np.ndarray) -> float | np.ndarray:
+    """Temperature [K] in °C."""
+    return T - C0
+
+
+def local_times(time_ns: np.ndarray, settings: DisplaySettings) -> np.ndarray:
+    """Times [ns since the epoch, UTC] as timezone-aware datetimes of the plant's clock (an
+    object array matplotlib plots on a date axis)."""
+    from datetime import UTC, datetime
+
+    zone = settings.zone
+    return np.array([datetime.fromtimestamp(int(t) / 1e9, UTC).astimezone(zone)
+                     for t in np.asarray(time_ns).ravel()], dtype=object)
+
+
+__all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
+           "local_times", "moisture_pct", "moisture_pct_points"]
