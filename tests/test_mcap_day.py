@@ -195,6 +195,28 @@ def test_corrupt_chunk(day: Path, tmp_path: Path) -> None:
         read_day(bad)
 
 
+def test_cut_file_with_a_garbage_chunk_length_reads_its_intact_part(day: Path,
+                                                                 tmp_path: Path) -> None:
+    """A crash can leave a chunk header whose length field is garbage (found by
+    benchmarks/soak.py): the intact messages before it are read, the garbage length is not
+    allocated (it was a MemoryError)."""
+    with open(day, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[3]
+    data = bytearray(day.read_bytes()[:chunk.chunk_start_offset + chunk.chunk_length])
+    # a chunk record: opcode (1), record length (8), start and end times (8 + 8),
+    # uncompressed size (8) and crc (4), the compression name (4 + len), the data length (8)
+    with open(day, "rb") as f:
+        compression = make_reader(f).get_summary().chunk_indexes[3].compression
+    length_at = chunk.chunk_start_offset + 1 + 8 + 28 + 4 + len(compression)
+    assert int.from_bytes(data[length_at:length_at + 8], "little") < chunk.chunk_length
+    data[length_at:length_at + 8] = (2**36).to_bytes(8, "little")  # 64 GiB
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    d = read_day(bad, allow_truncated=True)
+    assert d.truncated and 0 < len(d.scans) < 600
+    assert d.scans.equals(read_day(day).scans.iloc[:len(d.scans)])
+
+
 def test_unknown_signal(tmp_path: Path) -> None:
     path = tmp_path / "unknown.mcap"
     with DayWriter(path) as w:

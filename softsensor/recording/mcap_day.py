@@ -301,6 +301,22 @@ def _decode(path: Path, topic: str, encoding: str, log_time: int, data: bytes) -
         raise IngestError(f"{path}: {topic} message at {log_time} ns is not valid JSON") from exc
 
 
+class _BoundedReads:
+    """A file whose reads never ask for more than is left in it: a corrupt record length
+    (a cut or overwritten chunk header can say 2**60 bytes) then reads short, which the MCAP
+    reader reports as the end of the file, instead of allocating the length it was told."""
+
+    def __init__(self, f: IO[bytes], size: int) -> None:
+        self._f, self._size = f, size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(self._size - self._f.tell(), 0)
+        return self._f.read(left if n is None or n < 0 else min(n, left))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+
 def _raw_messages(path: Path, topics: list[str] | None, allow_truncated: bool,
                   on_truncated: Callable[[str], None] | None,
                   starting_at: int | None = None, ending_before: int | None = None,
@@ -336,8 +352,10 @@ def _raw_messages(path: Path, topics: list[str] | None, allow_truncated: bool,
         # Truncated: read linearly every complete message before the cut, then sort.
         f.seek(0)
         got: list[tuple[int, int, str, str, bytes]] = []
+        bounded = _BoundedReads(f, path.stat().st_size)
         try:
-            for _schema, channel, msg in NonSeekingReader(f, validate_crcs=True).iter_messages(
+            for _schema, channel, msg in NonSeekingReader(bounded,
+                                                          validate_crcs=True).iter_messages(
                     topics=topics, log_time_order=False,
                     starting_at=starting_at, ending_before=ending_before):
                 got.append((msg.log_time, len(got), channel.topic, channel.message_encoding,
