@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import logging
 import os
 import signal
 import socket
@@ -87,8 +88,9 @@ class Plc:
             self._run(self.server.stop())
             self.server = None
 
-    def stall(self, wall_s: float) -> None:
-        """Listen on the PLC's port, accept, never answer, for ``wall_s`` seconds."""
+    def stall(self, wall_s: float, before_restart) -> None:
+        """Listen on the PLC's port, accept, never answer, for ``wall_s`` seconds; then call
+        ``before_restart()`` and serve again."""
         self.stop()
         with socket.socket() as s:
             s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -103,6 +105,7 @@ class Plc:
                     pass
             for c in held:
                 c.close()
+        before_restart()
         self.start()
 
     def close(self) -> None:
@@ -234,18 +237,27 @@ def wait_ready(d: DaemonProcess, timeout: float = 120.0) -> None:
     raise RuntimeError("daemon did not start in time")
 
 
+def catch_up(feed: PlantFeed, t_ns: int) -> None:
+    """Skip the feed's scans up to ``t_ns`` (the PLC was away while plant time went on; its
+    lab results due meanwhile are dropped into the folder at once, as after an outage)."""
+    while feed.plant_time_ns < t_ns and not feed.finished:
+        feed.next_values()
+
+
 def restart(d: DaemonProcess, plc: Plc, feed: PlantFeed, clock: Clock, kind: str,
             checkpoint: Path) -> dict:
     """Stop the PLC and the daemon (SIGTERM or SIGKILL), maybe corrupt the checkpoint, start
-    the daemon at the feed's plant time, then the PLC."""
+    the daemon where its clock was (plant time goes on), then the PLC, caught up."""
     plc.stop()
     took = d.stop(signal.SIGKILL if kind == "sigkill" else signal.SIGTERM)
     code = d.proc.returncode if d.proc is not None else None
     if kind == "corrupt_checkpoint" and checkpoint.is_file():
         corrupt(checkpoint)
-    d.start(feed.plant_time_ns)
+    t = clock.now_ns()
+    d.start(t)
     wait_ready(d)
-    clock.started(feed.plant_time_ns)
+    clock.started(t)
+    catch_up(feed, t)
     plc.start()
     return {"stop_s": round(took, 2), "exit_code": code}
 
@@ -255,10 +267,11 @@ def inject(kind: str, d: DaemonProcess, plc: Plc, feed: PlantFeed, clock: Clock,
     if kind == "plc_restart":
         plc.stop()
         time.sleep(1200 / speed)
+        catch_up(feed, clock.now_ns())
         plc.start()
         return {}
     if kind == "plc_stall":
-        plc.stall(1800 / speed)
+        plc.stall(1800 / speed, lambda: catch_up(feed, clock.now_ns()))
         return {}
     if kind in ("future_scan", "negative_scan", "bad_json", "lab_flood"):
         bus_fault(kind, endpoint, clock.now_ns())
@@ -333,7 +346,7 @@ def soak(args: argparse.Namespace) -> dict:
                 b = clock.now_ns()
                 faults.append({"fault": kind, "plant_time_ns": a, **info})
                 if kind in INTERRUPTING:
-                    excused.append((a, b + args.heal_windows * WINDOW_NS))
+                    excused.append((a - WINDOW_NS, b + args.heal_windows * WINDOW_NS))
                 next_fault += args.fault_every * 3600 / args.speed
             time.sleep(1.0)
         t_end = clock.now_ns()
@@ -353,6 +366,9 @@ def soak(args: argparse.Namespace) -> dict:
 
 
 def main() -> int:
+    # the simulated PLC runs in this process: pymodbus's own frame dumps are not the report
+    logging.basicConfig(level=logging.WARNING)
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--days", type=float, default=7.0)
     ap.add_argument("--speed", type=float, default=600.0)
@@ -367,9 +383,11 @@ def main() -> int:
         "every_window_estimated_after_faults_heal": out["windows_missing"] == 0,
         "memory_flat": len(mem) < 2 or mem[-1] <= 1.25 * mem[0],
         "no_tracebacks": out["tracebacks"] == 0,
-        "every_file_readable": not [p for p in out["unreadable_or_truncated_files"]
-                                    if "truncated" not in p],
-        "clean_sigterm": out["final_exit_code"] == 0 and out["final_sigterm_s"] < 10,
+        # only the file a SIGKILL cut may lack its footer (read with --allow-truncated)
+        "every_file_readable": len(out["unreadable_or_truncated_files"])
+        <= sum(f["fault"] == "sigkill" for f in out["faults"]),
+        "clean_sigterm": out["final_exit_code"] == 0 and out["final_sigterm_s"] < 10
+        and all(f.get("exit_code", 0) == 0 for f in out["faults"] if f["fault"] != "sigkill"),
     }
     print(json.dumps(out, indent=2))
     return 0 if all(out["checks"].values()) else 1

@@ -196,7 +196,7 @@ def test_corrupt_chunk(day: Path, tmp_path: Path) -> None:
 
 
 def test_cut_file_with_a_garbage_chunk_length_reads_its_intact_part(day: Path,
-                                                                 tmp_path: Path) -> None:
+                                                                      tmp_path: Path) -> None:
     """A crash can leave a chunk header whose length field is garbage (found by
     benchmarks/soak.py): the intact messages before it are read, the garbage length is not
     allocated (it was a MemoryError)."""
