@@ -52,7 +52,8 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
     val = simulate_day(truth_cfg, hours, seed=seed + 100).write(tmp_path / "val.mcap")
     params = tmp_path / "PARAMS.toml"
     argv = ["calibrate", str(cal), "--trials", str(trials), "--out", str(params), "--quiet",
-            "--seed", "2", "--window-hours", str(hours), "--no-prior", "--cost", "likelihood"]
+            "--seed", "2", "--window-hours", str(hours), "--no-prior", "--cost", "likelihood",
+            "--json", "-"]
     if report:
         argv += ["--report", str(tmp_path / "report")]
     assert cli_main(argv) == 0
@@ -92,7 +93,7 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
                   + fit["identifiability"]["poorly_identifiable"]) == sorted(PARAMETER_NAMES)
 
     # validation on an independent day
-    assert cli_main(["validate", str(val), "--params", str(params)]) == 0
+    assert cli_main(["validate", str(val), "--params", str(params), "--json", "-"]) == 0
     v = json.loads(capsys.readouterr().out)
     # the validation fits the inlet moisture to the temperatures only (no labs), so its cost
     # is compared with the true parameters' cost on the same day, scored the same way

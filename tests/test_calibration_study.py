@@ -194,7 +194,7 @@ def test_two_workers_share_one_journal_study(tmp_path, day6_file):
         sys.exit(main(["calibrate", {str(day6_file)!r}, "--trials", "16", "--quiet",
                        "--storage", "journal:{journal}", "--study-name", "w",
                        "--no-polish", "--no-identify", "--seed", "3",
-                       "--out", sys.argv[1]]))
+                       "--out", sys.argv[1], "--json", "-"]))
     """)
     outs = [tmp_path / f"p{i}.toml" for i in range(2)]
     env = dict(os.environ, PYTHONUNBUFFERED="1")

@@ -30,7 +30,7 @@ def test_export_has_one_row_per_estimate_with_the_same_values(estimates, tmp_pat
     capsys.readouterr()
     rc = cli_main(["export", str(estimates), "--csv", str(tmp_path / "e.csv"),
                    "--parquet", str(tmp_path / "e.parquet")])
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert rc == 0 and "13 estimates" in out, out
     rec = read_day(estimates)
     est, health = rec.topic(TOPIC_ESTIMATE), rec.topic(TOPIC_HEALTH)

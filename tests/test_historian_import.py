@@ -70,7 +70,9 @@ def run(capsys, *args: str) -> tuple[int, str, str]:
     capsys.readouterr()
     rc = cli_main(["import", *args])
     got = capsys.readouterr()
-    return rc, got.out, got.err
+    # the verb's summary is its one line on stderr; stdout stays empty (no JSON was asked)
+    assert got.out == "", got.out
+    return rc, got.err if rc == 0 else "", got.err
 
 
 def local_text(utc_ns: np.ndarray) -> list[str]:

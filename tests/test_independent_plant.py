@@ -311,7 +311,7 @@ def test_cli_names_the_plant_and_refuses_params_for_the_independent_plant(tmp_pa
     out = tmp_path / "d.mcap"
     assert cli.main(["simulate", "--hours", "0.5", "--seed", "2", "--plant-seed", "1",
                      "--out", str(out)]) == 0
-    assert "plant independent, plant seed 1" in capsys.readouterr().out
+    assert "plant independent, plant seed 1" in capsys.readouterr().err
     assert out.stat().st_size > 1000
     for verb in (["simulate", "--out", str(out)], ["plant-server", "--once"]):
         assert cli.main([*verb, "--hours", "0.5", "--params", str(tmp_path / "p.toml")]) == 2

@@ -45,11 +45,11 @@ def test_one_minute_day_estimates_match_the_ten_second_day(imported, tmp_path, c
     est1 = tmp_path / "est-1min.mcap"
     est10 = tmp_path / "est-10s.mcap"
     assert cli_main(["replay", str(imported), "--out", str(est1)]) == 0
-    line = capsys.readouterr().out
+    line = capsys.readouterr().err
     assert "scan period 60 s" in line and "73 ticks (1 stale)" in line, line
     assert cli_main(["replay", str(REPLAY / "demo-day.mcap"), "--end",
                      "2026-01-05T12:00:00Z", "--out", str(est10)]) == 0
-    assert "scan period 10 s" in capsys.readouterr().out
+    assert "scan period 10 s" in capsys.readouterr().err
     a, b = _estimates(est1), _estimates(est10)
     common = sorted(set(a) & set(b))
     assert len(common) == 73
@@ -92,8 +92,10 @@ def test_a_day_with_no_estimate_from_data_exits_2(imported, tmp_path, capsys):
     rc = cli_main(["replay", str(imported), "--out", str(out), "--config", str(path)])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2
-    assert len(err) == 1 and "nothing estimated from data" in err[0], err
-    assert "scan period 1 s" in err[0] and out.is_file()
+    # the summary line, then the one-line error saying why
+    assert len(err) == 2 and err[1].startswith("softsensor: "), err
+    assert "nothing estimated from data" in err[1] and "scan period 1 s" in err[1], err
+    assert out.is_file()
 
 
 def test_a_csv_given_as_a_day_names_the_import_verb(tmp_path, capsys):

@@ -28,7 +28,9 @@ def replay(capsys, *args: str) -> tuple[int, str, str]:
     capsys.readouterr()
     rc = cli_main(["replay", *args])
     got = capsys.readouterr()
-    return rc, got.out, got.err
+    # the verb's summary is its one line on stderr; stdout stays empty (no JSON was asked)
+    assert got.out == "", got.out
+    return rc, got.err if rc == 0 else "", got.err
 
 
 def test_replay_writes_inputs_estimates_and_health_and_is_deterministic(day_file, tmp_path,

@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
+from softsensor.apps.output import check_target, write_json
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
@@ -41,20 +42,9 @@ from softsensor.calibration.settings import (
     calibration_settings,
 )
 from softsensor.errors import ConfigError
-from softsensor.jsonable import dumps
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
-
-
-def _emit(doc: dict[str, Any], json_path: str | None) -> None:
-    text = dumps(doc, indent=2)
-    if json_path:
-        p = Path(json_path)
-        if not p.parent.is_dir():
-            raise ConfigError(f"--json {p}: directory {p.parent} does not exist")
-        p.write_text(text + "\n", encoding="utf-8")
-    print(text)
 
 
 def _add_data_arguments(p: argparse.ArgumentParser) -> None:
@@ -165,8 +155,9 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-identify", action="store_true",
                    help="skip the identifiability analysis of the result")
     p.add_argument("--report", default=None, metavar="DIR",
-                   help="write figures and a Markdown page to DIR")
-    p.add_argument("--json", default=None, metavar="FILE", help="also write the JSON here")
+                   help="write an HTML page with the figures to DIR")
+    p.add_argument("--json", default=None, metavar="FILE",
+                   help="write the JSON summary here ('-': stdout)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_objective_arguments(p)
     _add_data_arguments(p)
@@ -181,8 +172,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
     base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     out = Path(args.out)
-    if not out.parent.is_dir():
-        raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
+    check_target(out, "--out")
+    check_target(args.json)
     settings = StudySettings(n_trials=args.trials, seed=args.seed, storage=args.storage,
                              study_name=args.study_name, n_chunks=args.chunks,
                              batch=args.batch, prune=not args.no_prune,
@@ -226,7 +217,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         from softsensor.apps.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report))
-    _emit(summary, args.json)
+    write_json(summary, args.json)
     line = result.verdict_line()
     if not written:
         print(f"calibrate: refused to write {out}: the result predicts the validation data "
@@ -247,9 +238,10 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--study-name", default=DEFAULT_STUDY_NAME)
     p.add_argument("--importance", default="ped-anova", choices=("ped-anova", "fanova"),
                    help="importance evaluator (fanova, the paper's, needs scikit-learn)")
-    p.add_argument("--json", default=None, metavar="FILE", help="write the full analysis")
+    p.add_argument("--json", default=None, metavar="FILE",
+                   help="write the full analysis here ('-': stdout)")
     p.add_argument("--report", default=None, metavar="DIR",
-                   help="write figures and a Markdown page to DIR")
+                   help="write an HTML page with the figures to DIR")
     _add_objective_arguments(p)
     _add_data_arguments(p)
 
@@ -259,6 +251,7 @@ def identify_main(args: argparse.Namespace) -> int:
     from softsensor.apps.calibration_report import identifiability_table, identify_page
     from softsensor.model import DryerModel
 
+    check_target(args.json)
     base, config = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     segments, choices = load_segments(args.days, config, _selection(args))
@@ -308,11 +301,7 @@ def identify_main(args: argparse.Namespace) -> int:
     if args.report:
         doc["report"] = str(identify_page(ident, sens[0], config, theta, args.report, study,
                                           importance))
-    if args.json:
-        p = Path(args.json)
-        if not p.parent.is_dir():
-            raise ConfigError(f"--json {p}: directory {p.parent} does not exist")
-        p.write_text(dumps(doc, indent=2) + "\n", encoding="utf-8")
+    write_json(doc, args.json)
     return 0
 
 
@@ -321,9 +310,10 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("days", nargs="+", metavar="DAY.mcap", help="independent recorded day(s)")
     p.add_argument("--params", required=True, metavar="PARAMS.toml",
                    help="calibrated parameters")
-    p.add_argument("--json", default=None, metavar="FILE", help="also write the JSON here")
+    p.add_argument("--json", default=None, metavar="FILE",
+                   help="write the JSON summary here ('-': stdout)")
     p.add_argument("--report", default=None, metavar="DIR",
-                   help="write Fig. 6 and a Markdown page to DIR")
+                   help="write Fig. 6 and an HTML page to DIR")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
     _add_objective_arguments(p)
 
@@ -333,6 +323,7 @@ def validate_main(args: argparse.Namespace) -> int:
     moisture fitted to their temperatures (and open loop)."""
     from softsensor.model import DryerModel
 
+    check_target(args.json)
     base, config = load_config_and_params(args)
     fit = read_fit(args.params)
     calibration = _calibration_settings(args, base)
@@ -350,7 +341,7 @@ def validate_main(args: argparse.Namespace) -> int:
         from softsensor.apps.calibration_report import validation_page
 
         doc["report"] = str(validation_page(result, config, args.report))
-    _emit(doc, args.json)
+    write_json(doc, args.json)
     r, o = result.fit.rmse, result.evaluation.open_fit.rmse
     print(f"validate: {len(segments)} day(s): T_dryer_out {r['T_dryer_out']:.2f} K, "
           f"T_cyclone_out {r['T_cyclone_out']:.2f} K, moisture_out {r['moisture_out']:.4f} "

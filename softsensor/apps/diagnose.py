@@ -13,8 +13,9 @@ written by ``softsensor calibrate``) sizing the calibration-error alternative of
 :mod:`softsensor.diagnosis.calibration_error`; ``--calibrate-on`` carries its own
 calibration's the same way.
 
-REPORT.json (CONTRACT section 5) is written to ``--json`` and printed on stdout; progress goes
-to stderr. Every error is a one-line :class:`~softsensor.errors.SoftsensorError`.
+REPORT.json (CONTRACT section 5) is written to ``--json`` (``-``: stdout, nothing else is
+printed there); progress and the verdict line go to stderr. Every error is a one-line
+:class:`~softsensor.errors.SoftsensorError`.
 """
 
 from __future__ import annotations
@@ -27,9 +28,9 @@ from pathlib import Path
 from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
+from softsensor.apps.output import check_target, write_json
 from softsensor.apps.verdicts import diagnosis_verdict
 from softsensor.errors import ConfigError
-from softsensor.jsonable import dumps
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
 
@@ -46,9 +47,10 @@ def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
                      help="recorded day to calibrate the model on first")
     src.add_argument("--params", metavar="PARAMS.toml", default=None,
                      help="use these calibrated parameters instead of calibrating")
-    p.add_argument("--json", required=True, metavar="REPORT.json", help="report file to write")
+    p.add_argument("--json", required=True, metavar="REPORT.json",
+                   help="report file to write ('-': stdout)")
     p.add_argument("--report", default=None, metavar="DIR",
-                   help="write a page with PNG figures to DIR")
+                   help="write an HTML page with the figures to DIR")
     p.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
                    help=f"Optuna trials of the calibration on CAL (default {DEFAULT_TRIALS})")
     p.add_argument("--seed", type=int, default=0, help="TPE seed of the calibration")
@@ -70,9 +72,8 @@ def _check_paths(args: argparse.Namespace) -> None:
         if v is not None and not Path(v).is_file():
             flag = "DAY" if name == "day" else "--" + name.replace("_", "-")
             raise ConfigError(f"{flag} {v}: no such file")
-    for flag, v in (("--json", args.json), ("--save-params", args.save_params)):
-        if v is not None and not Path(v).resolve().parent.is_dir():
-            raise ConfigError(f"{flag} {v}: directory {Path(v).resolve().parent} does not exist")
+    check_target(args.json)
+    check_target(args.save_params, "--save-params")
     if args.trials < 1:
         raise ConfigError(f"--trials must be >= 1, got {args.trials}")
     if args.fit_fraction is not None and not 0.3 <= args.fit_fraction <= 0.8:
@@ -110,9 +111,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
         from softsensor.apps.diagnosis_report import write_report
 
         doc["report"] = str(write_report(d, args.report, doc))
-    text = dumps(doc, indent=2)
-    Path(args.json).write_text(text + "\n", encoding="utf-8")
-    print(text)
+    write_json(doc, args.json)
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
           + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)}", file=sys.stderr)

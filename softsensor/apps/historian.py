@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from softsensor.errors import ConfigError, IngestError
@@ -74,7 +75,7 @@ def _import(args: argparse.Namespace) -> int:
     print(f"imported {scans_path}: {scans.rows_read} rows read{skipped}, {len(scans)} scans "
           f"{iso_utc(int(scans.times_ns[0]))} .. {iso_utc(int(scans.times_ns[-1]))}, "
           f"{period_txt}; bad values: {_counts(scans.bad)}; missing: {_counts(scans.missing)}"
-          f"{unmapped}{lab_txt}; wrote {args.out}")
+          f"{unmapped}{lab_txt}; wrote {args.out}", file=sys.stderr)
     return 0
 
 
@@ -93,7 +94,7 @@ def _export(args: argparse.Namespace) -> int:
         write_table(table, p)
     print(f"exported {args.recording}: {len(table)} estimates "
           f"{table['time_utc'].iloc[0]} .. {table['time_utc'].iloc[-1]}, "
-          f"{table.shape[1]} columns; wrote {', '.join(p for p, _ in targets)}")
+          f"{table.shape[1]} columns; wrote {', '.join(p for p, _ in targets)}", file=sys.stderr)
     return 0
 
 

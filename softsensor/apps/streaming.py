@@ -119,7 +119,7 @@ def _replay(args: argparse.Namespace) -> int:
     summary = replay_to_file(args.day, args.out, cfg, estimator=args.estimator, rate=args.rate,
                              start=args.start, end=args.end,
                              allow_truncated=args.allow_truncated, settings=settings)
-    print(summary.line(), flush=True)
+    print(summary.line(), file=sys.stderr, flush=True)
     problem = summary.problem()
     if problem is not None and problem[0] == "error":
         raise IngestError(problem[1] + f" ({args.out} is kept)")

@@ -13,6 +13,7 @@ import argparse
 import asyncio
 import logging
 import signal
+import sys
 
 from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError
@@ -108,7 +109,7 @@ def _simulate(args: argparse.Namespace) -> int:
     plant = ("plant independent, plant seed " + str(args.plant_seed)
              if args.plant == "independent" else "plant model")
     print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h, "
-          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}")
+          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}", file=sys.stderr)
     return 0
 
 

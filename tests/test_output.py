@@ -1,0 +1,65 @@
+"""How the verbs speak (softsensor/apps/output.py): one human line on stderr, JSON only where
+``--json`` says, outputs replaced whole, unwritable targets refused before the work."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import pytest
+
+from softsensor.apps.output import check_target, replace_file, write_json
+from softsensor.cli import main as cli_main
+from softsensor.errors import ConfigError
+
+
+def test_json_goes_only_where_asked(tmp_path, capsys):
+    write_json({"a": 1.5, "nan": float("nan")}, None)
+    assert capsys.readouterr() == ("", "")
+    write_json({"a": 1.5}, "-")
+    assert json.loads(capsys.readouterr().out) == {"a": 1.5}
+    write_json({"a": 2}, tmp_path / "x.json")
+    assert json.loads((tmp_path / "x.json").read_text()) == {"a": 2}
+    assert capsys.readouterr() == ("", "")
+
+
+def test_targets_refused_before_the_work(tmp_path):
+    with pytest.raises(ConfigError, match="is a directory"):
+        check_target(tmp_path)
+    with pytest.raises(ConfigError, match="does not exist"):
+        check_target(tmp_path / "no" / "x.json")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        if not os.access(ro, os.W_OK):  # root may write anyway
+            with pytest.raises(ConfigError, match="not writable"):
+                check_target(ro / "x.json", "--out")
+    finally:
+        ro.chmod(0o700)
+    check_target("-")
+    check_target(None)
+
+
+def test_a_failed_write_leaves_the_previous_file_whole(tmp_path):
+    target = tmp_path / "report.json"
+    target.write_text("previous")
+
+    with pytest.raises(TypeError):
+        replace_file(target, object())  # type: ignore[arg-type]
+    assert target.read_text() == "previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temporary left
+    replace_file(target, b"new")
+    assert target.read_text() == "new"
+
+
+def test_calibrate_refuses_a_folder_as_json_at_once(tmp_path, capsys):
+    t0 = time.monotonic()
+    day = Path(__file__).resolve().parents[1] / "replay" / "demo-day.mcap"
+    rc = cli_main(["calibrate", str(day), "--out", str(tmp_path / "p.toml"),
+                   "--json", str(tmp_path)])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "is a directory" in err and "\n" not in err
+    assert time.monotonic() - t0 < 10  # before any trial
