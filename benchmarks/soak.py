@@ -325,16 +325,16 @@ def soak(args: argparse.Namespace) -> dict:
     d = DaemonProcess(write_config(workdir, bus_port, args.speed), plc_port, workdir)
     clock = Clock(args.speed)
     t_start = int(day.scans.index[0])
-    d.start(t_start)
-    wait_ready(d)
-    clock.started(t_start)
-    plc.start()
     faults, excused = [], []
     day_s = 86_400 / args.speed
-    wall_end = time.monotonic() + args.days * day_s
-    next_fault = time.monotonic() + args.fault_every * 3600 / args.speed
     k = 0
-    try:
+    try:  # the daemon and the PLC are stopped whatever happens, also during start-up
+        d.start(t_start)
+        wait_ready(d)
+        clock.started(t_start)
+        plc.start()
+        wall_end = time.monotonic() + args.days * day_s
+        next_fault = time.monotonic() + args.fault_every * 3600 / args.speed
         while time.monotonic() < wall_end and not feed.finished:
             d.sample_rss()
             if time.monotonic() >= next_fault:
