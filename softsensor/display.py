@@ -95,5 +95,11 @@ def local_times(time_ns: np.ndarray, settings: DisplaySettings) -> np.ndarray:
                      for t in np.asarray(time_ns).ravel()], dtype=object)
 
 
+def local_clock(time_ns: int, settings: DisplaySettings) -> str:
+    """A time [ns since the epoch] as the plant's clock reads it, ISO-8601 with its offset
+    (``2026-01-05T13:20:00+01:00``)."""
+    return local_times(np.array([time_ns]), settings)[0].isoformat(timespec="seconds")
+
+
 __all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
-           "local_times", "moisture_pct", "moisture_pct_points"]
+           "local_clock", "local_times", "moisture_pct", "moisture_pct_points"]

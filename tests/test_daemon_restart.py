@@ -146,6 +146,11 @@ log_format = "json"
         assert plc.server.write_requests == 0
     lines = [json.loads(x) for x in err.splitlines() if x.startswith("{")]
     assert any(x["event"] == "resumed" and x["ticks"] == n_killed for x in lines)
+    # the tick lines speak plant units: % moisture (wet basis by default), the local clock
+    ticks = [x for x in lines if x["event"] == "tick" and x.get("moisture_out") is not None]
+    assert ticks and all(3.0 < x["moisture_out"] < 30.0 and x["unit"] == "% wb"
+                         and 0.0 < x["moisture_out_2sd"] < 10.0 for x in ticks), ticks[:2]
+    assert all(x["window_end"].endswith("+00:00") for x in ticks), ticks[0]
     assert lines[-1]["event"] == "stopped"
 
     # the first file was cut by the kill; the second was finished by SIGTERM

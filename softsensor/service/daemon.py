@@ -34,6 +34,13 @@ from dataclasses import dataclass
 import zenoh
 
 from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
+from softsensor.display import (
+    DisplaySettings,
+    display_settings,
+    local_clock,
+    moisture_pct,
+    moisture_pct_points,
+)
 from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
@@ -112,6 +119,18 @@ def daemon_tagmap(settings: ServiceSettings, tagmap: TagMap | None = None) -> Ta
     return tm
 
 
+def _pct(x: float | None, d: DisplaySettings) -> float | None:
+    """Dry-basis moisture [kg/kg] as % on the display basis, to 0.01 (None stays None)."""
+    return None if x is None else round(float(moisture_pct(x, d.moisture_basis)), 2)
+
+
+def _pct_band(x: float | None, sd: float | None, d: DisplaySettings) -> float | None:
+    """Two standard deviations of a dry-basis moisture as % points on the display basis."""
+    if x is None or sd is None:
+        return None
+    return round(moisture_pct_points(2.0 * float(sd), float(x), d.moisture_basis), 2)
+
+
 class Daemon:
     """Runs the whole service until a stop event (module docstring).
 
@@ -142,6 +161,7 @@ class Daemon:
         self.recorder: Recorder | None = None
         self.clock: ScaledClock | None = None
         self.info: DaemonInfo | None = None
+        self.display = display_settings(config)
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -155,10 +175,15 @@ class Daemon:
     def _on_output(self, out: Output) -> None:
         b = out.body
         if out.kind == "estimate":
-            event(log, "tick", window_end_ns=out.time_ns, status=b.get("status"),
-                  moisture_out=b.get("moisture_out"), moisture_out_std=b.get("moisture_out_std"),
-                  moisture_in=b.get("moisture_in"), moisture_in_std=b.get("moisture_in_std"),
-                  lab_updated=b.get("lab_updated"), n_scans=b.get("n_scans"))
+            # what an operator reads: % moisture on the [display] basis, local clock time
+            d = self.display
+            event(log, "tick", window_end=local_clock(out.time_ns, d), status=b.get("status"),
+                  moisture_out=_pct(b.get("moisture_out"), d),
+                  moisture_out_2sd=_pct_band(b.get("moisture_out"), b.get("moisture_out_std"), d),
+                  moisture_in=_pct(b.get("moisture_in"), d),
+                  moisture_in_2sd=_pct_band(b.get("moisture_in"), b.get("moisture_in_std"), d),
+                  unit=d.moisture_unit, lab_updated=b.get("lab_updated"),
+                  n_scans=b.get("n_scans"), window_end_ns=out.time_ns)
         elif out.kind == "health":
             event(log, "health", time_ns=out.time_ns, status=b.get("status"),
                   detail=b.get("detail"))
