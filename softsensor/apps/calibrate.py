@@ -21,6 +21,7 @@ import numpy as np
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
+from softsensor.apps.verdicts import calibration_result_verdict
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
@@ -41,6 +42,7 @@ from softsensor.calibration.settings import (
     CalibrationSettings,
     calibration_settings,
 )
+from softsensor.display import display_settings
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
@@ -218,13 +220,13 @@ def calibrate_main(args: argparse.Namespace) -> int:
 
         summary["report"] = str(calibration_page(result, args.report))
     write_json(summary, args.json)
-    line = result.verdict_line()
+    verdict = calibration_result_verdict(result, display_settings(base).moisture_basis)
     if not written:
         print(f"calibrate: refused to write {out}: the result predicts the validation data "
-              f"worse than the current parameters ({line}); --force writes it anyway",
-              file=sys.stderr)
+              f"worse than the current parameters ({result.verdict_line()}); --force writes "
+              f"it anyway", file=sys.stderr)
         return REFUSED
-    print(f"calibrate: wrote {out}; {line}", file=sys.stderr)
+    print(f"calibrate: wrote {out}. {verdict}", file=sys.stderr)
     return 0
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from softsensor.apps import calibration_figures as figures
-from softsensor.apps.verdicts import calibration_verdict
+from softsensor.apps.verdicts import calibration_result_verdict
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -128,13 +128,7 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     figures.profile_step_figure(model, result.theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
                      "![](fig3_profile_steps.png)"))
-    new, old, where = result.validation, result.current_validation, "held-out data"
-    if new is None or old is None:  # nothing held out: the calibration data themselves
-        new, old, where = result, result.current_evaluation, "calibration data"
-    labs = np.concatenate([seg.lab_value for seg in result.segments])
-    verdict = calibration_verdict(
-        new.fit.rmse, None if old is None else old.fit.rmse, result.accepted,
-        result.at_bounds, float(np.median(labs)) if labs.size else 0.1, where=where)
+    verdict = calibration_result_verdict(result, display_settings(cfg).moisture_basis)
     return figures.write_page(d, "Calibration report", sections, verdict=verdict)
 
 

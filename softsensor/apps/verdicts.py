@@ -119,4 +119,20 @@ def calibration_verdict(rmse_new: Mapping[str, float] | None,
     return " ".join(parts)
 
 
-__all__ = ["SENSOR_NAMES", "calibration_verdict", "diagnosis_verdict"]
+def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
+    """:func:`calibration_verdict` of a :class:`~softsensor.calibration.pipeline.
+    CalibrationResult`: its held-out errors (its calibration data when nothing was held
+    out), at the median lab moisture of its data."""
+    import numpy as np
+
+    new, old, where = result.validation, result.current_validation, "held-out data"
+    if new is None or old is None:
+        new, old, where = result, result.current_evaluation, "calibration data"
+    labs = np.concatenate([seg.lab_value for seg in result.segments])
+    return calibration_verdict(
+        new.fit.rmse, None if old is None else old.fit.rmse, result.accepted,
+        result.at_bounds, float(np.median(labs)) if labs.size else 0.1, basis, where=where)
+
+
+__all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
+           "diagnosis_verdict"]
