@@ -258,3 +258,28 @@ def test_a_copied_config_folder_runs_with_its_own_tag_map(tmp_path):
         daemon_tagmap(service_settings(load_plant_config(cfg)))
     # the packaged config keeps the packaged tag map
     assert daemon_tagmap(service_settings(load_plant_config())).modbus.port == 502
+
+
+def test_run_takes_the_tag_map_beside_the_config_also_with_params(tmp_path):
+    """``softsensor run --config site/dryer1.toml --params P`` ran with the packaged tag map:
+    the parameters' file renamed the config's source, so the folder was not found."""
+    import argparse
+
+    from softsensor.apps.streaming import run_settings
+    from softsensor.service.daemon import daemon_tagmap
+
+    root = Path(__file__).resolve().parents[1] / "config"
+    site = tmp_path / "site"
+    site.mkdir()
+    (site / "dryer1.toml").write_text((root / "dryer1.toml").read_text())
+    (site / "tagmap_dryer1.toml").write_text(
+        (root / "tagmap_dryer1.toml").read_text().replace('port = 502', 'port = 15021', 1))
+    params = tmp_path / "params.toml"
+    params.write_text("[parameters.mult_D]\nvalue = 0.9\n")
+    names = ("unit tagmap plc data_dir checkpoint lab_dir mode listen connect estimator "
+             "time_scale clock_start log_format").split()
+    args = argparse.Namespace(config=str(site / "dryer1.toml"), params=str(params),
+                              no_record=False, **dict.fromkeys(names))
+    base, cfg, settings = run_settings(args)
+    assert cfg.parameters["mult_D"].value == 0.9 and base.source == str(site / "dryer1.toml")
+    assert daemon_tagmap(settings).modbus.port == 15021

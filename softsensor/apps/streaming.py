@@ -14,9 +14,14 @@ import asyncio
 import logging
 import signal
 import sys
+from typing import TYPE_CHECKING
 
 from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError, IngestError
+from softsensor.plantconfig import PlantConfig
+
+if TYPE_CHECKING:  # the service is imported when a verb runs, not when the CLI starts
+    from softsensor.service.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
 
@@ -34,20 +39,30 @@ def _plc(value: str | None) -> tuple[str | None, int | None]:
 # run
 
 
-def _run(args: argparse.Namespace) -> int:
-    from softsensor.ingest.tagmap import DEFAULT_TAGMAP
-    from softsensor.service.daemon import Daemon, DaemonInfo
-    from softsensor.service.logs import configure_logging
+def run_settings(args: argparse.Namespace
+                 ) -> tuple[PlantConfig, PlantConfig, ServiceSettings]:
+    """What ``softsensor run`` runs on: the config as written, the config with ``--params``,
+    and the ``[service]`` table with the command line's overrides. The table and the tag map
+    beside it come from the config file (``--params`` carries neither)."""
     from softsensor.service.settings import service_settings
 
-    cfg = load_config_and_params(args).config
+    base, cfg = load_config_and_params(args)
     host, port = _plc(args.plc)
-    settings = service_settings(cfg).with_overrides(
+    settings = service_settings(base).with_overrides(
         unit=args.unit, tagmap=args.tagmap, plc_host=host, plc_port=port,
         data_dir=args.data_dir, checkpoint=args.checkpoint, lab_dir=args.lab_dir,
         zenoh_mode=args.mode, zenoh_listen=args.listen, zenoh_connect=args.connect,
         estimator=args.estimator, time_scale=args.time_scale, clock_start=args.clock_start,
         record=False if args.no_record else None, log_format=args.log_format)
+    return base, cfg, settings
+
+
+def _run(args: argparse.Namespace) -> int:
+    from softsensor.ingest.tagmap import DEFAULT_TAGMAP
+    from softsensor.service.daemon import Daemon, DaemonInfo
+    from softsensor.service.logs import configure_logging
+
+    base, cfg, settings = run_settings(args)
     configure_logging(settings.log_format)
     daemon = Daemon(cfg, settings, resume=not args.no_resume)
 
@@ -55,7 +70,7 @@ def _run(args: argparse.Namespace) -> int:
         print(f"softsensor run: unit={info.unit} estimator={info.estimator} "
               f"zenoh={','.join(info.endpoints) or 'none'} plc={info.plc} "
               f"data_dir={info.data_dir} resumed={str(info.resumed).lower()} "
-              f"config={cfg.source} params={args.params or 'none'} "
+              f"config={base.source} params={args.params or 'none'} "
               f"tagmap={settings.tagmap or DEFAULT_TAGMAP}", flush=True)
 
     async def _main() -> None:
