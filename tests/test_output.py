@@ -63,3 +63,16 @@ def test_calibrate_refuses_a_folder_as_json_at_once(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "is a directory" in err and "\n" not in err
     assert time.monotonic() - t0 < 10  # before any trial
+
+
+def test_replay_progress_is_throttled(capsys, monkeypatch):
+    from softsensor.apps import streaming
+
+    clock = iter([0.0, 1.0, 6.0, 7.0, 12.5])
+    monkeypatch.setattr(streaming.time, "monotonic", lambda: next(clock))
+    show = streaming._every(5.0)  # reads the clock once (0.0)
+    for k in range(4):  # at 1.0 (quiet), 6.0 (a line), 7.0 (quiet), 12.5 (a line)
+        show(1767571200 * 10**9 + (k + 1) * 600 * 10**9, k + 1)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["replay: 2 ticks, at 2026-01-05T00:20:00Z ...",
+                     "replay: 4 ticks, at 2026-01-05T00:40:00Z ..."]

@@ -14,6 +14,8 @@ import asyncio
 import logging
 import signal
 import sys
+import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from softsensor.apps.loading import load_config_and_params
@@ -133,7 +135,8 @@ def _replay(args: argparse.Namespace) -> int:
             logging.getLogger(name).setLevel(logging.WARNING)
     summary = replay_to_file(args.day, args.out, cfg, estimator=args.estimator, rate=args.rate,
                              start=args.start, end=args.end,
-                             allow_truncated=args.allow_truncated, settings=settings)
+                             allow_truncated=args.allow_truncated, settings=settings,
+                             progress=None if args.quiet else _every(5.0))
     print(summary.line(), file=sys.stderr, flush=True)
     problem = summary.problem()
     if problem is not None and problem[0] == "error":
@@ -141,6 +144,22 @@ def _replay(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"warning: {problem[1]}", file=sys.stderr, flush=True)
     return 0
+
+
+def _every(seconds: float) -> Callable[[int, int], None]:
+    """A replay progress printer: one stderr line at most every ``seconds`` of wall time."""
+    from softsensor.messages import iso_utc
+
+    last = [time.monotonic()]
+
+    def show(window_end_ns: int, ticks: int) -> None:
+        now = time.monotonic()
+        if now - last[0] >= seconds:
+            last[0] = now
+            print(f"replay: {ticks} ticks, at {iso_utc(window_end_ns)} ...", file=sys.stderr,
+                  flush=True)
+
+    return show
 
 
 def _add_replay(sub: argparse._SubParsersAction) -> None:
@@ -161,6 +180,7 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--end", default=None, help="end log time (excluded), ISO-8601 or ns")
     p.add_argument("--allow-truncated", action="store_true",
                    help="replay the intact part of a truncated file")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=_replay)
 
 

@@ -238,8 +238,12 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                    *, estimator: str | None = None, rate: float | str = "max",
                    start: int | str | None = None, end: int | str | None = None,
                    allow_truncated: bool = False, settings: ServiceSettings | None = None,
-                   report_truth: bool = True) -> ReplaySummary:
+                   report_truth: bool = True,
+                   progress: Callable[[int, int], None] | None = None) -> ReplaySummary:
     """Replay ``day`` through Zenoh and the estimator service into ``out`` (module docstring).
+
+    ``progress(window_end_ns, ticks)`` is called after every estimate (on the estimator's
+    thread): a long day shows how far it is.
 
     Raises :class:`~softsensor.errors.IngestError` naming the file for a missing, corrupt or
     (without ``allow_truncated``) truncated day; ``out`` is then not left behind.
@@ -262,6 +266,8 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     def _keep(o: Output) -> None:
         if o.kind == "estimate":
             summary.estimates.append((o.time_ns, o.body))
+            if progress is not None:
+                progress(o.time_ns, len(summary.estimates))
 
     t0 = time.monotonic()
     recorder = FileRecorder(out, chunk_size=settings.chunk_size)
