@@ -42,7 +42,7 @@ from softsensor.calibration.settings import (
     CalibrationSettings,
     calibration_settings,
 )
-from softsensor.display import display_settings
+from softsensor.display import display_settings, moisture_pct_points
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
@@ -345,11 +345,18 @@ def validate_main(args: argparse.Namespace) -> int:
         doc["report"] = str(validation_page(result, config, args.report))
     write_json(doc, args.json)
     r, o = result.fit.rmse, result.evaluation.open_fit.rmse
-    print(f"validate: {len(segments)} day(s): T_dryer_out {r['T_dryer_out']:.2f} K, "
-          f"T_cyclone_out {r['T_cyclone_out']:.2f} K, moisture_out {r['moisture_out']:.4f} "
-          f"kg/kg with the inlet moisture fitted to the temperatures (open loop: "
-          f"{o['T_dryer_out']:.2f} K, {o['T_cyclone_out']:.2f} K, {o['moisture_out']:.4f})",
-          file=sys.stderr)
+    basis = display_settings(base).moisture_basis
+    labs = np.concatenate([seg.lab_value for seg in segments])
+    x = float(np.median(labs)) if labs.size else 0.1
+
+    def pts(v: float) -> str:
+        return f"{moisture_pct_points(v, x, basis):.2f} % points"
+
+    print(f"validate: {len(segments)} day(s), errors (RMSE) with the inlet moisture fitted to "
+          f"the temperatures: dryer outlet {r['T_dryer_out']:.2f} °C, cyclone outlet "
+          f"{r['T_cyclone_out']:.2f} °C, outlet moisture {pts(r['moisture_out'])} ({basis} "
+          f"basis); open loop: {o['T_dryer_out']:.2f} °C, {o['T_cyclone_out']:.2f} °C, "
+          f"{pts(o['moisture_out'])}", file=sys.stderr)
     return 0
 
 
