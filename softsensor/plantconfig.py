@@ -202,7 +202,8 @@ _SECTIONS = {
     "environment": Environment, "nominal": Nominal, "solver": Solver, "cost": Cost,
 }
 #: Sections owned by other parts of the program (validated there), kept as raw tables.
-EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration", "display")
+EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration", "display",
+                  "outputs")
 
 
 def _parameters(table: Any, source: str) -> dict[str, ParameterSpec]:

@@ -73,7 +73,8 @@ def _run(args: argparse.Namespace) -> int:
               f"zenoh={','.join(info.endpoints) or 'none'} plc={info.plc} "
               f"data_dir={info.data_dir} resumed={str(info.resumed).lower()} "
               f"config={base.source} params={args.params or 'none'} "
-              f"tagmap={settings.tagmap or DEFAULT_TAGMAP}", flush=True)
+              f"tagmap={settings.tagmap or DEFAULT_TAGMAP} "
+              f"outputs={','.join(info.outputs) or 'none'}", flush=True)
 
     async def _main() -> None:
         stop = asyncio.Event()

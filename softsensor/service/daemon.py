@@ -47,6 +47,9 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.messages import lab_body
+from softsensor.outputs.metrics import DaemonMetrics
+from softsensor.outputs.modbus_server import EstimateModbusServer
+from softsensor.outputs.settings import output_settings
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder
@@ -105,6 +108,7 @@ class DaemonInfo:
     data_dir: str | None
     resumed: bool
     clock_start_ns: int
+    outputs: tuple[str, ...] = ()  #: what the operator outputs serve (URLs)
 
 
 def daemon_tagmap(settings: ServiceSettings, tagmap: TagMap | None = None) -> TagMap:
@@ -162,6 +166,9 @@ class Daemon:
         self.clock: ScaledClock | None = None
         self.info: DaemonInfo | None = None
         self.display = display_settings(config)
+        self.output_settings = output_settings(config)
+        self.modbus_out: EstimateModbusServer | None = None
+        self.metrics: DaemonMetrics | None = None
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -187,6 +194,22 @@ class Daemon:
         elif out.kind == "health":
             event(log, "health", time_ns=out.time_ns, status=b.get("status"),
                   detail=b.get("detail"))
+        self._serve(out)
+
+    def _serve(self, out: Output) -> None:
+        """Hand an output to the operator outputs that run ([outputs.*])."""
+        status = str(out.body.get("status"))
+        if out.kind == "estimate":
+            if self.modbus_out is not None:
+                self.modbus_out.publish(out.body, out.time_ns)
+            if self.metrics is not None:
+                tick_s = None if self.pipeline is None else self.pipeline.last_tick_s
+                self.metrics.publish(out.body, out.time_ns, tick_s)
+        elif out.kind == "health":
+            if self.modbus_out is not None:
+                self.modbus_out.health(status)
+            if self.metrics is not None:
+                self.metrics.set_health(status)
 
     async def run(self, stop: asyncio.Event,
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
@@ -217,14 +240,15 @@ class Daemon:
             stack.callback(publisher.close)
             self._lab_input(stack, publisher, clock)
             poll_task = self._start_poller(stack, publisher, clock)
+            served = await self._start_outputs(stack)
             m = self.tagmap.modbus
             self.info = DaemonInfo(self.unit, service.kind, listening_endpoints(session),
                                    f"{m.host}:{m.port}", s.data_dir if s.record else None,
-                                   doc is not None, clock.start_ns)
+                                   doc is not None, clock.start_ns, served)
             event(log, "started", unit=self.unit, estimator=service.kind,
                   zenoh=",".join(self.info.endpoints) or "none", plc=self.info.plc,
                   data_dir=self.info.data_dir, time_scale=s.time_scale,
-                  resumed=self.info.resumed)
+                  resumed=self.info.resumed, outputs=",".join(served) or "none")
             if ready is not None:
                 ready(self.info)
             await self._housekeeping(stop, poll_task)
@@ -271,6 +295,43 @@ class Daemon:
                                        poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
                                        settle_s=s.lab_settle_s).start()
             stack.callback(watcher.close)
+
+    async def _start_outputs(self, stack: contextlib.AsyncExitStack) -> tuple[str, ...]:
+        """Start the enabled operator outputs, stopped with ``stack``; what they serve."""
+        o, served = self.output_settings, []
+        if o.modbus.enabled:
+            self.modbus_out = EstimateModbusServer(o.modbus, self.display)
+            await self.modbus_out.start()
+            stack.push_async_callback(self.modbus_out.stop)
+            served.append(f"modbus://{o.modbus.host}:{self.modbus_out.port}")
+        if o.prometheus.enabled:
+            self.metrics = DaemonMetrics(o.prometheus, self._counters())
+            self.metrics.start()
+            stack.callback(self.metrics.stop)
+            served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
+        return tuple(served)
+
+    def _counters(self) -> dict[str, tuple[str, Callable[[], float]]]:
+        """The daemon's counters for Prometheus, read from its parts at scrape time."""
+        def stats():
+            assert self.pipeline is not None
+            return self.pipeline.service.stats
+
+        def poll():
+            assert self.poller is not None
+            return self.poller.stats
+
+        return {
+            "softsensor_ticks": ("estimator ticks", lambda: stats().ticks),
+            "softsensor_stale_ticks": ("ticks of windows without enough scans",
+                                       lambda: stats().stale_ticks),
+            "softsensor_scans": ("scans received", lambda: stats().scans),
+            "softsensor_labs_accepted": ("lab results accepted", lambda: stats().labs_accepted),
+            "softsensor_labs_refused": ("lab results refused", lambda: stats().labs_refused),
+            "softsensor_poller_reads": ("PLC polls", lambda: poll().scans),
+            "softsensor_poller_read_failures": ("PLC reads that failed",
+                                                lambda: poll().read_failures),
+        }
 
     def _start_poller(self, stack: contextlib.AsyncExitStack, publisher: Publisher,
                       clock: ScaledClock) -> asyncio.Task[None]:

@@ -83,6 +83,7 @@ class ServicePipeline:
         self.n_in = 0  #: scan and lab messages processed
         self.n_out = 0  #: estimate and health messages published
         self.n_errors = 0  #: messages whose processing raised
+        self.last_tick_s: float | None = None  #: wall time of the last message that ticked
         self._ticks_unsaved = 0
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
@@ -111,7 +112,11 @@ class ServicePipeline:
                 item.done.set()
                 continue
             try:
-                self._publish(self.service.on_message(item.kind, item.body, item.time_ns))
+                t0 = time.perf_counter()
+                outputs = self.service.on_message(item.kind, item.body, item.time_ns)
+                if any(o.kind == "estimate" for o in outputs):
+                    self.last_tick_s = time.perf_counter() - t0
+                self._publish(outputs)
             except Exception:  # noqa: BLE001 - one bad message must not stop the service
                 self.n_errors += 1
                 log.exception("processing %s message failed", item.kind)

@@ -1,0 +1,83 @@
+"""The ``[outputs.*]`` tables of the plant config: one frozen dataclass per table, validated by
+:func:`softsensor.configfile.build_section` (unknown keys refused, errors naming the key).
+
+Example ``config/dryer1.toml`` fragment::
+
+    [outputs.modbus]        # the latest estimate as input registers (docs/interface.md s. 7)
+    enabled = true
+    host = "0.0.0.0"        # loopback by default; the DCS network interface here
+    port = 1502
+    unit_id = 1
+
+    [outputs.prometheus]    # http://host:port/metrics
+    enabled = true
+    port = 9108
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from softsensor.configfile import build_section
+from softsensor.errors import ConfigError
+from softsensor.plantconfig import PlantConfig
+
+
+@dataclass(frozen=True)
+class ModbusOutputSettings:
+    """``[outputs.modbus]``: a Modbus TCP server of the latest estimate (read-only)."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 1502
+    unit_id: int = 1
+
+    def check(self) -> str | None:
+        if not 0 <= self.port <= 65535:
+            return f"port must be in 0..65535 (0: any free port), got {self.port}"
+        if not 1 <= self.unit_id <= 247:
+            return f"unit_id must be in 1..247, got {self.unit_id}"
+        return None
+
+
+@dataclass(frozen=True)
+class MetricsSettings:
+    """``[outputs.prometheus]``: Prometheus metrics over HTTP (``/metrics``)."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 9108
+
+    def check(self) -> str | None:
+        if not 0 <= self.port <= 65535:
+            return f"port must be in 0..65535 (0: any free port), got {self.port}"
+        return None
+
+
+@dataclass(frozen=True)
+class OutputSettings:
+    """Every output table (absent tables: their defaults, off)."""
+
+    modbus: ModbusOutputSettings = ModbusOutputSettings()
+    prometheus: MetricsSettings = MetricsSettings()
+
+
+_TABLES: dict[str, type] = {"modbus": ModbusOutputSettings, "prometheus": MetricsSettings}
+
+
+def output_settings(cfg: PlantConfig) -> OutputSettings:
+    """The validated ``[outputs.*]`` tables of ``cfg``."""
+    table: Any = cfg.extra.get("outputs", {})
+    if not isinstance(table, dict):
+        raise ConfigError(f"{cfg.source}: [outputs] must be a table")
+    unknown = sorted(set(table) - set(_TABLES))
+    if unknown:
+        raise ConfigError(f"{cfg.source}: outputs.{unknown[0]} is not a known output "
+                          f"(known: {', '.join(_TABLES)})")
+    built = {name: build_section(cls, table.get(name, {}), f"outputs.{name}", cfg.source)
+             for name, cls in _TABLES.items()}
+    return OutputSettings(**built)
+
+
+__all__ = ["MetricsSettings", "ModbusOutputSettings", "OutputSettings", "output_settings"]
