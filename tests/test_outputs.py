@@ -5,6 +5,7 @@ metrics, each read by real clients on 127.0.0.1 (pymodbus and ``mbpoll``; urllib
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import re
 import shutil
@@ -201,7 +202,8 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
     day = simulate_day(load_plant_config(), 2.0, 5)
     p = tmp_path / "plant.toml"
     p.write_text(default_config_path().read_text() + "\n[outputs.modbus]\nenabled = true\n"
-                 "port = 0\n[outputs.prometheus]\nenabled = true\nport = 0\n")
+                 "port = 0\n[outputs.prometheus]\nenabled = true\nport = 0\n"
+                 "[outputs.web]\nenabled = true\nport = 0\n")
     cfg = load_plant_config(p)
     settings = service_settings(cfg).with_overrides(
         data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"), lab_dir=None,
@@ -234,6 +236,9 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
             got["info"] = up[0]
             got["registers"], _, _ = await _read(daemon.modbus_out.port)
             got["metrics"] = await asyncio.to_thread(_scrape, daemon.metrics.port)
+            url = f"http://127.0.0.1:{daemon.web.port}/api/latest.json"
+            got["web"] = json.loads(await asyncio.to_thread(
+                lambda: urllib.request.urlopen(url, timeout=5).read()))
             got["last"] = published[-1]
             got["n"] = len(published)
         finally:
@@ -254,3 +259,6 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
     assert m["softsensor_poller_read_failures_total"] == 0
     assert 0.0 < m["softsensor_moisture_out_kg_per_kg"] < 1.0
     assert m["softsensor_tick_duration_seconds_count"] >= 3
+    assert any(o.startswith("http://127.0.0.1:") and o.endswith("/") for o in info.outputs)
+    web = got["web"]["estimate"]
+    assert web["window_end_ns"] <= last.time_ns and 0.0 < web["moisture_out"] < 1.0

@@ -12,6 +12,10 @@ Example ``config/dryer1.toml`` fragment::
     [outputs.prometheus]    # http://host:port/metrics
     enabled = true
     port = 9108
+
+    [outputs.web]           # http://host:port/: the last 48 h for the control room
+    enabled = true
+    port = 8050
 """
 
 from __future__ import annotations
@@ -56,14 +60,36 @@ class MetricsSettings:
 
 
 @dataclass(frozen=True)
+class WebSettings:
+    """``[outputs.web]``: the live page for the control room (``http://host:port/``)."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 8050
+    history_h: float = 48.0  # hours of estimates and lab results the page shows
+    refresh_s: float = 30.0  # the browser reloads the page this often [s, wall]
+
+    def check(self) -> str | None:
+        if not 0 <= self.port <= 65535:
+            return f"port must be in 0..65535 (0: any free port), got {self.port}"
+        if not 0 < self.history_h <= 24 * 31:
+            return f"history_h must be in (0, 744], got {self.history_h}"
+        if not 1 <= self.refresh_s <= 3600:
+            return f"refresh_s must be in [1, 3600], got {self.refresh_s}"
+        return None
+
+
+@dataclass(frozen=True)
 class OutputSettings:
     """Every output table (absent tables: their defaults, off)."""
 
     modbus: ModbusOutputSettings = ModbusOutputSettings()
     prometheus: MetricsSettings = MetricsSettings()
+    web: WebSettings = WebSettings()
 
 
-_TABLES: dict[str, type] = {"modbus": ModbusOutputSettings, "prometheus": MetricsSettings}
+_TABLES: dict[str, type] = {"modbus": ModbusOutputSettings, "prometheus": MetricsSettings,
+                            "web": WebSettings}
 
 
 def output_settings(cfg: PlantConfig) -> OutputSettings:
@@ -80,4 +106,5 @@ def output_settings(cfg: PlantConfig) -> OutputSettings:
     return OutputSettings(**built)
 
 
-__all__ = ["MetricsSettings", "ModbusOutputSettings", "OutputSettings", "output_settings"]
+__all__ = ["MetricsSettings", "ModbusOutputSettings", "OutputSettings", "WebSettings",
+           "output_settings"]

@@ -50,6 +50,7 @@ from softsensor.messages import lab_body
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.modbus_server import EstimateModbusServer
 from softsensor.outputs.settings import output_settings
+from softsensor.outputs.web import LivePage
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder
@@ -169,6 +170,7 @@ class Daemon:
         self.output_settings = output_settings(config)
         self.modbus_out: EstimateModbusServer | None = None
         self.metrics: DaemonMetrics | None = None
+        self.web: LivePage | None = None
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -199,6 +201,10 @@ class Daemon:
     def _serve(self, out: Output) -> None:
         """Hand an output to the operator outputs that run ([outputs.*])."""
         status = str(out.body.get("status"))
+        if self.web is not None and out.kind == "estimate":
+            self.web.add_estimate(out.time_ns, out.body)
+        elif self.web is not None:
+            self.web.set_health(out.body)
         if out.kind == "estimate":
             if self.modbus_out is not None:
                 self.modbus_out.publish(out.body, out.time_ns)
@@ -286,6 +292,8 @@ class Daemon:
 
         def _lab_sink(lab: LabResult) -> None:
             publisher.put("lab", lab_body(lab), lab.log_time_ns)
+            if self.web is not None:
+                self.web.add_lab(lab.sample_time_ns, lab.moisture_out, lab.sample_id)
             event(log, "lab", sample_id=lab.sample_id, moisture_out=lab.moisture_out,
                   sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
 
@@ -309,6 +317,12 @@ class Daemon:
             self.metrics.start()
             stack.callback(self.metrics.stop)
             served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
+        if o.web.enabled:
+            self.web = LivePage(o.web, self.display, self.unit)
+            self.web.time_scale = self.settings.time_scale
+            self.web.start()
+            stack.callback(self.web.stop)
+            served.append(f"http://{o.web.host}:{self.web.port}/")
         return tuple(served)
 
     def _counters(self) -> dict[str, tuple[str, Callable[[], float]]]:
