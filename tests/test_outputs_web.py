@@ -112,3 +112,18 @@ def test_chromium_shows_the_trend_band_and_labs(tmp_path):
     empty = {c: _colour_pixels(shots["empty"], c, box) for c in (LINE, BAND, LAB)}
     assert full[LINE] > 1500 and full[BAND] > 20_000 and full[LAB] > 14 * 60, full
     assert empty == {LINE: 0, BAND: 0, LAB: 0}, empty
+
+
+def test_the_page_shows_the_verdict_of_the_diagnosis_report_file(tmp_path):
+    report = tmp_path / "latest.json"
+    page = LivePage(WebSettings(enabled=True, port=0, diagnosis=str(report)), DisplaySettings())
+    assert "none yet" in page.page()
+    report.write_text(json.dumps({
+        "cause": "sensor_bias", "channel": "T_cyclone_out", "gain": 0.4, "day": "d.mcap",
+        "ranking": [{"cause": "sensor_bias", "params": {"offset_K": -2.9}}]}))
+    text = page.page()
+    assert "cyclone outlet thermometer (T_cyclone_out) reads 2.9 °C low" in text
+    assert "cause sensor_bias" in text
+    report.write_text("<script>not json")
+    text = page.page()
+    assert "cannot be read (JSONDecodeError)" in text and "<script>" not in text

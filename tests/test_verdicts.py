@@ -8,8 +8,8 @@ import base64
 import pytest
 
 from softsensor.apps.calibration_figures import markdown_table, write_page
-from softsensor.apps.verdicts import calibration_verdict, diagnosis_verdict
 from softsensor.display import moisture_pct, moisture_pct_points
+from softsensor.verdicts import calibration_verdict, diagnosis_verdict
 
 
 def _doc(cause: str, params: dict, channel: str | None = None, gain: float = 0.42) -> dict:

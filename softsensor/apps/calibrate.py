@@ -21,7 +21,6 @@ import numpy as np
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
-from softsensor.apps.verdicts import calibration_result_verdict
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
 from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
@@ -47,6 +46,7 @@ from softsensor.errors import ConfigError
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
+from softsensor.verdicts import calibration_result_verdict
 
 
 def _add_data_arguments(p: argparse.ArgumentParser) -> None:

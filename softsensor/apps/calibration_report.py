@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from softsensor.apps import calibration_figures as figures
-from softsensor.apps.verdicts import calibration_result_verdict
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -27,6 +26,7 @@ from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import OUTPUT_NAMES
+from softsensor.verdicts import calibration_result_verdict
 
 _UNIT = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
 

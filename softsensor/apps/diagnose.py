@@ -29,10 +29,10 @@ from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
-from softsensor.apps.verdicts import diagnosis_verdict
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
+from softsensor.verdicts import diagnosis_verdict
 
 #: Optuna trials of the calibration on CAL (before the local polish).
 DEFAULT_TRIALS = 40

@@ -8,7 +8,7 @@
   extension (as scored);
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
-* ``index.html``: a plain-language verdict first (:func:`softsensor.apps.verdicts.
+* ``index.html``: a plain-language verdict first (:func:`softsensor.verdicts.
   diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"), then the
   statistics, the evidence table and the figures, embedded (the same page layout as the
   calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
@@ -33,7 +33,6 @@ from softsensor.apps.calibration_figures import (  # noqa: E402
     markdown_table,
     write_page,
 )
-from softsensor.apps.verdicts import diagnosis_verdict  # noqa: E402
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
 from softsensor.display import (  # noqa: E402
     celsius,
@@ -44,6 +43,7 @@ from softsensor.display import (  # noqa: E402
 )
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
+from softsensor.verdicts import diagnosis_verdict  # noqa: E402
 
 
 def _save(fig, path: Path) -> Path:

@@ -16,6 +16,7 @@ Example ``config/dryer1.toml`` fragment::
     [outputs.web]           # http://host:port/: the last 48 h for the control room
     enabled = true
     port = 8050
+    diagnosis = "reports/latest.json"   # shown when present (softsensor diagnose --json)
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ class WebSettings:
     port: int = 8050
     history_h: float = 48.0  # hours of estimates and lab results the page shows
     refresh_s: float = 30.0  # the browser reloads the page this often [s, wall]
+    diagnosis: str | None = None  # REPORT.json of `softsensor diagnose --json` to show
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:

@@ -4,7 +4,8 @@
 are closed), drawn on the server as inline SVG and reloaded by the browser every
 ``refresh_s``: the outlet moisture with its 95 % band and the lab results at their sample
 times, the inlet moisture with its band, the health with its detail, and the last diagnosis
-when one is known. What a person reads is in plant units (:mod:`softsensor.display`: % on the
+(the plain-language verdict of the ``diagnosis`` report file, re-read when it changes).
+What a person reads is in plant units (:mod:`softsensor.display`: % on the
 display basis, the plant's local clock). ``GET /api/latest.json`` gives the latest estimate
 and health as the bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers
 200 while estimates arrive and 503 when none came for three windows (a container's health
@@ -18,7 +19,9 @@ bounded by ``history_h``. Every string that reaches the page is escaped.
 from __future__ import annotations
 
 import html
+import json
 import math
+import os
 import threading
 import time
 from collections import deque
@@ -38,6 +41,7 @@ from softsensor.display import (
 from softsensor.errors import ConfigError
 from softsensor.jsonable import dumps
 from softsensor.outputs.settings import WebSettings
+from softsensor.verdicts import diagnosis_verdict
 
 NS = 10**9
 WINDOW_NS = 600 * NS
@@ -64,6 +68,7 @@ class LivePage:
         self._server: ThreadingHTTPServer | None = None
         self.port = settings.port
         self.time_scale = 1.0  #: plant seconds per wall second (accelerated demos)
+        self._report_cache: tuple[int, str] | None = None
 
     # -- feeding (estimator thread) --------------------------------------------------------
     def _trim(self, now_ns: int) -> None:
@@ -95,7 +100,29 @@ class LivePage:
     # -- reading (server threads) ----------------------------------------------------------
     def snapshot(self) -> tuple[list, list, dict, str | None]:
         with self._lock:
-            return list(self._est), list(self._labs), dict(self._health), self._diagnosis
+            diag = self._diagnosis
+            est, labs, health = list(self._est), list(self._labs), dict(self._health)
+        return est, labs, health, diag if diag is not None else self._report()
+
+    def _report(self) -> str | None:
+        """The verdict of the diagnosis report file (``diagnosis``), read when it changed."""
+        path = self.settings.diagnosis
+        if path is None:
+            return None
+        try:
+            st = os.stat(path)
+            if self._report_cache is None or self._report_cache[0] != st.st_mtime_ns:
+                with open(path, "rb") as f:
+                    doc = json.loads(f.read(1_000_000))
+                when = local_clock(st.st_mtime_ns, self.display)
+                text = (f"{diagnosis_verdict(doc)} (cause {doc.get('cause')}, "
+                        f"{doc.get('day', 'day')}, report of {when})")
+                self._report_cache = (st.st_mtime_ns, text)
+            return self._report_cache[1]
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, AttributeError) as exc:  # never the file's content
+            return f"the diagnosis report {path} cannot be read ({type(exc).__name__})"
 
     def latest_json(self) -> str:
         est, _labs, health, diag = self.snapshot()
