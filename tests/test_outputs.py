@@ -36,6 +36,14 @@ BODY = {"moisture_out": 0.1034, "moisture_out_std": 0.0042, "moisture_in": 1.031
 T_NS = 1_767_607_800 * 10**9  # 2026-01-05T10:10:00Z
 
 
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
 def f32(words: list[int], name: str) -> float:
     a = REGISTERS[name][0]
     return struct.unpack(">f", struct.pack(">HH", *words[a:a + 2]))[0]
@@ -168,8 +176,8 @@ def test_output_tables_are_validated(tmp_path):
     assert o.modbus.enabled and o.modbus.port == 1503
     with pytest.raises(ConfigError, match=r"outputs\.modbus\.port must be"):
         output_settings(cfg("[outputs.modbus]\nport = 70000\n"))
-    with pytest.raises(ConfigError, match=r"outputs\.opcua is not a known output"):
-        output_settings(cfg("[outputs.opcua]\nenabled = true\n"))
+    with pytest.raises(ConfigError, match=r"outputs\.scada is not a known output"):
+        output_settings(cfg("[outputs.scada]\nenabled = true\n"))
     with pytest.raises(ConfigError, match=r"outputs\.prometheus\.colour is not a known key"):
         output_settings(cfg("[outputs.prometheus]\ncolour = 1\n"))
 
@@ -203,7 +211,8 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
     p = tmp_path / "plant.toml"
     p.write_text(default_config_path().read_text() + "\n[outputs.modbus]\nenabled = true\n"
                  "port = 0\n[outputs.prometheus]\nenabled = true\nport = 0\n"
-                 "[outputs.web]\nenabled = true\nport = 0\n")
+                 "[outputs.web]\nenabled = true\nport = 0\n"
+                 f"[outputs.opcua]\nenabled = true\nport = {_free_port()}\n")
     cfg = load_plant_config(p)
     settings = service_settings(cfg).with_overrides(
         data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"), lab_dir=None,
@@ -236,6 +245,9 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
             got["info"] = up[0]
             got["registers"], _, _ = await _read(daemon.modbus_out.port)
             got["metrics"] = await asyncio.to_thread(_scrape, daemon.metrics.port)
+            from test_outputs_opcua import _read as read_opcua
+
+            got["opcua"] = await read_opcua(daemon.opcua.endpoint, ["moisture_out", "health"])
             url = f"http://127.0.0.1:{daemon.web.port}/api/latest.json"
             got["web"] = json.loads(await asyncio.to_thread(
                 lambda: urllib.request.urlopen(url, timeout=5).read()))
@@ -260,5 +272,8 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
     assert 0.0 < m["softsensor_moisture_out_kg_per_kg"] < 1.0
     assert m["softsensor_tick_duration_seconds_count"] >= 3
     assert any(o.startswith("http://127.0.0.1:") and o.endswith("/") for o in info.outputs)
+    assert 0.0 < got["opcua"]["moisture_out"][0] < 1.0, got["opcua"]
+    assert got["opcua"]["health"][0] in ("ok", "degraded")
+    assert any(o.startswith("opc.tcp://127.0.0.1:") for o in info.outputs), info.outputs
     web = got["web"]["estimate"]
     assert web["window_end_ns"] <= last.time_ns and 0.0 < web["moisture_out"] < 1.0

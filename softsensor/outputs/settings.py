@@ -13,6 +13,9 @@ Example ``config/dryer1.toml`` fragment::
     enabled = true
     port = 9108
 
+    [outputs.opcua]         # opc.tcp://host:port/softsensor/, typed, with engineering units
+    enabled = true
+
     [outputs.web]           # http://host:port/: the last 48 h for the control room
     enabled = true
     port = 8050
@@ -61,6 +64,20 @@ class MetricsSettings:
 
 
 @dataclass(frozen=True)
+class OpcUaSettings:
+    """``[outputs.opcua]``: an OPC UA server of the latest estimate (read-only variables)."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 4840
+
+    def check(self) -> str | None:
+        if not 1 <= self.port <= 65535:
+            return f"port must be in 1..65535, got {self.port}"
+        return None
+
+
+@dataclass(frozen=True)
 class WebSettings:
     """``[outputs.web]``: the live page for the control room (``http://host:port/``)."""
 
@@ -88,10 +105,11 @@ class OutputSettings:
     modbus: ModbusOutputSettings = ModbusOutputSettings()
     prometheus: MetricsSettings = MetricsSettings()
     web: WebSettings = WebSettings()
+    opcua: OpcUaSettings = OpcUaSettings()
 
 
 _TABLES: dict[str, type] = {"modbus": ModbusOutputSettings, "prometheus": MetricsSettings,
-                            "web": WebSettings}
+                            "web": WebSettings, "opcua": OpcUaSettings}
 
 
 def output_settings(cfg: PlantConfig) -> OutputSettings:
@@ -108,5 +126,6 @@ def output_settings(cfg: PlantConfig) -> OutputSettings:
     return OutputSettings(**built)
 
 
-__all__ = ["MetricsSettings", "ModbusOutputSettings", "OutputSettings", "WebSettings",
+__all__ = ["MetricsSettings", "ModbusOutputSettings", "OpcUaSettings", "OutputSettings",
+           "WebSettings",
            "output_settings"]

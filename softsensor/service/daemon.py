@@ -30,6 +30,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import zenoh
 
@@ -171,6 +172,7 @@ class Daemon:
         self.modbus_out: EstimateModbusServer | None = None
         self.metrics: DaemonMetrics | None = None
         self.web: LivePage | None = None
+        self.opcua: Any = None  #: the OPC UA server when [outputs.opcua] is enabled
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -205,17 +207,17 @@ class Daemon:
             self.web.add_estimate(out.time_ns, out.body)
         elif self.web is not None:
             self.web.set_health(out.body)
+        for server in (self.modbus_out, self.opcua):
+            if server is not None and out.kind == "estimate":
+                server.publish(out.body, out.time_ns)
+            elif server is not None:
+                server.health(status)
         if out.kind == "estimate":
-            if self.modbus_out is not None:
-                self.modbus_out.publish(out.body, out.time_ns)
             if self.metrics is not None:
                 tick_s = None if self.pipeline is None else self.pipeline.last_tick_s
                 self.metrics.publish(out.body, out.time_ns, tick_s)
-        elif out.kind == "health":
-            if self.modbus_out is not None:
-                self.modbus_out.health(status)
-            if self.metrics is not None:
-                self.metrics.set_health(status)
+        elif out.kind == "health" and self.metrics is not None:
+            self.metrics.set_health(status)
 
     async def run(self, stop: asyncio.Event,
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
@@ -317,6 +319,14 @@ class Daemon:
             self.metrics.start()
             stack.callback(self.metrics.stop)
             served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
+        if o.opcua.enabled:
+            # asyncua takes a second to import: only a daemon that serves OPC UA pays it
+            from softsensor.outputs.opcua_server import EstimateOpcUaServer
+
+            self.opcua = EstimateOpcUaServer(o.opcua, self.display, self.unit)
+            await self.opcua.start()
+            stack.push_async_callback(self.opcua.stop)
+            served.append(self.opcua.endpoint)
         if o.web.enabled:
             self.web = LivePage(o.web, self.display, self.unit)
             self.web.time_scale = self.settings.time_scale
