@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Any
 
 from softsensor.errors import IngestError
@@ -132,8 +132,10 @@ def iso_utc(ns: int) -> str:
 # Lab bodies: one parser for the live and the recorded path
 
 
-def parse_sample_time(value: Any, where: str = "lab") -> int:
-    """A sample time [ns since epoch, UTC] from ns (int or digits) or ISO-8601 (naive = UTC)."""
+def parse_sample_time(value: Any, where: str = "lab", zone: tzinfo | None = None) -> int:
+    """A sample time [ns since epoch, UTC] from ns (int or digits) or ISO-8601; an ISO time
+    without an offset is on the clock of ``zone`` (a lab writes the plant's local time; the
+    daemon passes its ``[display]`` time zone), UTC when None."""
     if isinstance(value, bool) or value is None:
         raise IngestError(f"{where}: sample_time {value!r} is not a time")
     if isinstance(value, float):
@@ -153,7 +155,7 @@ def parse_sample_time(value: Any, where: str = "lab") -> int:
         raise IngestError(
             f"{where}: sample_time {text!r} is neither ISO-8601 nor ns since the epoch") from exc
     if dt.tzinfo is None:
-        dt = dt.replace(tzinfo=UTC)
+        dt = dt.replace(tzinfo=zone or UTC)
     delta = dt - _EPOCH
     return (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
 
@@ -189,13 +191,14 @@ def _sample_id(value: Any, where: str) -> str:
 
 
 def make_lab_result(sample_time: Any, moisture_out: Any, sample_id: Any, *,
-                    log_time_ns: int | None = None, where: str = "lab") -> LabResult:
+                    log_time_ns: int | None = None, where: str = "lab",
+                    zone: tzinfo | None = None) -> LabResult:
     """Validate one entry into a :class:`LabResult`; :class:`IngestError` with the reason.
 
     ``log_time_ns`` is when the result became available [ns since epoch]; a sample time more
     than :data:`FUTURE_TOLERANCE_NS` after it is refused.
     """
-    st = parse_sample_time(sample_time, where)
+    st = parse_sample_time(sample_time, where, zone)
     if st < EARLIEST_SAMPLE_NS:
         raise IngestError(f"{where}: sample_time {st} ns is before 2000 "
                           "(seconds or ms given instead of ns?)")
@@ -207,7 +210,7 @@ def make_lab_result(sample_time: Any, moisture_out: Any, sample_id: Any, *,
 
 
 def lab_from_body(body: dict[str, Any], log_time_ns: int | None = None,
-                  where: str = "lab") -> LabResult:
+                  where: str = "lab", zone: tzinfo | None = None) -> LabResult:
     """A :class:`LabResult` from a JSON object (bus body or file entry).
 
     The sample time is ``sample_time_ns`` or ``sample_time``; ``log_time_ns`` defaults to the
@@ -224,7 +227,7 @@ def lab_from_body(body: dict[str, Any], log_time_ns: int | None = None,
     if log_time_ns is None and isinstance(body.get("time_ns"), int):
         log_time_ns = body["time_ns"]
     return make_lab_result(st, body["moisture_out"], body["sample_id"],
-                           log_time_ns=log_time_ns, where=where)
+                           log_time_ns=log_time_ns, where=where, zone=zone)
 
 
 def lab_body(lab: LabResult) -> dict[str, Any]:

@@ -270,3 +270,22 @@ def test_background_watcher_is_stoppable(tmp_path: Path) -> None:
     th.join(5.0)
     assert not th.is_alive() and time.monotonic() - t < 2.0
     assert [lab.sample_id for lab in got] == ["BG"]
+
+
+def test_naive_times_in_lab_files_are_on_the_plant_clock(tmp_path):
+    """A LIMS writing local time without an offset: with the zone set, the sample lands at
+    the right UTC instant (winter, +01:00), an explicit offset is kept, and without a zone the
+    old reading (UTC) stays."""
+    from zoneinfo import ZoneInfo
+
+    from softsensor.ingest.lab_input import parse_lab_file
+
+    f = tmp_path / "lims.csv"
+    f.write_text("sample_time,moisture_out,sample_id\n2026-01-05 10:00:00,0.1,A\n"
+                 "2026-01-05T10:00:00+00:00,0.1,B\n")
+    local = parse_lab_file(f, zone=ZoneInfo("Europe/Stockholm")).results
+    utc = parse_lab_file(f).results
+    t_utc10 = 1_767_607_200 * 10**9  # 2026-01-05T10:00Z
+    assert local[0].sample_time_ns == t_utc10 - 3600 * 10**9
+    assert local[1].sample_time_ns == utc[1].sample_time_ns == t_utc10
+    assert utc[0].sample_time_ns == t_utc10

@@ -5,8 +5,10 @@ Two ways in, one check:
 * a JSON body on ``plant/<unit>/lab``: ``{"sample_time_ns": int, "moisture_out": float,
   "sample_id": str}`` (plus ``time_ns``, the time the result became available);
 * a file dropped in a folder: CSV with the header ``sample_time,moisture_out,sample_id``
-  (``sample_time`` ISO-8601, naive = UTC, or ns since the epoch) or JSON (one object or a list
-  of objects with ``sample_time`` or ``sample_time_ns``).
+  (``sample_time`` ISO-8601 or ns since the epoch) or JSON (one object or a list of objects
+  with ``sample_time`` or ``sample_time_ns``). An ISO time without an offset is the plant's
+  clock: the watcher's ``zone`` (the daemon's ``[display] time_zone``, UTC by default), so a
+  LIMS writing local time is read right once the zone is set.
 
 Every entry becomes a :class:`~softsensor.messages.LabResult` (``moisture_out`` in kg/kg
 dry basis) or is refused with a one-line reason by :func:`softsensor.messages.lab_from_body`
@@ -34,6 +36,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from datetime import tzinfo
 from pathlib import Path
 from typing import Any
 
@@ -62,7 +65,7 @@ class ParsedFile:
 
 
 def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
-                  where: str = "lab.csv") -> ParsedFile:
+                  where: str = "lab.csv", zone: tzinfo | None = None) -> ParsedFile:
     """Parse a CSV lab file; :class:`IngestError` if the file as a whole is unusable."""
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
     rows: list[list[str]] = []
@@ -95,14 +98,14 @@ def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
         try:
             out.results.append(make_lab_result(
                 row[cols["sample_time"]], row[cols["moisture_out"]], row[cols["sample_id"]],
-                log_time_ns=log_time_ns, where=at))
+                log_time_ns=log_time_ns, where=at, zone=zone))
         except IngestError as exc:
             out.bad.append((row, str(exc)))
     return out
 
 
 def parse_lab_json(text: str, *, log_time_ns: int | None = None,
-                   where: str = "lab.json") -> ParsedFile:
+                   where: str = "lab.json", zone: tzinfo | None = None) -> ParsedFile:
     """Parse a JSON lab file (one object or a list); :class:`IngestError` if unusable."""
     try:
         data = json.loads(text)
@@ -118,15 +121,16 @@ def parse_lab_json(text: str, *, log_time_ns: int | None = None,
     for n, entry in enumerate(entries):
         at = f"{where} entry {n}" if isinstance(data, list) else where
         try:
-            out.results.append(lab_from_body(entry, log_time_ns, where=at))
+            out.results.append(lab_from_body(entry, log_time_ns, where=at, zone=zone))
         except IngestError as exc:
             out.bad.append((entry, str(exc)))
     return out
 
 
-def parse_lab_file(path: str | os.PathLike[str], *,
-                   log_time_ns: int | None = None) -> ParsedFile:
-    """Parse a ``.csv`` or ``.json`` lab file; :class:`IngestError` naming the file if unusable."""
+def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = None,
+                   zone: tzinfo | None = None) -> ParsedFile:
+    """Parse a ``.csv`` or ``.json`` lab file; :class:`IngestError` naming the file if unusable.
+    ISO times without an offset are on the clock of ``zone`` (UTC when None)."""
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
@@ -139,7 +143,7 @@ def parse_lab_file(path: str | os.PathLike[str], *,
     except OSError as exc:
         raise IngestError(f"{p.name}: cannot read: {exc.strerror}") from exc
     parse = parse_lab_csv if suffix == ".csv" else parse_lab_json
-    return parse(text, log_time_ns=log_time_ns, where=p.name)
+    return parse(text, log_time_ns=log_time_ns, where=p.name, zone=zone)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -257,8 +261,10 @@ class LabFolderWatcher:
     """
 
     def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
-                 poll_s: float = 2.0, settle_s: float = 1.0) -> None:
+                 poll_s: float = 2.0, settle_s: float = 1.0,
+                 zone: tzinfo | None = None) -> None:
         self.folder = Path(folder)
+        self.zone = zone  # the clock of ISO times without an offset (the plant's)
         self.processed_dir = self.folder / "processed"
         self.rejected_dir = self.folder / "rejected"
         for d in (self.processed_dir, self.rejected_dir):
@@ -304,7 +310,7 @@ class LabFolderWatcher:
     def _handle(self, path: Path, report: PollReport) -> None:
         now_ns = self.lab_input.clock()
         try:
-            parsed = parse_lab_file(path, log_time_ns=now_ns)
+            parsed = parse_lab_file(path, log_time_ns=now_ns, zone=self.zone)
         except IngestError as exc:
             self._reject(path, [str(exc)], report)
             return

@@ -303,7 +303,8 @@ class Daemon:
         if s.lab_dir is not None:
             watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
                                        poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
-                                       settle_s=s.lab_settle_s).start()
+                                       settle_s=s.lab_settle_s,
+                                       zone=self.display.zone).start()
             stack.callback(watcher.close)
 
     async def _start_outputs(self, stack: contextlib.AsyncExitStack) -> tuple[str, ...]:
