@@ -23,6 +23,7 @@ import zenoh
 from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
 from softsensor.errors import SoftsensorError
 from softsensor.recording.recorder import RECORDER_CHUNK_SIZE, Recorder
+from softsensor.service.time_gate import TimeGate
 
 log = logging.getLogger(__name__)
 
@@ -38,8 +39,14 @@ class BusRecorder:
     """
 
     def __init__(self, session: zenoh.Session, recorder: Recorder, *, unit: str = "dryer1",
-                 kinds: Iterable[str] = KINDS, tick_s: float = 1.0) -> None:
+                 kinds: Iterable[str] = KINDS, tick_s: float = 1.0,
+                 gate: Callable[[int], str | None] | None = None) -> None:
         self.recorder = recorder
+        # messages stamped impossibly (before 2000; far from the daemon's clock when it has
+        # one) are not recorded: a day file named by a peer's bad clock, or a chunk broken by
+        # a negative time, would lose what is real
+        self.gate = gate or TimeGate(None)
+        self.refused = 0
         self._stop = threading.Event()
         self.subscription = subscribe(session, self._on_message, unit=unit, kinds=kinds)
         self._ticker = threading.Thread(target=self._tick_loop, args=(tick_s,),
@@ -50,6 +57,12 @@ class BusRecorder:
         body = dict(message.body)
         body.pop("time_ns", None)
         t = message.time_ns if message.time_ns is not None else time.time_ns()
+        reason = self.gate(t)
+        if reason is not None:
+            self.refused += 1
+            if self.refused % 1000 == 1:
+                log.warning("%s at %d ns not recorded: %s", message.topic, t, reason)
+            return
         self.recorder.write(message.topic, t, body)
 
     def _tick_loop(self, tick_s: float) -> None:

@@ -62,6 +62,7 @@ from softsensor.service.logs import event
 from softsensor.service.offline_replay import make_service
 from softsensor.service.pipeline import INPUT_KINDS, ScanPublisher, ServicePipeline
 from softsensor.service.settings import ServiceSettings, resolve_estimator_kind, resolve_unit
+from softsensor.service.time_gate import TimeGate
 from softsensor.service.warmup import warm_up
 
 log = logging.getLogger(__name__)
@@ -97,6 +98,10 @@ class ScaledClock:
     def monotonic(self) -> float:
         """Scaled monotonic time [plant s] (for the poller's frozen check and back-off)."""
         return (self._mono() - self._m0) * self.scale
+
+
+#: A checkpoint's time further than this past the clock start is not trusted [ns].
+MAX_RESUME_JUMP_NS = 30 * 86_400 * 10**9
 
 
 @dataclass
@@ -179,7 +184,10 @@ class Daemon:
         start = parse_time(s.clock_start, "service.clock_start")
         if s.time_scale != 1.0:
             start = time.time_ns() if start is None else start
-            if saved_at_ns is not None and saved_at_ns > start:
+            if saved_at_ns is not None and saved_at_ns > start + MAX_RESUME_JUMP_NS:
+                event(log, "checkpoint_time_ignored", logging.WARNING, saved_at_ns=saved_at_ns,
+                      reason="more than 30 days after the clock start")
+            elif saved_at_ns is not None and saved_at_ns > start:
                 start = saved_at_ns  # accelerated time must not run backwards over a restart
         return ScaledClock(s.time_scale, start)
 
@@ -233,12 +241,14 @@ class Daemon:
         event(log, "warmed_up", seconds=round(warm.seconds, 2),
               ticks=None if warm.stats is None else warm.stats.ticks, error=warm.error)
         self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
+        gate = TimeGate(clock.now_ns, s.max_future_s, s.max_past_s)
+        service.time_gate = gate
         async with contextlib.AsyncExitStack() as stack:
             session = open_session(mode=s.zenoh_mode, listen=list(s.listen),
                                    connect=list(s.connect))
             stack.callback(session.close)
             if s.record:
-                self._record(stack, session)
+                self._record(stack, session, gate)
             self.pipeline = pipeline = ServicePipeline(
                 session, service, unit=self.unit, checkpoints=self.store,
                 checkpoint_every=s.checkpoint_every, on_output=self._on_output)
@@ -278,13 +288,14 @@ class Daemon:
                   ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
         return service
 
-    def _record(self, stack: contextlib.AsyncExitStack, session: zenoh.Session) -> None:
+    def _record(self, stack: contextlib.AsyncExitStack, session: zenoh.Session,
+                gate: TimeGate) -> None:
         """Record every key of the unit into the daily files, closed with ``stack``."""
         s = self.settings
         self.recorder = Recorder(s.data_dir, self.unit, chunk_size=s.chunk_size,
                                  flush_interval_s=s.flush_interval_s)
         stack.callback(self.recorder.close)
-        bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS)
+        bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS, gate=gate)
         stack.callback(bus_rec.close)
 
     def _lab_input(self, stack: contextlib.AsyncExitStack, publisher: Publisher,

@@ -32,7 +32,7 @@ import dataclasses
 import logging
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -78,6 +78,7 @@ class ServiceStats:
     labs_received: int = 0
     labs_accepted: int = 0
     labs_refused: int = 0
+    refused_time: int = 0  #: scans and labs stamped too far from the daemon's clock
 
 
 def _worst(a: str, b: str) -> str:
@@ -124,6 +125,9 @@ class EstimatorService:
         self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
+        #: refuses message times far from the service clock (the daemon sets a
+        #: :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock)
+        self.time_gate: Callable[[int], str | None] | None = None
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -138,9 +142,22 @@ class EstimatorService:
             return self.on_lab(body, time_ns)
         return []
 
+    def _implausible(self, what: str, t: int) -> bool:
+        """Refuse (count, log the first and every 1000th) a time the gate refuses."""
+        reason = None if self.time_gate is None else self.time_gate(t)
+        if reason is None:
+            return False
+        self.stats.refused_time += 1
+        if self.stats.refused_time % 1000 == 1:
+            log.warning("%s at %d ns refused: %s (%d refused so far)", what, t, reason,
+                        self.stats.refused_time)
+        return True
+
     def on_scan(self, time_ns: int, body: Mapping[str, Any]) -> list[Output]:
         """Add one ``/plant/scan`` body (SI, null = bad) logged at ``time_ns`` [ns]."""
         t = int(time_ns)
+        if self._implausible("scan", t):
+            return []
         try:
             closed = self._acc.add(t, body)
         except IngestError as exc:
@@ -161,6 +178,8 @@ class EstimatorService:
     def on_lab(self, body: Mapping[str, Any], log_time_ns: int | None) -> list[Output]:
         """Check one ``/plant/lab`` body logged at ``log_time_ns`` and queue it for its tick."""
         self.stats.labs_received += 1
+        if log_time_ns is not None and self._implausible("lab", int(log_time_ns)):
+            return []
         t = log_time_ns if log_time_ns is not None else self._now
         try:
             lab = lab_from_body(dict(body), t, where=f"plant/{self.unit}/lab")

@@ -90,6 +90,9 @@ class ServiceSettings:
         logged before the window's end is always applied first, live and in replay [s].
     gap_after_s : float
         With no scans at all, a window is closed (stale) this long after its end [s].
+    max_future_s, max_past_s : float
+        A scan or lab result stamped more than this ahead of, or behind, the daemon's clock is
+        refused, counted (``refused_time``) and not recorded [s].
     status_every_s : float
         Period of the daemon's status log line [s, wall].
     log_format : str
@@ -118,6 +121,8 @@ class ServiceSettings:
     min_good_fraction: float = num(0.5, ge=0, le=1)
     tick_delay_s: float = num(10.0, ge=0, le=3600)
     gap_after_s: float = num(60.0, gt=0, le=86_400)
+    max_future_s: float = num(300.0, gt=0, le=86_400)
+    max_past_s: float = num(6 * 3600.0, gt=0, le=30 * 86_400)
     status_every_s: float = num(60.0, gt=0, le=86_400)
     log_format: str = "kv"
 

@@ -1,0 +1,94 @@
+"""Fault injection (issue 14, item 1): scans stamped far from the daemon's clock, from another
+peer on the bus, against a real daemon polling the simulated PLC.
+
+Before the time gate, one scan two days ahead made the daemon tick 288 stale windows at once
+and then drop every real scan as late (no estimate for two plant days), and one stamped
+``time_ns = -5`` broke the recorder's open chunk. Now both are refused and counted, the
+daemon keeps estimating from the real scans, and the recorded day has neither and reads back
+whole.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from pathlib import Path
+
+from softsensor.bus.zenoh_bus import Publisher, open_session, wait_for_peers
+from softsensor.ingest.tagmap import load_tagmap
+from softsensor.plant.plc_feed import PlantFeed
+from softsensor.plant.plc_server import PlcServer
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_plant_config
+from softsensor.recording.mcap_day import read_day
+from softsensor.service.daemon import Daemon
+from softsensor.service.settings import service_settings
+from softsensor.signals import TOPIC_ESTIMATE, TOPIC_SCAN
+
+SCALE = 240.0
+DAY_NS = 86_400 * 10**9
+
+
+def _inject(endpoint: str, now_ns: int) -> None:
+    with open_session(port=None, connect=[endpoint]) as s:
+        assert wait_for_peers(s, timeout=10)
+        pub = Publisher(s, "dryer1")
+        pub.declare(("scan", "lab"))
+        time.sleep(0.3)  # the declarations reach the daemon
+        scan = {"T_air_in": 480.0, "m_air": 82.0}
+        pub.put("scan", scan, now_ns + 2 * DAY_NS)
+        pub.put("scan", scan, -5)
+        pub.put("lab", {"sample_time_ns": now_ns + 2 * DAY_NS - 60 * 10**9,
+                        "moisture_out": 0.1, "sample_id": "future"}, now_ns + 2 * DAY_NS)
+        time.sleep(0.5)
+        pub.close()
+
+
+def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_path: Path):
+    cfg = load_plant_config()
+    day = simulate_day(cfg, 3.0, 12)
+    settings = service_settings(cfg).with_overrides(
+        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"), lab_dir=None,
+        zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE, flush_interval_s=0.2,
+        clock_start=str(int(day.scans.index[0])))
+    got: dict = {}
+
+    async def main() -> None:
+        feed = PlantFeed(day, loop=True)
+        tm = load_tagmap()
+        plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
+        await plc.start()
+        daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+        stop, up = asyncio.Event(), []
+        task = asyncio.create_task(daemon.run(stop, ready=up.append))
+        loop = asyncio.get_running_loop()
+        try:
+            deadline = loop.time() + 60
+            while not up or daemon.pipeline.service.stats.ticks < 2:
+                assert loop.time() < deadline and not task.done(), "the daemon did not tick"
+                await asyncio.sleep(0.05)
+            stats = daemon.pipeline.service.stats
+            got["fresh_before"] = stats.ticks - stats.stale_ticks
+            await asyncio.to_thread(_inject, up[0].endpoints[0], daemon.clock.now_ns())
+            t0 = stats.ticks
+            while stats.ticks < t0 + 4:  # four more windows (10 s wall at 240x)
+                assert loop.time() < deadline + 30 and not task.done(), "ticks stopped"
+                await asyncio.sleep(0.05)
+            got["stats"] = stats
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, 30)
+            await plc.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 150))
+    stats = got["stats"]
+    assert stats.refused_time == 3, stats  # two scans and the lab
+    assert stats.labs_refused == 0 and stats.labs_accepted == 0
+    # estimation went on from the real scans: no burst of stale windows
+    assert stats.stale_ticks <= 1 and stats.ticks >= 6, stats
+    files = sorted((tmp_path / "rec").glob("*.mcap"))
+    assert len(files) == 1, files  # no file for the day two days ahead
+    rec = read_day(files[0])  # whole: footer written, nothing negative in it
+    times = [t for t, _b in rec.topic(TOPIC_SCAN)]
+    assert min(times) > 0 and max(times) < int(day.scans.index[0]) + DAY_NS
+    assert len(rec.topic(TOPIC_ESTIMATE)) >= 6
