@@ -66,7 +66,7 @@ def _run(args: argparse.Namespace) -> int:
 
     base, cfg, settings = run_settings(args)
     configure_logging(settings.log_format)
-    daemon = Daemon(cfg, settings, resume=not args.no_resume)
+    daemon = Daemon(cfg, settings, resume=False if args.no_resume else args.resume)
 
     def _ready(info: DaemonInfo) -> None:
         print(f"softsensor run: unit={info.unit} estimator={info.estimator} "
@@ -115,6 +115,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="start of the scaled clock, ISO-8601 or ns (default now)")
     p.add_argument("--no-record", action="store_true", help="do not record MCAP files")
     p.add_argument("--no-resume", action="store_true", help="ignore the checkpoint")
+    p.add_argument("--resume", default="auto", choices=("auto", "required"),
+                   help="auto (default): a checkpoint that fails its checks is moved aside "
+                        "and the daemon starts afresh; required: stop with an error instead")
     p.add_argument("--log-format", default=None, choices=LOG_FORMATS)
     p.set_defaults(func=_run)
 

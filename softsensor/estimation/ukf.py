@@ -345,6 +345,7 @@ class UkfEstimator(ModelEstimator):
             raise EstimationError(f"checkpoint state has shapes x{state.x.shape} "
                                   f"P{state.P.shape} hold{hold.shape}, expected ({n},), "
                                   f"({n}, {n}) and ({m},)")
+        _check_state(state.x, state.P, hold)
         self._state, self._history, self._labs = state, history, labs
         self._hold = InputHold(hold)
         self._dirty = None if dirty is None else int(dirty)
@@ -784,3 +785,21 @@ def _check_covariance(P: np.ndarray, end_ns: int) -> None:
     except np.linalg.LinAlgError as exc:
         raise EstimationError(f"filter covariance lost positive definiteness at tick ending "
                               f"{end_ns} ns") from exc
+
+
+#: Largest magnitude of a filter state or covariance entry a checkpoint may hold (the states
+#: are kg/kg and K, in transformed units of order 1 to 100).
+_STATE_LIMIT = 1e3
+_COVARIANCE_LIMIT = 1e6
+
+
+def _check_state(x: np.ndarray, P: np.ndarray, hold: np.ndarray) -> None:
+    """:class:`EstimationError` for a restored state no filter could have reached: non-finite,
+    huge, or a covariance that is not symmetric positive definite (a NaN state used to be
+    accepted and no estimate was ever published again; ``x = 1e308`` was published)."""
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P)) and np.all(np.isfinite(hold))):
+        raise EstimationError("checkpoint state holds non-finite values")
+    if np.max(np.abs(x)) > _STATE_LIMIT or np.max(np.abs(P)) > _COVARIANCE_LIMIT:
+        raise EstimationError("checkpoint state is out of range")
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-12) or np.linalg.eigvalsh(P)[0] <= 0:
+        raise EstimationError("checkpoint covariance is not symmetric positive definite")

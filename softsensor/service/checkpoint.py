@@ -1,7 +1,9 @@
-"""Estimator checkpoints on disk: written atomically, read with one-line errors.
+"""Estimator checkpoints on disk: written atomically, verified when read.
 
-A checkpoint is one JSON document: ``{"format": "softsensor-checkpoint", "version": 1,
-"saved_at_ns": ..., "unit": ..., "service": <EstimatorService.checkpoint()>}``. It is written
+A checkpoint is one JSON document: ``{"format": "softsensor-checkpoint", "version": 2,
+"saved_at_ns": ..., "unit": ..., "service": <EstimatorService.checkpoint()>, "sha256": ...}``
+(the sha256 of the service state's canonical JSON; a checkpoint that fails it, or any check
+of its fields, is refused with a one-line reason and the daemon moves it aside). It is written
 to ``<path>.tmp`` in the same folder, flushed and fsync'ed, then renamed over ``<path>`` (an
 atomic replace on POSIX), and the folder is fsync'ed; a daemon killed at any moment leaves
 either the previous checkpoint or the new one, never a torn file. Floats go through ``repr``
@@ -10,15 +12,23 @@ in :mod:`json`, so a restored estimator continues bit for bit.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import time
 from pathlib import Path
 from typing import Any
 
 from softsensor.errors import ConfigError
 
 FORMAT = "softsensor-checkpoint"
-VERSION = 1
+VERSION = 2  # 2: with the sha256 of the service state; 1 (no checksum) is still read
+
+
+def state_digest(service_state: Any) -> str:
+    """sha256 of the service state's canonical JSON: a torn or edited state is detected."""
+    canon = json.dumps(service_state, allow_nan=True, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(canon.encode()).hexdigest()
 
 
 class CheckpointStore:
@@ -53,17 +63,30 @@ class CheckpointStore:
                               f"with --no-resume)") from exc
         if not isinstance(doc, dict) or doc.get("format") != FORMAT:
             raise ConfigError(f"{self.path}: not a softsensor checkpoint")
-        if doc.get("version") != VERSION:
+        if doc.get("version") not in (1, VERSION):
             raise ConfigError(f"{self.path}: checkpoint version {doc.get('version')!r}, "
                               f"expected {VERSION}")
         if not isinstance(doc.get("service"), dict):
             raise ConfigError(f"{self.path}: checkpoint has no service state")
+        if doc["version"] == VERSION and doc.get("sha256") != state_digest(doc["service"]):
+            raise ConfigError(f"{self.path}: checkpoint checksum does not match its content")
+        t = doc.get("saved_at_ns")
+        if not isinstance(t, int) or isinstance(t, bool) or not 0 < t < 2**63:
+            raise ConfigError(f"{self.path}: checkpoint saved_at_ns is not a time")
         return doc
+
+    def move_aside(self) -> Path | None:
+        """Rename an unusable checkpoint to ``<path>.bad-<ns>`` (kept for a post-mortem)."""
+        if not self.path.exists():
+            return None
+        dest = self.path.with_name(f"{self.path.name}.bad-{time.time_ns()}")
+        os.replace(self.path, dest)
+        return dest
 
     def save(self, service_state: dict[str, Any], *, saved_at_ns: int, unit: str) -> None:
         """Write ``service_state`` atomically (module docstring)."""
         doc = {"format": FORMAT, "version": VERSION, "saved_at_ns": int(saved_at_ns),
-               "unit": unit, "service": service_state}
+               "unit": unit, "service": service_state, "sha256": state_digest(service_state)}
         data = json.dumps(doc, allow_nan=True, separators=(",", ":")).encode()
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)

@@ -153,8 +153,10 @@ class Daemon:
         The ``[service]`` table with command-line overrides applied.
     tagmap : TagMap, optional
         Use this tag map instead of ``settings.tagmap`` (tests).
-    resume : bool
-        Continue from the checkpoint when there is one.
+    resume : bool or str
+        Continue from the checkpoint when there is one (True or ``"auto"``: an unusable one
+        is moved aside and the daemon starts afresh; ``"required"``: it stops with a one-line
+        error instead; False: ignore any checkpoint).
     """
 
     def __init__(self, config: PlantConfig, settings: ServiceSettings, *,
@@ -231,7 +233,7 @@ class Daemon:
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
-        doc = self.store.load() if self.resume else None
+        doc = self._load_checkpoint()
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
         service = self._service(doc, scan_period_s)
         # compile the estimator's kernels now, not in the first live tick (which would hold
@@ -273,19 +275,46 @@ class Daemon:
         event(log, "stopped", ticks=service.stats.ticks, stale_ticks=service.stats.stale_ticks,
               scans=service.stats.scans, checkpoints=self.store.n_saved)
 
+    def _load_checkpoint(self) -> dict | None:
+        """The checkpoint to resume from: None without one, with ``resume`` off, or when it
+        fails its checks (then moved aside, see :meth:`_reject_checkpoint`)."""
+        if not self.resume:
+            return None
+        try:
+            return self.store.load()
+        except ConfigError as exc:
+            return self._reject_checkpoint(str(exc))
+
+    def _reject_checkpoint(self, reason: str) -> None:
+        """A checkpoint that cannot be used: with ``resume="required"`` a one-line error
+        (exit 2); otherwise renamed ``*.bad-<ns>``, logged loudly, and a fresh start."""
+        if self.resume == "required":
+            raise ConfigError(f"{reason} (--resume=required: not starting afresh)")
+        moved = self.store.move_aside()
+        event(log, "checkpoint_rejected", logging.ERROR, reason=reason,
+              moved_to=None if moved is None else str(moved), action="fresh start")
+
     def _service(self, doc: dict | None, scan_period_s: float) -> EstimatorService:
-        """A fresh estimator service, restored from the checkpoint ``doc`` when there is one."""
+        """A fresh estimator service, restored from the checkpoint ``doc`` when it fits."""
         service = make_service(self.config, self.settings, self.kind, scan_period_s)
-        if doc is not None:
-            if doc.get("unit") != self.unit:
-                raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
-                                  f"this daemon runs {self.unit!r} (use --no-resume)")
-            try:
-                service.restore(doc["service"], where=str(self.store.path))
-            except EstimationError as exc:
-                raise ConfigError(f"{exc} (run with --no-resume to start afresh)") from exc
-            event(log, "resumed", checkpoint=str(self.store.path),
-                  ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
+        if doc is None:
+            return service
+        # a checkpoint of another unit or estimator is a configuration question, not damage:
+        # the operator decides (--no-resume), the file stays
+        if doc.get("unit") != self.unit:
+            raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
+                              f"this daemon runs {self.unit!r} (use --no-resume)")
+        kind = doc["service"].get("estimator_kind")
+        if kind != service.kind:
+            raise ConfigError(f"{self.store.path}: written by estimator {kind!r}, this run "
+                              f"uses {service.kind!r} (use --no-resume)")
+        try:
+            service.restore(doc["service"], where=str(self.store.path))
+        except EstimationError as exc:
+            self._reject_checkpoint(f"{self.store.path}: {exc}")
+            return make_service(self.config, self.settings, self.kind, scan_period_s)
+        event(log, "resumed", checkpoint=str(self.store.path),
+              ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
         return service
 
     def _record(self, stack: contextlib.AsyncExitStack, session: zenoh.Session,

@@ -1,0 +1,92 @@
+"""Fault injection (issue 14, item 4): checkpoints verified before use.
+
+A checkpoint with flipped bytes, a NaN filter state, ``x = 1e308`` or a non-positive-definite
+covariance used to stop the daemon with a traceback or, worse, be accepted (no estimate ever
+again; ``moisture_out = 1e+308`` published). Each is now refused with a reason: the daemon
+moves the file aside and starts afresh, or with ``--resume=required`` stops with one line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from softsensor.errors import ConfigError
+from softsensor.plantconfig import load_plant_config
+from softsensor.service.checkpoint import CheckpointStore, state_digest
+from softsensor.service.daemon import Daemon
+from softsensor.service.offline_replay import make_service
+from softsensor.service.settings import service_settings
+from softsensor.service.warmup import warm_up
+
+
+@pytest.fixture(scope="module")
+def saved(tmp_path_factory) -> dict:
+    """A real checkpoint of a service that ran a few ticks."""
+    cfg = load_plant_config()
+    settings = service_settings(cfg)
+    service = make_service(cfg, settings)
+    warm_up(lambda: service, cfg)  # ticks a short synthetic stretch
+    path = tmp_path_factory.mktemp("ckpt") / "checkpoint.json"
+    CheckpointStore(path).save(service.checkpoint(), saved_at_ns=1_767_571_200 * 10**9,
+                               unit="dryer1")
+    return json.loads(path.read_text())
+
+
+def _daemon(tmp_path: Path, doc: dict | str, resume="auto") -> tuple[Daemon, Path]:
+    cfg = load_plant_config()
+    path = tmp_path / "checkpoint.json"
+    path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
+    settings = service_settings(cfg).with_overrides(checkpoint=str(path))
+    return Daemon(cfg, settings, resume=resume), path
+
+
+def _edit_state(doc: dict, fn) -> dict:
+    doc = json.loads(json.dumps(doc))
+    fn(doc["service"]["estimator"]["state"])
+    doc["sha256"] = state_digest(doc["service"])  # a consistent file with a bad state
+    return doc
+
+
+def test_a_good_checkpoint_resumes(saved, tmp_path):
+    d, _ = _daemon(tmp_path, saved)
+    doc = d._load_checkpoint()
+    assert doc is not None
+    service = d._service(doc, 10.0)
+    assert service.stats.ticks == saved["service"]["stats"]["ticks"] > 0
+
+
+def _bad_docs(saved: dict) -> dict[str, dict | str]:
+    flipped = json.dumps(saved).replace('"ticks":', '"ticks" :', 1)
+    edited = json.loads(json.dumps(saved))
+    edited["service"]["stats"]["ticks"] += 1  # content changed, checksum not
+    return {
+        "not json": flipped[: len(flipped) // 2],
+        "checksum": edited,
+        "nan state": _edit_state(saved, lambda st: st["x"].__setitem__(0, float("nan"))),
+        "huge state": _edit_state(saved, lambda st: st["x"].__setitem__(0, 1e308)),
+        "not positive definite": _edit_state(
+            saved, lambda st: st["P"][0].__setitem__(0, -1.0)),
+        "no time": dict(saved, saved_at_ns="soon"),
+    }
+
+
+@pytest.mark.parametrize("case", ["not json", "checksum", "nan state", "huge state",
+                                  "not positive definite", "no time"])
+def test_a_bad_checkpoint_is_moved_aside_and_the_daemon_starts_afresh(saved, tmp_path, case,
+                                                                     caplog):
+    d, path = _daemon(tmp_path, _bad_docs(saved)[case])
+    service = d._service(d._load_checkpoint(), 10.0)
+    assert service.stats.ticks == 0  # fresh
+    assert not path.exists() and len(list(tmp_path.glob("checkpoint.json.bad-*"))) == 1
+    assert any("checkpoint_rejected" in r.getMessage() for r in caplog.records)
+
+
+@pytest.mark.parametrize("case", ["not json", "nan state"])
+def test_resume_required_stops_with_one_line(saved, tmp_path, case):
+    d, path = _daemon(tmp_path, _bad_docs(saved)[case], resume="required")
+    with pytest.raises(ConfigError, match="--resume=required") as err:
+        d._service(d._load_checkpoint(), 10.0)
+    assert "\n" not in str(err.value) and path.exists()  # left where it was
