@@ -28,6 +28,7 @@ no good value in the latest scan, ``stale`` when no scan came for ``gap_after_s`
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import logging
 import math
@@ -128,6 +129,8 @@ class EstimatorService:
         #: refuses message times far from the service clock (the daemon sets a
         #: :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock)
         self.time_gate: Callable[[int], str | None] | None = None
+        #: lab results that may wait for one tick; more are refused (a flood)
+        self.max_pending_labs = 50
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -188,8 +191,13 @@ class EstimatorService:
             return []
         if lab.log_time_ns is None:  # no time anywhere yet: apply with the first tick
             lab = dataclasses.replace(lab, log_time_ns=0)
-        self._labs.append(lab)
-        self._labs.sort(key=lambda r: (r.log_time_ns, r.sample_id))
+        if len(self._labs) >= self.max_pending_labs:
+            # a lab sends a few results a day; thousands waiting for one tick are a flood
+            # (each would cost the filter an update) and would starve the estimator thread
+            self._refuse(f"lab result {lab.sample_id!r} refused: {len(self._labs)} results "
+                         f"already wait for the next tick (at most {self.max_pending_labs})")
+            return []
+        bisect.insort(self._labs, lab, key=lambda r: (r.log_time_ns, r.sample_id))
         return []
 
     def advance(self, now_ns: int) -> list[Output]:
@@ -276,7 +284,9 @@ class EstimatorService:
     def _refuse(self, reason: str) -> None:
         self.stats.labs_refused += 1
         self._last_refusal = reason
-        log.warning("lab refused: %s", reason)
+        n = self.stats.labs_refused
+        if n <= 10 or n % 1000 == 0:  # a flood must not become a flood of log lines
+            log.warning("lab refused: %s (%d refused so far)", reason, n)
 
     def _input_of(self, body: Mapping[str, Any]) -> tuple[str, str, tuple[str, ...]]:
         """Input status of one scan: ``degraded`` while a model input has no good value."""

@@ -92,3 +92,30 @@ def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_pa
     times = [t for t, _b in rec.topic(TOPIC_SCAN)]
     assert min(times) > 0 and max(times) < int(day.scans.index[0]) + DAY_NS
     assert len(rec.topic(TOPIC_ESTIMATE)) >= 6
+
+
+def test_a_lab_flood_is_bounded_and_does_not_starve_the_estimator():
+    """40,000 lab messages used to take minutes of the estimator thread (every one sorted in
+    and then applied by the filter): now at most ``max_pending_labs`` wait for a tick, the rest
+    are refused and counted, and the tick after the flood takes no longer than a few updates."""
+    from softsensor.service.offline_replay import make_service
+
+    cfg = load_plant_config()
+    service = make_service(cfg, service_settings(cfg))
+    day = simulate_day(cfg, 0.5, 3)
+    t0 = int(day.scans.index[0])
+    rows = day.scans.to_dict("records")
+    for k in range(61):
+        service.on_scan(t0 + k * 10 * 10**9, rows[k])
+    start = time.perf_counter()
+    for i in range(40_000):
+        service.on_lab({"sample_time_ns": t0 + 300 * 10**9, "moisture_out": 0.1,
+                        "sample_id": f"flood-{i}"}, t0 + 600 * 10**9)
+    taking = time.perf_counter() - start
+    assert len(service._labs) == service.max_pending_labs == 50
+    assert service.stats.labs_refused == 40_000 - 50
+    assert taking < 10.0, taking  # 40,000 refusals, not 40,000 sorts
+    t1 = time.perf_counter()
+    for k in range(61, 130):
+        service.on_scan(t0 + k * 10 * 10**9, rows[k])
+    assert service.stats.ticks >= 1 and time.perf_counter() - t1 < 60.0
