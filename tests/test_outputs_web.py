@@ -31,7 +31,8 @@ def _page(history: bool = True) -> LivePage:
             x = 0.10 + 0.01 * np.sin(k / 20)
             page.add_estimate(T0 + (k + 1) * W_NS, {
                 "moisture_out": x, "moisture_out_std": 0.004, "moisture_in": 1.0,
-                "moisture_in_std": 0.03, "status": "ok", "lab_updated": k % 20 == 0})
+                "moisture_in_std": 0.03, "status": "ok", "lab_updated": k % 20 == 0,
+                "T_dryer_out_model": 348.15, "T_cyclone_out_model": 345.65})
         for k in range(0, 288, 20):
             page.add_lab(T0 + k * W_NS, 0.103 + 0.01 * np.sin(k / 20), f"L{k}")
     page.set_health({"status": "degraded", "detail": "innovation <b>high</b>"})
@@ -64,6 +65,7 @@ def test_page_and_api_over_http():
         x = 0.10 + 0.01 * np.sin(287 / 20)
         assert f"{100 * x / (1 + x):.2f}" in text and "% wb" in text
         assert "50.00" in text  # inlet X = 1.0 is 50 % wet basis
+        assert "dryer 75.0 °C, cyclone 72.5 °C" in text
         assert "2026-01-07T01:00:00+01:00" in text  # the last window end, Stockholm time
         assert "<b>high</b>" not in text and "&lt;b&gt;high&lt;/b&gt;" in text
         assert "&lt;i&gt;it&lt;/i&gt;" in text and "<script" not in text

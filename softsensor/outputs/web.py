@@ -283,8 +283,14 @@ def _now_line(est: list, health: Mapping[str, Any], display: DisplaySettings) ->
                 f" &plusmn; {moisture_pct_points(1.96 * float(sd), float(v), basis):.2f}")
         return f"{float(moisture_pct(float(v), basis)):.2f}{band} {html.escape(unit)}"
 
+    def deg(key: str) -> str:
+        v = b.get(key)
+        return "n/a" if v is None else f"{float(v) - 273.15:.1f} °C"
+
     return (f"<p class='big'>Outlet moisture <b>{pct('moisture_out')}</b> &nbsp; "
             f"Inlet moisture <b>{pct('moisture_in')}</b></p>"
+            f"<p>Model outlet temperatures: dryer {deg('T_dryer_out_model')}, cyclone "
+            f"{deg('T_cyclone_out_model')}</p>"
             f"<p>Window ending {html.escape(local_clock(t, display))}"
             f"{' &middot; lab result applied' if b.get('lab_updated') else ''}</p>")
 
