@@ -215,7 +215,8 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
                  f"[outputs.opcua]\nenabled = true\nport = {_free_port()}\n")
     cfg = load_plant_config(p)
     settings = service_settings(cfg).with_overrides(
-        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"), lab_dir=None,
+        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
+        lab_dir=str(tmp_path / "lab"),
         zenoh_listen=["tcp/127.0.0.1:0"], time_scale=scale,
         clock_start=str(int(day.scans.index[0])), record=False)
     got: dict = {}

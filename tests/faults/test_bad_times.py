@@ -48,7 +48,8 @@ def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_pa
     cfg = load_plant_config()
     day = simulate_day(cfg, 3.0, 12)
     settings = service_settings(cfg).with_overrides(
-        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"), lab_dir=None,
+        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
+        lab_dir=str(tmp_path / "lab"),
         zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE, flush_interval_s=0.2,
         clock_start=str(int(day.scans.index[0])))
     got: dict = {}
