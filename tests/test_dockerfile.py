@@ -200,7 +200,7 @@ HOST_CA = Path("/etc/ssl/certs/ca-certificates.crt")
 PYTHON_LAYER = """\
 FROM {base}
 RUN apt-get update && apt-get install -y --no-install-recommends python3 python3-venv \\
-    && rm -rf /var/lib/apt/lists/* && python3 -m venv /opt/python
+    && apt-get clean && rm -rf /var/lib/apt/lists/* && python3 -m venv /opt/python
 COPY ca.crt /etc/ssl/certs/host-ca.crt
 ENV PATH=/opt/python/bin:$PATH PIP_CERT=/etc/ssl/certs/host-ca.crt
 """

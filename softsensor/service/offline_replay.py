@@ -196,10 +196,14 @@ def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None =
                  scan_period_s: float | None = None) -> EstimatorService:
     """The estimator service of ``cfg`` as the daemon builds it (scan period in plant s)."""
     kind = kind or resolve_estimator_kind(settings, cfg)
-    return EstimatorService(make_estimator(kind, cfg),
-                            window_settings(cfg, settings, scan_period_s),
+    window = window_settings(cfg, settings, scan_period_s)
+    # a gap is ticked window by window up to the past horizon the service accepts data for;
+    # longer ones are one "stale since" state (a scan stamped years ahead costs no more)
+    max_gap = max(1, math.ceil(settings.max_past_s / window.period_s))
+    return EstimatorService(make_estimator(kind, cfg), window,
                             unit=resolve_unit(settings, cfg),
-                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s)
+                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
+                            max_gap_windows=max_gap)
 
 
 def truth_rmse(day: str | os.PathLike[str], estimates: list[tuple[int, dict[str, Any]]],
