@@ -84,7 +84,7 @@ VOLUME ["/config", "/data"]
 EXPOSE 7447
 # healthy while the estimator thread ticks: `softsensor health` asks the daemon's health
 # queryable over loopback and fails when it does not answer or reports the thread stalled
-HEALTHCHECK --interval=30s --timeout=20s --start-period=120s --retries=3 \
+HEALTHCHECK --interval=60s --timeout=20s --start-period=120s --retries=3 \
     CMD ["softsensor", "health", "--config", "/config/dryer1.toml", \
          "--connect", "tcp/127.0.0.1:7447"]
 STOPSIGNAL SIGTERM

@@ -132,6 +132,7 @@ def _replay(args: argparse.Namespace) -> int:
     from softsensor.service.settings import service_settings
 
     parse_rate(args.rate)  # a bad rate fails before anything starts
+    signal.signal(signal.SIGTERM, _interrupt)  # clean up the partial --out, as Ctrl-C does
     cfg = load_config_and_params(args).config
     settings = service_settings(cfg)
     if not getattr(args, "verbose", False):
@@ -148,6 +149,10 @@ def _replay(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"warning: {problem[1]}", file=sys.stderr, flush=True)
     return 0
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _every(seconds: float) -> Callable[[int, int], None]:
@@ -196,13 +201,21 @@ def _health(args: argparse.Namespace) -> int:
     """``softsensor health``: ask a running daemon's health queryable; exit 0 when it answers
     and its estimator thread is not stalled, 1 otherwise (a container's HEALTHCHECK)."""
     from softsensor.bus.zenoh_bus import open_session
-    from softsensor.service.settings import bus_options, resolve_unit, service_settings
+    from softsensor.service.settings import (
+        UNIT_NAME,
+        UNIT_RULE,
+        bus_options,
+        resolve_unit,
+        service_settings,
+    )
     from softsensor.service.watchdog import query_health
 
     if not 0 < args.timeout <= 600:
         raise ConfigError(f"--timeout must be in (0, 600] s, got {args.timeout}")
     cfg = load_config_and_params(args).config
     settings = service_settings(cfg)
+    if args.unit is not None and not UNIT_NAME.fullmatch(args.unit):
+        raise ConfigError(f"--unit {args.unit!r} {UNIT_RULE}")
     unit = args.unit or resolve_unit(settings, cfg)
     connect = args.connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in settings.listen]
     if not connect:
@@ -212,20 +225,20 @@ def _health(args: argparse.Namespace) -> int:
     try:
         session = open_session(mode="client", connect=list(connect), **auth)
     except ConfigError as exc:  # refused or nobody there: unhealthy, not a usage error
-        print(f"health: {unit}: {exc}", file=sys.stderr)
+        print(f"softsensor health: {unit}: {exc}", file=sys.stderr)
         return 1
     with session:
         doc = query_health(session, unit, args.timeout)
     if doc is None:
-        print(f"health: {unit}: no answer from {', '.join(connect)} within {args.timeout:g} s",
-              file=sys.stderr)
+        print(f"softsensor health: {unit}: no answer from {', '.join(connect)} within "
+              f"{args.timeout:g} s", file=sys.stderr)
         return 1
     if args.json:
         from softsensor.apps.output import write_json
 
         write_json(doc, args.json)
     age = doc.get("last_tick_age_s")
-    print(f"health: {unit}: {doc.get('status')}"
+    print(f"softsensor health: {unit}: {doc.get('status')}"
           + (" (STALLED)" if doc.get("stalled") else "")
           + f": {doc.get('detail')}"
           + ("" if age is None else f"; last estimate {age:.0f} s ago"), file=sys.stderr)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import re
 import socket
 import threading
 import time
@@ -155,6 +156,7 @@ def open_session(config: zenoh.Config | None = None, **kwargs: Any) -> zenoh.Ses
         return zenoh.open(config)
     except zenoh.ZError as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # zenoh's source location
         raise ConfigError(f"zenoh session could not open: {first}") from exc
 
 

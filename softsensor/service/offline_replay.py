@@ -274,7 +274,10 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                 progress(o.time_ns, len(summary.estimates))
 
     t0 = time.monotonic()
-    recorder = FileRecorder(out, chunk_size=settings.chunk_size)
+    # written beside ``out`` and renamed over it only when complete: an interrupted replay
+    # (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
+    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
     ok = False
     try:
         stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns, end=end_ns,
@@ -282,8 +285,10 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
         ok = True
     finally:
         recorder.close()
-        if not ok:
-            out.unlink(missing_ok=True)
+        if ok:
+            os.replace(partial, out)
+        else:
+            partial.unlink(missing_ok=True)
     summary.wall_s = time.monotonic() - t0
     s = service.stats
     summary.n_replayed = stats.n_published
@@ -304,6 +309,8 @@ def _check_day(day: Path, out: Path, start_ns: int | None, end_ns: int | None,
     scans in the selected range (reading its first scan checks the file is intact)."""
     if day.resolve() == out.resolve():
         raise IngestError(f"{out}: --out must differ from the replayed day")
+    if out.is_dir() or not out.resolve().parent.is_dir():
+        raise IngestError(f"--out {out}: not a file in an existing folder")
     if not day.is_file():
         raise IngestError(f"{day}: no such file")
     first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,

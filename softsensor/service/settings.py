@@ -29,6 +29,7 @@ plant seconds unless they say "wall".
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,9 @@ from softsensor.estimation.settings import ESTIMATOR_KINDS
 from softsensor.plantconfig import PlantConfig
 
 ZENOH_MODES: tuple[str, ...] = ("peer", "client")
+#: A unit name: it is a Zenoh key chunk and part of file names, so no ``/``, ``..``, ``*``.
+UNIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+UNIT_RULE = "must be 1 to 64 letters, digits, '_' or '-' (it names keys and files)"
 LOG_FORMATS: tuple[str, ...] = ("kv", "json")
 
 
@@ -169,6 +173,8 @@ class ServiceSettings:
         if self.estimator is not None and self.estimator not in ESTIMATOR_KINDS:
             return (f"estimator must be one of {', '.join(ESTIMATOR_KINDS)}, "
                     f"got {self.estimator!r}")
+        if self.unit is not None and not UNIT_NAME.fullmatch(self.unit):
+            return f"unit {self.unit!r} {UNIT_RULE}"
         if (self.zenoh_user is None) != (self.zenoh_password_file is None):
             return "zenoh_user and zenoh_password_file go together (both or neither)"
         if self.log_format not in LOG_FORMATS:
@@ -227,8 +233,13 @@ def service_settings(cfg: PlantConfig) -> ServiceSettings:
 
 
 def resolve_unit(settings: ServiceSettings, cfg: PlantConfig) -> str:
-    """The unit name: ``service.unit``, else the config's ``unit.name``."""
-    return settings.unit or cfg.unit.name
+    """The unit name: ``service.unit``, else the config's ``unit.name`` (checked as one)."""
+    unit = settings.unit or cfg.unit.name
+    if not UNIT_NAME.fullmatch(unit):
+        from softsensor.errors import ConfigError
+
+        raise ConfigError(f"{cfg.source}: unit.name {unit!r} {UNIT_RULE}")
+    return unit
 
 
 def resolve_estimator_kind(settings: ServiceSettings, cfg: PlantConfig) -> str:
