@@ -76,3 +76,45 @@ def test_replay_progress_is_throttled(capsys, monkeypatch):
     lines = capsys.readouterr().err.splitlines()
     assert lines == ["replay: 2 ticks, at 2026-01-05T00:20:00Z ...",
                      "replay: 4 ticks, at 2026-01-05T00:40:00Z ..."]
+
+
+def test_writing_replaces_whole_or_not_at_all(tmp_path):
+    from softsensor.apps.output import writing
+
+    target = tmp_path / "out.csv"
+    target.write_text("earlier\n")
+    with pytest.raises(KeyboardInterrupt):
+        with writing(target) as tmp:
+            tmp.write_text("half a file")
+            raise KeyboardInterrupt
+    assert target.read_text() == "earlier\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]  # no temporary left
+    with writing(target) as tmp:
+        tmp.write_text("new\n")
+    assert target.read_text() == "new\n" and len(list(tmp_path.iterdir())) == 1
+
+
+def test_sigterm_during_replay_keeps_the_previous_out(tmp_path):
+    """Issue 14: SIGTERM during ``replay`` destroyed the previous ``--out``."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "est.mcap"
+    out.write_bytes(b"the earlier replay")
+    proc = subprocess.Popen([sys.executable, "-m", "softsensor.cli", "replay",
+                             str(root / "replay" / "demo-day.mcap"), "--out", str(out)],
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".est.mcap.*.partial")):  # streaming has begun
+        assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+        time.sleep(0.1)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-1000:]
+    assert out.read_bytes() == b"the earlier replay"
+    assert [p.name for p in tmp_path.iterdir()] == ["est.mcap"], err[-500:]
+    assert "Traceback" not in err

@@ -25,6 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from optuna.trial import TrialState  # noqa: E402
 
+from softsensor.apps.output import writing  # noqa: E402
 from softsensor.calibration.cost import ModelRun  # noqa: E402
 from softsensor.calibration.dataset import Segment  # noqa: E402
 from softsensor.calibration.identifiability import Sensitivities  # noqa: E402
@@ -239,7 +240,8 @@ def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, 
             f"<title>{html.escape(title)}</title><style>{_PAGE_STYLE}</style></head>"
             f"<body>\n" + "\n".join(body) + "\n</body></html>\n")
     p = d / name
-    p.write_text(_embed_figures(page, d), encoding="utf-8")
+    with writing(p, "--report") as tmp:
+        tmp.write_text(_embed_figures(page, d), encoding="utf-8")
     return p
 
 

@@ -14,6 +14,7 @@ import math
 import sys
 from pathlib import Path
 
+from softsensor.apps.output import writing
 from softsensor.errors import ConfigError, IngestError
 from softsensor.ingest.historian import LabTable, ScanTable
 from softsensor.messages import iso_utc, lab_body
@@ -29,7 +30,7 @@ def write_imported_day(path: str | Path, scans: ScanTable, labs: LabTable | None
     out = Path(path)
     if not out.parent.is_dir():
         raise ConfigError(f"--out {out}: directory {out.parent} does not exist")
-    with DayWriter(out) as w:
+    with writing(out) as tmp, DayWriter(tmp) as w:
         for i, t in enumerate(scans.times_ns.tolist()):
             while j < len(pending) and pending[j].log_time_ns <= t:
                 w.write(TOPIC_LAB, pending[j].log_time_ns, lab_body(pending[j]))
@@ -37,7 +38,7 @@ def write_imported_day(path: str | Path, scans: ScanTable, labs: LabTable | None
             w.write(TOPIC_SCAN, t, scans.body(i))
         for lab in pending[j:]:
             w.write(TOPIC_LAB, lab.log_time_ns, lab_body(lab))
-        return w.n_messages
+    return w.n_messages
 
 
 def _counts(counts: dict[str, int]) -> str:
@@ -90,8 +91,9 @@ def _export(args: argparse.Namespace) -> int:
         if table_kind(Path(p)) != kind:
             raise IngestError(f"--{kind} {p}: the file name does not end in .{kind}")
     table = estimates_table(args.recording)
-    for p, _kind in targets:
-        write_table(table, p)
+    for p, kind in targets:
+        with writing(p, f"--{kind}") as tmp:
+            write_table(table, tmp)
     print(f"exported {args.recording}: {len(table)} estimates "
           f"{table['time_utc'].iloc[0]} .. {table['time_utc'].iloc[-1]}, "
           f"{table.shape[1]} columns; wrote {', '.join(p for p, _ in targets)}", file=sys.stderr)

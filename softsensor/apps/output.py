@@ -14,6 +14,7 @@ import contextlib
 import os
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -43,20 +44,30 @@ def check_target(target: str | os.PathLike[str] | None, flag: str = "--json") ->
         raise ConfigError(f"{flag} {p}: directory {parent} is not writable")
 
 
-def replace_file(target: str | os.PathLike[str], data: bytes, flag: str = "--out") -> Path:
-    """Write ``data`` beside ``target`` and rename it over ``target`` (atomic on POSIX)."""
+@contextlib.contextmanager
+def writing(target: str | os.PathLike[str], flag: str = "--out") -> Iterator[Path]:
+    """A temporary path beside ``target`` to write to; renamed over ``target`` (atomic on
+    POSIX) when the block ends, removed when it raises or is interrupted: an earlier file of
+    that name is replaced whole or not at all. Every verb's output file goes through here."""
     p = Path(target)
     check_target(p, flag)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.resolve().parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".tmp{p.suffix}",
+                               dir=p.resolve().parent)
+    os.close(fd)
     try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
+        yield Path(tmp)
         os.replace(tmp, p)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
-    return p
+
+
+def replace_file(target: str | os.PathLike[str], data: bytes, flag: str = "--out") -> Path:
+    """Write ``data`` beside ``target`` and rename it over ``target`` (:func:`writing`)."""
+    with writing(target, flag) as tmp:
+        tmp.write_bytes(data)
+    return Path(target)
 
 
 def write_json(doc: Any, target: str | os.PathLike[str] | None, flag: str = "--json") -> None:
@@ -72,4 +83,4 @@ def write_json(doc: Any, target: str | os.PathLike[str] | None, flag: str = "--j
     replace_file(target, text.encode("utf-8"), flag)
 
 
-__all__ = ["STDOUT", "check_target", "replace_file", "say", "write_json"]
+__all__ = ["STDOUT", "check_target", "replace_file", "say", "write_json", "writing"]

@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from softsensor.apps.loading import load_config_and_params
+from softsensor.apps.output import writing
 from softsensor.errors import ConfigError
 from softsensor.plant.day import SimulatedDay
 from softsensor.plant.effects import EFFECTS
@@ -105,7 +106,8 @@ def _plant_server(args: argparse.Namespace) -> int:
 def _simulate(args: argparse.Namespace) -> int:
     cfg = load_plant(args)
     day = simulate_plant(cfg, args)
-    day.write(args.out)
+    with writing(args.out) as tmp:  # a run stopped half-way leaves no half file
+        day.write(tmp)
     eff = day.effect
     what = "clean day" if eff["effect"] == "none" else (
         f"effect {eff['effect']} magnitude {eff['magnitude']:g} {eff['unit']}"
