@@ -260,9 +260,7 @@ def assessor(base: PlantConfig, calibration: CalibrationSettings
 
 def with_theta(config: PlantConfig, theta: np.ndarray) -> PlantConfig:
     """``config`` with its parameter values replaced by ``theta`` (7,)."""
-    params = dataclasses.replace(config.parameters, **dict(zip(
-        PARAMETER_NAMES, map(float, theta), strict=True)))
-    return dataclasses.replace(config, parameters=params)
+    return config.with_parameters(np.asarray(theta, float))
 
 
 # ------------------------------------------------------------------ files

@@ -34,8 +34,9 @@ Limits
     shrinking its levels towards the operating point (factors :data:`SHRINK`), and rejected
     when even the smallest shrink exceeds the bound.
 Search
-    Seeded random PRBS candidates, then coordinate moves (each level of each knob set to -1, 0
-    or +1 in turn, kept when the criterion improves) within an evaluation budget. The search is
+    Seeded random multi-level sequences (levels :data:`LEVELS`; a PRBS uses only the ends),
+    then coordinate moves (one level of one knob set to another of :data:`LEVELS`, in a seeded
+    order, kept when the criterion improves) within an evaluation budget. The search is
     deterministic for a seed.
 """
 
@@ -64,6 +65,10 @@ from softsensor.plantconfig import PARAMETER_NAMES
 CRITERIA: tuple[str, ...] = ("D", "A")
 #: Level factors tried, in order, to bring a candidate's moisture excursion within its bound.
 SHRINK: tuple[float, ...] = (1.0, 0.7, 0.5, 0.35, 0.25)
+#: Levels the search tries: the band's ends, its middle and half-way (a temperature move and
+#: an air-flow move of opposite effect on the outlet moisture may only fit the bound together
+#: at part amplitude).
+LEVELS: tuple[float, ...] = (-1.0, -0.5, 0.0, 0.5, 1.0)
 #: Ridge, relative to the mean eigenvalue, that keeps ln det finite for a rank-deficient FIM.
 RIDGE = 1e-12
 NS = 1_000_000_000
@@ -379,7 +384,7 @@ def natural_candidate(problem: DesignProblem) -> tuple[Candidate, float]:
 
 def optimise(problem: DesignProblem, *, seed: int = 0, n_random: int = 6, budget: int = 30,
              say: Callable[[str], None] | None = None) -> DesignResult:
-    """Search the levels (module docstring): ``n_random`` PRBS candidates, then coordinate
+    """Search the levels (module docstring): ``n_random`` random candidates, then coordinate
     moves until ``budget`` evaluations are spent. Raises :class:`ConfigError` for bad limits
     and :class:`SolverError` when no candidate meets the moisture bound."""
     problem.check()
@@ -398,10 +403,10 @@ def optimise(problem: DesignProblem, *, seed: int = 0, n_random: int = 6, budget
         return False
 
     for _ in range(n_random):
-        lv = rng.choice([-1.0, 1.0], size=(2, n))
+        lv = rng.choice(LEVELS, size=(2, n))
         if consider(lv):
             best_levels = lv
-    moves = [(j, i, v) for i in range(n) for j in range(2) for v in (-1.0, 0.0, 1.0)]
+    moves = [(j, i, v) for i in range(n) for j in range(2) for v in LEVELS]
     for j, i, v in (moves[k] for k in rng.permutation(len(moves))):
         if len(result.history) >= budget:
             break
