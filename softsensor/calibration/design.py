@@ -64,7 +64,7 @@ from softsensor.plantconfig import PARAMETER_NAMES
 #: Criteria :func:`criterion` knows.
 CRITERIA: tuple[str, ...] = ("D", "A")
 #: Level factors tried, in order, to bring a candidate's moisture excursion within its bound.
-SHRINK: tuple[float, ...] = (1.0, 0.7, 0.5, 0.35, 0.25)
+SHRINK: tuple[float, ...] = (1.0, 0.7, 0.5, 0.35, 0.25, 0.15, 0.1)
 #: Levels the search tries: the band's ends, its middle and half-way (a temperature move and
 #: an air-flow move of opposite effect on the outlet moisture may only fit the bound together
 #: at part amplitude).
