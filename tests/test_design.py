@@ -129,3 +129,31 @@ def test_verb_bad_limits_one_line_exit_2(tmp_path, capsys, extra, words):
     assert rc == 2
     assert len(err.splitlines()) == 1 and words in err
     assert not (tmp_path / "x").exists()
+
+
+def test_sequential_designs_at_each_new_estimate():
+    from types import SimpleNamespace
+
+    from softsensor.calibration.design import Information, sequential
+
+    seen, recorded = [], []
+
+    def design_at(theta):
+        seen.append(theta.copy())
+        return SimpleNamespace(best=SimpleNamespace(schedule=f"s{len(seen)}", score=1.0))
+
+    def record(schedule, r):
+        recorded.append((schedule, r))
+        return schedule
+
+    def recalibrate(segments, theta):
+        return theta * 2.0 if len(segments) == len(recorded) else theta
+
+    def assess(segments, theta):
+        se = np.full(7, 1.0 / len(segments))
+        return Information(np.eye(7), 0.0, 1.0, np.diag(se**2), se, 0.0)
+
+    rounds = sequential(design_at, record, recalibrate, assess, np.ones(7), 3)
+    assert [r[1] for r in recorded] == [0, 1, 2]
+    assert [float(t[0]) for t in seen] == [1.0, 2.0, 4.0]  # each round designs at the new one
+    assert [float(r.se[0]) for r in rounds] == [1.0, 0.5, 1.0 / 3]  # on all periods so far
