@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import math
 import sys
 from collections.abc import Callable, Sequence
 
@@ -27,7 +28,7 @@ class _Parser(argparse.ArgumentParser):
     """Argument errors as one line (``softsensor: error: ...``) with exit status 2."""
 
     def error(self, message: str) -> None:  # type: ignore[override]
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, one_line(f"{self.prog}: error: {message}") + "\n")
 
 
 #: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``.
@@ -63,6 +64,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(message: str) -> str:
+    """``message`` as one printable line: a file name or value with a line break or other
+    control character in it (a user's typo, a hostile file) is shown escaped."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
+
+
+def check_numbers(args: argparse.Namespace) -> str | None:
+    """The one rule every verb's numeric options share: no NaN or infinity, seeds that numpy
+    takes (0 .. 2**32 - 1) and TCP ports (0 .. 65535); the message names the option."""
+    for key, value in vars(args).items():
+        flag = "--" + key.replace("_", "-")
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"argument {flag}: must be a finite number, got {value}"
+        if isinstance(value, bool) or not isinstance(value, int):
+            continue
+        if "seed" in key and not 0 <= value < 2**32:
+            return f"argument {flag}: must be in 0..{2**32 - 1}, got {value}"
+        if key == "port" and not 0 <= value <= 65535:
+            return f"argument {flag}: must be a TCP port in 0..65535, got {value}"
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
@@ -70,20 +93,34 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"softsensor: {exc}", file=sys.stderr)
         return 1
     args = parser.parse_args(argv)
+    problem = check_numbers(args)
+    if problem is not None:
+        print(one_line(f"softsensor {args.verb}: error: {problem}"), file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)
     try:
         return int(args.func(args) or 0)
     except SoftsensorError as exc:
-        print(f"softsensor: {exc}", file=sys.stderr)
+        print(one_line(f"softsensor: {exc}"), file=sys.stderr)
         return 2
     except FileNotFoundError as exc:
-        print(f"softsensor: {exc.filename}: no such file", file=sys.stderr)
+        print(one_line(f"softsensor: {exc.filename}: no such file"), file=sys.stderr)
+        return 2
+    except OSError as exc:  # a path given that cannot be used: a folder, no permission
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(one_line(f"softsensor: {where}{exc.strerror or exc}"), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("softsensor: interrupted", file=sys.stderr)
         return 130
+    except Exception as exc:  # noqa: BLE001 - a bug: one line, the traceback with -v
+        log.debug("unexpected error", exc_info=True)
+        first = str(exc).splitlines()[0][:300] if str(exc) else ""
+        print(one_line(f"softsensor {args.verb}: unexpected {type(exc).__name__}: {first} "
+                       f"(this is a bug; --verbose shows where)"), file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -55,6 +55,8 @@ def read_toml(path: str | Path) -> dict[str, Any]:
             return tomllib.load(f)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{p}: malformed TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(f"{p}: not UTF-8 text (byte {exc.start}), so not TOML") from exc
     except OSError as exc:
         raise ConfigError(f"{p}: cannot read: {exc.strerror}") from exc
 

@@ -30,3 +30,20 @@ class SolverError(SoftsensorError):
 
 class EstimationError(SoftsensorError):
     """The estimator cannot continue."""
+
+
+#: The extra of pyproject.toml that holds what only the offline studies use: Optuna
+#: (calibration), Matplotlib (report figures), PyArrow (Parquet tables), about 250 MB that
+#: the daemon's install and container image leave out.
+OFFLINE_EXTRA = "offline"
+
+
+def require_packages(purpose: str, *modules: str) -> None:
+    """Raise :class:`ConfigError` naming the first of ``modules`` that is not installed and
+    the command that installs it (``purpose`` says what needs it: a verb, a file format)."""
+    import importlib.util  # here, so that importing the error classes stays free
+
+    for module in modules:
+        if importlib.util.find_spec(module) is None:
+            raise ConfigError(f"{purpose} needs the package {module}, which this install "
+                              f"leaves out: pip install 'softsensor[{OFFLINE_EXTRA}]'")

@@ -13,14 +13,13 @@ volumes. The build test builds FROM a local Debian base when Docker Hub is out o
 from __future__ import annotations
 
 import fnmatch
+import importlib.util
 import json
-import os
 import re
 import shlex
-import shutil
-import subprocess
 import tomllib
 from pathlib import Path, PurePosixPath
+from types import ModuleType
 
 import pytest
 from mcap.reader import make_reader
@@ -60,33 +59,55 @@ def of(kind: str) -> list[str]:
     return [a for k, a in instructions() if k == kind]
 
 
-def copies() -> list[tuple[list[str], str]]:
-    """``(sources, destination)`` of each COPY from the build context."""
-    out = []
-    for args in of("COPY"):
-        words = [w for w in shlex.split(args) if not w.startswith("--")]
-        assert not any(w.startswith("--from") for w in shlex.split(args))
-        out.append((words[:-1], words[-1]))
+def stages() -> list[tuple[str, str | None, list[tuple[str, str]]]]:
+    """``(FROM image, stage name, instructions)`` of each build stage, in order."""
+    out: list[tuple[str, str | None, list[tuple[str, str]]]] = []
+    for k, a in instructions():
+        if k == "FROM":
+            words = a.split()
+            name = words[2] if len(words) == 3 and words[1].upper() == "AS" else None
+            out.append((words[0], name, []))
+        elif out:
+            out[-1][2].append((k, a))
     return out
 
 
-def workdir_before_copies() -> dict[int, str]:
-    wd, out, i = "/", {}, 0
-    for k, a in instructions():
+def final_stage() -> list[tuple[str, str]]:
+    """The instructions of the image that is shipped (the last stage)."""
+    return stages()[-1][2]
+
+
+def _is_context_copy(args: str) -> bool:
+    return not any(w.startswith("--from") for w in shlex.split(args))
+
+
+def copies() -> list[tuple[list[str], str]]:
+    """``(sources, destination)`` of each COPY from the build context, in any stage."""
+    out = []
+    for args in of("COPY"):
+        if _is_context_copy(args):
+            words = [w for w in shlex.split(args) if not w.startswith("--")]
+            out.append((words[:-1], words[-1]))
+    return out
+
+
+def final_copies() -> list[tuple[str, list[str], str]]:
+    """``(WORKDIR, sources, destination)`` of the final stage's COPYs from the context."""
+    wd, out = "/", []
+    for k, a in final_stage():
         if k == "WORKDIR":
             wd = str(PurePosixPath(wd) / a)
-        elif k == "COPY":
-            out[i] = wd
-            i += 1
+        elif k == "COPY" and _is_context_copy(a):
+            words = [w for w in shlex.split(a) if not w.startswith("--")]
+            out.append((wd, words[:-1], words[-1]))
     return out
 
 
 def container_to_repo(path: str) -> Path | None:
     """The repository file that a COPY puts at container ``path`` (None if none does)."""
     target = PurePosixPath(path)
-    wds = workdir_before_copies()
-    for i, (sources, dest) in enumerate(copies()):
-        d = PurePosixPath(wds[i]) / dest
+    for wd, sources, dest in final_copies():
+        d = PurePosixPath(wd) / dest
         for src in sources:
             repo = ROOT / src
             if repo.is_dir():
@@ -112,8 +133,13 @@ def arg_defaults() -> dict[str, str]:
 
 
 def base_image() -> str:
-    """The image the Dockerfile builds FROM when no ``--build-arg`` is given."""
-    (base,) = of("FROM")
+    """The image the Dockerfile builds FROM when no ``--build-arg`` is given: the final
+    stage's, which every stage starts from (directly or through an earlier stage)."""
+    names = set()
+    for image, name, _ in stages():
+        assert image in names or image == stages()[-1][0], f"stage FROM {image}"
+        names.add(name)
+    base = stages()[-1][0]
     args = arg_defaults()
     m = re.fullmatch(r"\$\{?(\w+)\}?", base)
     if m:
@@ -189,70 +215,78 @@ def test_files_the_package_build_needs_are_copied() -> None:
     assert needed <= copied, needed - copied
 
 
+def test_dependencies_have_their_own_layer_before_the_code() -> None:
+    """An edit of softsensor/ must not re-download the dependencies: they are installed by a
+    RUN that comes after pyproject.toml is copied and before the code is."""
+    steps = [(k, a) for _image, _name, body in stages() for k, a in body]
+    code = next(i for i, (k, a) in enumerate(steps) if k == "COPY" and "softsensor" in
+                shlex.split(a) and _is_context_copy(a))
+    pyproject = next(i for i, (k, a) in enumerate(steps) if k == "COPY"
+                     and "pyproject.toml" in shlex.split(a))
+    deps = [i for i, (k, a) in enumerate(steps) if k == "RUN" and "requirements" in a
+            and "pip install" in a]
+    assert deps and pyproject < deps[0] < code, (pyproject, deps, code)
+
+
+def test_the_image_installs_the_runtime_dependencies_only() -> None:
+    """The daemon's image has no calibration-only packages: the RUN installs
+    ``project.dependencies`` (not an extra), and those hold no Optuna, Matplotlib, PyArrow."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    names = {re.split(r"[<>=!~\[ ;]", d, maxsplit=1)[0].lower()
+             for d in project["dependencies"]}
+    assert not names & {"optuna", "matplotlib", "pyarrow", "sqlalchemy"}, names
+    assert {"optuna", "matplotlib", "pyarrow"} <= {
+        re.split(r"[<>=!~\[ ;]", d, maxsplit=1)[0].lower()
+        for d in project["optional-dependencies"]["offline"]}
+    runs = " ".join(a for k, a in instructions() if k == "RUN")
+    assert "['project']['dependencies']" in runs and "[offline]" not in runs
+
+
+def test_healthcheck_runs_softsensor_health() -> None:
+    (check,) = [a for k, a in final_stage() if k == "HEALTHCHECK"]
+    options, _, cmd = check.partition(" CMD ")
+    argv = exec_form(cmd)
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert argv[0] in scripts
+    args = build_parser().parse_args(argv[1:])
+    assert args.verb == "health" and args.connect == ["tcp/127.0.0.1:7447"]
+    assert "--timeout" in options and "--interval" in options
+
+
 # ------------------------------------------------------------------ a real build and run
-#: The Debian base the build test puts Python on when Docker Hub is out of reach (README of
-#: the test below says how to make it); ``SOFTSENSOR_DOCKER_BASE`` names another.
-LOCAL_BASE = os.environ.get("SOFTSENSOR_DOCKER_BASE", "local/bookworm:base")
-HOST_CA = Path("/etc/ssl/certs/ca-certificates.crt")
-#: Python on the Debian base, as the Dockerfile expects of BASE (``pip`` and ``python`` on
-#: PATH). The host's CA bundle goes into this test-only layer so that pip reaches the package
-#: index through the host's TLS proxy; the default image never sees it.
-PYTHON_LAYER = """\
-FROM {base}
-RUN apt-get update && apt-get install -y --no-install-recommends python3 python3-venv \\
-    && rm -rf /var/lib/apt/lists/* && python3 -m venv /opt/python
-COPY ca.crt /etc/ssl/certs/host-ca.crt
-ENV PATH=/opt/python/bin:$PATH PIP_CERT=/etc/ssl/certs/host-ca.crt
-"""
-
-
-def _docker(*args: str, timeout: float = 120, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run(["docker", *args], capture_output=True, text=True, timeout=timeout,
-                          **kw)
-
-
-def _engine_or_skip() -> None:
-    if shutil.which("docker") is None:
-        pytest.skip("no docker client on PATH")
-    info = _docker("info", timeout=30)
-    if info.returncode != 0:
-        lines = (info.stderr or info.stdout).strip().splitlines()
-        pytest.skip(f"no Docker engine answers `docker info`: {lines[-1] if lines else '?'}")
-
-
-def _python_base(tmp_path: Path) -> str:
-    """An image with Python to build FROM: the local Debian base with the Python layer, or
-    the public default when the engine already holds it."""
-    if _docker("image", "inspect", LOCAL_BASE).returncode == 0:
-        ctx = tmp_path / "python-layer"
-        ctx.mkdir()
-        (ctx / "Dockerfile").write_text(PYTHON_LAYER.format(base=LOCAL_BASE))
-        shutil.copyfile(HOST_CA, ctx / "ca.crt")
-        tag = "softsensor-test/python:bookworm"
-        r = _docker("build", "-t", tag, str(ctx), timeout=1200)
-        assert r.returncode == 0, r.stderr[-3000:]
-        return tag
-    if _docker("image", "inspect", base_image()).returncode == 0:
-        return base_image()
-    pytest.skip(f"neither {LOCAL_BASE} nor {base_image()} is in the engine (make the first "
-                "with `debootstrap --variant=minbase bookworm ROOTFS` and `tar -C ROOTFS -c . "
-                f"| docker import - {LOCAL_BASE}`)")
+def _image_benchmark() -> ModuleType:
+    """benchmarks/image.py: the build, run and size helpers the slow test shares with it."""
+    spec = importlib.util.spec_from_file_location("image_benchmark",
+                                                  ROOT / "benchmarks" / "image.py")
+    assert spec is not None and spec.loader is not None
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
 
 
 @pytest.mark.slow
-def test_image_builds_runs_its_help_and_replays_part_of_the_demo_day(tmp_path: Path) -> None:
-    """Build the image from the Dockerfile as it stands (only BASE changed), then run it: the
-    entry point's help, the model warm-up from the cache the build filled, and two hours of
-    the demo day through ``softsensor replay`` as the image's unprivileged user."""
-    _engine_or_skip()
-    base = _python_base(tmp_path)
-    tag = "softsensor-test/softsensor:latest"
-    r = _docker("build", "--build-arg", f"BASE={base}", "-t", tag, str(ROOT), timeout=2400)
-    assert r.returncode == 0, r.stderr[-3000:]
-
-    r = _docker("run", "--rm", tag, "--help")
-    assert r.returncode == 0, r.stderr[-2000:]
-    assert "--plc" in r.stdout and "--listen" in r.stdout, r.stdout[:2000]
+def test_image_builds_runs_healthy_read_only_stops_cleanly_and_replays(tmp_path: Path) -> None:
+    """Build the image from the Dockerfile as it stands (only BASE changed), then: at most
+    600 MB; the daemon with a read-only root filesystem, as a non-root user, becomes healthy
+    by its own HEALTHCHECK and stops on SIGTERM with exit code 0 and no traceback; the model
+    warm-up uses the cache the build filled; two hours of the demo day replay in it."""
+    bench = _image_benchmark()
+    try:
+        bench.check_engine()
+        base = bench.python_base(tmp_path)
+    except bench.Unavailable as exc:
+        pytest.skip(str(exc))
+    bench.build(base)
+    size = bench.size_bytes(bench.TAG)
+    print(f"image {size / 1e6:.0f} MB, base {bench.size_bytes(base) / 1e6:.0f} MB")
+    assert size <= bench.MAX_IMAGE_BYTES, size
+    run = bench.run_healthy_and_stop()
+    assert run["health"] == "healthy" and run["uid"] == "10001", run
+    assert run["exit_code"] == 0 and run["tracebacks"] == 0 and run["stopped_line"], run
+    assert run["stop_s"] < 15, run
+    tag = bench.TAG
+    r = bench.docker("run", "--rm", "--read-only", tag, "--help")
+    assert r.returncode == 0 and "--plc" in r.stdout, r.stderr[-2000:]
 
     # the build compiled the model into NUMBA_CACHE_DIR: a fresh container loads it
     warm = ("import time; t = time.perf_counter(); from softsensor.model import DryerModel; "
@@ -260,9 +294,13 @@ def test_image_builds_runs_its_help_and_replays_part_of_the_demo_day(tmp_path: P
             "m = DryerModel(load_plant_config()); "
             "m.simulate(m.nominal_inputs()[None, None, :].repeat(2, axis=1)); "
             "print(time.perf_counter() - t)")
-    r = _docker("run", "--rm", "--entrypoint", "python", tag, "-c", warm)
+    r = bench.docker("run", "--rm", "--read-only", "--entrypoint", "python", tag, "-c", warm)
     assert r.returncode == 0, r.stderr[-2000:]
     assert float(r.stdout.strip().splitlines()[-1]) < 20.0, r.stdout
+    # what only calibration needs is not in the image, and the verbs say how to get it
+    r = bench.docker("run", "--rm", "--read-only", "--entrypoint", "softsensor", tag,
+                     "calibrate", "/nonexistent.mcap")
+    assert r.returncode == 2 and "softsensor[offline]" in r.stderr, r.stderr[-500:]
 
     out = tmp_path / "out"
     out.mkdir()
@@ -270,9 +308,10 @@ def test_image_builds_runs_its_help_and_replays_part_of_the_demo_day(tmp_path: P
     with open(ROOT / "replay" / "demo-day.mcap", "rb") as f:
         start = make_reader(f).get_summary().statistics.message_start_time
     end = start + 2 * 3600 * 10**9
-    r = _docker("run", "--rm", "-v", f"{ROOT / 'replay'}:/replay:ro", "-v", f"{out}:/out",
-                "--entrypoint", "softsensor", tag, "replay", "/replay/demo-day.mcap",
-                "--out", "/out/est.mcap", "--end", str(end), timeout=600)
+    r = bench.docker("run", "--rm", "--read-only", "-v", f"{ROOT / 'replay'}:/replay:ro",
+                     "-v", f"{out}:/out", "--entrypoint", "softsensor", tag, "replay",
+                     "/replay/demo-day.mcap", "--out", "/out/est.mcap", "--end", str(end),
+                     timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     with open(out / "est.mcap", "rb") as f:
         ticks = [json.loads(m.data) for _, _, m in

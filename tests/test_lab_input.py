@@ -182,7 +182,7 @@ def test_good_files_are_processed(inbox, tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "processed").iterdir()) == ["a.csv", "b.json"]
     assert not list((tmp_path / "rejected").iterdir())
     assert len(report.processed) == 2 and not report.reasons
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["processed", "rejected"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".seen-ids", "processed", "rejected"]
 
 
 def test_malformed_file_is_rejected_with_reason(inbox, tmp_path: Path) -> None:

@@ -232,3 +232,16 @@ def test_sigterm_closes_files_cleanly(tmp_path: Path) -> None:
     (path,) = tmp_path.glob("dryer1-*.mcap")
     day = read_day(path)  # no allow_truncated needed
     assert not day.truncated and len(day.scans) == 300
+
+
+def test_the_day_file_is_the_recorder_clocks_day_when_it_has_one(tmp_path):
+    """Live, a message's own time (a peer's clock, minutes ahead at midnight) never names a
+    day file: the recorder clock's day does."""
+    from softsensor.recording.recorder import Recorder
+
+    day_ns = 1_767_225_600 * 10**9  # 2026-01-01T00:00Z
+    rec = Recorder(tmp_path, unit="dryer1")
+    rec.write("/plant/scan", day_ns - 60 * 10**9 + 4 * 60 * 10**9, {"T_air_in": 480.0},
+              file_time_ns=day_ns - 60 * 10**9)  # stamped 3 min into the new day
+    rec.close()
+    assert [p.name for p in rec.paths] == ["dryer1-20251231.mcap"]

@@ -22,27 +22,23 @@ import numpy as np
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
 from softsensor.calibration.dataset import Segment, segment_from_day
-from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER, identify
-from softsensor.calibration.optimize import DEFAULT_STUDY_NAME, StudySettings
+from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER
 from softsensor.calibration.params_file import params_document, read_fit, write_params
-from softsensor.calibration.pipeline import (
+from softsensor.calibration.selection import (
     DEFAULT_MIN_LABS,
     DEFAULT_WINDOW_HOURS,
     DataSelection,
-    calibrate,
-    objective_spec,
-    select_segments,
-    validate,
+    WindowChoice,
 )
-from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import (
     COSTS,
+    DEFAULT_STUDY_NAME,
     INLET_MODES,
     CalibrationSettings,
     calibration_settings,
 )
 from softsensor.display import display_settings, moisture_pct_points
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
@@ -78,6 +74,8 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
                   ) -> tuple[list[Segment], list[WindowChoice]]:
     """Read every day, one at a time, and pick its calibration window(s) (``selection``
     default: :class:`DataSelection`'s)."""
+    from softsensor.calibration.pipeline import select_segments
+
     def days() -> Iterator[tuple[str, RecordedDay]]:
         for p in paths:
             yield str(p), read_day_inputs(p)
@@ -171,6 +169,12 @@ REFUSED = 3
 
 def calibrate_main(args: argparse.Namespace) -> int:
     """``softsensor calibrate``: fit, validate, write PARAMS.toml, print a JSON summary."""
+    require_packages("calibrate", "optuna", "matplotlib")
+    import optuna
+
+    from softsensor.calibration.optimize import StudySettings
+    from softsensor.calibration.pipeline import calibrate
+
     base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     out = Path(args.out)
@@ -181,8 +185,6 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              batch=args.batch, prune=not args.no_prune,
                              progress=not args.quiet and sys.stderr is not None)
     settings.check()
-    import optuna
-
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
     segments, choices = load_segments(args.days, base, _selection(args))
     for c in choices:
@@ -250,7 +252,10 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
 
 def identify_main(args: argparse.Namespace) -> int:
     """``softsensor identify``: sensitivities, FIM, correlations, verdicts."""
+    require_packages("identify", "optuna", "matplotlib")
     from softsensor.apps.calibration_report import identifiability_table, identify_page
+    from softsensor.calibration.identifiability import identify
+    from softsensor.calibration.pipeline import objective_spec
     from softsensor.model import DryerModel
 
     check_target(args.json)
@@ -323,6 +328,8 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
 def validate_main(args: argparse.Namespace) -> int:
     """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days, with the inlet
     moisture fitted to their temperatures (and open loop)."""
+    require_packages("validate", "optuna", "matplotlib")
+    from softsensor.calibration.pipeline import objective_spec, validate
     from softsensor.model import DryerModel
 
     check_target(args.json)

@@ -29,7 +29,7 @@ from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
 from softsensor.verdicts import diagnosis_verdict
@@ -82,6 +82,7 @@ def _check_paths(args: argparse.Namespace) -> None:
 
 def diagnose_main(args: argparse.Namespace) -> int:
     """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
+    require_packages("diagnose", "optuna", "matplotlib")
     from softsensor.diagnosis.pipeline import diagnose
     from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
 
@@ -136,7 +137,8 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
 
     from softsensor.apps.calibrate import load_segments
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import DataSelection, calibrate
+    from softsensor.calibration.pipeline import calibrate
+    from softsensor.calibration.selection import DataSelection
     from softsensor.calibration.settings import calibration_settings
 
     if not args.window_hours > 0:

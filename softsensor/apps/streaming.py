@@ -132,6 +132,7 @@ def _replay(args: argparse.Namespace) -> int:
     from softsensor.service.settings import service_settings
 
     parse_rate(args.rate)  # a bad rate fails before anything starts
+    signal.signal(signal.SIGTERM, _interrupt)  # clean up the partial --out, as Ctrl-C does
     cfg = load_config_and_params(args).config
     settings = service_settings(cfg)
     if not getattr(args, "verbose", False):
@@ -148,6 +149,10 @@ def _replay(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"warning: {problem[1]}", file=sys.stderr, flush=True)
     return 0
+
+
+def _interrupt(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def _every(seconds: float) -> Callable[[int, int], None]:
@@ -188,7 +193,76 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_replay)
 
 
+# ----------------------------------------------------------------------------------------------
+# health
+
+
+def _health(args: argparse.Namespace) -> int:
+    """``softsensor health``: ask a running daemon's health queryable; exit 0 when it answers
+    and its estimator thread is not stalled, 1 otherwise (a container's HEALTHCHECK)."""
+    from softsensor.bus.zenoh_bus import open_session
+    from softsensor.service.settings import (
+        UNIT_NAME,
+        UNIT_RULE,
+        bus_options,
+        resolve_unit,
+        service_settings,
+    )
+    from softsensor.service.watchdog import query_health
+
+    if not 0 < args.timeout <= 600:
+        raise ConfigError(f"--timeout must be in (0, 600] s, got {args.timeout}")
+    cfg = load_config_and_params(args).config
+    settings = service_settings(cfg)
+    if args.unit is not None and not UNIT_NAME.fullmatch(args.unit):
+        raise ConfigError(f"--unit {args.unit!r} {UNIT_RULE}")
+    unit = args.unit or resolve_unit(settings, cfg)
+    connect = args.connect or [ep.replace("0.0.0.0", "127.0.0.1") for ep in settings.listen]
+    if not connect:
+        raise ConfigError("health: give --connect ENDPOINT (the config's service listens "
+                          "nowhere)")
+    auth = {k: v for k, v in bus_options(settings, unit).items() if k in ("user", "password")}
+    try:
+        session = open_session(mode="client", connect=list(connect), **auth)
+    except ConfigError as exc:  # refused or nobody there: unhealthy, not a usage error
+        print(f"softsensor health: {unit}: {exc}", file=sys.stderr)
+        return 1
+    with session:
+        doc = query_health(session, unit, args.timeout)
+    if doc is None:
+        print(f"softsensor health: {unit}: no answer from {', '.join(connect)} within "
+              f"{args.timeout:g} s", file=sys.stderr)
+        return 1
+    if args.json:
+        from softsensor.apps.output import write_json
+
+        write_json(doc, args.json)
+    age = doc.get("last_tick_age_s")
+    print(f"softsensor health: {unit}: {doc.get('status')}"
+          + (" (STALLED)" if doc.get("stalled") else "")
+          + f": {doc.get('detail')}"
+          + ("" if age is None else f"; last estimate {age:.0f} s ago"), file=sys.stderr)
+    return 1 if doc.get("stalled") else 0
+
+
+def _add_health(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("health", help="ask a running daemon for its health (exit 1 when it "
+                                      "does not answer or its estimator is stalled)")
+    p.add_argument("--config", default=None, help="the daemon's plant config (unit, bus "
+                                                  "credentials; default: built-in dryer1)")
+    p.add_argument("--unit", default=None, help="unit name (default: the config's)")
+    p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
+                   help="the daemon's Zenoh endpoint (default: its [service] listen "
+                        "endpoints on loopback)")
+    p.add_argument("--timeout", type=float, default=5.0, help="seconds to wait (default 5)")
+    p.add_argument("--json", default=None, metavar="FILE",
+                   help="write the daemon's answer here ('-': stdout)")
+    p.set_defaults(func=_health)
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Register the ``run`` and ``replay`` verbs (called by :mod:`softsensor.cli`)."""
+    """Register the ``run``, ``replay`` and ``health`` verbs (called by
+    :mod:`softsensor.cli`)."""
     _add_run(sub)
     _add_replay(sub)
+    _add_health(sub)

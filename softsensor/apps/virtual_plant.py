@@ -14,6 +14,7 @@ import asyncio
 import logging
 import signal
 import sys
+from pathlib import Path
 
 from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError
@@ -66,7 +67,10 @@ async def _serve(args: argparse.Namespace) -> int:
     cfg = load_plant(args)
     tagmap = load_tagmap(args.tagmap) if args.tagmap else load_tagmap()
     if args.speed <= 0:
-        raise SystemExit("softsensor: --speed must be > 0")
+        raise ConfigError(f"--speed must be > 0, got {args.speed}")
+    if args.lab_dir is not None and Path(args.lab_dir).exists() \
+            and not Path(args.lab_dir).is_dir():
+        raise ConfigError(f"--lab-dir {args.lab_dir}: exists and is not a folder")
     day = simulate_plant(cfg, args)
     feed = PlantFeed(day, lab_dir=args.lab_dir, loop=not args.once)
     period = virtual_plant_settings(cfg).scan_period / args.speed

@@ -18,6 +18,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import re
 import socket
 import threading
 import time
@@ -50,9 +51,26 @@ DEFAULT_HOST = "127.0.0.1"
 # Configuration and sessions
 
 
+def output_guard_acl(unit: str) -> dict[str, Any]:
+    """Zenoh access control that refuses every ``put``/``delete`` arriving from another
+    session on ``softsensor/<unit>/**``: the daemon is the only publisher of its estimates and
+    health that it (and its recorder) accepts. Inputs and subscriptions stay open."""
+    return {
+        "enabled": True,
+        "default_permission": "allow",
+        "rules": [{"id": "outputs-are-ours", "permission": "deny", "flows": ["ingress"],
+                   "messages": ["put", "delete"], "key_exprs": [f"softsensor/{unit}/**"]}],
+        "subjects": [{"id": "every-remote-session"}],
+        "policies": [{"rules": ["outputs-are-ours"], "subjects": ["every-remote-session"]}],
+    }
+
+
 def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT_HOST,
                 listen: Sequence[str] | None = None, connect: Sequence[str] = (),
-                multicast_scouting: bool = False, adminspace: bool = True) -> zenoh.Config:
+                multicast_scouting: bool = False, adminspace: bool = True,
+                user: str | None = None, password: str | None = None,
+                users_file: str | None = None, acl: dict[str, Any] | None = None,
+                max_message_bytes: int | None = None) -> zenoh.Config:
     """Build a Zenoh 1.x configuration.
 
     Parameters
@@ -70,6 +88,15 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         Off by default: peers find each other through ``connect`` only.
     adminspace : bool
         Expose the read-only admin space (used by :func:`listening_endpoints`).
+    user, password : str, optional
+        Zenoh user/password authentication of this session towards the ones it connects to.
+    users_file : str, optional
+        Zenoh's dictionary file (``user:password`` lines): sessions connecting to this one
+        must authenticate as one of them, or are refused.
+    acl : dict, optional
+        Zenoh's ``access_control`` section (e.g. :func:`output_guard_acl`).
+    max_message_bytes : int, optional
+        Messages larger than this are dropped by Zenoh on receipt.
     """
     if mode not in MODES:
         raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -93,11 +120,25 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
         cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
         cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
+        cfg.insert_json5("adminspace/enabled", json.dumps(bool(adminspace)))
         if adminspace:
-            cfg.insert_json5("adminspace/enabled", "true")
             cfg.insert_json5("adminspace/permissions", '{"read": true, "write": false}')
-    except zenoh.ZError as exc:  # pragma: no cover - keys above are valid for zenoh 1.x
-        raise ConfigError(f"bus config rejected by zenoh: {exc}") from exc
+        # a peer that cannot reach its connect endpoints (refused, wrong password) still
+        # opens, and keeps trying, rather than blocking the caller
+        if mode == "peer":
+            cfg.insert_json5("connect/timeout_ms", "5000")
+            cfg.insert_json5("connect/exit_on_failure", "false")
+        auth = {k: v for k, v in (("user", user), ("password", password),
+                                  ("dictionary_file", users_file)) if v is not None}
+        if auth:
+            cfg.insert_json5("transport/auth/usrpwd", json.dumps(auth))
+        if acl is not None:
+            cfg.insert_json5("access_control", json.dumps(acl))
+        if max_message_bytes is not None:
+            cfg.insert_json5("transport/link/rx/max_message_size", str(int(max_message_bytes)))
+    except zenoh.ZError as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise ConfigError(f"bus config rejected by zenoh: {first}") from exc
     return cfg
 
 
@@ -115,6 +156,7 @@ def open_session(config: zenoh.Config | None = None, **kwargs: Any) -> zenoh.Ses
         return zenoh.open(config)
     except zenoh.ZError as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        first = re.sub(r"\s+at \S+\.rs:\d+\.?$", "", first)  # zenoh's source location
         raise ConfigError(f"zenoh session could not open: {first}") from exc
 
 
@@ -395,6 +437,7 @@ def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
 
 
 __all__ = [
+    "output_guard_acl",
     "KINDS",
     "KIND_TOPIC",
     "TOPIC_KIND",

@@ -53,13 +53,13 @@ from optuna.trial import FrozenTrial, Trial, TrialState
 from softsensor.calibration.chunked_run import ChunkedRun
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.objective import ObjectiveSpec
+from softsensor.calibration.settings import DEFAULT_STUDY_NAME
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
 #: Objective reported for a trial whose model solve failed (far above any real objective).
 FAILED_COST = 1.0e9
-DEFAULT_STUDY_NAME = "softsensor-calibration"
 #: Trials TPE draws at random before it models the good and bad sets.
 N_STARTUP_TRIALS = 10
 #: File name endings read as an Optuna journal file when ``--storage`` is a plain path.

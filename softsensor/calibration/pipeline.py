@@ -65,35 +65,29 @@ from softsensor.calibration.optimize import (
     theta_of,
 )
 from softsensor.calibration.refine import Refinement, refine
-from softsensor.calibration.selection import WindowChoice, select_windows
+from softsensor.calibration.selection import (
+    DEFAULT_WINDOW_HOURS,
+    DataSelection,
+    WindowChoice,
+    select_windows,
+)
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import OUTPUT_NAMES
 
-#: The paper's calibration horizon [h].
-DEFAULT_WINDOW_HOURS = 48.0
-#: Lab samples a calibration window must hold.
-DEFAULT_MIN_LABS = 3
 #: Lab samples a held-out part must hold to validate on it.
 MIN_HELD_LABS = 2
 
 
-@dataclass(frozen=True)
-class DataSelection:
-    """How the calibration data are taken from the recorded days."""
-
-    window_hours: float = DEFAULT_WINDOW_HOURS
-    windows_per_day: int = 1
-    min_labs: int = DEFAULT_MIN_LABS
-
-
 def select_segments(days: Iterable[tuple[str, DayLike]], config: PlantConfig,
-                    selection: DataSelection = DataSelection()
+                    selection: DataSelection | None = None
                     ) -> tuple[list[Segment], list[WindowChoice]]:
     """Resample every ``(source, day)`` and pick its calibration window(s). ``days`` may be
-    a generator (the apps read each file as it is needed, :mod:`softsensor.apps.loading`)."""
+    a generator (the apps read each file as it is needed, :mod:`softsensor.apps.loading`);
+    ``selection`` defaults to :class:`DataSelection`'s."""
+    selection = selection or DataSelection()
     segments, choices, n_days = [], [], 0
     for source, day in days:
         n_days += 1

@@ -23,6 +23,20 @@ from softsensor.errors import IngestError
 from softsensor.messages import iso_utc
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
+#: The paper's calibration horizon [h].
+DEFAULT_WINDOW_HOURS = 48.0
+#: Lab samples a calibration window must hold.
+DEFAULT_MIN_LABS = 3
+
+
+@dataclass(frozen=True)
+class DataSelection:
+    """How the calibration data are taken from the recorded days."""
+
+    window_hours: float = DEFAULT_WINDOW_HOURS
+    windows_per_day: int = 1
+    min_labs: int = DEFAULT_MIN_LABS
+
 #: Candidate windows start every this many hours.
 STEP_HOURS = 1.0
 #: Signals whose variability is scored.

@@ -19,6 +19,9 @@ from dataclasses import dataclass
 from softsensor.configfile import build_section, num
 from softsensor.plantconfig import PlantConfig
 
+#: The Optuna study a calibration writes to and resumes from in its storage.
+DEFAULT_STUDY_NAME = "softsensor-calibration"
+
 #: Cost functions the calibration offers (:mod:`softsensor.calibration.objective`).
 COSTS: tuple[str, ...] = ("eq4", "likelihood")
 #: How the unmeasured inlet moisture enters the fit.

@@ -166,13 +166,20 @@ class WindowAccumulator:
         Emit windows from the one holding ``start_ns + 1`` on (gap windows before the first
         scan included); by default the first window is the first scan's.
 
+    max_gap_windows : int, optional
+        Longest run of empty (gap) windows emitted at once: of a longer gap only the last
+        ``max_gap_windows`` are emitted, the others are counted in ``n_skipped`` and the gap's
+        start is kept in ``stale_since_ns``. The live service bounds gaps so that one scan
+        stamped years ahead costs a fixed amount of work; recorded days for calibration keep
+        every window (None, the default).
+
     Feed scans with :meth:`add` (each call returns the windows it completed), let time pass
     without scans with :meth:`advance`, and end with :meth:`flush`. Scans for a window already
     emitted are counted in ``n_late`` and dropped.
     """
 
     def __init__(self, settings: WindowSettings | None = None, *,
-                 start_ns: int | None = None) -> None:
+                 start_ns: int | None = None, max_gap_windows: int | None = None) -> None:
         self.settings = settings or WindowSettings()
         self._period = self.settings.period_ns
         self._end: int | None = None  # end of the window being filled
@@ -180,7 +187,12 @@ class WindowAccumulator:
         self._emitted_end: int | None = None  # end of the last emitted window
         if start_ns is not None:
             self._end = window_end(start_ns + 1, self._period)
+        if max_gap_windows is not None and max_gap_windows < 1:
+            raise ConfigError(f"max_gap_windows must be >= 1, got {max_gap_windows}")
+        self.max_gap_windows = max_gap_windows
         self.n_late = 0
+        self.n_skipped = 0  #: gap windows not emitted (longer than ``max_gap_windows``)
+        self.stale_since_ns: int | None = None  #: start of the last gap that was cut short
 
     @property
     def current_end_ns(self) -> int | None:
@@ -245,6 +257,13 @@ class WindowAccumulator:
         out = [self._build(self._end - self._period, self._end, self._sums)]
         self._sums = _Sums(n_bins)
         end = self._end + self._period
+        n_gap = (last_end - self._end) // self._period
+        if self.max_gap_windows is not None and n_gap > self.max_gap_windows:
+            # a gap longer than the bound: one "stale since" state, then the last windows
+            skip = n_gap - self.max_gap_windows
+            self.n_skipped += skip
+            self.stale_since_ns = self._end
+            end += skip * self._period
         while end <= last_end:
             out.append(self._build(end - self._period, end, _Sums(n_bins)))
             end += self._period

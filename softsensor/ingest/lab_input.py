@@ -22,16 +22,26 @@ usable goes to ``processed/``; a file that cannot be read at all goes to ``rejec
 entries are written to ``rejected/`` (same name) with a reason file listing each one, so
 nothing is lost silently. Files still being written (changed within ``settle_s``) wait for the
 next poll.
+
+The folder is a boundary: anyone who can write to it is untrusted. A file is opened with
+``O_NOFOLLOW`` (a symbolic link is moved to ``rejected/`` without its target being read), must
+be a regular file of at most ``max_bytes`` and ``max_rows`` entries, and any failure at all
+(not only a malformed entry: a 5000-digit number, JSON nested 100,000 deep) rejects it with a
+short reason that names the problem, not the file's content. Accepted ``sample_id`` values are
+remembered in ``.seen-ids`` in the folder, so a file dropped again after a restart is still a
+duplicate.
 """
 
 from __future__ import annotations
 
 import csv
+import errno
 import io
 import json
 import logging
 import os
 import shutil
+import stat
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -54,6 +64,21 @@ log = logging.getLogger(__name__)
 
 CSV_COLUMNS: tuple[str, ...] = ("sample_time", "moisture_out", "sample_id")
 SUFFIXES: tuple[str, ...] = (".csv", ".json")
+#: Largest lab file read [bytes]: a LIMS export of a few results is a few kB.
+MAX_BYTES = 1024 * 1024
+#: Most entries (rows after the header, or JSON objects) a lab file may hold.
+MAX_ROWS = 10_000
+#: Sample ids remembered across restarts (the newest), in ``.seen-ids`` of the folder.
+SEEN_IDS_KEPT = 20_000
+#: Longest reason line written to ``rejected/`` and the log [characters].
+REASON_CHARS = 300
+
+
+def safe_reason(text: str) -> str:
+    """One printable line of at most :data:`REASON_CHARS`: what an untrusted file made us say
+    (a quoted value in a parser's message) cannot write control characters or pages."""
+    line = "".join(c if c.isprintable() else "?" for c in str(text).replace("\n", " "))
+    return line if len(line) <= REASON_CHARS else line[:REASON_CHARS - 3] + "..."
 
 
 @dataclass
@@ -89,6 +114,9 @@ def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
                           f"(expected {','.join(CSV_COLUMNS)})")
     if len(rows) == 1:
         raise IngestError(f"{where}: no lab results after the header")
+    if len(rows) - 1 > MAX_ROWS:
+        raise IngestError(f"{where}: {len(rows) - 1} rows, more than the {MAX_ROWS} a lab "
+                          f"file may have")
     out = ParsedFile()
     for n, row in zip(lines[1:], rows[1:], strict=True):
         at = f"{where} line {n}"
@@ -100,7 +128,9 @@ def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
                 row[cols["sample_time"]], row[cols["moisture_out"]], row[cols["sample_id"]],
                 log_time_ns=log_time_ns, where=at, zone=zone))
         except IngestError as exc:
-            out.bad.append((row, str(exc)))
+            out.bad.append((row, safe_reason(str(exc))))
+        except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
+            out.bad.append((row, f"{at}: unusable entry ({type(exc).__name__})"))
     return out
 
 
@@ -112,9 +142,14 @@ def parse_lab_json(text: str, *, log_time_ns: int | None = None,
     except ValueError as exc:
         raise IngestError(f"{where}: not valid JSON ({exc.args[0] if exc.args else exc})"
                           ) from exc
+    except RecursionError as exc:
+        raise IngestError(f"{where}: JSON nested too deeply") from exc
     entries = data if isinstance(data, list) else [data]
     if not entries:
         raise IngestError(f"{where}: empty list of lab results")
+    if len(entries) > MAX_ROWS:
+        raise IngestError(f"{where}: {len(entries)} entries, more than the {MAX_ROWS} a lab "
+                          f"file may have")
     if not isinstance(data, list) and not isinstance(data, dict):
         raise IngestError(f"{where}: a JSON {type(data).__name__}, not an object or a list")
     out = ParsedFile()
@@ -123,8 +158,41 @@ def parse_lab_json(text: str, *, log_time_ns: int | None = None,
         try:
             out.results.append(lab_from_body(entry, log_time_ns, where=at, zone=zone))
         except IngestError as exc:
-            out.bad.append((entry, str(exc)))
+            out.bad.append((entry, safe_reason(str(exc))))
+        except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
+            out.bad.append((entry, f"{at}: unusable entry ({type(exc).__name__})"))
     return out
+
+
+def read_untrusted(path: Path, max_bytes: int) -> bytes:
+    """The bytes of a regular file of at most ``max_bytes``, opened without following a
+    symbolic link (``O_NOFOLLOW``) and without blocking on a FIFO; :class:`IngestError`
+    otherwise, saying nothing of what a link points to."""
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(path, flags)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise IngestError(f"{path.name}: a symbolic link, refused (its target is not "
+                              f"read)") from exc
+        raise IngestError(f"{path.name}: cannot open: {exc.strerror}") from exc
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise IngestError(f"{path.name}: not a regular file, refused")
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise IngestError(f"{path.name}: more than {max_bytes} bytes, more than a lab file "
+                          f"may have")
+    return data
+
+
+def _write_new(path: Path, text: str) -> None:
+    """Create ``path`` (never through an existing file or link someone placed there)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0),
+                 0o644)
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(text)
 
 
 def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = None,
@@ -137,11 +205,9 @@ def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = No
         raise IngestError(f"{p.name}: unsupported file type {suffix or '(none)'!r} "
                           "(expected .csv or .json)")
     try:
-        text = p.read_bytes().decode("utf-8-sig")
+        text = read_untrusted(p, MAX_BYTES).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise IngestError(f"{p.name}: not UTF-8 text") from exc
-    except OSError as exc:
-        raise IngestError(f"{p.name}: cannot read: {exc.strerror}") from exc
     parse = parse_lab_csv if suffix == ".csv" else parse_lab_json
     return parse(text, log_time_ns=log_time_ns, where=p.name, zone=zone)
 
@@ -166,6 +232,11 @@ class LabInput:
         self.n_accepted = 0
         self.n_duplicates = 0
         self.n_rejected = 0
+
+    def remember(self, sample_ids: Iterable[str]) -> None:
+        """Treat ``sample_ids`` as delivered already (ids of earlier runs)."""
+        with self._lock:
+            self._seen.update(sample_ids)
 
     def seen(self, sample_id: str) -> bool:
         """True when a result with this ``sample_id`` was delivered (or was known at start)."""
@@ -223,11 +294,11 @@ class PollReport:
 
 
 def _unique(dest: Path) -> Path:
-    if not dest.exists():
+    if not os.path.lexists(dest):
         return dest
     for n in range(1, 10_000):
         cand = dest.with_name(f"{dest.stem}.{n}{dest.suffix}")
-        if not cand.exists():
+        if not os.path.lexists(cand):
             return cand
     raise IngestError(f"{dest}: too many files of that name")
 
@@ -278,6 +349,46 @@ class LabFolderWatcher:
         self._sizes: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self.seen_ids_file = self.folder / ".seen-ids"
+        self._n_seen_lines = self._load_seen_ids()
+
+    # -- sample ids remembered across restarts
+
+    def _load_seen_ids(self) -> int:
+        """Hand the ids of ``.seen-ids`` to the lab input; the number of lines read."""
+        try:
+            data = read_untrusted(self.seen_ids_file, 64 * MAX_BYTES)
+        except IngestError as exc:
+            if self.seen_ids_file.exists() or self.seen_ids_file.is_symlink():
+                log.warning("lab sample ids of earlier runs not read: %s", exc)
+            return 0
+        ids = []
+        for line in data.decode("utf-8", "replace").splitlines()[-SEEN_IDS_KEPT:]:
+            try:
+                value = json.loads(line)
+            except ValueError:
+                continue
+            if isinstance(value, str):
+                ids.append(value)
+        self.lab_input.remember(ids)
+        return len(ids)
+
+    def _remember(self, sample_id: str) -> None:
+        """Append an accepted id to ``.seen-ids`` (rewritten to the newest when it grows)."""
+        try:
+            fd = os.open(self.seen_ids_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND
+                         | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            with os.fdopen(fd, "a", encoding="utf-8") as f:
+                f.write(json.dumps(sample_id) + "\n")
+            self._n_seen_lines += 1
+            if self._n_seen_lines > 2 * SEEN_IDS_KEPT:
+                lines = self.seen_ids_file.read_text(encoding="utf-8").splitlines()
+                tmp = self.seen_ids_file.with_name(".seen-ids.tmp")
+                tmp.write_text("\n".join(lines[-SEEN_IDS_KEPT:]) + "\n", encoding="utf-8")
+                os.replace(tmp, self.seen_ids_file)
+                self._n_seen_lines = SEEN_IDS_KEPT
+        except OSError as exc:
+            log.warning("lab sample id %r not remembered: %s", sample_id, exc.strerror)
 
     # -- one poll
 
@@ -286,12 +397,14 @@ class LabFolderWatcher:
             entries = sorted(self.folder.iterdir())
         except OSError as exc:
             raise IngestError(f"{self.folder}: cannot list folder: {exc.strerror}") from exc
-        return [p for p in entries if p.is_file() and not p.name.startswith((".", "~"))
+        # links too (they are rejected unread); folders and our own dot files are not inputs
+        return [p for p in entries if (p.is_symlink() or p.is_file())
+                and not p.name.startswith((".", "~"))
                 and not p.name.endswith((".tmp", ".part", ".partial", ".swp"))]
 
     def _settled(self, path: Path, now: float) -> bool:
         try:
-            st = path.stat()
+            st = path.lstat()
         except FileNotFoundError:
             return False
         previous = self._sizes.get(path.name)
@@ -299,9 +412,11 @@ class LabFolderWatcher:
         return now - st.st_mtime >= self.settle_s and previous in (None, st.st_size)
 
     def _reject(self, path: Path, reasons: list[str], report: PollReport) -> None:
+        reasons = [safe_reason(r) for r in reasons]
         dest = _unique(self.rejected_dir / path.name)
-        shutil.move(str(path), dest)
-        dest.with_name(dest.name + ".reason.txt").write_text("\n".join(reasons) + "\n")
+        os.rename(path, dest)  # a link is moved as a link
+        _write_new(_unique(dest.with_name(dest.name + ".reason.txt")),
+                   "\n".join(reasons) + "\n")
         report.rejected.append(dest)
         report.reasons.extend(reasons)
         for r in reasons:
@@ -314,21 +429,25 @@ class LabFolderWatcher:
         except IngestError as exc:
             self._reject(path, [str(exc)], report)
             return
+        except Exception as exc:  # noqa: BLE001 - untrusted input: never retried forever
+            self._reject(path, [f"{path.name}: unusable file ({type(exc).__name__})"], report)
+            return
         for lab in parsed.results:
             reason = self.lab_input.submit(lab)
             if reason is None:
                 report.accepted.append(lab)
+                self._remember(lab.sample_id)
             else:
                 report.duplicates.append(lab.sample_id)
         if parsed.bad:
             header = None
             if path.suffix.lower() == ".csv":
-                text = path.read_text(encoding="utf-8-sig")
+                text = read_untrusted(path, MAX_BYTES).decode("utf-8-sig")
                 header = next(csv.reader(io.StringIO(text)), None)
             bad_path = _unique(self.rejected_dir / path.name)
-            bad_path.write_text(_dump_bad_entries(path.suffix.lower(), parsed.bad, header))
+            _write_new(bad_path, _dump_bad_entries(path.suffix.lower(), parsed.bad, header))
             reasons = [reason for _, reason in parsed.bad]
-            bad_path.with_name(bad_path.name + ".reason.txt").write_text(
+            _write_new(bad_path.with_name(bad_path.name + ".reason.txt"),
                 f"{len(parsed.bad)} of {len(parsed.bad) + len(parsed.results)} entries "
                 f"rejected; the others were accepted (original in processed/)\n"
                 + "\n".join(reasons) + "\n")

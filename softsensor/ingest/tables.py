@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from softsensor.errors import IngestError
+from softsensor.errors import IngestError, require_packages
 
 CSV_SUFFIXES: tuple[str, ...] = (".csv", ".txt", ".tsv")
 PARQUET_SUFFIXES: tuple[str, ...] = (".parquet", ".pq")
@@ -24,6 +24,7 @@ def table_kind(path: Path) -> str:
     if suffix in CSV_SUFFIXES:
         return "csv"
     if suffix in PARQUET_SUFFIXES:
+        require_packages(f"{path}: Parquet", "pyarrow")
         return "parquet"
     raise IngestError(f"{path}: unknown table format {suffix or '(no suffix)'!r} "
                       f"(expected {', '.join(CSV_SUFFIXES + PARQUET_SUFFIXES)})")

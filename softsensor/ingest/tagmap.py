@@ -61,14 +61,14 @@ class ModbusSettings:
 
     host: str  #: PLC host name or address
     port: int = num(ge=1, le=65535)  #: TCP port (502 on a real PLC)
-    poll_period_s: float = num(10.0, gt=0)  #: scan period [s]
-    timeout_s: float = num(1.0, gt=0)  #: per request and per connect attempt [s]
+    poll_period_s: float = num(10.0, gt=0, le=3600)  #: scan period [s]
+    timeout_s: float = num(1.0, gt=0, le=60)  #: per request and per connect attempt [s]
     retries: int = num(1, ge=0, le=10)  #: retries of an unanswered request
     #: first reconnect back-off [s], doubled per failure
-    reconnect_delay_s: float = num(1.0, gt=0)
-    reconnect_delay_max_s: float = num(30.0, gt=0)  #: cap of the reconnect back-off [s]
+    reconnect_delay_s: float = num(1.0, gt=0, le=3600)
+    reconnect_delay_max_s: float = num(30.0, gt=0, le=3600)  #: cap of the reconnect back-off [s]
     #: a value unchanged bit-for-bit this long is flagged [s]
-    frozen_after_s: float = num(300.0, gt=0)
+    frozen_after_s: float = num(300.0, gt=0, le=7 * 86_400)
     #: unused registers bridged to merge two reads
     max_gap_registers: int = num(4, ge=0, le=MAX_READ_REGISTERS)
     #: cap of one read request

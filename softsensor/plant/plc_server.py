@@ -31,7 +31,7 @@ from pymodbus.pdu import ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from softsensor.errors import IngestError
+from softsensor.errors import ConfigError, IngestError
 from softsensor.ingest.registers import encode_tag
 from softsensor.ingest.tagmap import TABLES, TagMap, TagSpec
 
@@ -146,10 +146,13 @@ class PlcServer:
         try:
             await self._update(self.next_values())  # before serving: no zero registers
             await server.serve_forever(background=True)
-        except BaseException:
+        except BaseException as exc:
             self._server = None
             with contextlib.suppress(Exception):
                 await server.shutdown()
+            if isinstance(exc, (RuntimeError, OSError)):  # pymodbus: "Could not start listen"
+                raise ConfigError(f"PLC simulator cannot listen on {self.host}:{self.port} "
+                                  f"(in use, or not an address of this machine)") from exc
             raise
         sockets = getattr(server.transport, "sockets", None)
         if sockets:

@@ -130,14 +130,17 @@ class Recorder:
 
     # -- public API
 
-    def write(self, topic: str, log_time_ns: int, body: dict[str, Any]) -> None:
-        """Record one message; ``log_time_ns`` [ns since epoch, UTC] selects the day file."""
+    def write(self, topic: str, log_time_ns: int, body: dict[str, Any], *,
+              file_time_ns: int | None = None) -> None:
+        """Record one message stamped ``log_time_ns`` [ns since epoch, UTC]; the day file is
+        that of ``file_time_ns`` (the recorder's clock, live) or else of ``log_time_ns``."""
         t = int(log_time_ns)
+        ft = t if file_time_ns is None else int(file_time_ns)
         with self._lock:
             if self._closed:
                 raise ValueError(f"{self.directory}: recorder is closed")
-            self._newest_ns = t if self._newest_ns is None else max(self._newest_ns, t)
-            day, writer = self._writer_for(utc_date(t))
+            self._newest_ns = ft if self._newest_ns is None else max(self._newest_ns, ft)
+            day, writer = self._writer_for(utc_date(ft))
             writer.write(topic, t, body)
             self.n_written += 1
             self._dirty_since.setdefault(day, self._clock())

@@ -63,7 +63,13 @@ class BusRecorder:
             if self.refused % 1000 == 1:
                 log.warning("%s at %d ns not recorded: %s", message.topic, t, reason)
             return
-        self.recorder.write(message.topic, t, body)
+        # the day file is the daemon clock's day (when it has a clock): a peer's time, even
+        # one the gate lets through (minutes ahead at midnight), never opens a file
+        clock = getattr(self.gate, "clock", None)
+        if clock is None:
+            self.recorder.write(message.topic, t, body)
+        else:
+            self.recorder.write(message.topic, t, body, file_time_ns=clock())
 
     def _tick_loop(self, tick_s: float) -> None:
         while not self._stop.wait(tick_s):

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -34,7 +35,13 @@ from typing import Any
 
 import zenoh
 
-from softsensor.bus.zenoh_bus import KINDS, Publisher, listening_endpoints, open_session
+from softsensor.bus.zenoh_bus import (
+    KINDS,
+    Publisher,
+    free_port,
+    listening_endpoints,
+    open_session,
+)
 from softsensor.display import (
     DisplaySettings,
     display_settings,
@@ -60,15 +67,29 @@ from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
 from softsensor.service.offline_replay import make_service
-from softsensor.service.pipeline import INPUT_KINDS, ScanPublisher, ServicePipeline
-from softsensor.service.settings import ServiceSettings, resolve_estimator_kind, resolve_unit
+from softsensor.service.pipeline import (
+    INPUT_KINDS,
+    InputLimits,
+    ScanPublisher,
+    ServicePipeline,
+)
+from softsensor.service.settings import (
+    ServiceSettings,
+    bus_options,
+    resolve_estimator_kind,
+    resolve_unit,
+)
 from softsensor.service.time_gate import TimeGate
 from softsensor.service.warmup import warm_up
+from softsensor.service.watchdog import HealthQueryable, Watchdog
 
 log = logging.getLogger(__name__)
 
 #: Wall-clock period of the daemon's housekeeping (time passing, recorder, status) [s].
 HOUSEKEEPING_S = 0.1
+#: Longest wait at shutdown for the estimator thread's last checkpoint [s]; a thread stuck
+#: longer is left behind (it is a daemon thread) so SIGTERM is honoured within seconds.
+SHUTDOWN_WAIT_S = 10.0
 
 
 class ScaledClock:
@@ -116,6 +137,19 @@ class DaemonInfo:
     resumed: bool
     clock_start_ns: int
     outputs: tuple[str, ...] = ()  #: what the operator outputs serve (URLs)
+
+
+def resolve_listen(endpoints: tuple[str, ...] | list[str]) -> list[str]:
+    """``endpoints`` with port 0 (any free port) replaced by a free port chosen here: with
+    Zenoh's admin space off the session cannot tell which port it took."""
+    out = []
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, _, port = addr.rpartition(":")
+        if proto in ("tcp", "udp") and port == "0" and host:
+            ep = f"{proto}/{host}:{free_port(host.strip('[]'))}"
+        out.append(ep)
+    return out
 
 
 def daemon_tagmap(settings: ServiceSettings, tagmap: TagMap | None = None) -> TagMap:
@@ -180,6 +214,8 @@ class Daemon:
         self.metrics: DaemonMetrics | None = None
         self.web: LivePage | None = None
         self.opcua: Any = None  #: the OPC UA server when [outputs.opcua] is enabled
+        self.watchdog: Watchdog | None = None
+        self.health: HealthQueryable | None = None
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -208,6 +244,8 @@ class Daemon:
         elif out.kind == "health":
             event(log, "health", time_ns=out.time_ns, status=b.get("status"),
                   detail=b.get("detail"))
+            if self.health is not None:
+                self.health.update(b)
         self._serve(out)
 
     def _serve(self, out: Output) -> None:
@@ -246,15 +284,18 @@ class Daemon:
         gate = TimeGate(clock.now_ns, s.max_future_s, s.max_past_s)
         service.time_gate = gate
         async with contextlib.AsyncExitStack() as stack:
-            session = open_session(mode=s.zenoh_mode, listen=list(s.listen),
-                                   connect=list(s.connect))
+            listen = resolve_listen(s.listen)
+            session = open_session(mode=s.zenoh_mode, listen=listen,
+                                   connect=list(s.connect), **bus_options(s, self.unit))
             stack.callback(session.close)
             if s.record:
                 self._record(stack, session, gate)
-            self.pipeline = pipeline = ServicePipeline(
-                session, service, unit=self.unit, checkpoints=self.store,
-                checkpoint_every=s.checkpoint_every, on_output=self._on_output)
-            stack.push_async_callback(asyncio.to_thread, pipeline.close)
+            self.pipeline = pipeline = self._pipeline(session, service)
+            # stopping must not wait for a backlog: the queued inputs are recorded already
+            stack.push_async_callback(asyncio.to_thread, functools.partial(
+                pipeline.close, timeout=SHUTDOWN_WAIT_S, drain=False))
+            self.health = HealthQueryable(session, self.unit, self._health_extra)
+            stack.callback(self.health.close)
             publisher = Publisher(session, self.unit, clock=clock.now_ns)
             publisher.declare(INPUT_KINDS)
             stack.callback(publisher.close)
@@ -262,7 +303,8 @@ class Daemon:
             poll_task = self._start_poller(stack, publisher, clock)
             served = await self._start_outputs(stack)
             m = self.tagmap.modbus
-            self.info = DaemonInfo(self.unit, service.kind, listening_endpoints(session),
+            endpoints = listening_endpoints(session) if s.zenoh_adminspace else listen
+            self.info = DaemonInfo(self.unit, service.kind, endpoints,
                                    f"{m.host}:{m.port}", s.data_dir if s.record else None,
                                    doc is not None, clock.start_ns, served)
             event(log, "started", unit=self.unit, estimator=service.kind,
@@ -416,6 +458,45 @@ class Daemon:
         stack.push_async_callback(_stop_poller)
         return poll_task
 
+    def _pipeline(self, session: zenoh.Session, service: EstimatorService) -> ServicePipeline:
+        """The estimator thread behind the bus, with the input limits of ``[service]`` (rates
+        in plant time, so per wall second they scale with ``time_scale``) and its watchdog."""
+        s = self.settings
+        limits = InputLimits(
+            max_queue=s.max_queue, max_bytes=s.max_message_bytes,
+            rates_per_s={"scan": s.max_scan_rate_hz * s.time_scale,
+                         "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
+        pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
+                                   checkpoint_every=s.checkpoint_every,
+                                   on_output=self._on_output, limits=limits)
+        window_wall = service.window.period_s / s.time_scale
+        grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
+        self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,
+                                 lambda: pipeline.pending)
+        return pipeline
+
+    def _health_extra(self) -> dict[str, Any]:
+        """What a health query adds to the last health body: the watchdog and the inputs."""
+        p, w = self.pipeline, self.watchdog
+        return {"stalled": bool(w is not None and w.stalled),
+                "last_tick_age_s": None if p is None
+                else round(time.monotonic() - p.last_tick_at, 1),
+                "pending": None if p is None else p.pending,
+                "dropped": None if p is None else dict(p.dropped)}
+
+    def _watch(self) -> None:
+        """Publish ``stalled`` health when the estimator thread is late (:class:`Watchdog`)."""
+        assert self.pipeline is not None and self.clock is not None
+        if self.watchdog is None:
+            return
+        body = self.watchdog.check()
+        if body is None:
+            return
+        body.update(unit=self.unit, estimator=self.pipeline.service.kind)
+        out = Output("health", body, self.clock.now_ns())
+        self.pipeline.publisher.put(out.kind, out.body, out.time_ns)
+        self._on_output(out)
+
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.pipeline is not None and self.clock is not None
         next_status = time.monotonic() + self.settings.status_every_s
@@ -426,6 +507,7 @@ class Daemon:
                 exc = poll_task.exception()
                 raise IngestError(f"the Modbus poller stopped: {exc!r}")
             self.pipeline.advance(self.clock.now_ns())
+            self._watch()
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
                 self._status()

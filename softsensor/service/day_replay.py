@@ -36,6 +36,13 @@ Sink = Callable[[str, dict[str, Any], int], None]
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 
+def _in_range(ns: int, name: str) -> int:
+    """``ns`` when it is a time between 1970 and 2262 (what an int64 of ns holds)."""
+    if not 0 <= ns < 2**63:
+        raise ConfigError(f"{name}: {ns} ns is not a time between 1970 and 2262")
+    return ns
+
+
 def parse_time(value: int | str | datetime | None, name: str = "time") -> int | None:
     """A time as ns since the epoch, UTC, from ns (int or digit string), ISO-8601 or datetime.
 
@@ -46,11 +53,14 @@ def parse_time(value: int | str | datetime | None, name: str = "time") -> int | 
     if isinstance(value, bool):
         raise ConfigError(f"{name} must be ns since the epoch or an ISO-8601 time, got {value!r}")
     if isinstance(value, int):
-        return value
+        return _in_range(value, name)
     if isinstance(value, str):
         text = value.strip()
         if text.lstrip("-").isdigit():
-            return int(text)
+            if len(text.lstrip("-")) > 19:  # before int(): 5000 digits must not be parsed
+                raise ConfigError(f"{name}: {text[:25]}... is not a time (ns since the epoch "
+                                  f"have at most 19 digits)")
+            return _in_range(int(text), name)
         try:
             value = datetime.fromisoformat(text.replace("z", "Z"))
         except ValueError as exc:

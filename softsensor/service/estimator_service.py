@@ -46,7 +46,7 @@ from softsensor.estimation.lab_history import (
     window_to_json,
 )
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
-from softsensor.messages import lab_from_body
+from softsensor.messages import iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,7 @@ class ServiceStats:
     labs_accepted: int = 0
     labs_refused: int = 0
     refused_time: int = 0  #: scans and labs stamped too far from the daemon's clock
+    skipped_windows: int = 0  #: gap windows not ticked (a gap longer than max_gap_windows)
 
 
 def _worst(a: str, b: str) -> str:
@@ -101,11 +102,14 @@ class EstimatorService:
         Scan time past a window's end at which the window is ticked [s].
     gap_after_s : float
         Silence after which :meth:`advance` closes windows and reports ``stale`` [s].
+    max_gap_windows : int
+        Of a longer gap only the last this many windows are ticked (stale); the rest is one
+        "stale since" state in health, so one scan stamped far ahead costs bounded work.
     """
 
     def __init__(self, estimator: Estimator, window: WindowSettings | None = None, *,
                  unit: str = "dryer1", tick_delay_s: float = 10.0,
-                 gap_after_s: float = 60.0) -> None:
+                 gap_after_s: float = 60.0, max_gap_windows: int = 36) -> None:
         self.estimator = estimator
         self.kind = estimator_kind(estimator)
         self.window = window or WindowSettings()
@@ -113,7 +117,8 @@ class EstimatorService:
         self.tick_delay_ns = int(round(tick_delay_s * NS))
         self.gap_after_ns = int(round(gap_after_s * NS))
         self.stats = ServiceStats()
-        self._acc = WindowAccumulator(self.window)
+        self.max_gap_windows = int(max_gap_windows)
+        self._acc = WindowAccumulator(self.window, max_gap_windows=self.max_gap_windows)
         self._window_scans: list[tuple[int, dict[str, Any]]] = []  # scans of the open window
         self._ready: deque[Window] = deque()
         self._labs: list[LabResult] = []  # checked, waiting for their tick (log-time order)
@@ -126,6 +131,7 @@ class EstimatorService:
         self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
+        self._stale_since: int | None = None  # start of the last gap cut short
         #: refuses message times far from the service clock (the daemon sets a
         #: :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock)
         self.time_gate: Callable[[int], str | None] | None = None
@@ -225,6 +231,13 @@ class EstimatorService:
 
     # ------------------------------------------------------------------ internals
     def _queue(self, windows: list[Window]) -> None:
+        skipped = self._acc.n_skipped - self.stats.skipped_windows
+        if skipped > 0 and self._acc.stale_since_ns is not None:
+            self.stats.skipped_windows = self._acc.n_skipped
+            self._stale_since = self._acc.stale_since_ns
+            log.warning("a gap of %d windows since %s: the last %d are ticked, %d skipped",
+                        skipped + self.max_gap_windows, iso_utc(self._stale_since),
+                        self.max_gap_windows, skipped)
         for w in windows:
             self._ready.append(w)
             self._closed_end = w.end_ns
@@ -337,6 +350,7 @@ class EstimatorService:
             "input_status": in_status, "estimator": self.kind, "unit": self.unit,
             "window_end_ns": self._ticked_end, "last_scan_ns": self._last_scan,
             "labs_waiting": len(self._labs), "last_lab_refusal": self._last_refusal,
+            "stale_since_ns": self._stale_since,
             **dataclasses.asdict(self.stats),
         }
         return Output("health", body, int(time_ns))
@@ -388,7 +402,8 @@ class EstimatorService:
             raise EstimationError(f"{where}: {exc}") from exc
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise EstimationError(f"{where}: malformed checkpoint ({exc!r})") from exc
-        self._acc = WindowAccumulator(self.window, start_ns=self._closed_end)
+        self._acc = WindowAccumulator(self.window, start_ns=self._closed_end,
+                                      max_gap_windows=self.max_gap_windows)
         for t, body in self._window_scans:  # the open window, as it was
             self._acc.add(t, body)
 

@@ -196,10 +196,14 @@ def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None =
                  scan_period_s: float | None = None) -> EstimatorService:
     """The estimator service of ``cfg`` as the daemon builds it (scan period in plant s)."""
     kind = kind or resolve_estimator_kind(settings, cfg)
-    return EstimatorService(make_estimator(kind, cfg),
-                            window_settings(cfg, settings, scan_period_s),
+    window = window_settings(cfg, settings, scan_period_s)
+    # a gap is ticked window by window up to the past horizon the service accepts data for;
+    # longer ones are one "stale since" state (a scan stamped years ahead costs no more)
+    max_gap = max(1, math.ceil(settings.max_past_s / window.period_s))
+    return EstimatorService(make_estimator(kind, cfg), window,
                             unit=resolve_unit(settings, cfg),
-                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s)
+                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
+                            max_gap_windows=max_gap)
 
 
 def truth_rmse(day: str | os.PathLike[str], estimates: list[tuple[int, dict[str, Any]]],
@@ -270,7 +274,10 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                 progress(o.time_ns, len(summary.estimates))
 
     t0 = time.monotonic()
-    recorder = FileRecorder(out, chunk_size=settings.chunk_size)
+    # written beside ``out`` and renamed over it only when complete: an interrupted replay
+    # (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
+    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
     ok = False
     try:
         stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns, end=end_ns,
@@ -278,8 +285,10 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
         ok = True
     finally:
         recorder.close()
-        if not ok:
-            out.unlink(missing_ok=True)
+        if ok:
+            os.replace(partial, out)
+        else:
+            partial.unlink(missing_ok=True)
     summary.wall_s = time.monotonic() - t0
     s = service.stats
     summary.n_replayed = stats.n_published
@@ -300,6 +309,8 @@ def _check_day(day: Path, out: Path, start_ns: int | None, end_ns: int | None,
     scans in the selected range (reading its first scan checks the file is intact)."""
     if day.resolve() == out.resolve():
         raise IngestError(f"{out}: --out must differ from the replayed day")
+    if out.is_dir() or not out.resolve().parent.is_dir():
+        raise IngestError(f"--out {out}: not a file in an existing folder")
     if not day.is_file():
         raise IngestError(f"{day}: no such file")
     first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,

@@ -20,7 +20,8 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
@@ -50,6 +51,36 @@ class _Call:
 _STOP = object()
 
 
+@dataclass(frozen=True)
+class InputLimits:
+    """What the estimator thread accepts from the bus (``[service]`` keys of the same names).
+
+    ``rates_per_s`` maps an input kind to its sustained rate [messages per wall second];
+    ``burst`` is how many may come at once above it (a PLC reconnecting, a lab catching up).
+    """
+
+    max_queue: int = 10**9
+    rates_per_s: Mapping[str, float] = field(default_factory=dict)
+    burst: float = 100.0
+    max_bytes: int | None = None
+
+
+class _Bucket:
+    """A token bucket: ``rate`` tokens a second, at most ``burst`` saved up."""
+
+    def __init__(self, rate: float, burst: float) -> None:
+        self.rate, self.burst = float(rate), float(burst)
+        self.tokens, self.at = float(burst), time.monotonic()
+
+    def take(self, now: float) -> bool:
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.rate)
+        self.at = now
+        if self.tokens < 1.0:
+            return False
+        self.tokens -= 1.0
+        return True
+
+
 class ServicePipeline:
     """Runs an :class:`EstimatorService` behind Zenoh (module docstring).
 
@@ -67,12 +98,16 @@ class ServicePipeline:
         Ticks between checkpoints.
     on_output : callable, optional
         Called on the worker thread with every :class:`Output` after it was published.
+    limits : InputLimits, optional
+        Queue bound, per-source rates and message size (drop and count beyond them);
+        unbounded by default (a replay feeds a recorded day as fast as it can).
     """
 
     def __init__(self, session: zenoh.Session, service: EstimatorService, *,
                  unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
                  checkpoint_every: int = 1,
-                 on_output: Callable[[Output], None] | None = None) -> None:
+                 on_output: Callable[[Output], None] | None = None,
+                 limits: InputLimits | None = None) -> None:
         self.service = service
         self.unit = unit
         self.checkpoints = checkpoints
@@ -84,25 +119,62 @@ class ServicePipeline:
         self.n_out = 0  #: estimate and health messages published
         self.n_errors = 0  #: messages whose processing raised
         self.last_tick_s: float | None = None  #: wall time of the last message that ticked
+        self.last_tick_at: float = time.monotonic()  #: when the last estimate went out
+        self.limits = limits or InputLimits()
+        self.dropped: dict[str, int] = {"queue_full": 0, "rate": 0, "too_large": 0,
+                                        "shutdown": 0}
+        self._skip_inputs = False
+        self._abandoned = False
+        self._pending = 0  # input messages queued and not yet processed
+        self._pending_lock = threading.Lock()  # Zenoh's threads add, the worker removes
+        self._buckets = {kind: _Bucket(rate, self.limits.burst)
+                         for kind, rate in self.limits.rates_per_s.items()}
+        self._drop_logged = 0.0
         self._ticks_unsaved = 0
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
         self._thread.start()
         self.n_labs_received = 0  #: lab messages received (enqueued) so far
-        self.subscription = InputSubscription(session, self._enqueue, unit)
+        self.subscription = InputSubscription(session, self._enqueue, unit,
+                                              max_bytes=self.limits.max_bytes,
+                                              on_too_large=lambda: self._drop("too_large"))
         self._closed = False
 
     def _enqueue(self, message: BusMessage) -> None:
-        """Zenoh callback: queue the message for the worker thread (nothing else)."""
-        self._q.put(message)
+        """Zenoh callback: queue the message for the worker thread, or drop and count it when
+        its source is over its rate or the queue is full (the thread must never starve)."""
         if message.kind == "lab":
             self.n_labs_received += 1
+        bucket = self._buckets.get(message.kind)
+        if bucket is not None and not bucket.take(time.monotonic()):
+            self._drop("rate")
+            return
+        with self._pending_lock:
+            full = self._pending >= self.limits.max_queue
+            if not full:
+                self._pending += 1
+        if full:
+            self._drop("queue_full")
+            return
+        self._q.put(message)
+
+    def _drop(self, reason: str) -> None:
+        self.dropped[reason] += 1
+        now = time.monotonic()
+        if now - self._drop_logged >= 10.0:  # one line per 10 s of a flood, not per message
+            self._drop_logged = now
+            event(log, "input_dropped", logging.WARNING, reason=reason, **self.dropped)
+
+    @property
+    def pending(self) -> int:
+        """Input messages waiting for the estimator thread."""
+        return self._pending
 
     # ------------------------------------------------------------------ worker thread
     def _loop(self) -> None:
         while True:
             item = self._q.get()
-            if item is _STOP:
+            if item is _STOP or self._abandoned:  # abandoned: the session is gone
                 return
             if isinstance(item, _Call):
                 try:
@@ -110,6 +182,11 @@ class ServicePipeline:
                 except BaseException as exc:  # noqa: BLE001 - handed to the caller
                     item.error = exc
                 item.done.set()
+                continue
+            with self._pending_lock:
+                self._pending -= 1
+            if self._skip_inputs:
+                self.dropped["shutdown"] += 1
                 continue
             try:
                 t0 = time.perf_counter()
@@ -128,6 +205,7 @@ class ServicePipeline:
             self.n_out += 1
             if out.kind == "estimate":
                 self._ticks_unsaved += 1
+                self.last_tick_at = time.monotonic()
             if self.on_output is not None:
                 try:
                     self.on_output(out)
@@ -185,20 +263,31 @@ class ServicePipeline:
         """Write the checkpoint now (after the queued messages)."""
         self.call(self._save, timeout)
 
-    def close(self, *, checkpoint: bool = True, timeout: float = 60.0) -> None:
-        """Stop receiving, process what is queued, write a last checkpoint, stop (idempotent)."""
+    def close(self, *, checkpoint: bool = True, timeout: float = 60.0,
+                drain: bool = True) -> None:
+        """Stop receiving, process what is queued (``drain``; else skip the input messages
+        still waiting, as a daemon stopping does: they are recorded already), write a last
+        checkpoint, stop (idempotent)."""
         if self._closed:
             return
         self._closed = True
+        self._skip_inputs = not drain
         self.subscription.close()
+        stuck = False
         try:
             if checkpoint:
                 self.save_checkpoint(timeout)
             else:
                 self.sync(timeout)
+        except TimeoutError:
+            # a stuck thread is left behind (a daemon thread: it dies with the process) so
+            # that stopping takes seconds; the last checkpoint written stays the one to resume
+            stuck = self._abandoned = True
+            event(log, "estimator_abandoned", logging.ERROR, waited_s=timeout,
+                  pending=self.pending)
         finally:
             self._q.put(_STOP)
-            self._thread.join(timeout)
+            self._thread.join(0 if stuck else timeout)
             self.publisher.close()
 
     def __enter__(self) -> ServicePipeline:
@@ -218,16 +307,24 @@ class InputSubscription:
     """
 
     def __init__(self, session: zenoh.Session, callback: Callable[[BusMessage], None],
-                 unit: str) -> None:
+                 unit: str, *, max_bytes: int | None = None,
+                 on_too_large: Callable[[], None] | None = None) -> None:
         self.unit = unit
         self.n_received = 0
         self.n_errors = 0
+        self.max_bytes = max_bytes
+        self._on_too_large = on_too_large
         self._callback = callback
         self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(
             f"plant/{unit}/*", self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
+        if self.max_bytes is not None and len(sample.payload) > self.max_bytes:
+            # refused before decoding: a 5 MB "scan" must not cost a JSON parse
+            if self._on_too_large is not None:
+                self._on_too_large()
+            return
         try:
             message = to_message(key, sample.payload.to_bytes(), self.unit)
             if message.kind not in INPUT_KINDS:
@@ -269,5 +366,5 @@ class ScanPublisher:
         self.n_published += 1
 
 
-__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "InputSubscription", "ScanPublisher",
-           "ServicePipeline"]
+__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "InputLimits", "InputSubscription",
+           "ScanPublisher", "ServicePipeline"]

@@ -29,6 +29,7 @@ plant seconds unless they say "wall".
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,9 @@ from softsensor.estimation.settings import ESTIMATOR_KINDS
 from softsensor.plantconfig import PlantConfig
 
 ZENOH_MODES: tuple[str, ...] = ("peer", "client")
+#: A unit name: it is a Zenoh key chunk and part of file names, so no ``/``, ``..``, ``*``.
+UNIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+UNIT_RULE = "must be 1 to 64 letters, digits, '_' or '-' (it names keys and files)"
 LOG_FORMATS: tuple[str, ...] = ("kv", "json")
 
 
@@ -95,6 +99,24 @@ class ServiceSettings:
         refused, counted (``refused_time``) and not recorded [s].
     status_every_s : float
         Period of the daemon's status log line [s, wall].
+    zenoh_user, zenoh_password_file : str or None
+        Zenoh user/password authentication towards the sessions the daemon connects to (the
+        password read from the file, relative to the config file, so the config carries none).
+    zenoh_users_file : str or None
+        Zenoh's dictionary file (``user:password`` lines, relative to the config file): every
+        session connecting to the daemon must authenticate as one of them.
+    zenoh_adminspace : bool
+        Expose Zenoh's (read-only) admin space; off: it tells any peer the daemon's links.
+    zenoh_guard_outputs : bool
+        Zenoh access control refusing ``put`` on ``softsensor/<unit>/**`` from other sessions:
+        no peer can publish estimates or health in the daemon's name into it or its recorder.
+    max_message_bytes : int
+        Larger bus messages are dropped (by Zenoh on receipt, and counted by the daemon).
+    max_queue : int
+        Input messages waiting for the estimator thread; more are dropped and counted.
+    max_scan_rate_hz, max_lab_rate_per_h : float
+        Per-source rate limits [per plant second, per plant hour]; above them messages are
+        dropped and counted (a scan every 10 s is 0.1 Hz; a lab a few results a day).
     log_format : str
         ``kv`` (key=value) or ``json``, one line per event.
     """
@@ -125,6 +147,15 @@ class ServiceSettings:
     max_past_s: float = num(6 * 3600.0, gt=0, le=30 * 86_400)
     status_every_s: float = num(60.0, gt=0, le=86_400)
     log_format: str = "kv"
+    zenoh_user: str | None = None
+    zenoh_password_file: str | None = None
+    zenoh_users_file: str | None = None
+    zenoh_adminspace: bool = False
+    zenoh_guard_outputs: bool = True
+    max_message_bytes: int = num(65_536, ge=1024, le=64 * 1024 * 1024)
+    max_queue: int = num(10_000, ge=10, le=10_000_000)
+    max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
+    max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
 
     def check(self) -> str | None:
         """Cross-field and list rules (called by ``build_section``); message names the key."""
@@ -142,6 +173,10 @@ class ServiceSettings:
         if self.estimator is not None and self.estimator not in ESTIMATOR_KINDS:
             return (f"estimator must be one of {', '.join(ESTIMATOR_KINDS)}, "
                     f"got {self.estimator!r}")
+        if self.unit is not None and not UNIT_NAME.fullmatch(self.unit):
+            return f"unit {self.unit!r} {UNIT_RULE}"
+        if (self.zenoh_user is None) != (self.zenoh_password_file is None):
+            return "zenoh_user and zenoh_password_file go together (both or neither)"
         if self.log_format not in LOG_FORMATS:
             return f"log_format must be one of {', '.join(LOG_FORMATS)}, got {self.log_format!r}"
         if self.clock_start is not None:
@@ -190,12 +225,21 @@ def service_settings(cfg: PlantConfig) -> ServiceSettings:
             table = {**table, "tagmap": str(here / tagmap)}
         elif tagmap is None and beside.is_file():
             table = {**table, "tagmap": str(beside)}
+        for key in ("zenoh_password_file", "zenoh_users_file"):  # files beside the config
+            value = table.get(key)
+            if isinstance(value, str) and not Path(value).is_absolute():
+                table = {**table, key: str(here / value)}
     return build_section(ServiceSettings, table, "service", cfg.source)
 
 
 def resolve_unit(settings: ServiceSettings, cfg: PlantConfig) -> str:
-    """The unit name: ``service.unit``, else the config's ``unit.name``."""
-    return settings.unit or cfg.unit.name
+    """The unit name: ``service.unit``, else the config's ``unit.name`` (checked as one)."""
+    unit = settings.unit or cfg.unit.name
+    if not UNIT_NAME.fullmatch(unit):
+        from softsensor.errors import ConfigError
+
+        raise ConfigError(f"{cfg.source}: unit.name {unit!r} {UNIT_RULE}")
+    return unit
 
 
 def resolve_estimator_kind(settings: ServiceSettings, cfg: PlantConfig) -> str:
@@ -204,3 +248,34 @@ def resolve_estimator_kind(settings: ServiceSettings, cfg: PlantConfig) -> str:
         return settings.estimator
     from softsensor.estimation.settings import estimator_settings
     return estimator_settings(cfg).kind
+
+
+def bus_options(settings: ServiceSettings, unit: str) -> dict[str, Any]:
+    """Keyword arguments of :func:`softsensor.bus.zenoh_bus.make_config` for the daemon's
+    session and its clients (``softsensor health``): authentication, access control, the
+    message size limit and the admin space. The password is read from its file here."""
+    from softsensor.bus.zenoh_bus import output_guard_acl
+    from softsensor.errors import ConfigError
+
+    kwargs: dict[str, Any] = {"adminspace": settings.zenoh_adminspace,
+                              "max_message_bytes": settings.max_message_bytes}
+    if settings.zenoh_password_file is not None:
+        try:
+            with open(settings.zenoh_password_file, encoding="utf-8") as f:
+                password = f.readline().strip()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigError(f"service.zenoh_password_file: cannot read "
+                              f"{settings.zenoh_password_file}: "
+                              f"{getattr(exc, 'strerror', None) or exc}") from exc
+        if not password:
+            raise ConfigError(f"service.zenoh_password_file: {settings.zenoh_password_file} "
+                              f"is empty")
+        kwargs.update(user=settings.zenoh_user, password=password)
+    if settings.zenoh_users_file is not None:
+        if not Path(settings.zenoh_users_file).is_file():
+            raise ConfigError(f"service.zenoh_users_file: no such file "
+                              f"{settings.zenoh_users_file}")
+        kwargs["users_file"] = settings.zenoh_users_file
+    if settings.zenoh_guard_outputs:
+        kwargs["acl"] = output_guard_acl(unit)
+    return kwargs

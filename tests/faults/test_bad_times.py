@@ -120,3 +120,31 @@ def test_a_lab_flood_is_bounded_and_does_not_starve_the_estimator():
     for k in range(61, 130):
         service.on_scan(t0 + k * 10 * 10**9, rows[k])
     assert service.stats.ticks >= 1 and time.perf_counter() - t1 < 60.0
+
+
+def test_a_scan_thirty_days_ahead_costs_a_bounded_number_of_ticks():
+    """Where no clock refuses it (a replay, or a gate opened wide), one scan stamped 30 days
+    ahead used to tick 4,320 stale windows in one burst; now the gap is one "stale since"
+    state: at most the past horizon's windows are ticked, the rest counted and named."""
+    from softsensor.service.offline_replay import make_service
+
+    cfg = load_plant_config()
+    settings = service_settings(cfg)
+    service = make_service(cfg, settings)
+    day = simulate_day(cfg, 0.5, 5)
+    t0 = int(day.scans.index[0])
+    rows = day.scans.to_dict("records")
+    for k in range(70):
+        service.on_scan(t0 + k * 10 * 10**9, rows[k])
+    before = service.stats.ticks
+    start = time.perf_counter()
+    out = service.on_scan(t0 + 30 * DAY_NS, rows[70])
+    out += service.advance(t0 + 30 * DAY_NS + 3600 * 10**9)
+    ticks = service.stats.ticks - before
+    horizon = int(settings.max_past_s // 600)
+    assert 1 <= ticks <= horizon + 8, ticks
+    assert service.stats.skipped_windows > 4000, service.stats.skipped_windows
+    health = [o.body for o in out if o.kind == "health"][-1]
+    assert health["stale_since_ns"] is not None and health["status"] == "stale"
+    assert health["stale_since_ns"] < t0 + DAY_NS
+    assert time.perf_counter() - start < 60.0

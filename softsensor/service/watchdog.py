@@ -1,0 +1,135 @@
+"""The daemon's watchdog and its health queryable.
+
+The estimator thread ticks once a window (600 plant seconds): on a scan ``tick_delay_s`` past
+the window's end or, with the PLC silent, ``gap_after_s`` past it. A thread that is stuck or
+starved misses that. :class:`Watchdog`, run from the daemon's housekeeping loop (another
+thread), sees no estimate for more than one window past the latest a tick can come, and then
+publishes health itself: ``status = "stale"`` (CONTRACT section 2 keeps to ``ok``,
+``degraded``, ``stale``) with ``stalled = true`` and a detail saying how late and how many
+messages wait; again every window while it lasts.
+
+:class:`HealthQueryable` answers a Zenoh ``get`` on ``softsensor/<unit>/health`` at any time
+with the latest health, the watchdog's verdict and the input counters, so a container health
+check or an operator's script need not wait up to a window for the next publication
+(``softsensor health``).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import zenoh
+
+from softsensor.service.logs import event
+
+log = logging.getLogger(__name__)
+
+NS = 10**9
+
+
+class Watchdog:
+    """Says when the estimator thread is late (module docstring).
+
+    Parameters
+    ----------
+    window_wall_s : float
+        A window in wall seconds (600 / ``time_scale``).
+    grace_wall_s : float
+        Longest normal wait after a window's end for its tick [wall s] (``gap_after_s`` and
+        ``tick_delay_s`` scaled).
+    last_tick_at : callable
+        ``time.monotonic()`` of the last estimate published.
+    pending : callable
+        Input messages waiting for the thread.
+    """
+
+    def __init__(self, window_wall_s: float, grace_wall_s: float,
+                 last_tick_at: Callable[[], float], pending: Callable[[], int]) -> None:
+        self.window_wall_s = float(window_wall_s)
+        self.limit_s = 2.0 * self.window_wall_s + float(grace_wall_s)
+        self._last_tick_at = last_tick_at
+        self._pending = pending
+        self.stalled = False
+        self.n_stalls = 0
+        self._announced: float | None = None
+
+    def check(self, now: float | None = None) -> dict[str, Any] | None:
+        """A ``stalled`` health body when one is due now, else None."""
+        now = time.monotonic() if now is None else now
+        late = now - self._last_tick_at()
+        if late <= self.limit_s:
+            if self.stalled:
+                event(log, "estimator_recovered", late_s=round(late, 1))
+            self.stalled, self._announced = False, None
+            return None
+        if self._announced is not None and now - self._announced < self.window_wall_s:
+            return None
+        if not self.stalled:
+            self.n_stalls += 1
+        self.stalled, self._announced = True, now
+        detail = (f"stalled: no estimate for {late:.0f} s (one is due every "
+                  f"{self.window_wall_s:.0f} s); {self._pending()} input messages waiting")
+        event(log, "estimator_stalled", logging.ERROR, late_s=round(late, 1),
+              pending=self._pending())
+        return {"status": "stale", "detail": detail, "stalled": True,
+                "tick_late_s": round(late, 1), "pending": self._pending()}
+
+
+class HealthQueryable:
+    """Answers ``get softsensor/<unit>/health`` with the latest health (module docstring)."""
+
+    def __init__(self, session: zenoh.Session, unit: str,
+                 extra: Callable[[], dict[str, Any]]) -> None:
+        self.key = f"softsensor/{unit}/health"
+        self._lock = threading.Lock()
+        self._latest: dict[str, Any] = {"status": "stale", "detail": "no estimate yet",
+                                        "unit": unit}
+        self._extra = extra
+        self._queryable = session.declare_queryable(self.key, self._answer)
+
+    def update(self, body: dict[str, Any]) -> None:
+        """Keep ``body`` (a health body just published) as the answer."""
+        with self._lock:
+            self._latest = dict(body)
+
+    def _answer(self, query: zenoh.Query) -> None:
+        try:
+            with self._lock:
+                doc = dict(self._latest)
+            doc.update(self._extra())
+            doc["answered_ns"] = time.time_ns()
+            query.reply(self.key, json.dumps(doc, allow_nan=False, default=str).encode())
+        except Exception:  # noqa: BLE001 - must not escape into zenoh's thread
+            log.exception("health query not answered")
+
+    def close(self) -> None:
+        """Undeclare the queryable (idempotent)."""
+        q, self._queryable = self._queryable, None
+        if q is not None:
+            try:
+                q.undeclare()
+            except zenoh.ZError:  # session already closed
+                pass
+
+
+def query_health(session: zenoh.Session, unit: str, timeout_s: float = 5.0
+                 ) -> dict[str, Any] | None:
+    """The daemon's answer to ``get softsensor/<unit>/health`` (None: no answer in time)."""
+    replies = session.get(f"softsensor/{unit}/health", timeout=timeout_s)
+    for reply in replies:
+        if reply.ok is not None:
+            try:
+                doc = json.loads(reply.ok.payload.to_bytes())
+            except ValueError:
+                continue
+            if isinstance(doc, dict):
+                return doc
+    return None
+
+
+__all__ = ["HealthQueryable", "Watchdog", "query_health"]

@@ -1,0 +1,66 @@
+"""A real daemon polling the simulated PLC, for the fault tests that need one running."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator
+from dataclasses import dataclass
+from pathlib import Path
+
+from softsensor.ingest.tagmap import load_tagmap
+from softsensor.plant.plc_feed import PlantFeed
+from softsensor.plant.plc_server import PlcServer
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_plant_config
+from softsensor.service.daemon import Daemon
+from softsensor.service.settings import ServiceSettings, service_settings
+
+SCALE = 240.0
+
+
+@dataclass
+class Running:
+    daemon: Daemon
+    stop: asyncio.Event
+    task: asyncio.Task
+    endpoint: str  #: where the daemon's Zenoh session listens
+
+
+def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings:
+    """``[service]`` of the built-in plant, all files in ``tmp_path``, accelerated 240x."""
+    cfg = load_plant_config()
+    return service_settings(cfg).with_overrides(
+        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
+        lab_dir=str(tmp_path / "lab"), zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE,
+        flush_interval_s=0.2, clock_start=str(start_ns), **changes)
+
+
+@contextlib.asynccontextmanager
+async def running_daemon(tmp_path: Path, *, ticks: int = 1, **changes
+                         ) -> AsyncIterator[Running]:
+    """A daemon on a looping simulated day, yielded once it has ticked ``ticks`` times;
+    stopped (and awaited, at most 30 s) on exit."""
+    cfg = load_plant_config()
+    day = simulate_day(cfg, 3.0, 12)
+    settings = daemon_settings(tmp_path, int(day.scans.index[0]), **changes)
+    feed = PlantFeed(day, loop=True)
+    tm = load_tagmap()
+    plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
+    await plc.start()
+    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+    stop, up = asyncio.Event(), []
+    task = asyncio.create_task(daemon.run(stop, ready=up.append))
+    loop = asyncio.get_running_loop()
+    try:
+        deadline = loop.time() + 60
+        while not up or daemon.pipeline.service.stats.ticks < ticks:
+            assert loop.time() < deadline and not task.done(), "the daemon did not tick"
+            await asyncio.sleep(0.05)
+        yield Running(daemon, stop, task, up[0].endpoints[0])
+    finally:
+        stop.set()
+        try:
+            await asyncio.wait_for(task, 30)
+        finally:
+            await plc.stop()
