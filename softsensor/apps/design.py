@@ -41,9 +41,8 @@ from softsensor.calibration.design import (
 from softsensor.calibration.identifiability import bounds_prior_sd
 from softsensor.calibration.objective import ObjectiveSpec
 from softsensor.calibration.params_file import read_fit
-from softsensor.calibration.pipeline import objective_spec
 from softsensor.calibration.settings import CalibrationSettings, calibration_settings
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, require_packages
 from softsensor.model import DryerModel
 from softsensor.model.geometry import N_AUX
 from softsensor.plant.controller import (
@@ -169,6 +168,8 @@ def build_problem(base: PlantConfig, config: PlantConfig, op: OperatingPoint,
                   limits: DesignLimits, calibration: CalibrationSettings, noise: np.ndarray,
                   kind: str = "D", names: Sequence[str] = ()) -> DesignProblem:
     """The design problem at ``config``'s parameters (checked: one-line ConfigError)."""
+    from softsensor.calibration.pipeline import objective_spec  # Optuna: the offline extra
+
     msg = limits.check(op.T_sp, float(op.u[I_M_AIR]))
     if msg:
         raise ConfigError(msg)
@@ -252,6 +253,8 @@ def assessor(base: PlantConfig, calibration: CalibrationSettings
     model = DryerModel(base)
 
     def assess(segments: list[Segment], theta: np.ndarray) -> Information:
+        from softsensor.calibration.pipeline import objective_spec
+
         spec = objective_spec(model, segments, base, calibration)
         return information(model, segments, theta, spec, None, prior_sd(spec, base))
 
@@ -422,6 +425,7 @@ def _check_args(args: argparse.Namespace) -> None:
 
 def design_main(args: argparse.Namespace) -> int:
     """``softsensor design``: search, files, and optionally sequential rounds."""
+    require_packages("design", "optuna", "matplotlib")
     _check_args(args)
     base, config = load_config_and_params(args)
     op = operating_point(config, args.day, args.hours)
