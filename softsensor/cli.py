@@ -1,7 +1,8 @@
 """The ``softsensor`` command: wires configuration, sources, estimators and sinks together.
 
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
-``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``.
+``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``,
+``design``.
 Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a module that
 fails to import stops the command with one line naming it (exit status 1) rather than hiding
 its verbs. This module only parses arguments and turns every
@@ -37,6 +38,7 @@ VERB_MODULES: tuple[str, ...] = (
     "softsensor.apps.streaming",      # run, replay
     "softsensor.apps.diagnose",       # diagnose
     "softsensor.apps.historian",      # import, export
+    "softsensor.apps.design",         # design
 )
 
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
@@ -21,6 +22,20 @@ from softsensor.signals import TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
 #: Default start of a simulated day: 2026-01-05 00:00:00 UTC [ns].
 DEFAULT_START_NS = 1_767_571_200_000_000_000
 TOPIC_TRUTH_EFFECT = "/truth/effect"
+
+
+#: A schedule of knob moves a plant can follow: ``(t [s from the start], T_sp [K],
+#: m_air [kg/s])``, as :mod:`softsensor.calibration.design` proposes.
+KnobSchedule = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def apply_schedule(t: np.ndarray, m_air: np.ndarray, nominal_m_air: float,
+                   schedule: KnobSchedule) -> tuple[np.ndarray, np.ndarray]:
+    """The set point [K] and fan flow [kg/s] of a day that follows ``schedule``: the
+    schedule's ``T_sp`` held past its end, its ``m_air`` times the day's own relative wander
+    (the fan still wanders around the flow the operator sets)."""
+    ts, T_sp, m = (np.asarray(a, float) for a in schedule)
+    return np.interp(t, ts, T_sp), np.interp(t, ts, m) * (np.asarray(m_air) / nominal_m_air)
 
 
 @dataclass

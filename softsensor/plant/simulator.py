@@ -18,6 +18,7 @@ the same disturbances with and without an effect.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -28,7 +29,13 @@ from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel
 from softsensor.model.geometry import BETA_AMB, N_AUX
 from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
-from softsensor.plant.day import DEFAULT_START_NS, TOPIC_TRUTH_EFFECT, SimulatedDay
+from softsensor.plant.day import (
+    DEFAULT_START_NS,
+    TOPIC_TRUTH_EFFECT,
+    KnobSchedule,
+    SimulatedDay,
+    apply_schedule,
+)
 from softsensor.plant.effects import EFFECTS, INJECT, Injection, resolve_effect
 from softsensor.plant.scenario import Scenario, make_scenario
 from softsensor.plant.settings import VirtualPlantSettings, virtual_plant_settings
@@ -62,8 +69,8 @@ def _initial_operating_point(model: DryerModel, u: np.ndarray, theta: np.ndarray
 
 
 def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | None = None,
-                 magnitude: float | None = None, start_ns: int = DEFAULT_START_NS
-                 ) -> SimulatedDay:
+                 magnitude: float | None = None, start_ns: int = DEFAULT_START_NS,
+                 schedule: KnobSchedule | None = None) -> SimulatedDay:
     """Run the virtual plant for ``hours`` and return the recorded day.
 
     Parameters
@@ -79,6 +86,9 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
         magnitude when omitted); ``None`` for a clean day.
     start_ns : int
         Time of the first scan [ns since the Unix epoch, UTC].
+    schedule : (t [s], T_sp [K], m_air [kg/s]), optional
+        Knob moves the operator makes (a designed experiment) in place of the day's own set
+        point and fan flow (:func:`~softsensor.plant.day.apply_schedule`).
     """
     if not (isinstance(hours, (int, float)) and math.isfinite(hours) and 0 < hours <= 24 * 60):
         raise ConfigError(f"--hours must be in (0, 1440], got {hours!r}")
@@ -89,6 +99,9 @@ def simulate_day(config: PlantConfig, hours: float, seed: int, effect: str | Non
     rng_noise = np.random.default_rng([seed, 2])
     rng_lab = np.random.default_rng([seed, 3])
     sc = make_scenario(config, s, hours, rng_scen)
+    if schedule is not None:
+        T_sp, m_air = apply_schedule(sc.t, sc.m_air, config.nominal.m_air, schedule)
+        sc = dataclasses.replace(sc, T_sp=T_sp, m_air=m_air)
     theta = np.tile(config.parameter_vector(), (len(sc.t), 1))
     info: dict[str, Any] = {"effect": effect or "none", "magnitude": magnitude,
                             "unit": EFFECTS[effect].unit if effect else "", "seed": seed,

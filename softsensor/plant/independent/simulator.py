@@ -20,6 +20,7 @@ clean day of the same seeds; the plant's structure comes from the plant seed alo
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -28,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import ConfigError
-from softsensor.plant.day import DEFAULT_START_NS, SimulatedDay
+from softsensor.plant.day import DEFAULT_START_NS, KnobSchedule, SimulatedDay, apply_schedule
 from softsensor.plant.effects import resolve_effect
 from softsensor.plant.independent import chain
 from softsensor.plant.independent.commissioning import (
@@ -248,8 +249,8 @@ def _control(row: np.ndarray, loop: _Loop, k: int, per_control: int, day: Day,
 
 def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
                              effect: str | None = None, magnitude: float | None = None, *,
-                             plant_seed: int = 0, start_ns: int = DEFAULT_START_NS
-                             ) -> SimulatedDay:
+                             plant_seed: int = 0, start_ns: int = DEFAULT_START_NS,
+                             schedule: KnobSchedule | None = None) -> SimulatedDay:
     """Run the independent plant for ``hours`` and return the recorded day.
 
     ``config``: geometry (``tube``, ``cyclone``), nominal point, ambient pressure and the
@@ -258,7 +259,8 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
     ``magnitude``: one effect of :data:`softsensor.plant.effects.EFFECTS` (default magnitude
     when omitted; ``None``: a clean day). ``plant_seed``: the plant, which family member
     (:mod:`.family`), commissioned once and cached. ``start_ns``: time of the first scan
-    [ns since the Unix epoch, UTC].
+    [ns since the Unix epoch, UTC]. ``schedule``: knob moves ``(t [s], T_sp [K], m_air
+    [kg/s])`` in place of the day's set point and fan flow (a designed experiment).
     """
     _check_arguments(hours, plant_seed)
     effect, magnitude = resolve_effect(effect, magnitude)
@@ -269,6 +271,9 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
     rng_day, rng_eff, rng_noise, rng_miss, rng_lab = (np.random.default_rng([seed, 10 + i])
                                                        for i in range(5))
     day = draw_day(config, s, st, hours, dt, rng_day)
+    if schedule is not None:
+        T_sp, m_air = apply_schedule(day.t, day.m_air, config.nominal.m_air, schedule)
+        day = dataclasses.replace(day, T_sp=T_sp, m_air=m_air)
     inj = inject(effect, magnitude, rng_eff, day.t, seed)
     moisture_in = np.clip(day.moisture_in + inj.moisture_dev, 0.8, 1.3)
     plant = _Plant(member, config, day, inj, moisture_in)
