@@ -71,10 +71,14 @@ def one_line(message: str) -> str:
 
 
 def check_numbers(args: argparse.Namespace) -> str | None:
-    """The one rule every verb's numeric options share: no NaN or infinity, seeds that numpy
-    takes (0 .. 2**32 - 1) and TCP ports (0 .. 65535); the message names the option."""
+    """The rules every verb's options share: no NaN or infinity, seeds that numpy takes
+    (0 .. 2**32 - 1), TCP ports (0 .. 65535), no NUL in a text; the message names the
+    option."""
     for key, value in vars(args).items():
         flag = "--" + key.replace("_", "-")
+        texts = value if isinstance(value, list) else [value]
+        if any(isinstance(t, str) and "\x00" in t for t in texts):
+            return f"argument {flag}: contains a NUL character, which no path or name may"
         if isinstance(value, float) and not math.isfinite(value):
             return f"argument {flag}: must be a finite number, got {value}"
         if isinstance(value, bool) or not isinstance(value, int):

@@ -412,10 +412,11 @@ def limits_from_args(args: argparse.Namespace, op: OperatingPoint) -> DesignLimi
 
 
 def _check_args(args: argparse.Namespace) -> None:
-    for flag, v, lo in (("--budget", args.budget, 0), ("--random", args.random, 0),
-                        ("--rounds", args.rounds, 0), ("--trials", args.trials, 1)):
-        if v < lo:
-            raise ConfigError(f"{flag} must be >= {lo}, got {v}")
+    for flag, v, lo, hi in (("--budget", args.budget, 0, 100_000),
+                            ("--random", args.random, 0, 100_000),
+                            ("--rounds", args.rounds, 0, 20), ("--trials", args.trials, 1, 10_000)):
+        if not lo <= v <= hi:  # a typo of a few digits must not mean a search of days
+            raise ConfigError(f"{flag} must be in {lo}..{hi}, got {v}")
     if not (math.isfinite(args.hours) and 0 < args.hours <= 48):
         raise ConfigError(f"--hours must be in (0, 48], got {args.hours:g}")
     out = Path(args.out)
