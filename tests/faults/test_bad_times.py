@@ -14,18 +14,15 @@ import asyncio
 import time
 from pathlib import Path
 
+from harness import running_daemon
+
 from softsensor.bus.zenoh_bus import Publisher, open_session, wait_for_peers
-from softsensor.ingest.tagmap import load_tagmap
-from softsensor.plant.plc_feed import PlantFeed
-from softsensor.plant.plc_server import PlcServer
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 from softsensor.recording.mcap_day import read_day
-from softsensor.service.daemon import Daemon
 from softsensor.service.settings import service_settings
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_SCAN
 
-SCALE = 240.0
 DAY_NS = 86_400 * 10**9
 
 
@@ -45,41 +42,19 @@ def _inject(endpoint: str, now_ns: int) -> None:
 
 
 def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_path: Path):
-    cfg = load_plant_config()
-    day = simulate_day(cfg, 3.0, 12)
-    settings = service_settings(cfg).with_overrides(
-        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
-        lab_dir=str(tmp_path / "lab"),
-        zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE, flush_interval_s=0.2,
-        clock_start=str(int(day.scans.index[0])))
     got: dict = {}
 
     async def main() -> None:
-        feed = PlantFeed(day, loop=True)
-        tm = load_tagmap()
-        plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
-        await plc.start()
-        daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
-        stop, up = asyncio.Event(), []
-        task = asyncio.create_task(daemon.run(stop, ready=up.append))
-        loop = asyncio.get_running_loop()
-        try:
-            deadline = loop.time() + 60
-            while not up or daemon.pipeline.service.stats.ticks < 2:
-                assert loop.time() < deadline and not task.done(), "the daemon did not tick"
-                await asyncio.sleep(0.05)
-            stats = daemon.pipeline.service.stats
-            got["fresh_before"] = stats.ticks - stats.stale_ticks
-            await asyncio.to_thread(_inject, up[0].endpoints[0], daemon.clock.now_ns())
-            t0 = stats.ticks
+        async with running_daemon(tmp_path, ticks=2) as r:
+            loop = asyncio.get_running_loop()
+            stats = r.daemon.pipeline.service.stats
+            got["start"] = r.daemon.clock.start_ns
+            await asyncio.to_thread(_inject, r.endpoint, r.daemon.clock.now_ns())
+            t0, deadline = stats.ticks, loop.time() + 60
             while stats.ticks < t0 + 4:  # four more windows (10 s wall at 240x)
-                assert loop.time() < deadline + 30 and not task.done(), "ticks stopped"
+                assert loop.time() < deadline and not r.task.done(), "ticks stopped"
                 await asyncio.sleep(0.05)
             got["stats"] = stats
-        finally:
-            stop.set()
-            await asyncio.wait_for(task, 30)
-            await plc.stop()
 
     asyncio.run(asyncio.wait_for(main(), 150))
     stats = got["stats"]
@@ -91,7 +66,7 @@ def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_pa
     assert len(files) == 1, files  # no file for the day two days ahead
     rec = read_day(files[0])  # whole: footer written, nothing negative in it
     times = [t for t, _b in rec.topic(TOPIC_SCAN)]
-    assert min(times) > 0 and max(times) < int(day.scans.index[0]) + DAY_NS
+    assert min(times) > 0 and max(times) < got["start"] + DAY_NS
     assert len(rec.topic(TOPIC_ESTIMATE)) >= 6
 
 
