@@ -299,7 +299,7 @@ def test_image_builds_runs_healthy_read_only_stops_cleanly_and_replays(tmp_path:
     assert float(r.stdout.strip().splitlines()[-1]) < 20.0, r.stdout
     # what only calibration needs is not in the image, and the verbs say how to get it
     r = bench.docker("run", "--rm", "--read-only", "--entrypoint", "softsensor", tag,
-                     "calibrate", "/nonexistent.mcap")
+                     "calibrate", "/nonexistent.mcap", "--out", "/tmp/p.toml")
     assert r.returncode == 2 and "softsensor[offline]" in r.stderr, r.stderr[-500:]
 
     out = tmp_path / "out"
