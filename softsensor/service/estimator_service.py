@@ -132,6 +132,7 @@ class EstimatorService:
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
         self._stale_since: int | None = None  # start of the last gap cut short
+        self._skipped_seen = 0  # gap windows of self._acc already counted in the stats
         #: refuses message times far from the service clock (the daemon sets a
         #: :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock)
         self.time_gate: Callable[[int], str | None] | None = None
@@ -231,9 +232,12 @@ class EstimatorService:
 
     # ------------------------------------------------------------------ internals
     def _queue(self, windows: list[Window]) -> None:
-        skipped = self._acc.n_skipped - self.stats.skipped_windows
+        # the accumulator counts since it was made (a restore makes a new one); the stats
+        # count over the service's life, checkpoints included
+        skipped = self._acc.n_skipped - self._skipped_seen
         if skipped > 0 and self._acc.stale_since_ns is not None:
-            self.stats.skipped_windows = self._acc.n_skipped
+            self._skipped_seen = self._acc.n_skipped
+            self.stats.skipped_windows += skipped
             self._stale_since = self._acc.stale_since_ns
             log.warning("a gap of %d windows since %s: the last %d are ticked, %d skipped",
                         skipped + self.max_gap_windows, iso_utc(self._stale_since),
@@ -404,6 +408,7 @@ class EstimatorService:
             raise EstimationError(f"{where}: malformed checkpoint ({exc!r})") from exc
         self._acc = WindowAccumulator(self.window, start_ns=self._closed_end,
                                       max_gap_windows=self.max_gap_windows)
+        self._skipped_seen = 0
         for t, body in self._window_scans:  # the open window, as it was
             self._acc.add(t, body)
 

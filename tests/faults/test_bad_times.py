@@ -123,3 +123,23 @@ def test_a_scan_thirty_days_ahead_costs_a_bounded_number_of_ticks():
     assert health["stale_since_ns"] is not None and health["status"] == "stale"
     assert health["stale_since_ns"] < t0 + DAY_NS
     assert time.perf_counter() - start < 60.0
+
+
+def test_skipped_windows_keep_counting_across_a_restore():
+    """A restored service counts a new long gap on top of the checkpoint's count (its
+    accumulator is new and starts from zero)."""
+    from softsensor.service.offline_replay import make_service
+
+    cfg = load_plant_config()
+    settings = service_settings(cfg)
+    service = make_service(cfg, settings)
+    rows = simulate_day(cfg, 0.5, 5).scans.to_dict("records")
+    t0 = 1_767_571_200 * 10**9
+    service.on_scan(t0, rows[0])
+    service.on_scan(t0 + 10 * DAY_NS, rows[1])
+    first = service.stats.skipped_windows
+    assert first > 1000
+    again = make_service(cfg, settings)
+    again.restore(service.checkpoint())
+    again.on_scan(t0 + 20 * DAY_NS, rows[2])
+    assert again.stats.skipped_windows > first + 1000, (first, again.stats.skipped_windows)
