@@ -19,7 +19,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from softsensor import __version__
-from softsensor.errors import SoftsensorError
+from softsensor.errors import SoftsensorError, one_line
 
 log = logging.getLogger("softsensor")
 
@@ -62,12 +62,6 @@ def build_parser() -> argparse.ArgumentParser:
     for module in VERB_MODULES:
         _import_verbs(module)(sub)
     return parser
-
-
-def one_line(message: str) -> str:
-    """``message`` as one printable line: a file name or value with a line break or other
-    control character in it (a user's typo, a hostile file) is shown escaped."""
-    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 
 
 def check_numbers(args: argparse.Namespace) -> str | None:

@@ -47,3 +47,12 @@ def require_packages(purpose: str, *modules: str) -> None:
         if importlib.util.find_spec(module) is None:
             raise ConfigError(f"{purpose} needs the package {module}, which this install "
                               f"leaves out: pip install 'softsensor[{OFFLINE_EXTRA}]'")
+
+
+def one_line(message: str, max_chars: int | None = None) -> str:
+    """``message`` as one printable line: a line break or other control character in it (a
+    user's typo, a hostile file's value) is shown escaped; cut to ``max_chars`` if given."""
+    line = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(message))
+    if max_chars is not None and len(line) > max_chars:
+        line = line[:max_chars - 3] + "..."
+    return line

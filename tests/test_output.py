@@ -109,7 +109,7 @@ def test_sigterm_during_replay_keeps_the_previous_out(tmp_path):
                              str(root / "replay" / "demo-day.mcap"), "--out", str(out)],
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
-    while not list(tmp_path.glob(".est.mcap.*.partial")):  # streaming has begun
+    while not list(tmp_path.glob(".est.mcap.*.tmp.mcap")):  # streaming has begun
         assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
         time.sleep(0.1)
     proc.send_signal(signal.SIGTERM)

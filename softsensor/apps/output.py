@@ -13,12 +13,12 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from softsensor.errors import ConfigError
+from softsensor.files import atomic_path
 from softsensor.jsonable import dumps
 
 STDOUT = "-"
@@ -46,21 +46,12 @@ def check_target(target: str | os.PathLike[str] | None, flag: str = "--json") ->
 
 @contextlib.contextmanager
 def writing(target: str | os.PathLike[str], flag: str = "--out") -> Iterator[Path]:
-    """A temporary path beside ``target`` to write to; renamed over ``target`` (atomic on
-    POSIX) when the block ends, removed when it raises or is interrupted: an earlier file of
-    that name is replaced whole or not at all. Every verb's output file goes through here."""
-    p = Path(target)
-    check_target(p, flag)
-    fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=f".tmp{p.suffix}",
-                               dir=p.resolve().parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, p)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    """A temporary path to write ``target`` through (:func:`softsensor.files.atomic_path`),
+    after checking, before any work, that ``target`` can be written (:func:`check_target`).
+    Every verb's output file goes through here."""
+    check_target(target, flag)
+    with atomic_path(target) as tmp:
+        yield tmp
 
 
 def replace_file(target: str | os.PathLike[str], data: bytes, flag: str = "--out") -> Path:

@@ -36,6 +36,7 @@ import tomli_w
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
+from softsensor.files import atomic_path
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
 
@@ -84,9 +85,8 @@ def write_params(path: str | Path, document: Mapping[str, Any], comment: str | N
     p = Path(path)
     if not p.parent.is_dir():
         raise ConfigError(f"{p}: directory {p.parent} does not exist")
-    tmp = p.with_name(p.name + ".tmp")
-    tmp.write_text(dumps(document, comment), encoding="utf-8")
-    tmp.replace(p)
+    with atomic_path(p) as tmp:
+        tmp.write_text(dumps(document, comment), encoding="utf-8")
     return p
 
 

@@ -50,7 +50,8 @@ from datetime import tzinfo
 from pathlib import Path
 from typing import Any
 
-from softsensor.errors import IngestError
+from softsensor.errors import IngestError, one_line
+from softsensor.files import atomic_path
 from softsensor.messages import (
     MOISTURE_RANGE,
     LabResult,
@@ -70,15 +71,9 @@ MAX_BYTES = 1024 * 1024
 MAX_ROWS = 10_000
 #: Sample ids remembered across restarts (the newest), in ``.seen-ids`` of the folder.
 SEEN_IDS_KEPT = 20_000
-#: Longest reason line written to ``rejected/`` and the log [characters].
+#: Longest reason line written to ``rejected/`` and the log [characters]: what an untrusted
+#: file made a parser say (a quoted value) cannot fill pages.
 REASON_CHARS = 300
-
-
-def safe_reason(text: str) -> str:
-    """One printable line of at most :data:`REASON_CHARS`: what an untrusted file made us say
-    (a quoted value in a parser's message) cannot write control characters or pages."""
-    line = "".join(c if c.isprintable() else "?" for c in str(text).replace("\n", " "))
-    return line if len(line) <= REASON_CHARS else line[:REASON_CHARS - 3] + "..."
 
 
 @dataclass
@@ -128,7 +123,7 @@ def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
                 row[cols["sample_time"]], row[cols["moisture_out"]], row[cols["sample_id"]],
                 log_time_ns=log_time_ns, where=at, zone=zone))
         except IngestError as exc:
-            out.bad.append((row, safe_reason(str(exc))))
+            out.bad.append((row, one_line(str(exc), REASON_CHARS)))
         except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
             out.bad.append((row, f"{at}: unusable entry ({type(exc).__name__})"))
     return out
@@ -158,7 +153,7 @@ def parse_lab_json(text: str, *, log_time_ns: int | None = None,
         try:
             out.results.append(lab_from_body(entry, log_time_ns, where=at, zone=zone))
         except IngestError as exc:
-            out.bad.append((entry, safe_reason(str(exc))))
+            out.bad.append((entry, one_line(str(exc), REASON_CHARS)))
         except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
             out.bad.append((entry, f"{at}: unusable entry ({type(exc).__name__})"))
     return out
@@ -383,9 +378,8 @@ class LabFolderWatcher:
             self._n_seen_lines += 1
             if self._n_seen_lines > 2 * SEEN_IDS_KEPT:
                 lines = self.seen_ids_file.read_text(encoding="utf-8").splitlines()
-                tmp = self.seen_ids_file.with_name(".seen-ids.tmp")
-                tmp.write_text("\n".join(lines[-SEEN_IDS_KEPT:]) + "\n", encoding="utf-8")
-                os.replace(tmp, self.seen_ids_file)
+                with atomic_path(self.seen_ids_file) as tmp:
+                    tmp.write_text("\n".join(lines[-SEEN_IDS_KEPT:]) + "\n", encoding="utf-8")
                 self._n_seen_lines = SEEN_IDS_KEPT
         except OSError as exc:
             log.warning("lab sample id %r not remembered: %s", sample_id, exc.strerror)
@@ -412,7 +406,7 @@ class LabFolderWatcher:
         return now - st.st_mtime >= self.settle_s and previous in (None, st.st_size)
 
     def _reject(self, path: Path, reasons: list[str], report: PollReport) -> None:
-        reasons = [safe_reason(r) for r in reasons]
+        reasons = [one_line(r, REASON_CHARS) for r in reasons]
         dest = _unique(self.rejected_dir / path.name)
         os.rename(path, dest)  # a link is moved as a link
         _write_new(_unique(dest.with_name(dest.name + ".reason.txt")),

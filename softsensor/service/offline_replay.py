@@ -41,6 +41,7 @@ from softsensor.bus.zenoh_bus import (
 from softsensor.errors import IngestError, SoftsensorError
 from softsensor.estimation.windowing import WindowSettings, measured_scan_period
 from softsensor.estimation.windowing import window_settings as core_window_settings
+from softsensor.files import atomic_path
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
@@ -274,21 +275,14 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                 progress(o.time_ns, len(summary.estimates))
 
     t0 = time.monotonic()
-    # written beside ``out`` and renamed over it only when complete: an interrupted replay
-    # (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
-    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
-    recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
-    ok = False
-    try:
-        stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns, end=end_ns,
-                        allow_truncated=allow_truncated)
-        ok = True
-    finally:
-        recorder.close()
-        if ok:
-            os.replace(partial, out)
-        else:
-            partial.unlink(missing_ok=True)
+    # an interrupted replay (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
+    with atomic_path(out) as partial:
+        recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
+        try:
+            stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns,
+                            end=end_ns, allow_truncated=allow_truncated)
+        finally:
+            recorder.close()
     summary.wall_s = time.monotonic() - t0
     s = service.stats
     summary.n_replayed = stats.n_published
