@@ -30,6 +30,7 @@ reported as measured, met or not.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -39,10 +40,9 @@ import numpy as np
 
 from softsensor.apps.design import (
     DEFAULT_NOISE,
-    OperatingPoint,
     build_problem,
+    operating_point_of,
     record_schedule,
-    with_theta,
 )
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.design import DesignLimits, optimise
@@ -93,13 +93,10 @@ def calibrate_and_score(segments: list[Segment], val: list[Segment], base, setti
     return out
 
 
-def operating_point(seg: Segment, scans_T_sp: float) -> OperatingPoint:
-    u = np.nanmedian(seg.U, axis=0)
-    return OperatingPoint(u, scans_T_sp, seg.end_ns + DAY_NS, None, "natural day median")
-
 
 def design_round(base, theta, op, limits, settings, budget: int, seed: int):
-    prob = build_problem(base, with_theta(base, theta), op, limits, settings, DEFAULT_NOISE)
+    prob = build_problem(base, base.with_parameters(np.asarray(theta, float)), op, limits,
+                         settings, DEFAULT_NOISE)
     t0 = time.perf_counter()
     res = optimise(prob, seed=seed, budget=budget)
     log(f"design at round start: criterion {res.best.score:.4g} (natural "
@@ -143,7 +140,9 @@ def main(argv: list[str] | None = None) -> int:
     val = [segment_from_day(val_day, base, source="validation seed 103")]
     log(f"days simulated ({time.perf_counter() - t0:.0f} s)")
     natural = calibrate_and_score([nat_seg], val, base, settings, a.trials, "natural")
-    op = operating_point(nat_seg, float(np.nanmedian(nat_day.scans["T_sp"].to_numpy(float))))
+    # the designed periods start a day after the natural one (as benchmarks/design.json did)
+    op = operating_point_of(nat_day, base, a.hours, "natural seed 101")
+    op = dataclasses.replace(op, start_ns=op.start_ns + DAY_NS)
     m0 = float(op.u[INPUT_NAMES.index("m_air")])
     limits = DesignLimits(T_sp_band=(op.T_sp - 2.0, op.T_sp + 2.0),
                           m_air_band=(0.95 * m0, 1.05 * m0), hours=a.hours)

@@ -21,10 +21,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
-from softsensor.apps.output import replace_file, say, write_json
-from softsensor.calibration.dataset import Segment, segment_from_day
+from softsensor.apps.output import say, write_json, writing
+from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
 from softsensor.calibration.design import (
     CRITERIA,
     DesignLimits,
@@ -38,26 +39,22 @@ from softsensor.calibration.design import (
     optimise,
     sequential,
 )
-from softsensor.calibration.identifiability import bounds_prior_sd
-from softsensor.calibration.objective import ObjectiveSpec
+from softsensor.calibration.identifiability import prior_sd
 from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.settings import CalibrationSettings, calibration_settings
 from softsensor.errors import ConfigError, require_packages
+from softsensor.ingest.tables import write_table
 from softsensor.model import DryerModel
 from softsensor.model.geometry import N_AUX
-from softsensor.plant.controller import (
-    FlapDrive,
-    PIController,
-    fraction_for_temperature,
-    mixed_air,
-)
+from softsensor.plant.controller import OutletLoop
 from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.settings import virtual_plant_settings
-from softsensor.plant.simulator import _initial_operating_point
+from softsensor.plant.simulator import initial_operating_point
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 I_T_AIR, I_M_AIR = INPUT_NAMES.index("T_air_in"), INPUT_NAMES.index("m_air")
+I_T_AMB, I_H_AMB = INPUT_NAMES.index("T_amb"), INPUT_NAMES.index("H_amb")
 #: Channel noise [K, K, kg/kg] when the params file has no fit: the virtual plant's sensor
 #: noise (0.5 K) and lab noise (0.003 kg/kg), CONTRACT section 6.
 DEFAULT_NOISE = np.array([0.5, 0.5, 0.003])
@@ -73,7 +70,8 @@ class ModelLoop:
     every ``dt`` [s] (the virtual plant's control period) the PI (``kp`` [%/K], ``ti`` [s] of
     ``[virtual_plant]``) moves the flap command from the *noise-free* outlet temperature, the
     flap drive follows and the mixing of hot gas with ambient air gives ``T_air_in``: the
-    loop of :mod:`softsensor.plant.simulator` without its noise and disturbances.
+    :class:`~softsensor.plant.controller.OutletLoop` the virtual plant steps, without its
+    noise and disturbances.
     """
 
     def __init__(self, config: PlantConfig, u0: np.ndarray, T_sp0: float) -> None:
@@ -85,25 +83,17 @@ class ModelLoop:
         self.T_sp0 = float(T_sp0)
         self.m_air0 = float(self.u0[I_M_AIR])
 
-    def _start(self, u: np.ndarray, theta: np.ndarray, T_sp: float, aux: np.ndarray):
-        """Steady state holding ``T_sp``, the PI bumpless at the flaps that give it."""
-        state, T_air = _initial_operating_point(self.model, u, theta, aux, T_sp)
-        hg, s = self.config.hot_gas, self.settings
-        f0 = fraction_for_temperature(T_air, hg.temperature, hg.humidity, u[5], u[6])
-        pos0 = float(np.clip((f0 - hg.fraction_min) / (hg.fraction_max - hg.fraction_min)
-                             * 100.0, 0.0, 100.0))
-        pid = PIController(s.kp, s.ti)
-        pid.bumpless(pos0, T_sp, T_sp)
-        return state, T_air, pid, FlapDrive(s.actuator_tau, s.actuator_rate, pos0), pos0
-
     def run(self, schedule: Schedule, theta: np.ndarray) -> Prediction:
         """Predict ``schedule`` at parameters ``theta`` (7,); raises SolverError."""
         theta = np.asarray(theta, float)
         aux = np.zeros(N_AUX)
         u = self.u0.copy()
         u[I_M_AIR] = schedule.m_air[0]
-        state, T_air, pid, drive, cmd = self._start(u, theta, float(schedule.T_sp[0]), aux)
-        hg = self.config.hot_gas
+        T_sp0 = float(schedule.T_sp[0])
+        # steady state holding T_sp0, the loop bumpless at the flaps that give it
+        state, T_air = initial_operating_point(self.model, u, theta, aux, T_sp0)
+        T_amb, H_amb = u[I_T_AMB], u[I_H_AMB]  # ambient held at the operating point
+        loop = OutletLoop(self.config.hot_gas, self.settings, T_air, T_amb, H_amb, T_sp0)
         stepper = self.model.control_stepper(self.dt)
         n = len(schedule.t)
         U, Y, flap = np.empty((n, len(INPUT_NAMES))), np.empty((n, 3)), np.empty(n)
@@ -111,11 +101,8 @@ class ModelLoop:
             u = self.u0.copy()
             u[I_T_AIR], u[I_M_AIR] = T_air, schedule.m_air[k]
             Y[k] = stepper.advance(state, u, theta, aux)
-            U[k], flap[k] = u, cmd
-            cmd = pid.update(float(schedule.T_sp[k]), float(Y[k, 0]), self.dt)
-            frac = hg.fraction_min + (hg.fraction_max - hg.fraction_min) \
-                * drive.update(cmd, self.dt) / 100.0
-            T_air = mixed_air(frac, hg.temperature, hg.humidity, u[5], u[6])[0]
+            U[k], flap[k] = u, loop.cmd
+            T_air = loop.step(float(schedule.T_sp[k]), float(Y[k, 0]), self.dt, T_amb, H_amb)
         return Prediction(t=schedule.t, U=U, Y=Y, flap=flap)
 
 
@@ -138,12 +125,18 @@ def operating_point(config: PlantConfig, day: str | None, hours: float) -> Opera
     if day is None:
         return OperatingPoint(config.nominal_inputs(), float(config.nominal.T_sp),
                               DEFAULT_START_NS, None, "config nominal point")
-    rec = read_day_inputs(day)
-    seg = segment_from_day(rec, config, source=str(day))
+    return operating_point_of(read_day_inputs(day), config, hours, str(day))
+
+
+def operating_point_of(rec: DayLike, config: PlantConfig, hours: float,
+                       source: str) -> OperatingPoint:
+    """The operating point of a recorded (or simulated) day: median inputs and set point,
+    the designed period starting at its end, its first ``hours`` the natural reference."""
+    seg = segment_from_day(rec, config, source=source)
     u = np.nanmedian(seg.U, axis=0)
     T_sp = float(np.nanmedian(rec.scans["T_sp"].to_numpy(float)))
     k = min(seg.n_windows, max(1, int(round(hours * 3600.0 / seg.window))))
-    return OperatingPoint(u, T_sp, seg.end_ns, seg.slice(0, k), f"median of {day}")
+    return OperatingPoint(u, T_sp, seg.end_ns, seg.slice(0, k), f"median of {source}")
 
 
 def channel_noise(params: str | None) -> np.ndarray:
@@ -155,13 +148,6 @@ def channel_noise(params: str | None) -> np.ndarray:
                                           for c in OUTPUT_NAMES):
             return np.maximum([float(rmse[c]) for c in OUTPUT_NAMES], [0.01, 0.01, 1e-4])
     return DEFAULT_NOISE.copy()
-
-
-def prior_sd(spec: ObjectiveSpec, config: PlantConfig) -> np.ndarray:
-    """The prior sd of ln theta the identifiability analysis uses (:func:`identify`)."""
-    if spec.prior_center is not None:
-        return np.full(len(PARAMETER_NAMES), spec.prior_sigma)
-    return bounds_prior_sd(config.bounds())
 
 
 def build_problem(base: PlantConfig, config: PlantConfig, op: OperatingPoint,
@@ -179,7 +165,7 @@ def build_problem(base: PlantConfig, config: PlantConfig, op: OperatingPoint,
     probe = _natural_probe(loop, limits, theta, op)
     spec = objective_spec(model, [probe], base, calibration)
     problem = DesignProblem(model=model, loop=loop, theta=theta, spec=spec, limits=limits,
-                            noise=np.asarray(noise, float), prior_sd=prior_sd(spec, base),
+                            noise=np.asarray(noise, float), prior_sd=prior_sd(spec, base.bounds()),
                             window=float(config.solver.window), start_ns=op.start_ns,
                             kind=kind, names=tuple(names))
     problem.check()
@@ -256,14 +242,9 @@ def assessor(base: PlantConfig, calibration: CalibrationSettings
         from softsensor.calibration.pipeline import objective_spec
 
         spec = objective_spec(model, segments, base, calibration)
-        return information(model, segments, theta, spec, None, prior_sd(spec, base))
+        return information(model, segments, theta, spec, None, prior_sd(spec, base.bounds()))
 
     return assess
-
-
-def with_theta(config: PlantConfig, theta: np.ndarray) -> PlantConfig:
-    """``config`` with its parameter values replaced by ``theta`` (7,)."""
-    return config.with_parameters(np.asarray(theta, float))
 
 
 # ------------------------------------------------------------------ files
@@ -278,12 +259,6 @@ def schedule_rows(schedule: Schedule, start_ns: int, step_s: float = 60.0
     return [{"time_s": float(ti), "time_utc": iso_utc(start_ns + int(ti * 1e9)),
              "T_sp_K": round(float(a), 3), "m_air_kg_s": round(float(b), 4)}
             for ti, a, b in zip(t, T, m, strict=True)]
-
-
-def _csv(rows: Sequence[dict[str, Any]]) -> bytes:
-    head = list(rows[0])
-    lines = [",".join(head)] + [",".join(str(r[h]) for h in head) for r in rows]
-    return ("\n".join(lines) + "\n").encode()
 
 
 def prediction_rows(pred: Prediction) -> list[dict[str, Any]]:
@@ -341,9 +316,12 @@ def write_outputs(directory: Path, result: DesignResult, limits: DesignLimits,
                   start_ns: int, doc: dict[str, Any]) -> dict[str, str]:
     """Every file of the verb in ``directory``; returns their paths by kind."""
     rows = schedule_rows(result.best.schedule, start_ns)
-    files = {"schedule_csv": replace_file(directory / "schedule.csv", _csv(rows)),
-             "prediction_csv": replace_file(directory / "prediction.csv",
-                                            _csv(prediction_rows(result.best.prediction)))}
+    files = {"schedule_csv": directory / "schedule.csv",
+             "prediction_csv": directory / "prediction.csv"}
+    for key, table in (("schedule_csv", rows),
+                       ("prediction_csv", prediction_rows(result.best.prediction))):
+        with writing(files[key]) as tmp:
+            write_table(pd.DataFrame(table), tmp)
     write_json({"start_utc": rows[0]["time_utc"], "limits": dataclasses.asdict(limits),
                 "schedule": rows}, directory / "schedule.json")
     files["schedule_json"] = directory / "schedule.json"
@@ -411,6 +389,11 @@ def limits_from_args(args: argparse.Namespace, op: OperatingPoint) -> DesignLimi
     return limits
 
 
+def _names(args: argparse.Namespace) -> tuple[str, ...]:
+    """The parameters of ``--names`` (the A criterion)."""
+    return tuple(n.strip() for n in args.names.split(",") if n.strip())
+
+
 def _check_args(args: argparse.Namespace) -> None:
     for flag, v, lo, hi in (("--budget", args.budget, 0, 100_000),
                             ("--random", args.random, 0, 100_000),
@@ -431,7 +414,7 @@ def design_main(args: argparse.Namespace) -> int:
     base, config = load_config_and_params(args)
     op = operating_point(config, args.day, args.hours)
     limits = limits_from_args(args, op)
-    names = tuple(n.strip() for n in args.names.split(",") if n.strip())
+    names = _names(args)
     calibration = calibration_settings(base)
     noise = channel_noise(args.params)
     problem = build_problem(base, config, op, limits, calibration, noise, args.criterion, names)
@@ -472,8 +455,9 @@ def run_rounds(args: argparse.Namespace, base: PlantConfig, config: PlantConfig,
                noise: np.ndarray) -> list[dict[str, Any]]:
     """``--rounds``: sequential design on a virtual plant, standard errors after each."""
     def design_at(theta: np.ndarray) -> DesignResult:
-        prob = build_problem(base, with_theta(config, theta), op, limits, calibration, noise,
-                             args.criterion, tuple(n for n in args.names.split(",") if n))
+        at = config.with_parameters(np.asarray(theta, float))
+        prob = build_problem(base, at, op, limits, calibration, noise, args.criterion,
+                             _names(args))
         return optimise(prob, seed=args.seed, n_random=args.random, budget=args.budget)
 
     def record(schedule: Schedule, r: int) -> Segment:
@@ -504,4 +488,5 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
 
 
 __all__ = ["ModelLoop", "add_commands", "add_design_arguments", "build_problem",
-           "design_main", "operating_point", "record_schedule", "run_rounds"]
+           "design_main", "operating_point", "operating_point_of", "record_schedule",
+           "run_rounds"]

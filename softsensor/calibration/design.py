@@ -51,6 +51,7 @@ import numpy as np
 
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.identifiability import (
+    condition_number,
     noise_from_evaluation,
     sensitivities,
     statistical_fim,
@@ -257,10 +258,9 @@ def information(model: DryerModel, segments: Sequence[Segment], theta: np.ndarra
     if noise is None:
         noise = noise_from_evaluation(ev)
     F = weighted_fim(sens, spec.weights)
-    lam = np.linalg.eigvalsh(F)
+    cond, lam, _ = condition_number(F)
     ridge = RIDGE * max(float(np.mean(np.abs(lam))), 1e-300)
     logdet = float(np.sum(np.log(np.maximum(lam, 0.0) + ridge)))
-    cond = float(lam[-1] / lam[0]) if lam[0] > 0 else math.inf
     P = statistical_fim(sens, np.asarray(noise, float)) + np.diag(1.0 / np.asarray(prior_sd) ** 2)
     C = np.linalg.inv(P)
     C = 0.5 * (C + C.T)
@@ -326,9 +326,11 @@ class Candidate:
 
 
 def _score_schedule(problem: DesignProblem, sched: Schedule, baseline: float,
-                    shrink: float) -> Candidate:
-    """Predict and score one schedule (rejected when the excursion exceeds its bound)."""
-    pred = problem.loop.run(sched, problem.theta)
+                    shrink: float, pred: Prediction | None = None) -> Candidate:
+    """Predict (unless ``pred`` is that prediction) and score one schedule (rejected when
+    the excursion exceeds its bound)."""
+    if pred is None:
+        pred = problem.loop.run(sched, problem.theta)
     exc = float(np.max(np.abs(pred.Y[:, 2] - baseline)))
     seg = prediction_segment(pred, problem.window, problem.limits.lab_minutes, problem.start_ns)
     if exc > problem.limits.moisture_excursion:
@@ -379,7 +381,7 @@ def natural_candidate(problem: DesignProblem) -> tuple[Candidate, float]:
     sched = schedule_from_levels(lv, problem.limits, loop.T_sp0, loop.m_air0, loop.dt)
     pred = loop.run(sched, problem.theta)
     baseline = float(np.mean(pred.Y[len(pred.Y) // 2:, 2]))
-    return _score_schedule(problem, sched, baseline, 1.0), baseline
+    return _score_schedule(problem, sched, baseline, 1.0, pred), baseline
 
 
 def optimise(problem: DesignProblem, *, seed: int = 0, n_random: int = 6, budget: int = 30,

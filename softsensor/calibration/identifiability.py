@@ -333,6 +333,14 @@ class Identifiability:
         return out
 
 
+def prior_sd(spec: ObjectiveSpec, bounds: np.ndarray) -> np.ndarray:
+    """The prior sd (7,) of ln theta: the calibration's own prior when it has one, else the
+    one the Table 1 bounds imply (:func:`bounds_prior_sd`)."""
+    if spec.prior_center is not None:
+        return np.full(len(PARAMETER_NAMES), spec.prior_sigma)
+    return bounds_prior_sd(bounds)
+
+
 def condition_number(F: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
     """Condition number, eigenvalues (ascending) and eigenvectors of a symmetric matrix."""
     lam, vec = np.linalg.eigh(F)
@@ -402,8 +410,7 @@ def identify(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
     parameters the FIM calls pinned."""
     sens, ev = sensitivities(model, segments, theta, spec)
     noise = noise_from_evaluation(ev)
-    p_sd = (np.full(len(PARAMETER_NAMES), spec.prior_sigma) if spec.prior_center is not None
-            else bounds_prior_sd(bounds))
+    p_sd = prior_sd(spec, bounds)
     local = analyse(sens, spec.weights, noise, p_sd)
     if not profile:
         return local, sens
@@ -462,6 +469,7 @@ __all__ = [
     "Sensitivities",
     "analyse",
     "bounds_prior_sd",
+    "prior_sd",
     "condition_number",
     "identify",
     "lag1_autocorrelation",

@@ -79,3 +79,38 @@ class FlapDrive:
         step = max(-self.rate * dt, min(self.rate * dt, target - self.position))
         self.position += step
         return self.position
+
+
+class OutletLoop:
+    """The whole outlet-temperature loop of the plant, as one object: the PI on the measured
+    ``T_dryer_out`` moves the flap command [%], the :class:`FlapDrive` follows, and the flaps
+    mix hot gas with ambient air into ``T_air_in`` [K] (:func:`mixed_air`).
+
+    Started bumpless at the flap position that gives ``T_air0`` [K] with ambient ``T_amb``
+    [K], ``H_amb`` [kg/kg] and set point ``T_sp0`` [K]. ``hot_gas`` is the plant config's
+    ``[hot_gas]`` (temperature, humidity, fraction range), ``settings`` the
+    ``[virtual_plant]`` (``kp``, ``ti``, ``actuator_tau``, ``actuator_rate``). The virtual
+    plant and the design's prediction (:mod:`softsensor.apps.design`) step the same loop.
+    """
+
+    def __init__(self, hot_gas, settings, T_air0: float, T_amb: float, H_amb: float,
+                 T_sp0: float) -> None:
+        self.hot_gas = hg = hot_gas
+        f0 = fraction_for_temperature(T_air0, hg.temperature, hg.humidity, T_amb, H_amb)
+        pos0 = min(max((f0 - hg.fraction_min) / (hg.fraction_max - hg.fraction_min) * 100.0,
+                       0.0), 100.0)
+        self.pid = PIController(settings.kp, settings.ti)
+        self.pid.bumpless(pos0, T_sp0, T_sp0)
+        self.drive = FlapDrive(settings.actuator_tau, settings.actuator_rate, pos0)
+        self.cmd = pos0  #: the flap command [%] in force
+
+    def step(self, T_sp: float, measured: float, dt: float, T_amb: float,
+             H_amb: float) -> float:
+        """One control period ``dt`` [s]: the new command from the measured outlet
+        temperature [K], the flaps moved, and the ``T_air_in`` [K] they give."""
+        hg = self.hot_gas
+        self.cmd = self.pid.update(T_sp, measured, dt)
+        pos = self.drive.update(self.cmd, dt)
+        frac = hg.fraction_min + (hg.fraction_max - hg.fraction_min) * pos / 100.0
+        return mixed_air(frac, hg.temperature, hg.humidity, T_amb, H_amb)[0]
+

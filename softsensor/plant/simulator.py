@@ -28,7 +28,7 @@ import pandas as pd
 from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel
 from softsensor.model.geometry import BETA_AMB, N_AUX
-from softsensor.plant.controller import FlapDrive, PIController, fraction_for_temperature, mixed_air
+from softsensor.plant.controller import OutletLoop
 from softsensor.plant.day import (
     DEFAULT_START_NS,
     TOPIC_TRUTH_EFFECT,
@@ -44,10 +44,11 @@ from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
 
 #: ``SimulatedDay`` and the day constants live in :mod:`softsensor.plant.day` (no model import);
 #: they stay importable from here.
-__all__ = ["DEFAULT_START_NS", "TOPIC_TRUTH_EFFECT", "SimulatedDay", "simulate_day"]
+__all__ = ["DEFAULT_START_NS", "TOPIC_TRUTH_EFFECT", "SimulatedDay", "initial_operating_point",
+           "simulate_day"]
 
 
-def _initial_operating_point(model: DryerModel, u: np.ndarray, theta: np.ndarray,
+def initial_operating_point(model: DryerModel, u: np.ndarray, theta: np.ndarray,
                              aux: np.ndarray, T_target: float) -> tuple[np.ndarray, float]:
     """Steady state with ``T_air_in`` such that the true ``T_dryer_out`` equals ``T_target``."""
     T = float(u[0])
@@ -132,7 +133,6 @@ def _closed_loop(config: PlantConfig, s: VirtualPlantSettings, sc: Scenario, inj
     theta, bias, moisture_in = inj.theta, inj.bias, inj.moisture_in
     aux = np.zeros(N_AUX)
     aux[BETA_AMB] = inj.beta_amb
-    hg = config.hot_gas
     series = {"m_air": sc.m_air, "m_fiber": sc.m_fiber, "T_fiber_in": sc.T_fiber_in,
               "m_steam": sc.m_steam, "T_amb": sc.T_amb, "H_amb": sc.H_amb,
               "moisture_in": moisture_in}
@@ -143,15 +143,9 @@ def _closed_loop(config: PlantConfig, s: VirtualPlantSettings, sc: Scenario, inj
 
     # start in steady state, the loop holding the measured outlet temperature at T_sp
     u0 = inputs(0, config.nominal.T_air_in)
-    state, T_air = _initial_operating_point(model, u0, theta[0], aux,
+    state, T_air = initial_operating_point(model, u0, theta[0], aux,
                                             sc.T_sp[0] - bias["T_dryer_out"])
-    f0 = fraction_for_temperature(T_air, hg.temperature, hg.humidity, sc.T_amb[0], sc.H_amb[0])
-    pos0 = float(np.clip((f0 - hg.fraction_min) / (hg.fraction_max - hg.fraction_min) * 100.0,
-                         0.0, 100.0))
-    pid = PIController(s.kp, s.ti)
-    pid.bumpless(pos0, sc.T_sp[0], sc.T_sp[0])
-    drive = FlapDrive(s.actuator_tau, s.actuator_rate, pos0)
-    cmd = pos0
+    loop = OutletLoop(config.hot_gas, s, T_air, sc.T_amb[0], sc.H_amb[0], sc.T_sp[0])
     T_air_sensor = T_air
     plant = model.control_stepper(dt)
     true = np.empty((n, 6))  # T_air_in, T_dryer_out, T_cyclone_out, moisture_out, in, cmd
@@ -162,18 +156,15 @@ def _closed_loop(config: PlantConfig, s: VirtualPlantSettings, sc: Scenario, inj
             y = plant.advance(state, u, theta[k], aux)
         except SolverError as exc:
             raise SolverError(f"virtual plant: model failed at t={sc.t[k]:.0f} s: {exc}") from exc
-        true[k] = (T_air, y[0], y[1], y[2], moisture_in[k], cmd)
+        true[k] = (T_air, y[0], y[1], y[2], moisture_in[k], loop.cmd)
         if inj.lag_tau > 0:
             T_air_sensor += (T_air - T_air_sensor) * (1.0 - math.exp(-dt / inj.lag_tau))
         else:
             T_air_sensor = T_air
         meas_air[k] = T_air_sensor
         measured = y[0] + bias["T_dryer_out"] + rng_noise.normal(0.0, s.noise_temperature)
-        cmd = pid.update(sc.T_sp[k], measured, dt)
-        pos = drive.update(cmd, dt)
-        frac = hg.fraction_min + (hg.fraction_max - hg.fraction_min) * pos / 100.0
         nxt = min(k + 1, n - 1)
-        T_air = mixed_air(frac, hg.temperature, hg.humidity, sc.T_amb[nxt], sc.H_amb[nxt])[0]
+        T_air = loop.step(sc.T_sp[k], measured, dt, sc.T_amb[nxt], sc.H_amb[nxt])
     return true, meas_air
 
 
