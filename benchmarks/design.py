@@ -53,6 +53,7 @@ from softsensor.calibration.settings import calibration_settings
 from softsensor.jsonable import jsonable
 from softsensor.model import DryerModel
 from softsensor.plant.independent import simulate_independent_day
+from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import PARAMETER_NAMES, load_plant_config
 from softsensor.signals import INPUT_NAMES
 
@@ -118,6 +119,8 @@ def targets(nat: dict[str, Any], des: dict[str, Any]) -> dict[str, Any]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--plant", choices=("independent", "model"), default="independent",
+                    help="model: the matched plant, the floor beside the independent one")
     ap.add_argument("--plant-seed", type=int, default=0)
     ap.add_argument("--natural-hours", type=float, default=48.0)
     ap.add_argument("--hours", type=float, default=6.0)
@@ -133,9 +136,14 @@ def main(argv: list[str] | None = None) -> int:
     base = load_plant_config(None)
     settings = calibration_settings(base)
     t0 = time.perf_counter()
-    nat_day = simulate_independent_day(base, a.natural_hours, 101, plant_seed=a.plant_seed)
-    val_day = simulate_independent_day(base, 24.0, 103, plant_seed=a.plant_seed,
-                                       start_ns=int(nat_day.scans.index[-1]) + 30 * DAY_NS)
+    if a.plant == "independent":
+        def day(hours: float, seed: int, **kw: Any):
+            return simulate_independent_day(base, hours, seed, plant_seed=a.plant_seed, **kw)
+    else:  # the matched plant (the model itself, config parameters): the floor
+        def day(hours: float, seed: int, **kw: Any):
+            return simulate_day(base, hours, seed, **kw)
+    nat_day = day(a.natural_hours, 101)
+    val_day = day(24.0, 103, start_ns=int(nat_day.scans.index[-1]) + 30 * DAY_NS)
     nat_seg = segment_from_day(nat_day, base, source="natural seed 101")
     val = [segment_from_day(val_day, base, source="validation seed 103")]
     log(f"days simulated ({time.perf_counter() - t0:.0f} s)")
@@ -151,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         res, wall = design_round(base, theta, op, limits, settings, a.budget, r)
         start = op.start_ns + r * DAY_NS
         recorded.append(record_schedule(base, res.best.schedule, limits, 201 + r,
-                                        "independent", a.plant_seed, start))
+                                        a.plant, a.plant_seed, start))
         score = calibrate_and_score(list(recorded), val, base, settings, a.trials,
                                     f"designed round {r + 1}")
         score.update(design_criterion=res.best.score, design_natural_criterion=res.natural.score,
@@ -159,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
                      design_gain_logdet=res.best.score - res.natural.score)
         rounds.append(score)
         theta = np.array([score["theta"][n] for n in PARAMETER_NAMES])
-    doc = {"plant": "independent", "plant_seed": a.plant_seed, "trials": a.trials,
+    doc = {"plant": a.plant, "plant_seed": a.plant_seed, "trials": a.trials,
            "limits": limits.__dict__, "natural": natural, "designed_rounds": rounds,
            "targets_round_1": targets(natural, rounds[0]),
            "wall_s": round(time.perf_counter() - t0, 1)}

@@ -99,7 +99,7 @@ class ServicePipeline:
     on_output : callable, optional
         Called on the worker thread with every :class:`Output` after it was published.
     limits : InputLimits, optional
-        Queue bound, per-source rates and message size (drop and count beyond them);
+        Queue bound, a rate per input kind and message size (drop and count beyond them);
         unbounded by default (a replay feeds a recorded day as fast as it can).
     """
 

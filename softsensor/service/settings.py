@@ -115,8 +115,9 @@ class ServiceSettings:
     max_queue : int
         Input messages waiting for the estimator thread; more are dropped and counted.
     max_scan_rate_hz, max_lab_rate_per_h : float
-        Per-source rate limits [per plant second, per plant hour]; above them messages are
-        dropped and counted (a scan every 10 s is 0.1 Hz; a lab a few results a day).
+        Rate limits per input kind (all scans, all lab results, whoever publishes them)
+        [per plant second, per plant hour]; above them messages are dropped and counted (a
+        scan every 10 s is 0.1 Hz; a lab sends a few results a day).
     log_format : str
         ``kv`` (key=value) or ``json``, one line per event.
     """
