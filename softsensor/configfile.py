@@ -1,7 +1,9 @@
 """Typed, validated TOML sections: the one place config files are turned into dataclasses.
 
 Each TOML section maps onto one frozen dataclass. Fields without a default are required;
-unknown keys are rejected; numbers are range-checked and choices checked from the field's
+unknown keys are rejected; a field typed ``tuple[float, ...]`` (or of another scalar type) is
+an array whose items are checked one by one, a field typed as a dataclass is a sub-table built
+the same way; numbers are range-checked and choices checked from the field's
 metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. Every error is
 a one-line :class:`~softsensor.errors.ConfigError` naming the file and the dotted key, e.g.
 ``config/dryer1.toml: tube.length must be > 0, got -3``.
@@ -73,6 +75,10 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
         if value is None:
             return None
         typ = args[0]
+    if dataclasses.is_dataclass(typ):
+        return build_section(typ, value, key, source)
+    if typing.get_origin(typ) is tuple:
+        return _check_tuple(value, typing.get_args(typ), key, source, meta)
     if typ is bool:
         if not isinstance(value, bool):
             raise ConfigError(f"{source}: {key} must be true or false, got {value!r}")
@@ -97,6 +103,17 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
             sym = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[op]
             raise ConfigError(f"{source}: {key} must be {sym} {bound:g}, got {value!r}")
     return value
+
+
+def _check_tuple(value: Any, args: tuple[Any, ...], key: str, source: str, meta: dict
+                 ) -> tuple[Any, ...]:
+    """A TOML array as the tuple ``tuple[T, ...]`` of checked items (each against ``meta``'s
+    bounds), named ``key[i]`` in errors."""
+    if not isinstance(value, list):
+        raise ConfigError(f"{source}: {key} must be an array, got {value!r}")
+    item = args[0] if args else Any
+    return tuple(_check_value(v, item, f"{key}[{i}]", source, meta)
+                 for i, v in enumerate(value))
 
 
 def build_section(cls: type[T], table: Any, key: str, source: str,

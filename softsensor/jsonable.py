@@ -10,6 +10,13 @@ from typing import Any
 import numpy as np
 
 
+def finite_or_none(v: float) -> float | None:
+    """A number as JSON carries it: a finite float, or ``None`` for NaN and infinities (the
+    rule of :func:`jsonable`, for one value)."""
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
 def jsonable(x: Any) -> Any:
     """``x`` with numpy scalars made Python numbers, arrays and tuples made lists, keys made
     strings, and non-finite floats made ``None`` (JSON has no NaN, and every MCAP and Zenoh
@@ -23,7 +30,7 @@ def jsonable(x: Any) -> Any:
     if isinstance(x, np.generic):
         x = x.item()
     if isinstance(x, float):
-        return x if math.isfinite(x) else None
+        return finite_or_none(x)
     return x
 
 
