@@ -31,8 +31,11 @@ from softsensor.estimation.lab_alignment import (
 from softsensor.estimation.settings import estimator_settings
 
 NS = 10**9
-PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01]),
-                     tau=np.array([6.0, 12.0, 24.0, 48.0]) * 3600.0, source="test")
+PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01, 0.8]),
+                     tau=np.array([6.0, 12.0, 24.0, 48.0, 36.0]) * 3600.0, source="test")
+#: The same with the last two states random walks (a history's channel offsets; the gain).
+WALKS = ErrorPriors(sigma=PRIORS.sigma, tau=np.r_[PRIORS.tau[:3], np.inf, np.inf],
+                    source="test", walk=np.array([0.0, 0.0, 0.0, 2e-5, 1e-3]))
 
 
 # ----------------------------------------------------------------------------- discrepancy
@@ -44,6 +47,17 @@ def test_error_states_keep_their_prior_variance_over_any_window(window_s):
     P = np.diag(PRIORS.sigma**2)
     np.testing.assert_allclose((F[1:, 1:] @ P @ F[1:, 1:] + Q[1:, 1:]), P, rtol=1e-12)
     assert F[1, 1] == pytest.approx(math.exp(-window_s / PRIORS.tau[0]), rel=1e-12)
+
+
+@pytest.mark.parametrize("window_s", [60.0, 600.0, 7200.0])
+def test_random_walk_error_states_grow_by_their_walk_and_do_not_decay(window_s):
+    F = transition(window_s, WALKS, inlet_tau_s=48 * 3600.0)
+    Q = process_noise(window_s, WALKS, walk_s=0.01, inlet_tau_s=48 * 3600.0)
+    np.testing.assert_array_equal(np.diag(F)[-2:], [1.0, 1.0])
+    np.testing.assert_allclose(Q[-2:], WALKS.walk[-2:] ** 2 * window_s, rtol=1e-12)
+    # the first-order states are unchanged by their neighbours being walks
+    np.testing.assert_allclose(Q[1:4], PRIORS.sigma[:3] ** 2
+                               * (1 - np.exp(-2 * window_s / PRIORS.tau[:3])), rtol=1e-12)
 
 
 def test_inlet_walk_is_mean_reverting_with_the_walks_short_term_variance():
@@ -97,7 +111,7 @@ def test_adaptive_noise_integrates_the_normalised_innovations():
         a.update(1, 9.0, 10, 25.0)
     assert a.factor[1] == 25.0  # never above the limit
     a.factor[:] = [2.0, 3.0, 4.0]
-    np.testing.assert_array_equal(a.inflation(), [2.0, 2.0, 3.0, 4.0])
+    np.testing.assert_array_equal(a.inflation(), [2.0, 2.0, 3.0, 4.0, 4.0])
 
 
 # --------------------------------------------------------------------------- lab alignment

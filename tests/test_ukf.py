@@ -24,6 +24,7 @@ from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.discrepancy import (
     STATE_NAMES,
     X_BIAS,
+    X_HEAT,
     X_IN,
     ErrorPriors,
     InletTransform,
@@ -127,13 +128,16 @@ CALIBRATED = {"T_offset_std": 0.2, "T_channel_std": 0.1, "moisture_in_walk": 0.0
 #: No covariance matching, no outlier gate, no noise adaptation: the plain filter.
 NO_ADAPT = {"moisture_in_adapt": 1e9, "moisture_out_bias_adapt": 1e9, "lab_gate": 1e9,
             "adapt_limit": 1.0}
+#: The inlet gain held at zero: the linear Kalman filter is then the oracle (its product with
+#: the inlet moisture is not linear).
+NO_GAIN = {"inlet_gain_std": 1e-9, "inlet_gain_walk": 0.0}
 
 
 # ---------------------------------------------------------------------------------- oracle
 def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
     """UKF = KF to round-off (UT exact for linear maps and the soft clip the identity inside
     the range), including the reported moisture_out, offsets and NIS."""
-    s = dataclasses.replace(EstimatorSettings(), **NO_ADAPT)
+    s = dataclasses.replace(EstimatorSettings(), **NO_ADAPT, **NO_GAIN)
     est = UkfEstimator(CFG, s, model=LinearDryer())
     wins, truth = synthetic_day(30, seed=3)
     labs = {7: lab(7, truth[7, 1] + 0.004, "L1"), 19: lab(19, truth[19, 1] - 0.003, "L2")}
@@ -142,20 +146,24 @@ def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
     r = 600.0 / (s.moisture_in_tau_h * 3600.0)
     F = np.diag(np.r_[math.exp(-r), a])
     Q = np.diag(np.r_[s.walk_per_window(s.moisture_in_walk, 600.0) ** 2
-                      * (1 - math.exp(-2 * r)) / (2 * r), pri.sigma**2 * (1 - a**2)])
-    x = np.array([CFG.nominal.moisture_in, 0.0, 0.0, 0.0, 0.0])
+                      * (1 - math.exp(-2 * r)) / (2 * r),
+                      np.where(np.isinf(pri.tau), pri.walk**2 * 600.0,
+                               pri.sigma**2 * (1 - a**2))])
+    x = np.array([CFG.nominal.moisture_in, 0.0, 0.0, 0.0, 0.0, 0.0])
     x_nom = x.copy()
     P = np.diag(np.r_[s.moisture_in_std0**2, pri.sigma**2])
-    # rows: T_dryer_out, T_cyclone_out, moisture_out over (X_in, heat input, b_d, b_c, b_m)
-    Hfull = np.array([[A[0, 0], A[0, 1], 1.0, 0.0, 0.0], [A[1, 0], A[1, 1], 0.0, 1.0, 0.0],
-                      [A[2, 0], A[2, 1], 0.0, 0.0, 1.0]])
+    # rows: T_dryer_out, T_cyclone_out, moisture_out over (X_in, heat input, b_d, b_c, b_m,
+    # inlet gain: held at zero, its product with the inlet moisture is not linear)
+    Hfull = np.array([[A[0, 0], A[0, 1], 1.0, 0.0, 0.0, 0.0],
+                      [A[1, 0], A[1, 1], 0.0, 1.0, 0.0, 0.0],
+                      [A[2, 0], A[2, 1], 0.0, 0.0, 1.0, 0.0]])
     r_T = s.temperature_sensor_std**2 / 60 + s.temperature_model_std**2
     r_L = s.lab_std**2 + s.moisture_out_jitter_std**2
     for k, w in enumerate(wins):
         if k in labs:
             est.add_lab(labs[k])            # sampled in this window: applied at its tick
         body = est.tick(w)
-        x, P = F @ x + (np.eye(5) - F) @ x_nom, F @ P @ F.T + Q
+        x, P = F @ x + (np.eye(6) - F) @ x_nom, F @ P @ F.T + Q
         u = np.array([w.means["T_air_in"], 82, 6, 370, 0.5, 283.15, 0.006,
                       CFG.nominal.moisture_in])
         c = LinearDryer().outputs(u) - Hfull[:, 0] * CFG.nominal.moisture_in
@@ -220,10 +228,12 @@ def test_tick_equals_filterpys_unscented_kalman_filter_with_the_model_in_hx():
     r = 600.0 / (s.moisture_in_tau_h * 3600.0)
     F = np.diag(np.r_[math.exp(-r), a])
     Q = np.diag(np.r_[s.walk_per_window(s.moisture_in_walk, 600.0) ** 2
-                      * (1 - math.exp(-2 * r)) / (2 * r), pri.sigma**2 * (1 - a**2)])
-    x_nom = np.array([CFG.nominal.moisture_in, 0.0, 0.0, 0.0, 0.0])
+                      * (1 - math.exp(-2 * r)) / (2 * r),
+                      np.where(np.isinf(pri.tau), pri.walk**2 * 600.0,
+                               pri.sigma**2 * (1 - a**2))])
+    x_nom = np.array([CFG.nominal.moisture_in, 0.0, 0.0, 0.0, 0.0, 0.0])
     P0 = np.diag(np.r_[s.moisture_in_std0**2, pri.sigma**2])
-    x, P = kf_predict(x_nom, P0, F, Q, u=x_nom, B=np.eye(5) - F)
+    x, P = kf_predict(x_nom, P0, F, Q, u=x_nom, B=np.eye(6) - F)
     u = InputHold(CFG.nominal_inputs()).inputs(wins[0])[0]
 
     def hx(xs: np.ndarray) -> np.ndarray:
@@ -231,11 +241,18 @@ def test_tick_equals_filterpys_unscented_kalman_filter_with_the_model_in_hx():
         ui[7] = est.inlet.forward(xs[0])
         ui[0] += xs[1]
         y = model.outputs(ui)
-        return np.array([y[0] + xs[2], y[1] + xs[3], y[2] + xs[4]])
+        # the inlet gain scales the outlet moisture's response from the reference inlet
+        # moisture (the nominal, without a history), at the point's own heat input
+        ur = u.copy()
+        ur[7] = CFG.nominal.moisture_in
+        ur[0] += xs[1]
+        y_ref = model.outputs(ur)
+        return np.array([y[0] + xs[2], y[1] + xs[3],
+                         y[2] + xs[5] * (y[2] - y_ref[2]) + xs[4]])
 
-    points = MerweScaledSigmaPoints(5, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
-    ukf = UnscentedKalmanFilter(5, 3, 600.0, hx, lambda xs, dt: xs, points)
-    ukf.x, ukf.P, ukf.Q = x, P, np.zeros((5, 5))
+    points = MerweScaledSigmaPoints(6, s.sigma_alpha, s.sigma_beta, s.sigma_kappa)
+    ukf = UnscentedKalmanFilter(6, 3, 600.0, hx, lambda xs, dt: xs, points)
+    ukf.x, ukf.P, ukf.Q = x, P, np.zeros((6, 6))
     ukf.predict()  # the identity with no noise: sigma points of the prior
     r_T = s.temperature_sensor_std**2 / 60 + s.temperature_model_std**2
     r_L = s.lab_std**2 + s.moisture_out_jitter_std**2
@@ -273,7 +290,7 @@ def test_a_step_of_the_inlet_moisture_is_taken_at_once_and_settled_by_the_next_l
     outlet moisture, confirms it."""
     wins, truth = synthetic_day(60, seed=2, x_in=lambda k: 1.0 if k < 30 else 1.12)
     labs = {36: [lab(32, truth[32, 1], "L")]}
-    bodies = run(make(), wins, labs)
+    bodies = run(make(**NO_GAIN), wins, labs)  # the model's response is the plant's here
     assert any("along the inlet moisture" in n for n in bodies[30]["notes"])
     assert 1.08 < bodies[30]["moisture_in"] < 1.12 + 0.01     # at once
     assert abs(bodies[36]["moisture_in"] - 1.12) < 0.02        # the lab settles it
@@ -293,6 +310,37 @@ def run(est: UkfEstimator, wins, deliveries: dict[int, list[LabResult]]) -> list
             est.add_lab(r)
         out.append(est.tick(w))
     return out
+
+
+class HalfResponseDryer(LinearDryer):
+    """A plant whose outlet moisture follows the inlet moisture half as much as the model's
+    (its fibre leaves nearer equilibrium): the inlet gain's case."""
+
+    def outputs(self, U: np.ndarray) -> np.ndarray:
+        y = super().outputs(U)
+        y[..., 2] -= 0.5 * A[2, 0] * (np.asarray(U, float)[..., 7] - U0.moisture_in)
+        return y
+
+
+def test_inlet_gain_learns_a_weaker_response_from_the_labs():
+    """The inlet moisture swings +-0.08 kg/kg; the plant's outlet moisture follows it half as
+    much as the model's. With the inlet gain the labs teach the filter the weaker response
+    (gain near -0.5) and the estimate between labs halves its error; held at zero, the bias
+    jumps back at every lab and the model's full swing shows in between."""
+    plant = HalfResponseDryer()
+    wins, truth = synthetic_day(150, seed=21, plant=plant,
+                                x_in=lambda k: 1.0 + 0.08 * math.sin(k / 12.0))
+    labs = {k: [lab(k - 3, truth[k - 3, 1], f"L{k}")] for k in range(8, 150, 6)}
+    learned = run(make(**CALIBRATED), wins, labs)
+    held = run(make(**CALIBRATED, **NO_GAIN), wins, labs)
+
+    def err(bodies: list[dict]) -> float:
+        e = [b["moisture_out"] - t for b, t in zip(bodies[75:], truth[75:, 1], strict=True)]
+        return float(np.sqrt(np.mean(np.square(e))))
+
+    assert learned[-1]["inlet_gain"] == pytest.approx(-0.5, abs=0.15)
+    assert err(learned) < 0.5 * err(held)
+    assert abs(held[-1]["inlet_gain"]) < 1e-6
 
 
 def test_late_lab_gives_the_same_estimate_as_an_on_time_one():
@@ -380,7 +428,7 @@ def test_a_lone_outlier_is_refused_and_a_second_on_the_same_side_taken():
 def test_bias_state_takes_a_model_offset_from_two_labs():
     plant = LinearDryer(mo_offset=0.03)
     wins, truth = synthetic_day(60, seed=10, plant=plant)
-    est = make(**CALIBRATED)
+    est = make(**CALIBRATED, **NO_GAIN)  # an offset, not a response error
     bodies = run(est, wins, {12: [lab(8, truth[8, 1], "A")], 30: [lab(25, truth[25, 1], "B")]})
     # two labs of prior sd 0.01 take most of a 0.03 offset (without them: all of it missing)
     # and it decays with the bias's 24 h correlation time over the 6 h after the last one
@@ -491,7 +539,7 @@ def test_a_model_that_has_lost_the_plant_publishes_the_last_lab_flagged():
     plant = LinearDryer(mo_offset=0.06)
     wins, truth = synthetic_day(80, seed=19, plant=plant)
     labs = {k: [lab(k - 2, truth[k - 2, 1], f"L{k}")] for k in range(10, 80, 12)}
-    bodies = run(make(**CALIBRATED), wins, labs)
+    bodies = run(make(**CALIBRATED, **NO_GAIN), wins, labs)  # an offset, not a response error
     end = bodies[-1]
     assert end["fallback"] and end["status"] == "degraded"
     assert "model lost the plant" in end["detail"] and "moisture_out_bias" in end["detail"]
@@ -621,11 +669,12 @@ def test_settings_default_without_estimator_table_and_validated_with_one():
                      model=LinearDryer())
 
 
-def test_state_layout_keeps_the_inlet_moisture_first():
-    """Only the inlet moisture moves the model, and with it first the sigma points hold three
-    distinct inlet moistures (the module docstring's step 2)."""
-    assert X_IN == 0 and X_BIAS == len(STATE_NAMES) - 1
+def test_state_layout_keeps_the_model_states_first():
+    """Only the inlet moisture and the heat input move the model, and with them first the
+    sigma points hold five distinct pairs of them (the module docstring's step 2)."""
+    assert (X_IN, X_HEAT) == (0, 1) and X_BIAS == len(STATE_NAMES) - 2
     est = make()
-    sig = est._points.sigma_points(np.r_[0.0, np.zeros(4)],
-                                   np.diag([0.01, 1.0, 0.25, 0.25, 1e-4]) + 0.001)
-    assert len(np.unique(sig[:, X_IN])) == 3
+    n = len(STATE_NAMES)
+    sig = est.filter.points.sigma_points(np.zeros(n), np.diag([0.01, 1.0, 0.25, 0.25, 1e-4,
+                                                               0.5]) + 0.001)
+    assert len(np.unique(sig[:, [X_IN, X_HEAT]], axis=0)) == 5

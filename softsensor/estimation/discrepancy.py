@@ -9,8 +9,8 @@ state carries the error explicitly (:data:`STATE_NAMES`):
   is mapped to the inlet moisture by a soft clip that is the identity inside the physical
   range and approaches its bounds smoothly outside, so every sigma point and every mean is a
   moisture the model can be run at. A walk of ``estimator.moisture_in_walk`` per sqrt(h) that
-  returns to the nominal over ``estimator.moisture_in_tau_h`` (48 h) when nothing says
-  otherwise.
+  returns to its reference (the history's typical level, else the nominal) over
+  ``estimator.moisture_in_tau_h`` (48 h) when nothing says otherwise.
 * ``T_air_in_offset`` [K]: the model's energy balance is off (heat loss, heat input, hot-gas
   humidity, calibration), which shows as an offset common to both outlet temperatures. It is
   carried as an offset of the heat input the model sees, not of its outputs: a model whose
@@ -23,15 +23,24 @@ state carries the error explicitly (:data:`STATE_NAMES`):
 * ``T_dryer_out_offset``, ``T_cyclone_out_offset`` [K]: each channel's own offset (one sensor
   or one part of the model).
 * ``moisture_out_bias`` [kg/kg]: added to the model's outlet moisture (kinetics).
+* ``inlet_gain`` [-]: the relative error of the model's outlet-moisture response to the
+  inlet moisture. The published (and lab-compared) outlet moisture is ``y(X_ref) + (1 +
+  inlet_gain) (y(X) - y(X_ref))`` plus the bias, with ``X_ref`` the inlet moisture's
+  reference: a dryer whose fibre leaves nearer its equilibrium than the model's responds less
+  to a wetter feed, and no clean day of history can say by how much (the inlet moisture
+  barely moves on one). The labs teach it online whenever the inlet moisture moves, instead
+  of the bias jumping back at every result.
 
-The four error states are first-order (Ornstein-Uhlenbeck) processes: ``b' = a b + w`` with
-``a = exp(-dt / tau)`` and ``var(w) = sigma^2 (1 - a^2)``, so their prior stays ``N(0,
-sigma^2)`` for ever. ``sigma`` and ``tau`` come from the calibration's residuals on data it was
-not fitted on (PARAMS.toml's ``[discrepancy]``, :class:`~softsensor.calibration.pipeline.
-Discrepancy`), or from ``[estimator]`` defaults when there is none. The inlet moisture and the
-common offset both move both temperatures; the filter tells them apart by what the discrepancy
-cannot do: the temperatures' response to the inlet moisture grows with the fibre load, and the
-lab results see the inlet moisture through the outlet moisture.
+The error states are first-order (Ornstein-Uhlenbeck) processes ``b' = a b + w`` with ``a =
+exp(-dt / tau)`` and ``var(w) = sigma^2 (1 - a^2)`` (prior ``N(0, sigma^2)`` for ever), or,
+with ``tau = inf``, random walks (``var(w) = walk^2 dt``, ``sigma`` their spread at the
+start). Without a history the four error states of the outputs come from the calibration's
+residuals on data it was not fitted on (PARAMS.toml's ``[discrepancy]``) or from
+``[estimator]`` defaults; with one (``[model_error]``, :mod:`.model_error`) the two channel
+offsets and the bias are random walks sized by the history's day-to-day spread and within-day
+wander: one integrating disturbance per measured output, so the filter is offset-free
+(Pannocchia and Rawlings, AIChE J. 49, 2003). ``inlet_gain`` is a random walk from
+``estimator.inlet_gain_std`` and ``inlet_gain_walk``.
 
 Adaptive noise (:class:`AdaptiveNoise`): when a channel's normalised innovation squared stays
 above one, the channel's error process gets more process noise until it averages one again
@@ -42,19 +51,27 @@ and narrows again when it settles.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.plantconfig import PlantConfig
 
-#: Filter state layout; the inlet moisture first (it alone moves the model's sigma points).
+#: Filter state layout; the inlet moisture first (it alone moves the model's sigma points with
+#: the heat input's offset).
 STATE_NAMES: tuple[str, ...] = ("moisture_in", "T_air_in_offset", "T_dryer_out_offset",
-                                "T_cyclone_out_offset", "moisture_out_bias")
-X_IN, X_HEAT, X_TDRY, X_TCYC, X_BIAS = range(len(STATE_NAMES))
-#: The states that enter the model (the others add to its outputs).
+                                "T_cyclone_out_offset", "moisture_out_bias", "inlet_gain")
+X_IN, X_HEAT, X_TDRY, X_TCYC, X_BIAS, X_GAIN = range(len(STATE_NAMES))
+#: The error states (every state but the inlet moisture), in state order.
+ERROR_STATES: tuple[str, ...] = STATE_NAMES[1:]
+#: Units of the states, for messages.
+STATE_UNITS: dict[str, str] = {"moisture_in": "kg/kg", "T_air_in_offset": "K",
+                               "T_dryer_out_offset": "K", "T_cyclone_out_offset": "K",
+                               "moisture_out_bias": "kg/kg", "inlet_gain": "-"}
+#: The states that enter the model (the others act on its outputs).
 MODEL_STATES: tuple[int, ...] = (X_IN, X_HEAT)
 #: Adaptive channels: the two outlet temperatures and the lab moisture.
 ADAPT_CHANNELS: tuple[str, ...] = ("T_dryer_out", "T_cyclone_out", "moisture_out")
@@ -97,62 +114,103 @@ class InletTransform:
 
 @dataclass(frozen=True)
 class ErrorPriors:
-    """Stationary standard deviations [K of ``T_air_in``, K, K, kg/kg] and correlation times
-    [s] of the four error states, and where they came from."""
+    """Per error state (:data:`ERROR_STATES` order): standard deviation ``sigma`` [unit],
+    correlation time ``tau`` [s] (``inf``: a random walk), walk intensity ``walk``
+    [unit/sqrt(s)] of a random walk, and where they came from (module docstring)."""
 
     sigma: np.ndarray
     tau: np.ndarray
     source: str
+    walk: np.ndarray = field(default_factory=lambda: np.zeros(len(ERROR_STATES)))
+
+    def sd(self, name: str) -> float:
+        """``sigma`` of the error state ``name``."""
+        return float(self.sigma[ERROR_STATES.index(name)])
 
     @classmethod
     def from_config(cls, config: PlantConfig, s: EstimatorSettings, heat_gain: float
                     ) -> ErrorPriors:
-        """From the calibration's ``[discrepancy]`` (carried in ``config.extra`` by
-        :func:`softsensor.plantconfig.load_parameters`), floored by the settings; else the
-        settings' defaults. ``heat_gain`` [K/K] turns the common outlet-temperature error into
-        the heat input's."""
+        """From the history's ``[model_error]`` (channel offsets and bias) and the
+        calibration's ``[discrepancy]`` (the heat input's offset), carried in
+        ``config.extra`` by :func:`softsensor.plantconfig.load_parameters`, floored by the
+        settings; else the settings' defaults. ``heat_gain`` [K/K] turns the common
+        outlet-temperature error into the heat input's."""
         sigma = np.array([s.T_offset_std, s.T_channel_std, s.T_channel_std,
-                          s.moisture_out_bias_std])
+                          s.moisture_out_bias_std, s.inlet_gain_std])
         tau = np.array([s.T_offset_tau_h, s.T_channel_tau_h, s.T_channel_tau_h,
-                        s.moisture_out_bias_tau_h]) * 3600.0
-        d = config.extra.get("discrepancy") or {}
-        source = "estimator defaults"
-        if d:
-            found = {k: float(v) for k, v in d.items() if isinstance(v, (int, float))
-                     and math.isfinite(float(v))}
-            fitted = [found.get("common_std"), found.get("dryer_std"),
-                      found.get("cyclone_std"), found.get("moisture_std")]
-            for i, v in enumerate(fitted):
-                if v is not None:
-                    sigma[i] = max(v, s.discrepancy_floor[i])
-            if "tau_s" in found and found["tau_s"] > 0:
-                # the default is a floor: the validation day's lag-one autocorrelation sees
-                # how fast the error wanders, not how long its offset persists
-                tau[0] = np.clip(found["tau_s"], tau[0], 48 * 3600.0)
-            source = "calibration [discrepancy]"
+                        s.moisture_out_bias_tau_h, math.inf]) * 3600.0
+        walk = np.zeros(len(ERROR_STATES))
+        walk[-1] = s.inlet_gain_walk / 60.0  # per sqrt(h) -> per sqrt(s)
+        source = _from_discrepancy(config, s, sigma, tau)
         sigma[0] /= max(heat_gain, 1e-3)
-        return cls(sigma=sigma, tau=tau, source=source)
+        me = model_error_of(config)
+        if me is not None:
+            # how each channel's offset spreads from day to day and wanders within a day
+            for i, name in enumerate(("T_dryer_out", "T_cyclone_out", "moisture_out"),
+                                     start=1):
+                ch = me.channel(name)
+                sigma[i] = max(ch.day_sd, s.discrepancy_floor[i])
+                tau[i] = math.inf
+                walk[i] = ch.walk / 60.0
+            source = f"history [model_error] ({me.days} days)"
+        return cls(sigma=sigma, tau=tau, source=source, walk=walk)
+
+
+def _from_discrepancy(config: PlantConfig, s: EstimatorSettings, sigma: np.ndarray,
+                      tau: np.ndarray) -> str:
+    """Fill ``sigma``/``tau`` of the four output error states from the calibration's
+    ``[discrepancy]`` (in place); returns where the numbers came from."""
+    d = config.extra.get("discrepancy") or {}
+    if not d:
+        return "estimator defaults"
+    found = {k: float(v) for k, v in d.items() if isinstance(v, (int, float))
+             and math.isfinite(float(v))}
+    fitted = [found.get("common_std"), found.get("dryer_std"), found.get("cyclone_std"),
+              found.get("moisture_std")]
+    for i, v in enumerate(fitted):
+        if v is not None:
+            sigma[i] = max(v, s.discrepancy_floor[i])
+    if "tau_s" in found and found["tau_s"] > 0:
+        # the default is a floor: the validation day's lag-one autocorrelation sees how fast
+        # the error wanders, not how long its offset persists
+        tau[0] = np.clip(found["tau_s"], tau[0], 48 * 3600.0)
+    return "calibration [discrepancy]"
+
+
+def error_decay(dt_s: float, priors: ErrorPriors) -> np.ndarray:
+    """How much of each error state is left after ``dt_s`` [s]: ``exp(-dt / tau)``, one for a
+    random walk (:data:`ERROR_STATES` order). The one rule the estimator and the diagnosis's
+    calibration-error filter share."""
+    return np.exp(-float(dt_s) / priors.tau)
+
+
+def error_noise(dt_s: float, priors: ErrorPriors) -> np.ndarray:
+    """Variance each error state gains over ``dt_s`` [s] (:data:`ERROR_STATES` order):
+    ``sigma^2 (1 - a^2)`` of a first-order process (its variance stays ``sigma^2``),
+    ``walk^2 dt`` of a random walk."""
+    a = error_decay(dt_s, priors)
+    return np.where(np.isinf(priors.tau), priors.walk**2 * float(dt_s),
+                    priors.sigma**2 * (1.0 - a**2))
 
 
 def transition(window_s: float, priors: ErrorPriors, inlet_tau_s: float) -> np.ndarray:
     """The state transition matrix ``F`` (diagonal) over one window: the inlet moisture's
-    deviation from the nominal and the error states decay by ``exp(-dt / tau)``."""
-    a = np.exp(-window_s / priors.tau)
-    return np.diag(np.r_[math.exp(-window_s / inlet_tau_s), a])
+    deviation from its reference and the first-order error states decay by ``exp(-dt /
+    tau)``; random walks stay."""
+    return np.diag(np.r_[math.exp(-window_s / inlet_tau_s), error_decay(window_s, priors)])
 
 
 def process_noise(window_s: float, priors: ErrorPriors, walk_s: float, inlet_tau_s: float
                   ) -> np.ndarray:
-    """Diagonal (5,) of the process noise ``Q`` over one window, before the adaptive inflation
+    """Diagonal of the process noise ``Q`` over one window, before the adaptive inflation
     (constant for given settings; the filter multiplies the error states' entries by
     :meth:`AdaptiveNoise.inflation` each tick): the inlet moisture's walk ``walk_s`` per window
     (in the filter's coordinate; ``walk_s^2 (1 - a^2) / (2 dt / tau)`` with its mean
-    reversion) and ``sigma^2 (1 - a^2)`` of each error state."""
-    a = np.exp(-window_s / priors.tau)
-    q_err = priors.sigma**2 * (1.0 - a**2)
+    reversion), ``sigma^2 (1 - a^2)`` of each first-order error state and ``walk^2 dt`` of
+    each random walk."""
     r = window_s / inlet_tau_s
     q_in = walk_s**2 * (1.0 - math.exp(-2.0 * r)) / (2.0 * r)
-    return np.r_[q_in, q_err]
+    return np.r_[q_in, error_noise(window_s, priors)]
 
 
 @dataclass
@@ -176,11 +234,11 @@ class AdaptiveNoise:
         self.factor[channel] = min(max(f, 1.0), limit)
 
     def inflation(self) -> np.ndarray:
-        """Inflation (4,) of the error states' process noise: the temperature channels drive
-        their own offsets and, through the smaller of the two, the heat input's; the lab
-        channel the outlet-moisture bias."""
+        """Inflation of the error states' process noise (:data:`ERROR_STATES` order): the
+        temperature channels drive their own offsets and, through the smaller of the two, the
+        heat input's; the lab channel the outlet-moisture bias and the inlet gain."""
         f = self.factor
-        return np.array([min(f[0], f[1]), f[0], f[1], f[2]])
+        return np.array([min(f[0], f[1]), f[0], f[1], f[2], f[2]])
 
     def to_json(self) -> dict[str, Any]:
         return {"factor": self.factor.tolist()}
@@ -190,6 +248,7 @@ class AdaptiveNoise:
         return cls(np.array(d["factor"], float))
 
 
-__all__ = ["ADAPT_CHANNELS", "MODEL_STATES", "STATE_NAMES", "X_BIAS", "X_HEAT", "X_IN", "X_TCYC",
-           "X_TDRY",
-           "AdaptiveNoise", "ErrorPriors", "InletTransform", "process_noise", "transition"]
+__all__ = ["ADAPT_CHANNELS", "ERROR_STATES", "MODEL_STATES", "STATE_NAMES", "STATE_UNITS",
+           "X_BIAS", "X_GAIN", "X_HEAT", "X_IN", "X_TCYC", "X_TDRY",
+           "AdaptiveNoise", "ErrorPriors", "InletTransform", "error_decay", "error_noise",
+           "process_noise", "transition"]

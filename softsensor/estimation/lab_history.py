@@ -140,11 +140,12 @@ def window_from_json(data: dict[str, Any]) -> Window:
                         for k, vs in data.get("bins", {}).items()})
 
 
-@dataclass
+@dataclass(frozen=True)
 class FilterState:
     """Mean ``x`` and covariance ``P`` of the filter state, the mean wall state, and the
     filter's adaptive-noise memory (JSON, see :class:`~softsensor.estimation.discrepancy.
-    AdaptiveNoise`)."""
+    AdaptiveNoise`). Frozen: a tick makes a new one (:func:`~softsensor.estimation.
+    ukf_step.step`)."""
 
     x: np.ndarray
     P: np.ndarray

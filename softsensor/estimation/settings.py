@@ -36,6 +36,10 @@ class EstimatorSettings:
         Estimator the service runs: ``"ukf"`` (default) or ``"openloop"``.
     moisture_in_std0 : float
         Prior standard deviation of the inlet fibre moisture at start-up. [kg/kg]
+    moisture_in_std_floor : float
+        Smallest prior standard deviation of the inlet moisture at start-up when the
+        parameters carry a ``[model_error]`` (which gives the history's spread of the days'
+        inlet-moisture levels). [kg/kg]
     moisture_in_walk : float
         Random-walk intensity of the inlet moisture. [kg/kg / sqrt(h)]
     moisture_in_tau_h : float
@@ -63,6 +67,13 @@ class EstimatorSettings:
         Their default correlation times [h]. The calibration sets the common offset's (the
         model's energy balance drifts with the conditions); a channel's own offset keeps the
         long default (a thermometer that reads off stays off).
+    inlet_gain_std : float
+        Prior standard deviation of the relative error of the model's outlet-moisture
+        response to the inlet moisture (:mod:`~softsensor.estimation.discrepancy`,
+        ``inlet_gain``): 1 says the plant's response may be anywhere from none to twice the
+        model's. [-]
+    inlet_gain_walk : float
+        Its random-walk intensity (the fibre's drying behaviour changes slowly). [-/sqrt(h)]
     moisture_out_bias_std : float
         Default stationary standard deviation of the outlet-moisture bias. [kg/kg]
     moisture_out_bias_tau_h : float
@@ -116,6 +127,7 @@ class EstimatorSettings:
 
     kind: str = "ukf"
     moisture_in_std0: float = num(0.15, gt=0, lt=2)
+    moisture_in_std_floor: float = num(0.03, gt=0, lt=2)
     moisture_in_walk: float = num(0.008, ge=0, lt=2)
     moisture_in_tau_h: float = num(48.0, gt=0, le=1e6)
     moisture_in_adapt: float = num(3.0, gt=0)
@@ -127,6 +139,8 @@ class EstimatorSettings:
     T_channel_std: float = num(0.5, gt=0, lt=50)
     T_offset_tau_h: float = num(6.0, gt=0, le=240)
     T_channel_tau_h: float = num(24.0, gt=0, le=240)
+    inlet_gain_std: float = num(1.0, gt=0, le=10)
+    inlet_gain_walk: float = num(0.05, ge=0, le=10)
     moisture_out_bias_std: float = num(0.01, gt=0, lt=1)
     moisture_out_bias_tau_h: float = num(24.0, gt=0, le=2400)
     T_std_floor: float = num(0.2, ge=0, lt=50)
@@ -168,7 +182,8 @@ class EstimatorSettings:
 
     @property
     def discrepancy_floor(self) -> tuple[float, float, float, float]:
-        """Floors of the four error states' standard deviations [K, K, K, kg/kg]."""
+        """Floors of the four output error states' standard deviations (heat input, two
+        channel offsets, bias) [K, K, K, kg/kg]."""
         t = self.T_std_floor
         return (t, t, t, self.moisture_std_floor)
 
