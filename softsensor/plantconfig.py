@@ -255,8 +255,9 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
 
     ``[parameters.<name>]`` tables give the values (each within its bounds); the calibration's
-    ``[discrepancy]`` table (what the model left on held-out data), when present, is carried
-    in ``extra["discrepancy"]`` for the estimator.
+    ``[discrepancy]`` table (what the model left on held-out data) and ``[model_error]`` (what
+    the history says it misses), when present, are carried in ``extra`` for the estimator
+    and the diagnosis.
     """
     data = read_toml(path)
     table = data.get("parameters")
@@ -281,4 +282,9 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
                 isinstance(v, (int, float)) and not isinstance(v, bool) for v in disc.values()):
             raise ConfigError(f"{path}: [discrepancy] must be a table of numbers")
         extra["discrepancy"] = {str(k): float(v) for k, v in disc.items()}
+    error = data.get("model_error")
+    if error is not None:
+        if not isinstance(error, dict):
+            raise ConfigError(f"{path}: [model_error] must be a table")
+        extra["model_error"] = error  # built and checked by estimation.model_error_of
     return dataclasses.replace(cfg, extra=extra, source=f"{config.source} + {path}")

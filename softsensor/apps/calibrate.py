@@ -46,9 +46,10 @@ from softsensor.verdicts import calibration_result_verdict
 
 
 def _add_data_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--window-hours", type=float, default=DEFAULT_WINDOW_HOURS,
+    p.add_argument("--window-hours", type=float, default=None,
                    help="calibration window [h]; a longer record is cut to the window(s) "
-                        f"with the most natural variability (default {DEFAULT_WINDOW_HOURS:g})")
+                        f"with the most natural variability (default {DEFAULT_WINDOW_HOURS:g} "
+                        f"for one day, {HISTORY_WINDOW_HOURS:g} for several)")
     p.add_argument("--windows-per-day", type=int, default=1,
                    help="non-overlapping windows to take from each day (default 1)")
     p.add_argument("--min-labs", type=int, default=DEFAULT_MIN_LABS,
@@ -56,7 +57,21 @@ def _add_data_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
 
 
+#: Calibration window across several days of history [h], and the hours of them fitted.
+HISTORY_WINDOW_HOURS = 12.0
+HISTORY_FIT_HOURS = 96.0
+
+
+def _window_hours(args: argparse.Namespace) -> float:
+    """``--window-hours``, by default the paper's 48 h for one day and shorter windows picked
+    across the days of a history."""
+    if args.window_hours is None:
+        return DEFAULT_WINDOW_HOURS if len(args.days) == 1 else HISTORY_WINDOW_HOURS
+    return args.window_hours
+
+
 def _selection(args: argparse.Namespace) -> DataSelection:
+    args.window_hours = _window_hours(args)
     if not args.window_hours > 0:
         raise ConfigError(f"--window-hours must be > 0, got {args.window_hours}")
     if args.windows_per_day < 1:
@@ -136,9 +151,13 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--holdout", type=float, default=None,
                    help="share of each calibration window held out to validate on "
                         "(default 0.25; 0: none)")
+    p.add_argument("--fit-hours", type=float, default=HISTORY_FIT_HOURS,
+                   help="with several days: hours of windows picked across them to fit "
+                        f"(default {HISTORY_FIT_HOURS:g}); the rest of every day validates")
     p.add_argument("--force", action="store_true",
-                   help="write the result even when it predicts the validation data worse "
-                        "than the current parameters")
+                   help="deploy the calibrated parameters even when they predict the "
+                        "validation data worse than the current ones (default: keep the "
+                        "current ones, with the model error learned at them)")
     p.add_argument("--seed", type=int, default=0, help="TPE seed (default 0)")
     p.add_argument("--storage", default=None, metavar="URL",
                    help="Optuna storage shared by workers: journal:PATH, a .log file, "
@@ -163,73 +182,89 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     _add_data_arguments(p)
 
 
-#: Exit status of ``calibrate`` when it refuses to write a result that validates worse.
-REFUSED = 3
-
-
 def calibrate_main(args: argparse.Namespace) -> int:
-    """``softsensor calibrate``: fit, validate, write PARAMS.toml, print a JSON summary."""
+    """``softsensor calibrate``: fit on the history, validate, learn the model error, write
+    PARAMS.toml (always: the calibrated parameters, or the current ones kept when the
+    calibrated ones validate worse), print a JSON summary."""
     require_packages("calibrate", "optuna", "matplotlib")
     import optuna
 
+    from softsensor.calibration.history import calibrate_history
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import calibrate
 
     base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
     out = Path(args.out)
     check_target(out, "--out")
     check_target(args.json)
+    if not args.fit_hours > 0:
+        raise ConfigError(f"--fit-hours must be > 0, got {args.fit_hours}")
+    selection = _selection(args)
     settings = StudySettings(n_trials=args.trials, seed=args.seed, storage=args.storage,
                              study_name=args.study_name, n_chunks=args.chunks,
                              batch=args.batch, prune=not args.no_prune,
                              progress=not args.quiet and sys.stderr is not None)
     settings.check()
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
-    segments, choices = load_segments(args.days, base, _selection(args))
-    for c in choices:
-        print(f"calibrate: {c.reason}", file=sys.stderr)
-    validation = None
-    if args.validate_on:
-        validation = [load_segment(p, base) for p in args.validate_on]
+    days = [load_segment(p, base) for p in args.days]
+    validation = [load_segment(p, base) for p in args.validate_on] if args.validate_on else None
 
     def progress(phase: str) -> None:
         if not args.quiet:
             print(f"calibrate: {phase} ...", file=sys.stderr, flush=True)
 
-    result = calibrate(segments, base, settings, calibration, choices=choices,
-                       validation_segments=validation,
-                       current_theta=current.parameter_vector(), polish=not args.no_polish,
-                       identify_result=not args.no_identify, progress=progress)
-    verdicts = None
-    if result.identifiability is not None:
-        verdicts = {v.name: v.verdict for v in result.identifiability.verdicts}
-    summary = {"out": str(out), **result.summary()}
-    written = result.accepted or args.force
-    if written:
-        doc = params_document(base, result.params, result.fit_section(), verdicts,
-                              result.at_bounds,
-                              None if result.discrepancy is None
-                              else result.discrepancy.as_dict())
-        comment = (f"Calibrated by `softsensor calibrate` (cost {calibration.cost}, inlet "
-                   f"moisture {calibration.inlet}, prior "
-                   f"{calibration.prior_sigma if calibration.prior else 'none'}; Table 1 "
-                   f"bounds).\nLoad with softsensor.plantconfig.load_parameters or --params.")
-        write_params(out, doc, comment)
-    summary["written"] = written
+    hist = calibrate_history(days, base, settings, calibration,
+                             current_theta=current.parameter_vector(),
+                             window_hours=selection.window_hours, fit_hours=args.fit_hours,
+                             min_labs=selection.min_labs, polish=not args.no_polish,
+                             identify_result=not args.no_identify, force=args.force,
+                             validation=validation, progress=progress)
+    result = hist.calibration
+    for c in result.choices:
+        print(f"calibrate: {c.reason}", file=sys.stderr)
+    write_params(out, _params_doc(base, hist), _params_comment(calibration, hist))
+    summary = {"out": str(out), **result.summary(), "history": hist.summary()}
     if args.report:
         from softsensor.apps.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report))
     write_json(summary, args.json)
+    if hist.kept_current:
+        print(f"calibrate: kept the current parameters: {hist.reason}. Wrote {out} with them "
+              f"and the model error learned from {len(days)} day(s): deploy {out} "
+              f"(--force deploys the calibrated ones)", file=sys.stderr)
+        return 0
     verdict = calibration_result_verdict(result, display_settings(base).moisture_basis)
-    if not written:
-        print(f"calibrate: refused to write {out}: the result predicts the validation data "
-              f"worse than the current parameters ({result.verdict_line()}); --force writes "
-              f"it anyway", file=sys.stderr)
-        return REFUSED
-    print(f"calibrate: wrote {out}. {verdict}", file=sys.stderr)
+    print(f"calibrate: wrote {out} (calibrated on {len(days)} day(s), model error learned "
+          f"from them): deploy it. {verdict}", file=sys.stderr)
     return 0
+
+
+def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
+    """PARAMS.toml of a calibration from history: the deployed parameters, the study's fit
+    with whether they were kept, the discrepancy and the model error."""
+    result = hist.calibration
+    verdicts = None
+    if result.identifiability is not None and not hist.kept_current:
+        verdicts = {v.name: v.verdict for v in result.identifiability.verdicts}
+    fit = {**result.fit_section(), "deployed": "current" if hist.kept_current else "calibrated",
+           "deployed_reason": hist.reason,
+           "calibrated_values": result.params,
+           "inlet_levels": hist.inlet_levels}
+    at = [] if hist.kept_current else result.at_bounds
+    return params_document(base, hist.params, fit, verdicts, at,
+                           None if hist.discrepancy is None else hist.discrepancy.as_dict(),
+                           hist.model_error.to_table())
+
+
+def _params_comment(calibration: CalibrationSettings, hist: Any) -> str:
+    which = ("the current parameters, kept: the calibrated ones validated worse"
+             if hist.kept_current else "calibrated")
+    return (f"Written by `softsensor calibrate` ({which}; cost {calibration.cost}, inlet "
+            f"moisture {calibration.inlet}, prior "
+            f"{calibration.prior_sigma if calibration.prior else 'none'}; Table 1 bounds;\n"
+            f"model error learned from {hist.model_error.days} day(s) of history).\n"
+            f"Load with softsensor.plantconfig.load_parameters or --params.")
 
 
 # ---------------------------------------------------------------------------- identify

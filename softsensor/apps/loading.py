@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 from typing import NamedTuple
 
+from softsensor.estimation.model_error import model_error_of
 from softsensor.plantconfig import PlantConfig, load_parameters, load_plant_config
 from softsensor.recording.mcap_day import RecordedDay, read_day
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
@@ -30,7 +31,9 @@ def load_config_and_params(args: argparse.Namespace) -> LoadedConfig:
     :class:`~softsensor.errors.ConfigError` naming the file and key for a bad file."""
     base = load_plant_config(getattr(args, "config", None))
     params = getattr(args, "params", None)
-    return LoadedConfig(base, load_parameters(params, base) if params else base)
+    current = load_parameters(params, base) if params else base
+    model_error_of(current)  # a bad [model_error] stops here, naming its key
+    return LoadedConfig(base, current)
 
 
 def read_day_inputs(path: str | Path) -> RecordedDay:

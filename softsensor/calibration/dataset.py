@@ -109,6 +109,9 @@ class Segment:
         :attr:`softsensor.messages.Window.bins`; ``(K, 0, 7)`` when unknown.
     lab_span : float
         Seconds of scans before a sample time that give its inputs (``solver.lab_span``).
+    T_sp : ndarray, shape (K,), optional
+        Window means of the outlet loop's set point [K], held when missing (the operating
+        point of :mod:`softsensor.estimation.model_error`); NaN when unknown.
     lab_window : ndarray of int, shape (L,)
         Window holding each sample time (derived).
     lab_offset : ndarray, shape (L,)
@@ -126,6 +129,7 @@ class Segment:
     lab_U: np.ndarray | None = None
     bins: np.ndarray | None = None
     lab_span: float = 120.0
+    T_sp: np.ndarray | None = None
     lab_window: np.ndarray = dataclasses.field(init=False, repr=False)
     lab_offset: np.ndarray = dataclasses.field(init=False, repr=False)
 
@@ -140,6 +144,8 @@ class Segment:
             object.__setattr__(self, "lab_U", np.asarray(self.U)[win].reshape(-1, self.U.shape[1]))
         if self.bins is None:
             object.__setattr__(self, "bins", np.empty((self.n_windows, 0, len(MEASURED_INPUTS))))
+        if self.T_sp is None:
+            object.__setattr__(self, "T_sp", np.full(self.n_windows, np.nan))
 
     @property
     def n_windows(self) -> int:
@@ -204,7 +210,8 @@ class Segment:
             start_ns=start, window=self.window, U=self.U[k0:k1], Y=self.Y[k0:k1],
             lab_time_ns=self.lab_time_ns[keep], lab_value=self.lab_value[keep],
             lab_id=tuple(i for i, k in zip(self.lab_id, keep, strict=True) if k),
-            lab_U=self.lab_U[keep], bins=self.bins[k0:k1], lab_span=self.lab_span)
+            lab_U=self.lab_U[keep], bins=self.bins[k0:k1], lab_span=self.lab_span,
+            T_sp=self.T_sp[k0:k1])
 
     def require_labs(self, minimum: int = 1) -> None:
         """Refuse a segment without enough lab samples to fit ``moisture_out``."""
@@ -243,8 +250,11 @@ def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: 
     hold = InputHold(config.nominal_inputs())
     U = np.empty((len(kept), len(INPUT_NAMES)))
     Y = np.full((len(kept), len(OUTPUT_NAMES)), np.nan)
+    T_sp = np.full(len(kept), float(config.nominal.T_sp))
     for k, w in enumerate(kept):
         U[k], _ = hold.inputs(w)
+        sp = w.means.get("T_sp")
+        T_sp[k] = sp if sp is not None and math.isfinite(sp) else T_sp[k - 1] if k else T_sp[k]
         if not w.stale:
             for c, name in enumerate(SCANNED_OUTPUTS):
                 v = w.means.get(name)
@@ -269,7 +279,7 @@ def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: 
     return Segment(source=source, start_ns=start, window=settings.period_s, U=U, Y=Y,
                    lab_time_ns=lab_t, lab_value=lv[keep][order],
                    lab_id=tuple(str(i) for i in ids), lab_U=lab_U, bins=bins,
-                   lab_span=config.solver.lab_span)
+                   lab_span=config.solver.lab_span, T_sp=T_sp)
 
 
 def segment_from_day(day: DayLike, config: PlantConfig, *, source: str | None = None

@@ -20,6 +20,12 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [fit.samples]              samples per channel
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
                                on its own error, :class:`~.pipeline.Discrepancy`)
+    [model_error]              what the history says the model misses, channel by channel
+                               (:class:`~softsensor.estimation.model_error.ModelError`): the
+                               features and their scales, the days and the typical inlet
+    [model_error.T_dryer_out]  moisture; per channel the discrepancy's slopes and their
+    ...                        covariance, the day offsets' mean and spread, the within-day
+                               walk and noise, and the held-out RMSE with and without it
 
 Python's standard library reads TOML but does not write it; :func:`dumps` writes it with
 ``tomli-w``.
@@ -59,9 +65,11 @@ def dumps(doc: Mapping[str, Any], comment: str | None = None) -> str:
 def params_document(config: PlantConfig, values: Mapping[str, float],
                     fit: Mapping[str, Any], verdicts: Mapping[str, str] | None = None,
                     at_bounds: Sequence[str] = (),
-                    discrepancy: Mapping[str, float] | None = None) -> dict[str, Any]:
+                    discrepancy: Mapping[str, float] | None = None,
+                    model_error: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The PARAMS.toml document for parameter ``values``, the ``[fit]`` section, the flags
-    of parameters at a bound and the ``[discrepancy]`` section."""
+    of parameters at a bound, the ``[discrepancy]`` section and the history's
+    ``[model_error]`` (:meth:`~softsensor.estimation.model_error.ModelError.to_table`)."""
     params: dict[str, Any] = {}
     for name in PARAMETER_NAMES:
         spec = config.parameters[name]
@@ -76,6 +84,8 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
     if discrepancy:
         doc["discrepancy"] = {k: v for k, v in discrepancy.items()
                               if not (isinstance(v, float) and math.isnan(v))}
+    if model_error:
+        doc["model_error"] = dict(model_error)
     return doc
 
 

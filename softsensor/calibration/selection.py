@@ -64,6 +64,7 @@ class WindowChoice:
     rank_of: int
     median_score: float
     whole_record: bool
+    day: int = 0
 
     @property
     def reason(self) -> str:
@@ -87,14 +88,15 @@ def _signal_matrix(seg: Segment) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-def variability_scores(seg: Segment, n_windows: int, step: int
-                       ) -> tuple[np.ndarray, np.ndarray]:
-    """Scores of candidate windows starting at ``0, step, 2 step, ...``.
+def variability_scores(seg: Segment, n_windows: int, step: int,
+                       ref: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Scores of candidate windows starting at ``0, step, 2 step, ...``, each signal's spread
+    in the window over ``ref`` (default: its spread over the segment).
 
     Returns ``(starts, contributions (n_candidates, n_signals))``; the score is the row sum.
     """
     X = _signal_matrix(seg)
-    ref = np.nanstd(X, axis=0)
+    ref = np.nanstd(X, axis=0) if ref is None else ref
     floor = np.array([CONSTANT_BELOW[n] for n in SCORED_SIGNALS])
     varying = ref > floor
     starts = np.arange(0, seg.n_windows - n_windows + 1, step)
@@ -153,4 +155,45 @@ def select_windows(seg: Segment, hours: float, count: int = 1, min_labs: int = 3
     return sorted(chosen, key=lambda c: c.k0)
 
 
-__all__ = ["SCORED_SIGNALS", "WindowChoice", "select_windows", "variability_scores"]
+def select_across(days: list[Segment], hours: float, budget_hours: float, min_labs: int = 3
+                  ) -> list[WindowChoice]:
+    """Windows of ``hours`` with the most natural variability *across* the history ``days``:
+    every candidate of every day is scored against the signals' spread over all days (a
+    production change counts by how rare it is in the history, not in its own day), and the
+    best non-overlapping ones with ``min_labs`` lab samples are taken until ``budget_hours``
+    are chosen (at least one). Days shorter than a window count as one candidate each.
+    Raises :class:`IngestError` when no candidate holds ``min_labs`` lab samples."""
+    ref = np.nanstd(np.vstack([_signal_matrix(d) for d in days]), axis=0)
+    cands = []
+    for i, seg in enumerate(days):
+        n = min(int(round(hours * 3600.0 / seg.window)), seg.n_windows)
+        step = max(1, int(round(STEP_HOURS * 3600.0 / seg.window)))
+        starts, contrib = variability_scores(seg, n, step, ref)
+        for k, c in zip(starts, contrib, strict=True):
+            labs = seg.labs_before(int(k) + n) - seg.labs_before(int(k))
+            if labs >= min_labs:
+                cands.append((float(c.sum()), i, int(k), n, c, labs))
+    if not cands:
+        raise IngestError(f"no {hours:g} h window of the {len(days)} day(s) holds {min_labs} "
+                          f"lab samples")
+    med = float(np.median([c[0] for c in cands]))
+    taken = [np.zeros(d.n_windows, dtype=bool) for d in days]
+    chosen: list[WindowChoice] = []
+    budget = max(budget_hours, hours)
+    for score, i, k0, n, contrib, labs in sorted(cands, key=lambda c: -c[0]):
+        if sum(c.segment.hours for c in chosen) + n * days[i].window / 3600.0 > budget + 1e-9:
+            continue
+        if taken[i][k0:k0 + n].any():
+            continue
+        taken[i][k0:k0 + n] = True
+        seg = days[i]
+        chosen.append(WindowChoice(
+            segment=seg.slice(k0, k0 + n), k0=k0, k1=k0 + n, score=score,
+            contributions=dict(zip(SCORED_SIGNALS, map(float, contrib), strict=True)),
+            n_labs=int(labs), rank_of=len(cands), median_score=med,
+            whole_record=n >= seg.n_windows, day=i))
+    return sorted(chosen, key=lambda c: (c.day, c.k0))
+
+
+__all__ = ["SCORED_SIGNALS", "WindowChoice", "select_across", "select_windows",
+           "variability_scores"]

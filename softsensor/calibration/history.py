@@ -1,0 +1,200 @@
+"""Calibration from the plant's history: shared physics, per-day inlet levels, the learned
+model error.
+
+A plant hands over weeks of clean days, not one. :func:`calibrate_history` takes them as
+whole-day :class:`~.dataset.Segment` s and
+
+1. picks the calibration windows by natural variability *across* the days
+   (:func:`~.selection.select_across`, ``window_hours`` each, ``fit_hours`` in all): the
+   study's cost grows with the hours it simulates, not with the days handed over;
+2. fits the seven Table 1 parameters on them with :func:`~.pipeline.calibrate` (each window
+   its own inlet-moisture trajectory: every day its own level), and validates the result
+   against the current parameters on the rest of every day (each day's hours not used for
+   fitting, in pieces of at least :data:`MIN_VALIDATION_HOURS` holding lab results), pooled;
+   with a single day, on its held-out tail;
+3. keeps the current parameters when the result predicts the held-out data worse (unless
+   ``force``): either way there is a parameter set to deploy;
+4. at the deployed parameters, fits every day's inlet-moisture level (the calibration's
+   trajectory on the whole day, temperatures and labs) and learns the model's error from all
+   days (:func:`~.model_error_fit.fit_model_error`, validated leave one day out).
+
+Everything after the study is one or two simulations of the history, so the time grows
+linearly with the days.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from softsensor.calibration.chunked_run import evaluate_parameters
+from softsensor.calibration.dataset import Segment
+from softsensor.calibration.model_error_fit import fit_model_error
+from softsensor.calibration.optimize import StudySettings
+from softsensor.calibration.pipeline import (
+    MIN_HELD_LABS,
+    CalibrationResult,
+    Discrepancy,
+    calibrate,
+    discrepancy,
+)
+from softsensor.calibration.selection import WindowChoice, select_across, select_windows
+from softsensor.calibration.settings import CalibrationSettings
+from softsensor.estimation.model_error import ModelError
+from softsensor.model import DryerModel
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+
+#: Shortest piece of a day's unused hours that validates [h].
+MIN_VALIDATION_HOURS = 4.0
+
+
+@dataclass
+class HistoryResult:
+    """What a calibration from history produced.
+
+    ``calibration``: the study's result (its ``theta`` the calibrated parameters);
+    ``theta``: the parameters to deploy (the calibrated ones, or the current ones kept);
+    ``kept_current`` and ``reason``: whether and why the current ones were kept;
+    ``inlet_levels``: each day's fitted inlet moisture [kg/kg]; ``model_error``: learned at
+    ``theta``; ``discrepancy``: what ``theta`` leaves on the held-out data (the heat input's
+    prior).
+    """
+
+    calibration: CalibrationResult
+    theta: np.ndarray
+    kept_current: bool
+    reason: str
+    inlet_levels: list[float]
+    model_error: ModelError
+    discrepancy: Discrepancy | None
+    days: list[Segment]
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def params(self) -> dict[str, float]:
+        return dict(zip(PARAMETER_NAMES, map(float, self.theta), strict=True))
+
+    def calibrated_config(self) -> PlantConfig:
+        """The config as ``load_parameters`` reads the PARAMS.toml this result writes."""
+        extra = dict(self.calibration.config.extra)
+        extra["model_error"] = self.model_error.to_table()
+        if self.discrepancy is not None:
+            extra["discrepancy"] = {k: float(v) for k, v in self.discrepancy.as_dict().items()
+                                    if isinstance(v, (int, float)) and math.isfinite(v)}
+        cfg = self.calibration.config.with_parameters(self.theta)
+        return dataclasses.replace(cfg, extra=extra)
+
+    def summary(self) -> dict[str, Any]:
+        me = self.model_error
+        return {"kept_current": self.kept_current, "reason": self.reason,
+                "deployed_params": self.params, "inlet_levels": self.inlet_levels,
+                "model_error": {
+                    "days": me.days, "hours": me.hours, "moisture_in": me.moisture_in,
+                    "moisture_in_day_sd": me.moisture_in_day_sd,
+                    **{c: {"learned": me.channel(c).learned,
+                           "rmse_without": me.channel(c).rmse_without,
+                           "rmse_held_out": me.channel(c).rmse_held_out,
+                           "day_sd": me.channel(c).day_sd, "walk": me.channel(c).walk,
+                           "noise": me.channel(c).noise}
+                       for c in ("T_dryer_out", "T_cyclone_out", "moisture_out")}},
+                "timings_s": {k: round(v, 2) for k, v in self.timings.items()}}
+
+
+def validation_pieces(days: Sequence[Segment], choices: Sequence[WindowChoice],
+                      min_hours: float = MIN_VALIDATION_HOURS,
+                      min_labs: int = MIN_HELD_LABS) -> list[Segment]:
+    """Every day's hours not chosen for fitting, as segments of at least ``min_hours``
+    holding ``min_labs`` lab results."""
+    out = []
+    for i, seg in enumerate(days):
+        free = np.ones(seg.n_windows, dtype=bool)
+        for c in choices:
+            if c.day == i:
+                free[c.k0:c.k1] = False
+        n_min = int(math.ceil(min_hours * 3600.0 / seg.window))
+        k = 0
+        while k < seg.n_windows:
+            if not free[k]:
+                k += 1
+                continue
+            k1 = k
+            while k1 < seg.n_windows and free[k1]:
+                k1 += 1
+            piece = seg.slice(k, k1)
+            if k1 - k >= n_min and len(piece.lab_value) >= min_labs:
+                out.append(piece)
+            k = k1
+    return out
+
+
+def choose_windows(days: Sequence[Segment], window_hours: float, fit_hours: float,
+                   min_labs: int) -> tuple[list[WindowChoice], list[Segment] | None]:
+    """The calibration windows and the validation data: one day, its best window and (None)
+    its held-out tail; several days, windows across them and the rest of every day."""
+    if len(days) == 1:
+        return select_windows(days[0], window_hours, 1, min_labs), None
+    choices = select_across(list(days), window_hours, fit_hours, min_labs)
+    held = validation_pieces(days, choices)
+    return choices, held or None
+
+
+def inlet_levels(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
+                 calibration: CalibrationResult) -> list[float]:
+    """Each day's inlet moisture at ``theta`` [kg/kg]: the nominal plus the mean of the
+    calibration's trajectory fitted to the whole day (temperatures and labs)."""
+    spec = dataclasses.replace(calibration.spec, inlet_from_labs=True)
+    nominal = float(calibration.config.nominal.moisture_in)
+    if spec.inlet is None:
+        return [nominal] * len(days)
+    ev = evaluate_parameters(model, days, theta, spec)[0]
+    return [nominal + (float(np.mean(c)) if c.size else 0.0) for c in ev.inlet]
+
+
+def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: StudySettings,
+                      calibration: CalibrationSettings, *, current_theta: np.ndarray,
+                      window_hours: float, fit_hours: float, min_labs: int = 3,
+                      polish: bool = True, identify_result: bool = True, force: bool = False,
+                      validation: Sequence[Segment] | None = None,
+                      model: DryerModel | None = None,
+                      progress: Callable[[str], None] | None = None) -> HistoryResult:
+    """Calibrate on the history ``days`` (module docstring); ``validation``: days to validate
+    on instead of the held-out hours."""
+    say = progress or (lambda phase: None)
+    model = model or DryerModel(config)
+    t0 = time.perf_counter()
+    choices, held = choose_windows(days, window_hours, fit_hours, min_labs)
+    if validation:
+        held = list(validation)
+    result = calibrate([c.segment for c in choices], config, settings, calibration,
+                       choices=choices, validation_segments=held, current_theta=current_theta,
+                       polish=polish, identify_result=identify_result, model=model,
+                       progress=progress)
+    timings = dict(result.timings)
+    kept = not (result.accepted or force)
+    theta = np.asarray(current_theta if kept else result.theta, float)
+    reason = ("the calibrated parameters predict the held-out data worse than the current "
+              f"ones ({result.verdict_line()})" if kept else
+              "calibrated" + ("" if result.accepted else " (forced, though they predict the "
+                                                         "held-out data worse)"))
+    say("model error")
+    t1 = time.perf_counter()
+    levels = inlet_levels(model, days, theta, result)
+    me = fit_model_error(model, days, theta, float(np.mean(levels)),
+                         float(np.std(levels)) if len(levels) > 1 else 0.0)
+    timings["model_error"] = time.perf_counter() - t1
+    disc = result.discrepancy
+    if kept and result.current_validation is not None:
+        cur = result.current_validation
+        disc = discrepancy(cur.evaluation, cur.segments)
+    timings["history_total"] = time.perf_counter() - t0
+    return HistoryResult(result, theta, kept, reason, levels, me, disc, list(days), timings)
+
+
+__all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
+           "inlet_levels", "validation_pieces"]
