@@ -35,6 +35,12 @@ samples exist), so
 * the whitened residuals of a prediction over the day are prequential: each is predicted from
   the samples before it only.
 
+The filter is the estimator's (:mod:`softsensor.estimation.discrepancy`: the same states,
+their decay and process noise by the same rule, filterpy's ``predict`` and ``update``), run on
+the residuals instead of through the model. With a history (PARAMS.toml's ``[model_error]``)
+the channel states are random walks from the history's day-to-day spread, as the
+estimator's are.
+
 The temperature states and the lab state are independent (the lab's own bias state carries
 the moisture part of a heat-input error), so two filters run: one over the windows with the
 three temperature states, one over the lab results at their sample times.
@@ -46,12 +52,16 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from filterpy.kalman import predict as kf_predict
+from filterpy.kalman import update as kf_update
 
-from softsensor.estimation.discrepancy import ErrorPriors
+from softsensor.estimation.discrepancy import ErrorPriors, error_decay, error_noise
 from softsensor.estimation.settings import estimator_settings
 from softsensor.plantconfig import PlantConfig
 
-#: The discrepancy states, in the order of :attr:`DiscrepancyModel.sigma`.
+#: The discrepancy states: the estimator's first four error states
+#: (:data:`~softsensor.estimation.discrepancy.ERROR_STATES`), the heat input's offset read as
+#: the outlet temperatures' common one.
 STATE_NAMES: tuple[str, ...] = ("T_common", "T_dryer_out", "T_cyclone_out", "moisture_out")
 #: Which temperature states each temperature channel reads (2, 3).
 _H = np.array([[1.0, 1.0, 0.0],
@@ -64,86 +74,80 @@ class DiscrepancyModel:
 
     Attributes
     ----------
-    sigma : numpy.ndarray, shape (4,)
-        Stationary standard deviations of :data:`STATE_NAMES` [K, K, K, kg/kg].
-    tau : numpy.ndarray, shape (4,)
-        Their correlation times [s].
+    priors : ErrorPriors
+        The estimator's error states (sizes, correlation times or random walks), the heat
+        input's read as the outlet temperatures' common offset (a heat gain of one).
     noise : numpy.ndarray, shape (3,)
         White measurement noise of ``T_dryer_out``, ``T_cyclone_out`` [K] and the lab
         results [kg/kg].
     window_s : float
         Window length [s].
-    source : str
-        Where ``sigma`` and ``tau`` came from.
     """
 
-    sigma: np.ndarray
-    tau: np.ndarray
+    priors: ErrorPriors
     noise: np.ndarray
     window_s: float
-    source: str
+
+    @property
+    def sigma(self) -> np.ndarray:
+        """Starting standard deviations of :data:`STATE_NAMES` [K, K, K, kg/kg]."""
+        return np.asarray(self.priors.sigma[:4], float)
+
+    @property
+    def source(self) -> str:
+        return self.priors.source
 
     @classmethod
     def from_config(cls, config: PlantConfig, noise: np.ndarray) -> DiscrepancyModel:
-        """The estimator's error states (:class:`ErrorPriors`, the heat input's offset read
-        as the outlet temperatures' common one) with measurement noise ``noise`` (3,). Their
-        sizes come from the calibration's ``[discrepancy]``; a config without one (nobody
-        said how far off the model is) gets the estimator's defaults, 1 K common, 0.5 K per
-        channel, 0.01 kg/kg on the labs."""
+        """The estimator's error states (:class:`ErrorPriors`) with measurement noise
+        ``noise`` (3,). Their sizes come from the history's ``[model_error]`` and the
+        calibration's ``[discrepancy]``; a config without either (nobody said how far off the
+        model is) gets the estimator's defaults, 1 K common, 0.5 K per channel, 0.01 kg/kg
+        on the labs."""
         p = ErrorPriors.from_config(config, estimator_settings(config), heat_gain=1.0)
-        return cls(np.asarray(p.sigma, float), np.asarray(p.tau, float),
-                   np.asarray(noise, float), float(config.solver.window), p.source)
+        return cls(p, np.asarray(noise, float), float(config.solver.window))
+
+    def _decay_noise(self, dt_s: float, states: slice) -> tuple[np.ndarray, np.ndarray]:
+        """``F`` and ``Q`` of the ``states`` over ``dt_s`` [s] (the estimator's rule)."""
+        return (np.diag(error_decay(dt_s, self.priors)[states]),
+                np.diag(error_noise(dt_s, self.priors)[states]))
 
     def whiten_temperatures(self, r: np.ndarray) -> np.ndarray:
         """Whitened one-step prediction errors (n, 2) of temperature residuals ``r`` (n, 2)
         of consecutive windows, NaN where a residual is missing. The filter starts from the
-        stationary distribution; each window's two measurements update it in turn."""
-        return self._temperature_filter(r)
-
-    def _temperature_filter(self, r: np.ndarray) -> np.ndarray:
-        a = np.exp(-self.window_s / self.tau[:3])
-        s2 = self.sigma[:3] ** 2
-        q = np.diag(s2 * (1.0 - a**2))
+        states' starting spread; each window's two measurements update it in turn."""
+        F, Q = self._decay_noise(self.window_s, slice(0, 3))
         R = self.noise[:2] ** 2
-        x = np.zeros(3)
-        P = np.diag(s2)
+        x, P = np.zeros(3), np.diag(self.sigma[:3] ** 2)
         white = np.full(r.shape, np.nan)
         for k in range(r.shape[0]):
             if k:
-                x = a * x
-                P = a[:, None] * P * a[None, :] + q
+                x, P = kf_predict(x, P, F, Q)
             for c in range(2):
                 y = r[k, c]
                 if not math.isfinite(y):
                     continue
-                h = _H[c]
-                Ph = P @ h
-                S = float(h @ Ph) + R[c]
-                nu = y - float(h @ x)
-                white[k, c] = nu / math.sqrt(S)
-                gain = Ph / S
-                x = x + gain * nu
-                P = P - np.outer(gain, Ph)
+                h = _H[c][None, :]
+                S = (h @ P @ h.T).item() + R[c]
+                white[k, c] = (y - (h @ x).item()) / math.sqrt(S)
+                x, P = kf_update(x, P, np.array([y]), np.array([[R[c]]]), h)
         return white
 
     def whiten_labs(self, r: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """Whitened one-step prediction errors (m,) of lab residuals ``r`` at sample times
-        ``t_s`` [s] (sorted), from the stationary distribution of the lab state."""
-        s2 = float(self.sigma[3] ** 2)
-        R = float(self.noise[2] ** 2)
-        x, P = 0.0, s2
+        ``t_s`` [s] (sorted), from the lab state's starting spread."""
+        R = np.array([[float(self.noise[2] ** 2)]])
+        x, P = np.zeros(1), np.array([[float(self.sigma[3] ** 2)]])
+        h = np.ones((1, 1))
         out = np.full(r.shape, np.nan)
         for i in range(r.size):
             if i:
-                a = math.exp(-max(float(t_s[i] - t_s[i - 1]), 0.0) / float(self.tau[3]))
-                x, P = a * x, a * a * P + s2 * (1.0 - a * a)
+                F, Q = self._decay_noise(max(float(t_s[i] - t_s[i - 1]), 0.0), slice(3, 4))
+                x, P = kf_predict(x, P, F, Q)
             if not math.isfinite(r[i]):
                 continue
-            S = P + R
-            nu = float(r[i]) - x
-            out[i] = nu / math.sqrt(S)
-            K = P / S
-            x, P = x + K * nu, (1.0 - K) * P
+            out[i] = (float(r[i]) - float(x[0])) / math.sqrt(float(P[0, 0]) + float(R[0, 0]))
+            x, P = kf_update(x, P, np.array([float(r[i])]), R, h)
         return out
 
 

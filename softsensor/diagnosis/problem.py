@@ -20,7 +20,10 @@ Everything an extension fit or a score needs sits in one :class:`Problem`:
   leaves (:meth:`Problem.whitened`), so an extension is judged by what it explains beyond "the
   calibration is a little off";
 * the baseline prediction: the calibrated open-loop model on the day's measured inputs with the
-  nominal inlet moisture, as ``validate`` runs it (the report's baseline).
+  nominal inlet moisture, as ``validate`` runs it (the report's baseline); with a history
+  (PARAMS.toml's ``[model_error]``), at the history's typical inlet moisture plus what the
+  history says the model misses at each window's operating point (:func:`normal_offsets`),
+  so that the day is judged against the plant's normal, and every extension on top of it.
 
 Channels are ``T_dryer_out`` and ``T_cyclone_out`` (window means against the model's
 window-end values, [K]) and ``moisture_out`` (lab results against the model at the sample
@@ -36,10 +39,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softsensor.calibration.chunked_run import lab_values_at, simulate_span, window_start_states
-from softsensor.calibration.dataset import LabPoints
+from softsensor.calibration.dataset import LabPoints, Segment
+from softsensor.calibration.model_error_fit import feature_columns
 from softsensor.diagnosis.calibration_error import DiscrepancyModel
 from softsensor.diagnosis.windows import MODEL_LAB_STD, DayWindows
 from softsensor.errors import SoftsensorError
+from softsensor.estimation.model_error import ModelError, model_error_of
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
@@ -166,11 +171,14 @@ class Problem:
     sigma: np.ndarray = field(init=False)
     baseline: Prediction = field(init=False)
     discrepancy: DiscrepancyModel = field(init=False)
+    normal: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
         self.theta = np.asarray(self.theta, float)
+        self.normal = normal_offsets(self.config, self.windows.segment)
         self.baseline = self.predict()
-        self.sigma = noise_levels(self.residuals(self.baseline), self.split, self.lab_noise)
+        self.sigma = noise_levels(self.residuals(self.baseline), self.split, self.lab_noise,
+                                  model_error_of(self.config))
         self.discrepancy = DiscrepancyModel.from_config(self.config, self.sigma)
 
     def reversed(self) -> Problem:
@@ -204,10 +212,10 @@ class Problem:
                                   labs=labs)
         inside = labs.window < K
         out = np.full(labs.window.size, np.nan)
-        out[inside] = lab[0]
+        out[inside] = lab[0] + self.normal[labs.window[inside], 2]
         if not (np.all(np.isfinite(Y)) and np.all(np.isfinite(lab))):
             raise SoftsensorError("the model failed on the day with this extension")
-        return Prediction(Y[0], out)
+        return Prediction(Y[0] + self.normal[:K], out)
 
     @functools.cached_property
     def start_states(self) -> np.ndarray:
@@ -215,8 +223,10 @@ class Problem:
         return window_start_states(self.model, self.windows.segment, self.theta)
 
     def baseline_labs(self, labs: LabPoints) -> np.ndarray:
-        """The baseline model's ``moisture_out`` at other lab points (moved sample times)."""
-        return lab_values_at(self.model, self.start_states, labs, self.theta)
+        """The baseline model's ``moisture_out`` at other lab points (moved sample times),
+        with the plant's normal at their windows."""
+        return (lab_values_at(self.model, self.start_states, labs, self.theta)
+                + self.normal[labs.window, 2])
 
     # ------------------------------------------------------------------ residuals and fit
     def residuals(self, pred: Prediction) -> Residuals:
@@ -284,8 +294,22 @@ class Problem:
         return float(r @ r)
 
 
-def noise_levels(res: Residuals, split: Split, lab_noise: float) -> np.ndarray:
-    """Noise level of each channel, from the fit part of the baseline residuals.
+def normal_offsets(config: PlantConfig, seg: Segment) -> np.ndarray:
+    """What the history says the calibrated model misses at every window's operating point
+    (K, 3) in ``OUTPUT_NAMES`` order (:mod:`softsensor.estimation.model_error`: the learned
+    discrepancy with the mean day offset); zeros without a ``[model_error]``. Every
+    prediction of the diagnosis carries it: a day is judged against the plant's normal."""
+    me = model_error_of(config)
+    if me is None:
+        return np.zeros((seg.n_windows, len(OUTPUT_NAMES)))
+    phi = me.phi_matrix(feature_columns(seg))
+    return np.column_stack([me.offset(c, phi) for c in OUTPUT_NAMES])
+
+
+def noise_levels(res: Residuals, split: Split, lab_noise: float,
+                 model_error: ModelError | None = None) -> np.ndarray:
+    """Noise level of each channel: with a history, the white residual it left on each
+    channel (the plant's normal); else from the fit part of the baseline residuals.
 
     Temperatures: the robust spread of first differences, ``1.4826 MAD(diff r) / sqrt(2)``,
     which sees the window-to-window noise and not slow structure (a model error that a trend,
@@ -293,6 +317,10 @@ def noise_levels(res: Residuals, split: Split, lab_noise: float) -> np.ndarray:
     noise is the configured lab standard deviation (``estimator.lab_std``) combined with the
     moisture's movement inside a window (:data:`~.windows.MODEL_LAB_STD`). [K, K, kg/kg]
     """
+    if model_error is not None:
+        return np.array([max(model_error.channel(c).noise, floor) for c, floor in
+                         zip(OUTPUT_NAMES, (MIN_TEMPERATURE_NOISE, MIN_TEMPERATURE_NOISE,
+                                            lab_noise), strict=True)])
     out = np.empty(len(OUTPUT_NAMES))
     for c in range(2):
         r = res.T[split.fit_windows, c]

@@ -8,8 +8,9 @@ prints. :class:`DayWindows` holds
 
 * the :class:`~softsensor.calibration.dataset.Segment`: per window the model inputs (held
   when missing, ``moisture_in`` at its nominal value as the calibrated open-loop model has
-  it), the measured window means of ``T_dryer_out`` and ``T_cyclone_out`` and the lab results
-  with their sample-time alignment (:mod:`softsensor.estimation.lab_alignment`);
+  it, or with a history's ``[model_error]`` at the history's typical inlet moisture), the
+  measured window means of ``T_dryer_out`` and ``T_cyclone_out`` and the lab results with
+  their sample-time alignment (:mod:`softsensor.estimation.lab_alignment`);
 * the :class:`~softsensor.messages.Window` objects themselves, which the inlet-moisture
   extension hands to the estimator exactly as the daemon does;
 * ``air_edges``: ``T_air_in`` at every window boundary, from the sub-window bins on either
@@ -34,7 +35,9 @@ from softsensor.calibration.dataset import (
     segment_from_windows,
     trim_stale,
 )
+from softsensor.calibration.model_error_fit import at_inlet_moisture
 from softsensor.errors import IngestError
+from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.window_inputs import MEASURED_INPUTS
 from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
@@ -143,6 +146,10 @@ def day_windows(day: DayLike, config: PlantConfig, source: str = "day") -> DayWi
         raise IngestError(f"{source}: {len(windows) * W / 3600:.1f} h of usable windows; "
                           f"diagnosis needs at least {MIN_WINDOWS * W / 3600:g} h")
     seg = segment_from_windows(windows, day.labs, config, source)
+    me = model_error_of(config)
+    if me is not None:
+        # the plant's normal is taken at the history's typical inlet moisture
+        seg = at_inlet_moisture(seg, me.moisture_in)
     held = {n: sum(1 for w in windows if w.means.get(n) is None) for n in MEASURED_INPUTS}
     return DayWindows(seg, tuple(windows), air_edges(seg), held)
 
