@@ -39,7 +39,8 @@ class Mutation:
 
 HA, WOOD, TR = "softsensor/model/humid_air.py", "softsensor/model/wood.py", \
     "softsensor/model/transfer.py"
-KER, EST = "softsensor/model/kernels.py", "softsensor/estimation/"
+CELL, MARCH = "softsensor/model/cell_physics.py", "softsensor/model/march.py"
+EST = "softsensor/estimation/"
 T_HA, T_WOOD, T_TR = ("tests/test_humid_air.py",), ("tests/test_wood.py",), \
     ("tests/test_transfer.py",)
 T_BAL = ("tests/test_balances.py",)
@@ -70,18 +71,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("radiation coefficient loses a factor", TR,
              "(T_w * T_w + T_amb * T_amb) * (T_w + T_amb)",
              "(T_w * T_w + T_amb * T_amb) * T_w", T_TR),
-    Mutation("cell energy balance: latent heat's sign", KER,
+    Mutation("cell energy balance: latent heat's sign", CELL,
              "F2 = (Efp - m_f * hf) + Q - R * ha.vapour_enthalpy(Tfm)",
              "F2 = (Efp - m_f * hf) + Q + R * ha.vapour_enthalpy(Tfm)", T_BAL),
-    Mutation("cell water balance: air takes 99 % of the water", KER,
+    Mutation("cell water balance: air takes 99 % of the water", CELL,
              "Y = Yp + m_f / m_a * (Xp - X)", "Y = Yp + 0.99 * m_f / m_a * (Xp - X)", T_BAL),
-    Mutation("tube evaporation rate loses its driving force's sign", KER,
+    Mutation("tube evaporation rate loses its driving force's sign", CELL,
              "R = theta[K_D] * alpha * K_c * rho * a_dx * drive  # eq. 2",
              "R = theta[K_D] * alpha * K_c * rho * a_dx * abs(drive)  # eq. 2", T_BAL),
-    Mutation("wall step: Crank-Nicolson made explicit on the right", KER,
+    Mutation("wall step: Crank-Nicolson made explicit on the right", MARCH,
              "rhs[i] = C / dt * Tw[i] - 0.5 * KT + b", "rhs[i] = C / dt * Tw[i] - KT + b",
              T_MOL),
-    Mutation("steady shell: outside conductance 10 % low", KER,
+    Mutation("steady shell: outside conductance 10 % low", MARCH,
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + Uo)",
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + 0.9 * Uo)", T_BAL),
     Mutation("error states' noise: 1 - a for 1 - a^2", EST + "discrepancy.py",
