@@ -1,4 +1,5 @@
-"""Mutation check of the physics and the estimator: does a wrong sign or factor fail a test?
+"""Mutation check of the physics, the estimator and the tests mended in issue 23: does a wrong
+sign, factor, digit or index fail a test?
 
 Each mutation is ``(name, file, original snippet, mutated snippet, pytest selection)``. The
 check copies the repository (without .git and the venv) to a temporary directory, replaces the
@@ -47,6 +48,13 @@ T_BAL = ("tests/test_balances.py",)
 T_MOL = ("tests/test_model_reference.py", "-k", "agrees")
 T_EST = ("tests/test_estimation_parts.py",)
 T_UKF = ("tests/test_ukf.py",)
+# the tests issue 23 made able to fail, each run alone on the mutation of what it guards
+DIAG, CAL = "softsensor/diagnosis/", "softsensor/calibration/"
+T_HA_REF = ("tests/test_humid_air.py", "-k", "psychrolib")
+T_LAB_SHIFT = ("tests/test_diagnosis.py", "-k", "lab_statistics_on_a_clean_day")
+T_REPORT = ("tests/test_plant_path.py", "-k", "calibrate_and_diagnose")
+T_README = ("tests/test_replay_verb.py", "-k", "readme")
+T_RECOVERY = ("tests/test_calibration_recovery.py", "-k", "recovery_24h")
 
 MUTATIONS: tuple[Mutation, ...] = (
     Mutation("humidity ratio drops the partial pressure", HA,
@@ -114,6 +122,26 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("UKF: the update trusts the measurements ten times more", EST + "ukf.py",
              "mean, cov = kf_update(mean, cov, meas.z, meas.R, H)",
              "mean, cov = kf_update(mean, cov, meas.z, 0.1 * meas.R, H)", T_UKF),
+    # issue 23: each mended test against a one-line mutation its old form let through
+    Mutation("saturation pressure: a coefficient's last digit dropped", HA,
+             "C11, C12, C13 = 4.1764768e-5, -1.4452093e-8, 6.5459673",
+             "C11, C12, C13 = 4.1764768e-5, -1.4452093e-8, 6.545967", T_HA_REF),
+    Mutation("humidity ratio: ASHRAE 2009's M_w / M_da", HA,
+             "EPS = 0.621945  # M_w / M_da", "EPS = 0.62198  # M_w / M_da", T_HA_REF),
+    Mutation("lab statistics: the best shift one grid step off its RMSE", DIAG + "residuals.py",
+             "float(LAB_SHIFTS_MIN[i]), float(rmse[i]))",
+             "float(LAB_SHIFTS_MIN[i + 1]), float(rmse[i]))", T_LAB_SHIFT),
+    Mutation("verdict: the ranking drops a cause", DIAG + "verdict.py",
+             "ranking += [(s.cause, 0.0, s) for s in rest]",
+             "ranking += [(s.cause, 0.0, s) for s in rest[1:]]", T_REPORT),
+    Mutation("UKF: measurements trusted ten times more (the README's demo figures)",
+             EST + "ukf.py", "mean, cov = kf_update(mean, cov, meas.z, meas.R, H)",
+             "mean, cov = kf_update(mean, cov, meas.z, 0.1 * meas.R, H)", T_README),
+    Mutation("identifiability: the standard-error bar ten times stricter",
+             CAL + "identifiability.py",
+             "elif sd[i] <= IDENTIFIABLE_SE and np.isfinite(rise) and rise >= PROFILE_RISE:",
+             "elif sd[i] <= 0.1 * IDENTIFIABLE_SE and np.isfinite(rise) and rise >= PROFILE_RISE:",
+             T_RECOVERY),
 )
 
 
