@@ -49,6 +49,30 @@ TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1
 MUST_IDENTIFY = ("mult_D",)
 
 
+def _check_identifiability(params, config, fit: dict):
+    """The parameters the data pin down are called identifiable, what is called identifiable
+    is within 15 % (the claim), the rest is said so; returns the verdicts and the calibrated
+    config."""
+    calibrated = load_parameters(params, config)
+    doc = read_toml(params)["parameters"]
+    verdicts = {n: doc[n]["verdict"] for n in PARAMETER_NAMES}
+    identifiable = [n for n in PARAMETER_NAMES if verdicts[n] == "identifiable"]
+    assert set(MUST_IDENTIFY) <= set(identifiable), verdicts
+    assert sorted(fit["identifiability"]["identifiable"]) == sorted(identifiable)
+    for name in PARAMETER_NAMES:
+        spec = calibrated.parameters[name]
+        assert config.parameters[name].low <= spec.value <= config.parameters[name].high
+    for name in identifiable:
+        spec = calibrated.parameters[name]
+        assert spec.value == pytest.approx(TRUTH[name], rel=0.15), (name, spec.value)
+    for name in ("mult_C", "hm_cyc", "mult_k"):
+        assert verdicts[name] != "identifiable"
+        assert name in fit["identifiability"]["poorly_identifiable"]
+    assert sorted(fit["identifiability"]["identifiable"]
+                  + fit["identifiability"]["poorly_identifiable"]) == sorted(PARAMETER_NAMES)
+    return verdicts, calibrated
+
+
 def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: bool,
              val_factor: float, cost_factor: float):
     config = load_plant_config()
@@ -82,25 +106,7 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
     assert fit["cost"] <= cost_factor * truth_ev.fit.cost, (fit["cost"], truth_ev.fit.cost)
     assert fit["cost"] < 0.6 * fit["cost_at_current"]  # the defaults are far off
 
-    # identifiability: the parameters the data pin down are called identifiable, what is
-    # called identifiable is within 15 % (the claim), the rest is said so
-    calibrated = load_parameters(params, config)
-    doc = read_toml(params)["parameters"]
-    verdicts = {n: doc[n]["verdict"] for n in PARAMETER_NAMES}
-    identifiable = [n for n in PARAMETER_NAMES if verdicts[n] == "identifiable"]
-    assert set(MUST_IDENTIFY) <= set(identifiable), verdicts
-    assert sorted(fit["identifiability"]["identifiable"]) == sorted(identifiable)
-    for name in PARAMETER_NAMES:
-        spec = calibrated.parameters[name]
-        assert config.parameters[name].low <= spec.value <= config.parameters[name].high
-    for name in identifiable:
-        spec = calibrated.parameters[name]
-        assert spec.value == pytest.approx(TRUTH[name], rel=0.15), (name, spec.value)
-    for name in ("mult_C", "hm_cyc", "mult_k"):
-        assert verdicts[name] != "identifiable"
-        assert name in fit["identifiability"]["poorly_identifiable"]
-    assert sorted(fit["identifiability"]["identifiable"]
-                  + fit["identifiability"]["poorly_identifiable"]) == sorted(PARAMETER_NAMES)
+    verdicts, calibrated = _check_identifiability(params, config, fit)
 
     # validation on an independent day
     assert cli_main(["validate", str(val), "--params", str(params), "--json", "-"]) == 0
