@@ -218,6 +218,9 @@ def wall_step(Tw, Tsh, Tao, UAo, u, theta, aux, geo, dt, work):
 
 @register_jitable
 def valid_inputs(u, theta):
+    """Whether inputs ``u`` and parameters ``theta`` are physical: all finite, parameters and
+    flows positive, moisture and humidity not negative, temperatures above 250 K (150 K
+    ambient). A member that is not gets ``BAD_INPUT``."""
     for v in u:
         if not np.isfinite(v):
             return False
@@ -285,6 +288,8 @@ def steady_one(state, u, theta, aux, geo, prof, jac, work):
 
 @register_jitable
 def write_outputs(prof, geo, y):
+    """The model's outputs ``y`` (3,) from a profile ``prof`` (6, n_d + n_c), in
+    ``OUTPUT_NAMES`` order."""
     n_d = int(geo[N_D])
     last = prof.shape[1] - 1
     y[0] = prof[3, n_d - 1]  # T_dryer_out: air leaving the tube
