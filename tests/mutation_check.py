@@ -1,4 +1,5 @@
-"""Mutation check of the physics and the estimator: does a wrong sign or factor fail a test?
+"""Mutation check of the physics, the estimator and the tests mended in issue 23: does a wrong
+sign, factor, digit or index fail a test?
 
 Each mutation is ``(name, file, original snippet, mutated snippet, pytest selection)``. The
 check copies the repository (without .git and the venv) to a temporary directory, replaces the
@@ -39,13 +40,21 @@ class Mutation:
 
 HA, WOOD, TR = "softsensor/model/humid_air.py", "softsensor/model/wood.py", \
     "softsensor/model/transfer.py"
-KER, EST = "softsensor/model/kernels.py", "softsensor/estimation/"
+CELL, MARCH = "softsensor/model/cell_physics.py", "softsensor/model/march.py"
+EST = "softsensor/estimation/"
 T_HA, T_WOOD, T_TR = ("tests/test_humid_air.py",), ("tests/test_wood.py",), \
     ("tests/test_transfer.py",)
 T_BAL = ("tests/test_balances.py",)
 T_MOL = ("tests/test_model_reference.py", "-k", "agrees")
 T_EST = ("tests/test_estimation_parts.py",)
 T_UKF = ("tests/test_ukf.py",)
+# the tests issue 23 made able to fail, each run alone on the mutation of what it guards
+DIAG, CAL = "softsensor/diagnosis/", "softsensor/calibration/"
+T_HA_REF = ("tests/test_humid_air.py", "-k", "psychrolib")
+T_LAB_SHIFT = ("tests/test_diagnosis.py", "-k", "lab_statistics_on_a_clean_day")
+T_REPORT = ("tests/test_plant_path.py", "-k", "calibrate_and_diagnose")
+T_README = ("tests/test_replay_verb.py", "-k", "readme")
+T_RECOVERY = ("tests/test_calibration_recovery.py", "-k", "recovery_24h")
 
 MUTATIONS: tuple[Mutation, ...] = (
     Mutation("humidity ratio drops the partial pressure", HA,
@@ -70,18 +79,18 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("radiation coefficient loses a factor", TR,
              "(T_w * T_w + T_amb * T_amb) * (T_w + T_amb)",
              "(T_w * T_w + T_amb * T_amb) * T_w", T_TR),
-    Mutation("cell energy balance: latent heat's sign", KER,
+    Mutation("cell energy balance: latent heat's sign", CELL,
              "F2 = (Efp - m_f * hf) + Q - R * ha.vapour_enthalpy(Tfm)",
              "F2 = (Efp - m_f * hf) + Q + R * ha.vapour_enthalpy(Tfm)", T_BAL),
-    Mutation("cell water balance: air takes 99 % of the water", KER,
+    Mutation("cell water balance: air takes 99 % of the water", CELL,
              "Y = Yp + m_f / m_a * (Xp - X)", "Y = Yp + 0.99 * m_f / m_a * (Xp - X)", T_BAL),
-    Mutation("tube evaporation rate loses its driving force's sign", KER,
+    Mutation("tube evaporation rate loses its driving force's sign", CELL,
              "R = theta[K_D] * alpha * K_c * rho * a_dx * drive  # eq. 2",
              "R = theta[K_D] * alpha * K_c * rho * a_dx * abs(drive)  # eq. 2", T_BAL),
-    Mutation("wall step: Crank-Nicolson made explicit on the right", KER,
+    Mutation("wall step: Crank-Nicolson made explicit on the right", MARCH,
              "rhs[i] = C / dt * Tw[i] - 0.5 * KT + b", "rhs[i] = C / dt * Tw[i] - KT + b",
              T_MOL),
-    Mutation("steady shell: outside conductance 10 % low", KER,
+    Mutation("steady shell: outside conductance 10 % low", MARCH,
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + Uo)",
              "Tsh[j] = (UA * Ta + Uo * T_amb) / (UA + 0.9 * Uo)", T_BAL),
     Mutation("error states' noise: 1 - a for 1 - a^2", EST + "discrepancy.py",
@@ -113,6 +122,26 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("UKF: the update trusts the measurements ten times more", EST + "ukf.py",
              "mean, cov = kf_update(mean, cov, meas.z, meas.R, H)",
              "mean, cov = kf_update(mean, cov, meas.z, 0.1 * meas.R, H)", T_UKF),
+    # issue 23: each mended test against a one-line mutation its old form let through
+    Mutation("saturation pressure: a coefficient's last digit dropped", HA,
+             "C11, C12, C13 = 4.1764768e-5, -1.4452093e-8, 6.5459673",
+             "C11, C12, C13 = 4.1764768e-5, -1.4452093e-8, 6.545967", T_HA_REF),
+    Mutation("humidity ratio: ASHRAE 2009's M_w / M_da", HA,
+             "EPS = 0.621945  # M_w / M_da", "EPS = 0.62198  # M_w / M_da", T_HA_REF),
+    Mutation("lab statistics: the best shift one grid step off its RMSE", DIAG + "residuals.py",
+             "float(LAB_SHIFTS_MIN[i]), float(rmse[i]))",
+             "float(LAB_SHIFTS_MIN[i + 1]), float(rmse[i]))", T_LAB_SHIFT),
+    Mutation("verdict: the ranking drops a cause", DIAG + "verdict.py",
+             "ranking += [(s.cause, 0.0, s) for s in rest]",
+             "ranking += [(s.cause, 0.0, s) for s in rest[1:]]", T_REPORT),
+    Mutation("UKF: a lab result's variance ten times its noise", EST + "ukf.py",
+             "var.append(s.lab_std**2 + s.moisture_out_jitter_std**2)",
+             "var.append(10.0 * s.lab_std**2 + s.moisture_out_jitter_std**2)", T_README),
+    Mutation("identifiability: the standard-error bar ten times stricter",
+             CAL + "identifiability.py",
+             "elif sd[i] <= IDENTIFIABLE_SE and np.isfinite(rise) and rise >= PROFILE_RISE:",
+             "elif sd[i] <= 0.1 * IDENTIFIABLE_SE and np.isfinite(rise) and rise >= PROFILE_RISE:",
+             T_RECOVERY),
 )
 
 

@@ -1,6 +1,6 @@
 """Steady-state conservation: water and energy close between the dryer inlet and outlet.
 
-At steady state, summing the cell balances of the tube and the cyclone (kernels module
+At steady state, summing the cell balances of the tube and the cyclone (cell_physics module
 docstring) must give: water in (fibre plus air) = water out, and enthalpy in = enthalpy out +
 heat through the walls; at a steady wall that heat equals what the walls lose to ambient.
 Enthalpies are recomputed here from the profiles with the property functions, independently
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softsensor.model import DryerModel, kernels
+from softsensor.model import DryerModel, cell_physics
 from softsensor.model import humid_air as ha
 from softsensor.model import wood as wd
 
@@ -38,9 +38,9 @@ def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
     p = model.profiles(state, u, theta)
     geo = model.geometry.packed
     x_fsp = model.config.fiber.saturation_point
-    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
-    Y_in, h_a_in = kernels.inlet_air(u, geo)
-    X_in, T_f_in = u[kernels.U_XIN], u[kernels.U_TFIB]
+    m_a, m_f = u[cell_physics.U_MAIR], u[cell_physics.U_MFIB]
+    Y_in, h_a_in = cell_physics.inlet_air(u, geo)
+    X_in, T_f_in = u[cell_physics.U_XIN], u[cell_physics.U_TFIB]
     last = -1
     water_in = m_f * X_in + m_a * Y_in
     water_out = m_f * p["X_f"][last] + m_a * p["Y_a"][last]
@@ -51,8 +51,8 @@ def _budget(model: DryerModel, u: np.ndarray, theta: np.ndarray, aux=None):
     aux = np.zeros(1) if aux is None else np.asarray(aux, float)
     n_d = model.geometry.n_d
     to_ambient = sum(
-        kernels.outside_conductance(p["T_w"][i], u, theta, aux, geo, 0 if i < n_d else 1)
-        * (p["T_w"][i] - u[kernels.U_TAMB]) for i in range(model.n_state))
+        cell_physics.outside_conductance(p["T_w"][i], u, theta, aux, geo, 0 if i < n_d else 1)
+        * (p["T_w"][i] - u[cell_physics.U_TAMB]) for i in range(model.n_state))
     return dict(water_in=water_in, water_out=water_out, energy_in=energy_in,
                 energy_out=energy_out, wall_in=wall_in, to_ambient=to_ambient,
                 evaporated=m_f * (X_in - p["X_f"][last]), profiles=p)
@@ -63,7 +63,7 @@ def test_water_closes(model, point):
     b = _budget(model, model.nominal_inputs(**POINTS[point]), model.theta0)
     assert b["water_out"] == pytest.approx(b["water_in"], rel=CLOSURE, abs=0)
     # the check has teeth: the fibre really dried, the air really took the water
-    assert b["evaporated"] > 0.3 * model.nominal_inputs(**POINTS[point])[kernels.U_MFIB]
+    assert b["evaporated"] > 0.3 * model.nominal_inputs(**POINTS[point])[cell_physics.U_MFIB]
 
 
 @pytest.mark.parametrize("point", sorted(POINTS))
@@ -98,7 +98,7 @@ def test_each_cell_conserves_water_and_energy(model):
     b = _budget(model, u, model.theta0)
     p = b["profiles"]
     x_fsp = model.config.fiber.saturation_point
-    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
+    m_a, m_f = u[cell_physics.U_MAIR], u[cell_physics.U_MFIB]
     water = m_f * p["X_f"] + m_a * p["Y_a"]
     np.testing.assert_allclose(water, b["water_in"], rtol=1e-9)
     flow = m_f * wd.enthalpy(p["X_f"], p["T_f"], x_fsp) + m_a * ha.enthalpy(p["T_a"], p["Y_a"])
@@ -124,9 +124,9 @@ def test_humid_air_condenses_on_cold_wet_fibre(model):
     saturation at the fibre surface gives water to fibre that is far above equilibrium (a
     rate taken by magnitude would dry it)."""
     geo, theta = model.geometry.packed, model.theta0
-    P = geo[kernels.P]
+    P = geo[cell_physics.P]
     Tf, Ta = 300.0, 420.0
     wet = ha.y_sat(Tf, P)
-    R_cond, *_ = kernels.cell_rates(0, 1.0, Tf, 1.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
-    R_evap, *_ = kernels.cell_rates(0, 1.0, Tf, 0.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    R_cond, *_ = cell_physics.cell_rates(0, 1.0, Tf, 1.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
+    R_evap, *_ = cell_physics.cell_rates(0, 1.0, Tf, 0.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
     assert R_cond < 0.0 < R_evap

@@ -6,8 +6,10 @@ cost and no prior (the cost that weighs each channel by its noise; eq. 4 is domi
 lab channel, whose noise the inlet trajectory fitted to the labs absorbs, and leaves the
 temperatures free). What must hold: the data term of the calibration's cost at its result
 is at most 1.25 times the same term at the true values, scored by the same function on the
-same windows (the held-out tail cut off, the inlet trajectory fitted to the labs); every
-parameter the analysis calls identifiable is within 15 % of the truth; the cyclone pair
+same windows (the held-out tail cut off, the inlet trajectory fitted to the labs); the
+analysis calls mult_D identifiable (measured on the 24 h day: mult_D alone, 1.4 % from the
+truth; the others weakly or not identifiable), and every parameter it calls identifiable is
+within 15 % of the truth (the README's "identifiable to 15 %"); the cyclone pair
 (mult_C, hm_cyc, which act only through their product) and mult_k are reported as poorly
 identifiable; on the other day, with the inlet moisture fitted to the temperatures only, the
 eq. 4 cost is at most 3 times (24 h, 40 trials: the poorly identified cyclone pair may sit at
@@ -42,6 +44,33 @@ from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_
 
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
          "hm_cyc": 3e-4, "hc_cyc": 50.0}
+#: What the analysis must call identifiable on these days (module docstring): the tube's
+#: evaporation multiplier, which every channel sees.
+MUST_IDENTIFY = ("mult_D",)
+
+
+def _check_identifiability(params, config, fit: dict):
+    """The parameters the data pin down are called identifiable, what is called identifiable
+    is within 15 % (the claim), the rest is said so; returns the verdicts and the calibrated
+    config."""
+    calibrated = load_parameters(params, config)
+    doc = read_toml(params)["parameters"]
+    verdicts = {n: doc[n]["verdict"] for n in PARAMETER_NAMES}
+    identifiable = [n for n in PARAMETER_NAMES if verdicts[n] == "identifiable"]
+    assert set(MUST_IDENTIFY) <= set(identifiable), verdicts
+    assert sorted(fit["identifiability"]["identifiable"]) == sorted(identifiable)
+    for name in PARAMETER_NAMES:
+        spec = calibrated.parameters[name]
+        assert config.parameters[name].low <= spec.value <= config.parameters[name].high
+    for name in identifiable:
+        spec = calibrated.parameters[name]
+        assert spec.value == pytest.approx(TRUTH[name], rel=0.15), (name, spec.value)
+    for name in ("mult_C", "hm_cyc", "mult_k"):
+        assert verdicts[name] != "identifiable"
+        assert name in fit["identifiability"]["poorly_identifiable"]
+    assert sorted(fit["identifiability"]["identifiable"]
+                  + fit["identifiability"]["poorly_identifiable"]) == sorted(PARAMETER_NAMES)
+    return verdicts, calibrated
 
 
 def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: bool,
@@ -77,20 +106,7 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
     assert fit["cost"] <= cost_factor * truth_ev.fit.cost, (fit["cost"], truth_ev.fit.cost)
     assert fit["cost"] < 0.6 * fit["cost_at_current"]  # the defaults are far off
 
-    # identifiability: what is called identifiable is within 15 %, the rest is said so
-    calibrated = load_parameters(params, config)
-    doc = read_toml(params)["parameters"]
-    verdicts = {n: doc[n]["verdict"] for n in PARAMETER_NAMES}
-    for name in PARAMETER_NAMES:
-        spec = calibrated.parameters[name]
-        assert config.parameters[name].low <= spec.value <= config.parameters[name].high
-        if verdicts[name] == "identifiable":
-            assert spec.value == pytest.approx(TRUTH[name], rel=0.15), (name, spec.value)
-    for name in ("mult_C", "hm_cyc", "mult_k"):
-        assert verdicts[name] != "identifiable"
-        assert name in fit["identifiability"]["poorly_identifiable"]
-    assert sorted(fit["identifiability"]["identifiable"]
-                  + fit["identifiability"]["poorly_identifiable"]) == sorted(PARAMETER_NAMES)
+    verdicts, calibrated = _check_identifiability(params, config, fit)
 
     # validation on an independent day
     assert cli_main(["validate", str(val), "--params", str(params), "--json", "-"]) == 0

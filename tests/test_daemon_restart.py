@@ -128,7 +128,7 @@ log_format = "json"
             killed = _wait_ticks(ckpt, 3, first)
         finally:
             first.send_signal(signal.SIGKILL)
-            first.wait(DEADLINE)
+            first.communicate(timeout=DEADLINE)  # reaped, its pipes closed
         assert first.returncode == -signal.SIGKILL
         killed = _checkpoint(ckpt)  # the last one written before the kill
         n_killed = killed["service"]["stats"]["ticks"]

@@ -90,7 +90,7 @@ def test_poller_reads_a_libmodbus_server(c_server_binary):
         if proc.poll() is None:
             proc.kill()
             proc.wait(timeout=5)
-    stderr = proc.stderr.read()
+    _, stderr = proc.communicate()  # the rest of its output, and its pipes closed
     for scan in (first, second):
         assert scan.quality == {}
         for _u, _t, _a, _w, sig, si in C_SERVER_WORDS:

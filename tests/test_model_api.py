@@ -243,12 +243,12 @@ def test_cell_on_the_boiling_kink_solves_by_bracketing(model):
     # regression: the virtual plant (advance_one, warm start) stopped when a cell's outlet
     # state sat where y_sat(T_f) climbs steeply below boiling and the cell Newton failed from
     # every start (fixture: shifted parameters, seed 31340); the nested bisection of
-    # kernels._bisect_cell is the last resort that finds such a cell
+    # cell_solver.bisect_cell is the last resort that finds such a cell
     import json
     from pathlib import Path
 
+    from softsensor.model import cell_physics, cell_solver, kernels
     from softsensor.model import humid_air as ha
-    from softsensor.model import kernels
     from softsensor.model import wood as wd
     from softsensor.model.geometry import X_FSP
 
@@ -272,14 +272,14 @@ def test_cell_on_the_boiling_kink_solves_by_bracketing(model):
     # here) and it is the root the solver's profile holds
     i = 2
     Xp, Tfp, Yp, Tap = prof[0][i - 1], prof[1][i - 1], prof[2][i - 1], prof[3][i - 1]
-    m_a, m_f = u[kernels.U_MAIR], u[kernels.U_MFIB]
+    m_a, m_f = u[cell_physics.U_MAIR], u[cell_physics.U_MFIB]
     Efp = m_f * wd.enthalpy(Xp, Tfp, geo[X_FSP])
     Etot = m_a * ha.enthalpy(Tap, Yp) + Efp
-    v_s, UAw = kernels.inflow_coefficients(0, Tap, Yp, Xp, m_a, theta, geo)
-    args = (Xp, Tfp, Yp, Tap, Efp, Etot, wall[i], UAw, v_s, m_a, m_f, theta, geo)
-    ok, X, Tf = kernels._bisect_cell(0, *args)
+    v_s, UAw = cell_physics.inflow_coefficients(0, Tap, Yp, Xp, m_a, theta, geo)
+    ctx = cell_physics.upstream_context(Xp, Tfp, Yp, Tap, Efp, Etot, wall[i], UAw, v_s, m_a, m_f)
+    ok, X, Tf = cell_solver.bisect_cell(0, ctx, theta, geo)
     assert ok
-    F1, F2, *_ = kernels._cell_residual(0, X, Tf, *args)
+    F1, F2, *_ = cell_physics.cell_residual(0, X, Tf, ctx, theta, geo)
     assert abs(F1) < 1e-9 * m_f and abs(F2) < 1e-6 * m_f * 2000.0
     assert X == pytest.approx(prof[0][i], abs=1e-7) and Tf == pytest.approx(prof[1][i], abs=1e-5)
     assert abs(X - Xp) > 0.01  # it moved off the state entering the cell

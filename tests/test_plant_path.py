@@ -25,6 +25,10 @@ from softsensor.signals import TOPIC_ESTIMATE
 
 REPLAY = Path(__file__).resolve().parents[1] / "replay"
 S = 10**9
+#: The causes of docs/interface.md section 5: each extension's, and the two verdicts of the
+#: model alone (``none``, or ``unexplained`` when its residuals are structured).
+CONTRACT_CAUSES = {"none", "inlet_moisture", "sensor_bias", "lab_delay", "fouling_drift",
+                   "input_lag", "ambient_heat_loss", "unexplained"}
 
 
 def _estimates(path: Path) -> dict[int, dict]:
@@ -73,7 +77,23 @@ def test_calibrate_and_diagnose_run_on_the_one_minute_day(imported, tmp_path, ca
     rc = cli_main(["diagnose", str(imported), "--params", str(params), "--json", str(report)])
     assert rc == 0
     doc = json.loads(report.read_text())
-    assert doc["cause"] in {r["cause"] for r in doc["ranking"]}
+    # the report of CONTRACT section 5: the named cause heads a ranking of every cause, once
+    # each (the model alone as "none" or "unexplained", not both), scores summing to one
+    ranking = [r["cause"] for r in doc["ranking"]]
+    assert doc["cause"] == ranking[0], ranking
+    assert len(ranking) == len(set(ranking)) == len(CONTRACT_CAUSES) - 1, ranking
+    assert set(ranking) | {"none", "unexplained"} == CONTRACT_CAUSES, ranking
+    scores = [r["score"] for r in doc["ranking"]]
+    assert sum(scores) == pytest.approx(1.0, abs=1e-12)  # round-off of a softmax
+    assert scores == sorted(scores, reverse=True), scores
+    assert doc["gain"] == pytest.approx(1.0 - doc["extended_cost"] / doc["baseline_cost"],
+                                        abs=1e-12)
+    assert (doc["channel"] is not None) == (doc["cause"] == "sensor_bias")
+    # scored on 600 s windows of the 1-minute scans (12 h of them: 71 measured, where one
+    # per scan would be 720) and on the four LIMS results the import wrote
+    held = doc["held_out"]["samples"]
+    assert 70 <= held["T_dryer_out"] == held["T_cyclone_out"] <= 72, held
+    assert held["moisture_out"] == 4, held
     err = capsys.readouterr().err
     # a phase line as each of the minutes-long phases starts, then the verdict
     assert "diagnose: baseline" in err and "diagnose: extension 6 of 6" in err, err

@@ -176,7 +176,7 @@ def _start_recorder(tmp_path: Path, port: int, flush_interval: float) -> subproc
         assert _read_line(proc, DEADLINE).strip() == "recording"
     except BaseException:
         proc.kill()
-        proc.wait(DEADLINE)
+        proc.communicate(timeout=DEADLINE)  # reaped, its pipes closed
         raise
     return proc
 
@@ -201,7 +201,7 @@ def test_sigkill_loses_at_most_the_open_chunk(tmp_path: Path, flush_interval: fl
         time.sleep(1.5)  # > flush interval + ticker period
     finally:
         proc.send_signal(signal.SIGKILL)
-        proc.wait(DEADLINE)
+        proc.communicate(timeout=DEADLINE)  # reaped, its pipes closed
     assert proc.returncode == -signal.SIGKILL
     (path,) = tmp_path.glob("dryer1-*.mcap")
     with pytest.raises(IngestError, match="truncated"):

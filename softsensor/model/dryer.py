@@ -34,6 +34,7 @@ import numpy as np
 from softsensor.errors import SolverError
 from softsensor.model import kernels
 from softsensor.model.geometry import N_AUX, Geometry, geometry
+from softsensor.model.march import BAD_INPUT, NEWTON_FAILED, OK, STEADY_FAILED
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import INPUT_NAMES
 
@@ -41,10 +42,10 @@ from softsensor.signals import INPUT_NAMES
 _N_U, _N_THETA = len(INPUT_NAMES), len(PARAMETER_NAMES)
 
 _STATUS_TEXT = {
-    kernels.NEWTON_FAILED: "the cell balances did not converge",
-    kernels.BAD_INPUT: "inputs or parameters are not physical (non-finite, non-positive flow "
+    NEWTON_FAILED: "the cell balances did not converge",
+    BAD_INPUT: "inputs or parameters are not physical (non-finite, non-positive flow "
                        "or parameter)",
-    kernels.STEADY_FAILED: "the steady wall temperatures did not converge",
+    STEADY_FAILED: "the steady wall temperatures did not converge",
 }
 
 
@@ -163,7 +164,7 @@ class DryerModel:
     @staticmethod
     def _check(status: np.ndarray, u: np.ndarray, first: int = 0) -> None:
         """Raise for the first failed member; ``status[0]`` is batch member ``first``."""
-        bad = np.flatnonzero(status != kernels.OK)
+        bad = np.flatnonzero(status != OK)
         if bad.size:
             b = int(bad[0])
             detail = ", ".join(f"{n}={v:.6g}" for n, v in zip(INPUT_NAMES, u[b], strict=True))
@@ -260,7 +261,7 @@ class DryerModel:
                      np.ascontiguousarray(Ab[:, 0]), states, y0, status)
         if raise_on_failure:
             self._check(status, Ub[:, 0])
-        states[status != kernels.OK] = 350.0
+        states[status != OK] = 350.0
         return states, status
 
     def simulate(self, U: np.ndarray, theta: np.ndarray | None = None,
@@ -297,7 +298,7 @@ class DryerModel:
         batch, Ub, Tb, Ab = self._batched(U, theta, aux, state0)
         states, status = self._start_states(Ub, Tb, Ab, state0, batch, raise_on_failure)
         B, K = Ub.shape[:2]
-        failed0 = status != kernels.OK
+        failed0 = status != OK
         dt = self.window if dt is None else float(dt)
         Y = np.empty((B, K, 3))
         status2 = np.empty(B, dtype=np.int64)
@@ -306,8 +307,8 @@ class DryerModel:
                                                      n_sub, Y[m], status2[m]), B, self.threads)
         Y[failed0] = np.nan
         status2[failed0] = status[failed0]
-        if raise_on_failure and np.any(status2 != kernels.OK):
-            b = int(np.flatnonzero(status2 != kernels.OK)[0])
+        if raise_on_failure and np.any(status2 != OK):
+            b = int(np.flatnonzero(status2 != OK)[0])
             k = int(np.argmax(np.isnan(Y[b, :, 0])))
             self._check(status2[b:b + 1], Ub[b, k][None], first=b)
         return Y.reshape(batch + (K, 3)), states.reshape(batch + (self.n_state,))
@@ -367,7 +368,7 @@ class ControlStepper:
         Raises :class:`~softsensor.errors.SolverError` with the solver's reason."""
         st = kernels.advance_one(state, u, theta, aux, self._geo, self.dt, self._prof,
                                  self._work, self._y)
-        if st != kernels.OK:
+        if st != OK:
             DryerModel._check(np.array([st]), np.asarray(u, float)[None])
         return self._y.copy()
 

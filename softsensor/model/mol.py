@@ -14,12 +14,12 @@ the inputs are piecewise constant. By default the Jacobian is a dense finite-dif
 The right-hand side, :func:`derivatives`, is compiled by numba like the fast model's kernels
 (``compiled=False`` runs the same source in the Python interpreter), so that the comparison
 of the two (``benchmarks/model.py``) measures the reformulation, not the compiler. Its cell
-rates are the compiled model's own (:func:`kernels.cell_rates`,
-:func:`kernels.inflow_coefficients`, :func:`kernels.outside_conductance`,
-:func:`kernels.inlet_air`), so at steady state both reach the same algebraic equations (the
-:mod:`~softsensor.model.kernels` module docstring lists them); what differs is only the time
-integration: here every state is dynamic, there the fibre and air sit at their quasi-steady
-profile and the wall is stepped by Crank-Nicolson.
+rates are the compiled model's own (:func:`cell_physics.cell_rates`,
+:func:`cell_physics.inflow_coefficients`, :func:`cell_physics.outside_conductance`,
+:func:`cell_physics.inlet_air`), so at steady state both reach the same algebraic equations
+(the :mod:`~softsensor.model.cell_physics` module docstring lists them); what differs is only
+the time integration: here every state is dynamic, there the fibre and air sit at their
+quasi-steady profile and the wall is stepped by Crank-Nicolson.
 
 Balances of cell ``i`` (inflow from cell ``i-1``, or from the inlet for ``i = 0``), energy in
 enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
@@ -32,14 +32,14 @@ enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
                                + G (T_w,i-1 - 2 T_w,i + T_w,i+1)``  (tube, adiabatic ends)
   shell         ``C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)``  (cyclone)
 
-Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`kernels.space_weight` (a
+Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`cell_physics.space_weight` (a
 theta scheme along the tube, ``w = 0.6``; ``w = 1`` in the stirred cyclone cells), including the air
 temperature in ``UA_w (T_a - T_w)`` and the fibre temperature in ``h_v``.
 
 with ``dh_f = c_f dT_f + (dh_f/dX) dX`` (``c_f`` from :func:`wood.heat_capacity`, which is
 ``dh_f/dT``) and ``dh_a = c_a dT_a + h_v(T_a) dY`` (ASHRAE eq. 32), which turn the energy
 balances into ``dT_f/dt`` and ``dT_a/dt``. ``R``, ``Q_af`` and the hold-ups ``M_f``, ``M_a``
-come from :func:`kernels.cell_rates`; ``G = mult_k k_w A_cross / dx``.
+come from :func:`cell_physics.cell_rates`; ``G = mult_k k_w A_cross / dx``.
 
 The outside conductance ``UA_out`` is evaluated at the current wall temperature here; the fast
 model evaluates it at the start of each wall substep (one of the small differences the
@@ -58,8 +58,8 @@ from scipy.integrate import solve_ivp
 from scipy.sparse import lil_matrix
 
 from softsensor.errors import SolverError
+from softsensor.model import cell_physics as cell
 from softsensor.model import humid_air as ha
-from softsensor.model import kernels
 from softsensor.model import wood as wd
 from softsensor.model.dryer import DryerModel
 from softsensor.model.geometry import C_SH_CELL, C_W_CELL, G_COND, N_AUX, X_FSP
@@ -138,26 +138,26 @@ def derivatives(y, u, theta, aux, geo, n_d, dy):
     Python interpreter, which :class:`MethodOfLines` uses with ``compiled=False``.
     """
     n = y.shape[0] // 5
-    m_a = u[kernels.U_MAIR]
-    m_f = u[kernels.U_MFIB]
-    T_amb = u[kernels.U_TAMB]
+    m_a = u[cell.U_MAIR]
+    m_f = u[cell.U_MFIB]
+    T_amb = u[cell.U_TAMB]
     x_fsp = geo[X_FSP]
-    G = theta[kernels.K_K] * geo[G_COND]
+    G = theta[cell.K_K] * geo[G_COND]
     # inflow of cell 0: the inlet streams
-    Y_in, h_a_in = kernels.inlet_air(u, geo)
-    X_in = u[kernels.U_XIN]
-    Ta_in = u[kernels.U_TAIR]
-    Tf_in = u[kernels.U_TFIB]
+    Y_in, h_a_in = cell.inlet_air(u, geo)
+    X_in = u[cell.U_XIN]
+    Ta_in = u[cell.U_TAIR]
+    Tf_in = u[cell.U_TFIB]
     h_f_in = wd.enthalpy(X_in, Tf_in, x_fsp)
     for i in range(n):
         # field-major: X, T_f, Y, T_a, T_w of cell i (StateLayout)
         X, Tf, Y, Ta, Tw = y[i], y[n + i], y[2 * n + i], y[3 * n + i], y[4 * n + i]
         kind = 0 if i < n_d else 1
-        w = kernels.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
-        v_s, UAw = kernels.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, theta, geo)
+        w = cell.space_weight(kind)  # theta scheme in the tube, stirred tank in cyclone
+        v_s, UAw = cell.inflow_coefficients(kind, Ta_in, Y_in, X_in, m_a, theta, geo)
         Tf_m = w * Tf + (1.0 - w) * Tf_in
         Ta_m = w * Ta + (1.0 - w) * Ta_in
-        R, Q, M_f, M_a = kernels.cell_rates(kind, w * X + (1.0 - w) * X_in, Tf_m,
+        R, Q, M_f, M_a = cell.cell_rates(kind, w * X + (1.0 - w) * X_in, Tf_m,
                                             w * Y + (1.0 - w) * Y_in, Ta_m, v_s, m_a, m_f,
                                             theta, geo)
         h_f = wd.enthalpy(X, Tf, x_fsp)
@@ -172,7 +172,7 @@ def derivatives(y, u, theta, aux, geo, n_d, dy):
         dy[n + i] = (dhf - _dh_f_dX(X, Tf, x_fsp) * dX) / wd.heat_capacity(X, Tf, x_fsp)
         dy[2 * n + i] = dY
         dy[3 * n + i] = (dha - ha.vapour_enthalpy(Ta) * dY) / ha.heat_capacity(Ta, Y)
-        U_out = kernels.outside_conductance(Tw, u, theta, aux, geo, kind)
+        U_out = cell.outside_conductance(Tw, u, theta, aux, geo, kind)
         wall = Q_w - U_out * (Tw - T_amb)
         if kind == 0:
             if i > 0:
