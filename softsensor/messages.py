@@ -84,6 +84,9 @@ class Window:
         Per measured model input, the mean of its good values in each consecutive bin of
         ``bin_s`` seconds of the window (``None`` for a bin without one): what a lab sample
         taken inside the window saw (:mod:`softsensor.estimation.lab_alignment`).
+    refused : dict[str, int]
+        Values per signal refused as implausible before they were averaged
+        (:mod:`softsensor.estimation.plausibility`); the reason is in ``reasons``.
     """
 
     start_ns: int
@@ -95,6 +98,7 @@ class Window:
     reasons: dict[str, str] = field(default_factory=dict)
     bin_s: float = 0.0
     bins: dict[str, list[float | None]] = field(default_factory=dict)
+    refused: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

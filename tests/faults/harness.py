@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,18 +37,23 @@ def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings
 
 
 @contextlib.asynccontextmanager
-async def running_daemon(tmp_path: Path, *, ticks: int = 1, **changes
-                         ) -> AsyncIterator[Running]:
+async def running_daemon(tmp_path: Path, *, ticks: int = 1,
+                         plc_values: Callable[[dict], dict] | None = None,
+                         resume: bool | str = True, **changes) -> AsyncIterator[Running]:
     """A daemon on a looping simulated day, yielded once it has ticked ``ticks`` times;
-    stopped (and awaited, at most 30 s) on exit."""
+    stopped (and awaited, at most 30 s) on exit. ``plc_values`` may change what the PLC
+    serves at each of its scans (a broken sensor)."""
     cfg = load_plant_config()
     day = simulate_day(cfg, 3.0, 12)
     settings = daemon_settings(tmp_path, int(day.scans.index[0]), **changes)
     feed = PlantFeed(day, loop=True)
     tm = load_tagmap()
-    plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
+    values = feed.next_values if plc_values is None else (
+        lambda: plc_values(feed.next_values()))
+    plc = PlcServer(tm, values, port=0, period_s=10.0 / SCALE)
     await plc.start()
-    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port),
+                    resume=resume)
     stop, up = asyncio.Event(), []
     task = asyncio.create_task(daemon.run(stop, ready=up.append))
     loop = asyncio.get_running_loop()
