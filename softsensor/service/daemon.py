@@ -13,7 +13,10 @@ default, optionally connected to a router)::
 
 The estimator state is checkpointed after every tick (atomic replace, see
 :mod:`.checkpoint`); a restart resumes from it, and the windows missed while the daemon was down
-are ticked as stale gaps. Logs are one line per event (:mod:`.logs`).
+are ticked as stale gaps. A checkpoint whose times lie further ahead of the daemon's clock than
+``max_future_s`` (written by a clock that was ahead) is refused like any other future time:
+resumed, it would drop every real scan as late until the clock caught up. Logs are one line
+per event (:mod:`.logs`).
 
 Time: the daemon's clock is a :class:`ScaledClock`. At ``time_scale = 1`` it is the wall
 clock. At ``N > 1`` it runs N times faster from ``clock_start`` (default now; after a restart
@@ -216,6 +219,7 @@ class Daemon:
         self.opcua: Any = None  #: the OPC UA server when [outputs.opcua] is enabled
         self.watchdog: Watchdog | None = None
         self.health: HealthQueryable | None = None
+        self.resumed = False  #: the service continues from the checkpoint
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -271,7 +275,7 @@ class Daemon:
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
-        doc = self._load_checkpoint()
+        doc = self._not_from_the_future(self._load_checkpoint())
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
         service = self._service(doc, scan_period_s)
         # compile the estimator's kernels now, not in the first live tick (which would hold
@@ -280,7 +284,7 @@ class Daemon:
             warm_up, lambda: make_service(self.config, s, self.kind, scan_period_s), self.config)
         event(log, "warmed_up", seconds=round(warm.seconds, 2),
               ticks=None if warm.stats is None else warm.stats.ticks, error=warm.error)
-        self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
+        self.clock = clock = self._clock(doc["saved_at_ns"] if self.resumed else None)
         gate = TimeGate(clock.now_ns, s.max_future_s, s.max_past_s)
         service.time_gate = gate
         async with contextlib.AsyncExitStack() as stack:
@@ -306,7 +310,7 @@ class Daemon:
             endpoints = listening_endpoints(session) if s.zenoh_adminspace else listen
             self.info = DaemonInfo(self.unit, service.kind, endpoints,
                                    f"{m.host}:{m.port}", s.data_dir if s.record else None,
-                                   doc is not None, clock.start_ns, served)
+                                   self.resumed, clock.start_ns, served)
             event(log, "started", unit=self.unit, estimator=service.kind,
                   zenoh=",".join(self.info.endpoints) or "none", plc=self.info.plc,
                   data_dir=self.info.data_dir, time_scale=s.time_scale,
@@ -326,6 +330,24 @@ class Daemon:
             return self.store.load()
         except ConfigError as exc:
             return self._reject_checkpoint(str(exc))
+
+    def _not_from_the_future(self, doc: dict | None) -> dict | None:
+        """``doc``, or None when its times are further ahead of the clock this daemon will
+        run on than ``max_future_s`` (then rejected, :meth:`_reject_checkpoint`)."""
+        if doc is None:
+            return None
+        state = doc.get("service", {})
+        times = [doc["saved_at_ns"]] + [state.get(k) for k in ("now_ns", "ticked_end_ns",
+                                                               "closed_end_ns")]
+        latest = max(t for t in times if isinstance(t, int) and not isinstance(t, bool))
+        now = self._clock(doc["saved_at_ns"]).now_ns()
+        ahead_s = (latest - now) / 1e9
+        if ahead_s <= self.settings.max_future_s:
+            return doc
+        self._reject_checkpoint(f"{self.store.path}: checkpoint from the future: its time is "
+                                f"{ahead_s:.0f} s ahead of the daemon's clock (at most "
+                                f"{self.settings.max_future_s:g} s)")
+        return None
 
     def _reject_checkpoint(self, reason: str) -> None:
         """A checkpoint that cannot be used: with ``resume="required"`` a one-line error
@@ -355,6 +377,7 @@ class Daemon:
         except EstimationError as exc:
             self._reject_checkpoint(f"{self.store.path}: {exc}")
             return make_service(self.config, self.settings, self.kind, scan_period_s)
+        self.resumed = True
         event(log, "resumed", checkpoint=str(self.store.path),
               ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
         return service
