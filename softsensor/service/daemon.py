@@ -220,6 +220,7 @@ class Daemon:
         self.watchdog: Watchdog | None = None
         self.health: HealthQueryable | None = None
         self.resumed = False  #: the service continues from the checkpoint
+        self._recording_said: str | None = None  #: recorder state health last said
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -387,7 +388,9 @@ class Daemon:
         """Record every key of the unit into the daily files, closed with ``stack``."""
         s = self.settings
         self.recorder = Recorder(s.data_dir, self.unit, chunk_size=s.chunk_size,
-                                 flush_interval_s=s.flush_interval_s)
+                                 flush_interval_s=s.flush_interval_s,
+                                 reserve_bytes=s.record_reserve_bytes)
+        self._recording_said = "ok"
         stack.callback(self.recorder.close)
         bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS, gate=gate)
         stack.callback(bus_rec.close)
@@ -491,17 +494,49 @@ class Daemon:
                          "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
         pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
                                    checkpoint_every=s.checkpoint_every,
-                                   on_output=self._on_output, limits=limits)
+                                   on_output=self._on_output, limits=limits,
+                                   decorate=self._decorate)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,
                                  lambda: pipeline.pending)
         return pipeline
 
+    def _recording(self) -> str | None:
+        """The recorder's state for health: ``ok``, why it is paused, or None (not recording)."""
+        r = self.recorder
+        return None if r is None else (r.failure or "ok")
+
+    def _decorate(self, out: Output) -> None:
+        """Health says when recording is paused (estimates go on without it)."""
+        if out.kind != "health":
+            return
+        state = self._recording()
+        out.body["recording"] = state
+        if state not in (None, "ok") and "recording:" not in str(out.body.get("detail")):
+            out.body["detail"] = f"{out.body.get('detail')}; recording: {state}"
+
+    def _recording_changed(self) -> None:
+        """Publish health at once when recording pauses or resumes (not only at the next
+        tick): the one health line an operator sees for a full disk."""
+        state = self._recording()
+        if state == self._recording_said or self.health is None or self.pipeline is None \
+                or self.clock is None:
+            return
+        self._recording_said = state
+        body = dict(self.health.latest)
+        body["detail"] = str(body.get("detail", "")).split("; recording:")[0]
+        out = Output("health", body, self.clock.now_ns())
+        self._decorate(out)
+        event(log, "recording", logging.ERROR if state != "ok" else logging.INFO,
+              state=state, lost=None if self.recorder is None else self.recorder.n_lost)
+        self.pipeline.publisher.put(out.kind, out.body, out.time_ns)
+        self._on_output(out)
+
     def _health_extra(self) -> dict[str, Any]:
         """What a health query adds to the last health body: the watchdog and the inputs."""
         p, w = self.pipeline, self.watchdog
-        return {"stalled": bool(w is not None and w.stalled),
+        return {"stalled": bool(w is not None and w.stalled), "recording": self._recording(),
                 "last_tick_age_s": None if p is None
                 else round(time.monotonic() - p.last_tick_at, 1),
                 "pending": None if p is None else p.pending,
@@ -531,6 +566,7 @@ class Daemon:
                 raise IngestError(f"the Modbus poller stopped: {exc!r}")
             self.pipeline.advance(self.clock.now_ns())
             self._watch()
+            self._recording_changed()
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
                 self._status()
@@ -543,7 +579,8 @@ class Daemon:
               read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
               stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
               labs_refused=st.labs_refused, checkpoints=self.store.n_saved,
-              recorded=None if self.recorder is None else self.recorder.n_written)
+              recorded=None if self.recorder is None else self.recorder.n_written,
+              recording=self._recording())
 
 
 __all__ = ["Daemon", "DaemonInfo", "ScaledClock", "daemon_tagmap"]

@@ -101,14 +101,19 @@ class ServicePipeline:
     limits : InputLimits, optional
         Queue bound, a rate per input kind and message size (drop and count beyond them);
         unbounded by default (a replay feeds a recorded day as fast as it can).
+    decorate : callable, optional
+        Called with every :class:`Output` before it is published (the daemon adds what the
+        service cannot know to health: the recorder's state).
     """
 
     def __init__(self, session: zenoh.Session, service: EstimatorService, *,
                  unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
-                 limits: InputLimits | None = None) -> None:
+                 limits: InputLimits | None = None,
+                 decorate: Callable[[Output], None] | None = None) -> None:
         self.service = service
+        self.decorate = decorate
         self.unit = unit
         self.checkpoints = checkpoints
         self.checkpoint_every = max(1, int(checkpoint_every))
@@ -201,6 +206,8 @@ class ServicePipeline:
 
     def _publish(self, outputs: list[Output]) -> None:
         for out in outputs:
+            if self.decorate is not None:
+                self.decorate(out)
             self.publisher.put(out.kind, out.body, out.time_ns)
             self.n_out += 1
             if out.kind == "estimate":

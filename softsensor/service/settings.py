@@ -66,6 +66,10 @@ class ServiceSettings:
         Uncompressed MCAP chunk size of the recorder [bytes]; bounds what a crash loses.
     flush_interval_s : float
         Longest time a recorded message waits in an open chunk [s, wall].
+    record_reserve_bytes : int
+        Recording pauses (files finished, messages kept in memory, health says ``recording:
+        disk full``) when less than this is free in ``data_dir``, and resumes once twice as
+        much is [bytes].
     checkpoint : str
         Estimator checkpoint file (JSON, replaced atomically).
     checkpoint_every : int
@@ -130,6 +134,7 @@ class ServiceSettings:
     record: bool = True
     chunk_size: int = num(16 * 1024, ge=1024, le=64 * 1024 * 1024)
     flush_interval_s: float = num(30.0, gt=0, le=3600)
+    record_reserve_bytes: int = num(16 * 1024 * 1024, ge=0, le=2**40)
     checkpoint: str = "state/checkpoint.json"
     checkpoint_every: int = num(1, ge=1, le=10_000)
     lab_dir: str | None = "lab-drop"

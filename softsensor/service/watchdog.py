@@ -97,6 +97,12 @@ class HealthQueryable:
         with self._lock:
             self._latest = dict(body)
 
+    @property
+    def latest(self) -> dict[str, Any]:
+        """A copy of the health body last published."""
+        with self._lock:
+            return dict(self._latest)
+
     def _answer(self, query: zenoh.Query) -> None:
         try:
             with self._lock:
