@@ -52,14 +52,17 @@ DEFAULT_HOST = "127.0.0.1"
 
 
 def output_guard_acl(unit: str) -> dict[str, Any]:
-    """Zenoh access control that refuses every ``put``/``delete`` arriving from another
-    session on ``softsensor/<unit>/**``: the daemon is the only publisher of its estimates and
-    health that it (and its recorder) accepts. Inputs and subscriptions stay open."""
+    """Zenoh access control that refuses, from every other session, a ``put``/``delete``
+    on ``softsensor/<unit>/**`` (the daemon is the only publisher of its estimates and health
+    that it and its recorder accept) and a queryable or reply declared there (a peer answering
+    ``softsensor health`` in the daemon's name; the access rules of puts do not stop replies).
+    Inputs, subscriptions and queries stay open."""
     return {
         "enabled": True,
         "default_permission": "allow",
         "rules": [{"id": "outputs-are-ours", "permission": "deny", "flows": ["ingress"],
-                   "messages": ["put", "delete"], "key_exprs": [f"softsensor/{unit}/**"]}],
+                   "messages": ["put", "delete", "declare_queryable", "reply"],
+                   "key_exprs": [f"softsensor/{unit}/**"]}],
         "subjects": [{"id": "every-remote-session"}],
         "policies": [{"rules": ["outputs-are-ours"], "subjects": ["every-remote-session"]}],
     }
@@ -70,7 +73,8 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
                 multicast_scouting: bool = False, adminspace: bool = True,
                 user: str | None = None, password: str | None = None,
                 users_file: str | None = None, acl: dict[str, Any] | None = None,
-                max_message_bytes: int | None = None) -> zenoh.Config:
+                max_message_bytes: int | None = None,
+                open_timeout_s: float | None = None) -> zenoh.Config:
     """Build a Zenoh 1.x configuration.
 
     Parameters
@@ -97,6 +101,9 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         Zenoh's ``access_control`` section (e.g. :func:`output_guard_acl`).
     max_message_bytes : int, optional
         Messages larger than this are dropped by Zenoh on receipt.
+    open_timeout_s : float, optional
+        Longest wait for a connect endpoint's handshake (Zenoh's default is 10 s, which a
+        port that accepts and never answers costs in full).
     """
     if mode not in MODES:
         raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -136,6 +143,10 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
             cfg.insert_json5("access_control", json.dumps(acl))
         if max_message_bytes is not None:
             cfg.insert_json5("transport/link/rx/max_message_size", str(int(max_message_bytes)))
+        if open_timeout_s is not None:
+            ms = str(max(1, int(open_timeout_s * 1000)))
+            cfg.insert_json5("transport/unicast/open_timeout", ms)
+            cfg.insert_json5("connect/timeout_ms", ms)
     except zenoh.ZError as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"bus config rejected by zenoh: {first}") from exc

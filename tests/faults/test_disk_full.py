@@ -61,9 +61,9 @@ def _fill(folder: Path) -> Path:
 
 def _health(endpoint: str) -> dict:
     with open_session(mode="client", connect=[endpoint]) as s:
-        doc = query_health(s, "dryer1", 5.0)
-    assert doc is not None
-    return doc
+        answer = query_health(s, "dryer1", 5.0)
+    assert answer.doc is not None, answer.problem
+    return answer.doc
 
 
 def test_a_full_disk_pauses_recording_without_litter_and_it_resumes(tmp_path: Path, caplog):
