@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Any
 
-from softsensor.errors import IngestError
+from softsensor.errors import IngestError, one_line
 from softsensor.jsonable import dumps
 from softsensor.signals import SCAN_SIGNALS
 
@@ -185,12 +185,20 @@ def _moisture(value: Any, where: str) -> float:
     return x
 
 
+#: Longest lab sample id [characters]: a LIMS id is short; a 60 kB one is an attack on every
+#: log line, health answer and checkpoint it would reach.
+MAX_SAMPLE_ID_CHARS = 128
+
+
 def _sample_id(value: Any, where: str) -> str:
     if isinstance(value, bool) or not isinstance(value, (str, int)):
-        raise IngestError(f"{where}: sample_id {value!r} is not a string")
+        raise IngestError(f"{where}: sample_id {one_line(repr(value), 60)} is not a string")
     text = str(value).strip()
     if not text:
         raise IngestError(f"{where}: sample_id is empty")
+    if len(text) > MAX_SAMPLE_ID_CHARS:
+        raise IngestError(f"{where}: sample_id of {len(text)} characters is longer than "
+                          f"{MAX_SAMPLE_ID_CHARS}")
     return text
 
 

@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 import zenoh
 
 from softsensor.errors import ConfigError, IngestError
+from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import encode_body
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN, zenoh_key
 
@@ -224,9 +225,10 @@ def decode_payload(data: bytes, key: str = "payload") -> dict[str, Any]:
     try:
         body = json.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:
-        raise IngestError(f"{key}: payload is not valid JSON") from exc
+        raise IngestError(f"{outside_text(key)}: payload is not valid JSON") from exc
     if not isinstance(body, dict):
-        raise IngestError(f"{key}: payload is a JSON {type(body).__name__}, not an object")
+        raise IngestError(f"{outside_text(key)}: payload is a JSON {type(body).__name__}, "
+                          f"not an object")
     return body
 
 
@@ -235,7 +237,7 @@ def kind_of_key(key: str, unit: str = "dryer1") -> str:
     for kind in KINDS:
         if key == zenoh_key(kind, unit):
             return kind
-    raise IngestError(f"{key}: not a softsensor key of unit {unit!r}")
+    raise IngestError(f"{outside_text(key)}: not a softsensor key of unit {unit!r}")
 
 
 class BusMessage(NamedTuple):
@@ -258,7 +260,8 @@ def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
     body = decode_payload(data, key)
     t = body.get("time_ns")
     if t is not None and (not isinstance(t, int) or isinstance(t, bool)):
-        raise IngestError(f"{key}: time_ns must be an integer, got {t!r}")
+        raise IngestError(f"{outside_text(key)}: time_ns must be an integer, got "
+                          f"{outside_text(repr(t))}")
     return BusMessage(kind, key, body, t)
 
 
@@ -355,6 +358,7 @@ class Subscription:
         self._lock = threading.Lock()
         self.n_received = 0
         self.n_errors = 0
+        self.throttle = Throttle()  # a flood of bad messages is a few lines, with counts
 
     def _count(self, ok: bool) -> None:
         with self._lock:
@@ -384,14 +388,16 @@ def subscribe(session: zenoh.Session, callback: Callable[[BusMessage], None], *,
               on_error: Callable[[str, str], None] | None = None) -> Subscription:
     """Deliver decoded messages of ``kinds`` to ``callback`` (called on a Zenoh thread).
 
-    A malformed payload or an exception in ``callback`` is logged, counted and passed to
-    ``on_error(key, message)``; it never reaches Zenoh.
+    A malformed payload or an exception in ``callback`` is counted, logged (rate-limited, the
+    key cut short) and passed to ``on_error(key, message)``; it never reaches Zenoh.
     """
     subscription = Subscription()
 
     def _error(key: str, msg: str) -> None:
         subscription._count(False)
-        log.warning("%s", msg if msg.startswith(key) else f"{key}: {msg}")
+        text = msg if msg.startswith(outside_text(key)) else f"{outside_text(key)}: {msg}"
+        subscription.throttle.log(log, "bad message", logging.WARNING, "%s",
+                                  outside_text(text))
         if on_error is not None:
             try:
                 on_error(key, msg)
@@ -435,7 +441,9 @@ def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
         except asyncio.QueueFull:
             if holder:
                 holder[0]._count(False)
-            log.warning("%s: asyncio queue full, message dropped", message.key)
+                holder[0].throttle.log(log, "queue full", logging.WARNING,
+                                       "%s: asyncio queue full, message dropped",
+                                       outside_text(message.key))
 
     def _callback(message: BusMessage) -> None:
         if loop.is_closed():

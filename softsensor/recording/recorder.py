@@ -41,6 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from softsensor.errors import IngestError, SoftsensorError
+from softsensor.log_throttle import Throttle
 from softsensor.recording.mcap_day import DayWriter
 
 log = logging.getLogger(__name__)
@@ -143,6 +144,7 @@ class Recorder:
         self._retry_s = self.first_retry_s
         self._retry_at = 0.0
         self._space_checked = -math.inf
+        self._throttle = Throttle()
 
     # -- files
 
@@ -159,7 +161,8 @@ class Recorder:
         newest = max(self._writers, default=None)
         if newest is not None and day < newest:
             # a straggler for a day already closed: keep it in the newest file
-            log.warning("late message for %s recorded in %s", day, self._writers[newest].path)
+            self._throttle.log(log, "late", logging.WARNING, "late message for %s recorded in %s",
+                               day, self._writers[newest].path)
             return newest, self._writers[newest]
         path = self._new_path(day)
         writer = DayWriter(path, chunk_size=self.chunk_size)

@@ -52,6 +52,7 @@ from softsensor.estimation.lab_history import (
 )
 from softsensor.estimation.plausibility import EstimateRanges, estimate_problems
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
+from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
 
@@ -149,6 +150,7 @@ class EstimatorService:
         self.time_gate: Callable[[int], str | None] | None = None
         #: lab results that may wait for one tick; more are refused (a flood)
         self.max_pending_labs = 50
+        self._throttle = Throttle()  # bad scans from a broken peer: a few lines, counted
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -156,7 +158,9 @@ class EstimatorService:
         if kind == "scan":
             if time_ns is None:
                 self.stats.bad_scans += 1
-                log.warning("scan without time_ns ignored")
+                self._throttle.log(log, "no time", logging.WARNING,
+                                   "scan without time_ns ignored (%d bad scans so far)",
+                                   self.stats.bad_scans)
                 return []
             return self.on_scan(time_ns, body)
         if kind == "lab":
@@ -183,7 +187,9 @@ class EstimatorService:
             closed = self._acc.add(t, body)
         except IngestError as exc:
             self.stats.bad_scans += 1
-            log.warning("scan at %d ns ignored: %s", t, exc)
+            self._throttle.log(log, "bad scan", logging.WARNING,
+                               "scan at %d ns ignored: %s (%d bad scans so far)", t,
+                               outside_text(exc), self.stats.bad_scans)
             return []
         if closed:
             self._window_scans = []
@@ -322,6 +328,7 @@ class EstimatorService:
         return [Output("estimate", body, window.end_ns), self._health(window.end_ns)]
 
     def _refuse(self, reason: str) -> None:
+        reason = outside_text(reason)  # a sample id or a value from outside, cut short
         self.stats.labs_refused += 1
         self._last_refusal = reason
         n = self.stats.labs_refused

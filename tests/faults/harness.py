@@ -30,11 +30,11 @@ class Running:
 def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings:
     """``[service]`` of the built-in plant, all files in ``tmp_path``, accelerated 240x."""
     cfg = load_plant_config()
-    changes = {"time_scale": SCALE, "clock_start": str(start_ns), **changes}
-    return service_settings(cfg).with_overrides(
-        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
-        lab_dir=str(tmp_path / "lab"), zenoh_listen=["tcp/127.0.0.1:0"],
-        flush_interval_s=0.2, **changes)
+    table = {"data_dir": str(tmp_path / "rec"), "checkpoint": str(tmp_path / "ckpt.json"),
+             "lab_dir": str(tmp_path / "lab"), "zenoh_listen": ["tcp/127.0.0.1:0"],
+             "flush_interval_s": 0.2, "time_scale": SCALE, "clock_start": str(start_ns),
+             **changes}
+    return service_settings(cfg).with_overrides(**table)
 
 
 @contextlib.asynccontextmanager
