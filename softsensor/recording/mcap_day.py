@@ -211,6 +211,9 @@ class DayWriter:
         self._channels: dict[str, int] = {}
         self._closed = False
         self.n_messages = 0
+        #: messages written since the last chunk reached the file (lost if it never does:
+        #: a recorder that has to cut the file keeps them for the next one)
+        self.unsaved: list[tuple[str, int, dict[str, Any]]] = []
 
     def _channel(self, topic: str) -> int:
         channel_id = self._channels.get(topic)
@@ -229,14 +232,19 @@ class DayWriter:
         if self._closed:
             raise ValueError(f"{self.path}: write after close")
         t = int(log_time_ns)
+        self.unsaved.append((topic, t, body))
+        size = self._file.tell()
         self._writer.add_message(self._channel(topic), log_time=t, data=encode_body(body),
                                  publish_time=t)
+        if self._file.tell() != size:  # the chunk, this message last, is in the file
+            self.unsaved.clear()
         self.n_messages += 1
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (costs compression ratio if done often)."""
         if not self._closed:
             self._writer.flush()
+            self.unsaved.clear()
 
     def close(self) -> None:
         """Finish the file (summary, footer) and close it. Idempotent."""
@@ -245,6 +253,7 @@ class DayWriter:
         self._closed = True
         try:
             self._writer.finish()
+            self.unsaved.clear()
         finally:
             self._file.close()
 

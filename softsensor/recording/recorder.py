@@ -199,8 +199,7 @@ class Recorder:
                 self._check_space()
                 self._write(item)
             except (OSError, IngestError) as exc:
-                self._pause(exc)
-                self._keep(item)
+                self._pause(exc, item)
 
     def _write(self, item: tuple[str, int, dict[str, Any], int]) -> None:
         topic, t, body, ft = item
@@ -230,18 +229,29 @@ class Recorder:
             self.n_lost += 1  # the oldest goes
         self._backlog.append(item)
 
-    def _pause(self, exc: BaseException) -> None:
-        """Stop writing after ``exc``: finish (or cut) the open files, retry later."""
+    def _pause(self, exc: BaseException,
+               failed: tuple[str, int, dict[str, Any], int] | None = None) -> None:
+        """Stop writing after ``exc``: finish (or cut) the open files, keep what did not reach
+        them (``failed``, the message being written, and the cut files' open chunks) at the
+        head of the backlog, retry later."""
         writers, self._writers = self._writers, {}
         self._dirty_since.clear()
-        kept = []
-        for writer in writers.values():
+        back: list[tuple[str, int, dict[str, Any], int]] = []
+        for day, writer in sorted(writers.items()):
             try:
                 writer.close()
-                kept.append(writer.path)
             except OSError:
-                if writer.abandon():
-                    kept.append(writer.path)
+                writer.abandon()
+                # (their day files are the recorder's clock's; kept as the day of the file)
+                ft = _midnight_ns(day)
+                back += [(topic, t, body, max(ft, min(t, ft + NS_PER_DAY - 1)))
+                         for topic, t, body in writer.unsaved]
+        if failed is not None and not any(b[2] is failed[2] for b in back):
+            back.append(failed)
+        for item in reversed(back):
+            if len(self._backlog) == self._backlog.maxlen:
+                self.n_lost += 1  # the newest goes
+            self._backlog.appendleft(item)
         self.paths = [p for p in self.paths if p.exists()]
         first = self.failure is None
         self.failure = _reason(exc)
@@ -257,13 +267,15 @@ class Recorder:
         """Try to record again (at the retry time, or now with ``force``); True if writing."""
         if not force and self._clock() < self._retry_at:
             return False
+        item = None
         try:
             self._check_space(need=2 * self.reserve_bytes)  # resume with room to spare
             while self._backlog:
-                self._write(self._backlog[0])
-                self._backlog.popleft()
+                item = self._backlog.popleft()
+                self._write(item)
+                item = None
         except (OSError, IngestError) as exc:
-            self._pause(exc)
+            self._pause(exc, item)  # (item goes back first, once)
             return False
         log.warning("recording resumed in %s after %s; %d messages lost while paused",
                     self.directory, self.failure, self.n_lost)
