@@ -315,7 +315,8 @@ class Daemon:
             event(log, "started", unit=self.unit, estimator=service.kind,
                   zenoh=",".join(self.info.endpoints) or "none", plc=self.info.plc,
                   data_dir=self.info.data_dir, time_scale=s.time_scale,
-                  resumed=self.info.resumed, outputs=",".join(served) or "none")
+                  resumed=self.info.resumed, outputs=",".join(served) or "none",
+                  clock_ns=clock.now_ns())  # plant time now: what a driver of the clock needs
             if ready is not None:
                 ready(self.info)
             await self._housekeeping(stop, poll_task)
