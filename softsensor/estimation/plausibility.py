@@ -76,16 +76,18 @@ class SignalLimits:
 
 
 #: The reference plant's limits: CONTRACT section 6's envelope with a margin (the tag map's
-#: ranges are wider still: they catch broken sensors). Rates are well above anything the two
-#: virtual plants show between 10 s scans (at most 3.7 K, 4.7 kg/s of noise and moves).
+#: ranges are wider still: they catch broken sensors). Rates only for the temperatures: a
+#: thermocouple's own lag bounds how fast it can move, while a flow, a humidity reading, a set
+#: point or a controller output may step (a production change, a damper, a valve). They are
+#: well above anything the two virtual plants show between 10 s scans (at most 3.7 K).
 DEFAULT_LIMITS: dict[str, SignalLimits] = {
     "T_air_in": SignalLimits(400.0, 620.0, max_rate=5.0, max_step=10.0),
-    "m_air": SignalLimits(40.0, 130.0, max_rate=2.0, max_step=8.0),
-    "m_fiber": SignalLimits(2.0, 10.0, max_rate=0.1, max_step=0.5),
+    "m_air": SignalLimits(40.0, 130.0),
+    "m_fiber": SignalLimits(2.0, 10.0),
     "T_fiber_in": SignalLimits(300.0, 420.0, max_rate=2.0, max_step=5.0),
-    "m_steam": SignalLimits(0.0, 2.0, max_rate=0.05, max_step=0.5),
+    "m_steam": SignalLimits(0.0, 2.0),
     "T_amb": SignalLimits(230.0, 330.0, max_rate=0.5, max_step=5.0),
-    "H_amb": SignalLimits(0.0, 0.04, max_rate=1e-4, max_step=0.003),
+    "H_amb": SignalLimits(0.0, 0.04),
     "flap_cmd": SignalLimits(0.0, 100.0),
     "T_sp": SignalLimits(320.0, 380.0),
     "T_dryer_out": SignalLimits(300.0, 420.0, max_rate=2.0, max_step=6.0),
