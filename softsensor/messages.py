@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime, timedelta, tzinfo
 from typing import Any
 
-from softsensor.errors import IngestError
+from softsensor.errors import IngestError, one_line
 from softsensor.jsonable import dumps
 from softsensor.signals import SCAN_SIGNALS
 
@@ -84,6 +84,9 @@ class Window:
         Per measured model input, the mean of its good values in each consecutive bin of
         ``bin_s`` seconds of the window (``None`` for a bin without one): what a lab sample
         taken inside the window saw (:mod:`softsensor.estimation.lab_alignment`).
+    refused : dict[str, int]
+        Values per signal refused as implausible before they were averaged
+        (:mod:`softsensor.estimation.plausibility`); the reason is in ``reasons``.
     """
 
     start_ns: int
@@ -95,6 +98,7 @@ class Window:
     reasons: dict[str, str] = field(default_factory=dict)
     bin_s: float = 0.0
     bins: dict[str, list[float | None]] = field(default_factory=dict)
+    refused: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -181,12 +185,20 @@ def _moisture(value: Any, where: str) -> float:
     return x
 
 
+#: Longest lab sample id [characters]: a LIMS id is short; a 60 kB one is an attack on every
+#: log line, health answer and checkpoint it would reach.
+MAX_SAMPLE_ID_CHARS = 128
+
+
 def _sample_id(value: Any, where: str) -> str:
     if isinstance(value, bool) or not isinstance(value, (str, int)):
-        raise IngestError(f"{where}: sample_id {value!r} is not a string")
+        raise IngestError(f"{where}: sample_id {one_line(repr(value), 60)} is not a string")
     text = str(value).strip()
     if not text:
         raise IngestError(f"{where}: sample_id is empty")
+    if len(text) > MAX_SAMPLE_ID_CHARS:
+        raise IngestError(f"{where}: sample_id of {len(text)} characters is longer than "
+                          f"{MAX_SAMPLE_ID_CHARS}")
     return text
 
 

@@ -216,7 +216,7 @@ def test_run_refuses_bad_input_in_one_line(tmp_path, capsys):
     cases = [
         (["--config", str(bad)], r"bad\.toml: service\.listen is not a known key"),
         (["--plc", "localhost"], r"--plc must look like HOST:PORT"),
-        (["--time-scale", "-2"], r"command line: service\.time_scale must be > 0"),
+        (["--time-scale", "-2"], r"command line: service\.time_scale must be >= 0\.01"),
         (["--checkpoint", str(ckpt), "--estimator", "openloop", "--no-record"],
          r"ckpt\.json: written by estimator 'ukf', this run uses 'openloop' \(use "
          r"--no-resume"),

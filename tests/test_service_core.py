@@ -263,7 +263,7 @@ def test_service_settings_defaults_and_validation(tmp_path) -> None:
     assert s.listen == ("tcp/127.0.0.1:7447",) and s.connect == () and s.time_scale == 1.0
     data = read_toml(cfg.source)
     for table, match in [({"bogus": 1}, r"service\.bogus is not a known key"),
-                         ({"time_scale": 0}, r"service\.time_scale must be > 0"),
+                         ({"time_scale": 0}, r"service\.time_scale must be >= 0\.01"),
                          ({"zenoh_listen": ["7447"]}, r"service\.zenoh_listen entry '7447'"),
                          ({"zenoh_mode": "client"}, r"service\.zenoh_connect must name"),
                          ({"estimator": "kalman"}, r"service\.estimator must be one of"),

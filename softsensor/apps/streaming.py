@@ -199,7 +199,9 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
 
 def _health(args: argparse.Namespace) -> int:
     """``softsensor health``: ask a running daemon's health queryable; exit 0 when it answers
-    and its estimator thread is not stalled, 1 otherwise (a container's HEALTHCHECK)."""
+    and its estimator thread is not stalled, 1 otherwise (a container's HEALTHCHECK). The
+    whole call, connecting included, takes about ``--timeout`` at most; an answer that cannot
+    be attributed to the daemon (:func:`~softsensor.service.watchdog.query_health`) is none."""
     from softsensor.bus.zenoh_bus import open_session
     from softsensor.service.settings import (
         UNIT_NAME,
@@ -222,16 +224,19 @@ def _health(args: argparse.Namespace) -> int:
         raise ConfigError("health: give --connect ENDPOINT (the config's service listens "
                           "nowhere)")
     auth = {k: v for k, v in bus_options(settings, unit).items() if k in ("user", "password")}
+    deadline = time.monotonic() + args.timeout
     try:
-        session = open_session(mode="client", connect=list(connect), **auth)
+        session = open_session(mode="client", connect=list(connect),
+                               open_timeout_s=args.timeout, **auth)
     except ConfigError as exc:  # refused or nobody there: unhealthy, not a usage error
         print(f"softsensor health: {unit}: {exc}", file=sys.stderr)
         return 1
     with session:
-        doc = query_health(session, unit, args.timeout)
+        answer = query_health(session, unit, max(deadline - time.monotonic(), 0.2))
+    doc = answer.doc
     if doc is None:
-        print(f"softsensor health: {unit}: no answer from {', '.join(connect)} within "
-              f"{args.timeout:g} s", file=sys.stderr)
+        print(f"softsensor health: {unit}: {', '.join(connect)}: {answer.problem}",
+              file=sys.stderr)
         return 1
     if args.json:
         from softsensor.apps.output import write_json

@@ -28,6 +28,7 @@ from typing import Any, NamedTuple
 import zenoh
 
 from softsensor.errors import ConfigError, IngestError
+from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import encode_body
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN, zenoh_key
 
@@ -52,14 +53,17 @@ DEFAULT_HOST = "127.0.0.1"
 
 
 def output_guard_acl(unit: str) -> dict[str, Any]:
-    """Zenoh access control that refuses every ``put``/``delete`` arriving from another
-    session on ``softsensor/<unit>/**``: the daemon is the only publisher of its estimates and
-    health that it (and its recorder) accepts. Inputs and subscriptions stay open."""
+    """Zenoh access control that refuses, from every other session, a ``put``/``delete``
+    on ``softsensor/<unit>/**`` (the daemon is the only publisher of its estimates and health
+    that it and its recorder accept) and a queryable or reply declared there (a peer answering
+    ``softsensor health`` in the daemon's name; the access rules of puts do not stop replies).
+    Inputs, subscriptions and queries stay open."""
     return {
         "enabled": True,
         "default_permission": "allow",
         "rules": [{"id": "outputs-are-ours", "permission": "deny", "flows": ["ingress"],
-                   "messages": ["put", "delete"], "key_exprs": [f"softsensor/{unit}/**"]}],
+                   "messages": ["put", "delete", "declare_queryable", "reply"],
+                   "key_exprs": [f"softsensor/{unit}/**"]}],
         "subjects": [{"id": "every-remote-session"}],
         "policies": [{"rules": ["outputs-are-ours"], "subjects": ["every-remote-session"]}],
     }
@@ -70,7 +74,8 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
                 multicast_scouting: bool = False, adminspace: bool = True,
                 user: str | None = None, password: str | None = None,
                 users_file: str | None = None, acl: dict[str, Any] | None = None,
-                max_message_bytes: int | None = None) -> zenoh.Config:
+                max_message_bytes: int | None = None,
+                open_timeout_s: float | None = None) -> zenoh.Config:
     """Build a Zenoh 1.x configuration.
 
     Parameters
@@ -97,6 +102,9 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         Zenoh's ``access_control`` section (e.g. :func:`output_guard_acl`).
     max_message_bytes : int, optional
         Messages larger than this are dropped by Zenoh on receipt.
+    open_timeout_s : float, optional
+        Longest wait for a connect endpoint's handshake (Zenoh's default is 10 s, which a
+        port that accepts and never answers costs in full).
     """
     if mode not in MODES:
         raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -136,6 +144,10 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
             cfg.insert_json5("access_control", json.dumps(acl))
         if max_message_bytes is not None:
             cfg.insert_json5("transport/link/rx/max_message_size", str(int(max_message_bytes)))
+        if open_timeout_s is not None:
+            ms = str(max(1, int(open_timeout_s * 1000)))
+            cfg.insert_json5("transport/unicast/open_timeout", ms)
+            cfg.insert_json5("connect/timeout_ms", ms)
     except zenoh.ZError as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"bus config rejected by zenoh: {first}") from exc
@@ -213,9 +225,10 @@ def decode_payload(data: bytes, key: str = "payload") -> dict[str, Any]:
     try:
         body = json.loads(data)
     except (ValueError, UnicodeDecodeError) as exc:
-        raise IngestError(f"{key}: payload is not valid JSON") from exc
+        raise IngestError(f"{outside_text(key)}: payload is not valid JSON") from exc
     if not isinstance(body, dict):
-        raise IngestError(f"{key}: payload is a JSON {type(body).__name__}, not an object")
+        raise IngestError(f"{outside_text(key)}: payload is a JSON {type(body).__name__}, "
+                          f"not an object")
     return body
 
 
@@ -224,7 +237,7 @@ def kind_of_key(key: str, unit: str = "dryer1") -> str:
     for kind in KINDS:
         if key == zenoh_key(kind, unit):
             return kind
-    raise IngestError(f"{key}: not a softsensor key of unit {unit!r}")
+    raise IngestError(f"{outside_text(key)}: not a softsensor key of unit {unit!r}")
 
 
 class BusMessage(NamedTuple):
@@ -247,7 +260,8 @@ def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
     body = decode_payload(data, key)
     t = body.get("time_ns")
     if t is not None and (not isinstance(t, int) or isinstance(t, bool)):
-        raise IngestError(f"{key}: time_ns must be an integer, got {t!r}")
+        raise IngestError(f"{outside_text(key)}: time_ns must be an integer, got "
+                          f"{outside_text(repr(t))}")
     return BusMessage(kind, key, body, t)
 
 
@@ -344,6 +358,7 @@ class Subscription:
         self._lock = threading.Lock()
         self.n_received = 0
         self.n_errors = 0
+        self.throttle = Throttle()  # a flood of bad messages is a few lines, with counts
 
     def _count(self, ok: bool) -> None:
         with self._lock:
@@ -373,14 +388,16 @@ def subscribe(session: zenoh.Session, callback: Callable[[BusMessage], None], *,
               on_error: Callable[[str, str], None] | None = None) -> Subscription:
     """Deliver decoded messages of ``kinds`` to ``callback`` (called on a Zenoh thread).
 
-    A malformed payload or an exception in ``callback`` is logged, counted and passed to
-    ``on_error(key, message)``; it never reaches Zenoh.
+    A malformed payload or an exception in ``callback`` is counted, logged (rate-limited, the
+    key cut short) and passed to ``on_error(key, message)``; it never reaches Zenoh.
     """
     subscription = Subscription()
 
     def _error(key: str, msg: str) -> None:
         subscription._count(False)
-        log.warning("%s", msg if msg.startswith(key) else f"{key}: {msg}")
+        text = msg if msg.startswith(outside_text(key)) else f"{outside_text(key)}: {msg}"
+        subscription.throttle.log(log, "bad message", logging.WARNING, "%s",
+                                  outside_text(text))
         if on_error is not None:
             try:
                 on_error(key, msg)
@@ -424,7 +441,9 @@ def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
         except asyncio.QueueFull:
             if holder:
                 holder[0]._count(False)
-            log.warning("%s: asyncio queue full, message dropped", message.key)
+                holder[0].throttle.log(log, "queue full", logging.WARNING,
+                                       "%s: asyncio queue full, message dropped",
+                                       outside_text(message.key))
 
     def _callback(message: BusMessage) -> None:
         if loop.is_closed():

@@ -124,7 +124,8 @@ def window_to_json(w: Window) -> dict[str, Any]:
             "n_scans": int(w.n_scans), "n_good": {k: int(v) for k, v in w.n_good.items()},
             "stale": bool(w.stale), "reasons": dict(w.reasons), "bin_s": float(w.bin_s),
             "bins": {k: [None if v is None or not math.isfinite(v) else float(v) for v in vs]
-                     for k, vs in w.bins.items()}}
+                     for k, vs in w.bins.items()},
+            "refused": {k: int(v) for k, v in w.refused.items()}}
 
 
 def window_from_json(data: dict[str, Any]) -> Window:
@@ -137,7 +138,8 @@ def window_from_json(data: dict[str, Any]) -> Window:
                                                       data["reasons"].items()},
                   bin_s=float(data.get("bin_s", 0.0)),
                   bins={k: [None if v is None else float(v) for v in vs]
-                        for k, vs in data.get("bins", {}).items()})
+                        for k, vs in data.get("bins", {}).items()},
+                  refused={k: int(v) for k, v in data.get("refused", {}).items()})
 
 
 @dataclass(frozen=True)

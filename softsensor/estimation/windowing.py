@@ -5,6 +5,13 @@ the Unix epoch; a window is the half-open interval ``(start, end]``, so a scan s
 on a boundary belongs to the window that ends there. For each window the accumulator averages
 the good values (non-null, finite) of every signal of :data:`~softsensor.signals.SCAN_SIGNALS`.
 
+Every value is judged before it is summed (:mod:`softsensor.estimation.plausibility`): one
+outside its plausible range, or a jump no sensor makes, is refused and counted in
+``Window.refused`` with the reason in ``Window.reasons``; a value beyond
+:data:`~softsensor.estimation.plausibility.MAX_MAGNITUDE` is refused even without limits, so
+a window's sum can never overflow and no accumulator can hold something a checkpoint could
+not restore.
+
 A signal with fewer good values than ``min_fraction`` of the expected scans
 (``period_s / scan_period_s``, 60 for 10 s scans; 50 % -> 30) gets the mean ``None`` and a reason.
 The window is ``stale`` when fewer scans than that arrived, or when a signal of ``required``
@@ -29,6 +36,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from softsensor.errors import ConfigError
+from softsensor.estimation.plausibility import InputJudge, Plausibility, plausibility_from_config
 from softsensor.messages import Window, scan_values
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
@@ -59,6 +67,9 @@ class WindowSettings:
         Signals whose absence makes the window stale.
     bin_s : float
         Length of the sub-window bins of the measured inputs [s]; must divide ``period_s``.
+    plausibility : Plausibility, optional
+        Per-signal range and rate limits judged before a value is summed; None: only
+        :data:`~softsensor.estimation.plausibility.MAX_MAGNITUDE`.
     """
 
     period_s: float = 600.0
@@ -66,6 +77,7 @@ class WindowSettings:
     min_fraction: float = 0.5
     required: tuple[str, ...] = MODEL_SIGNALS
     bin_s: float = BIN_S
+    plausibility: Plausibility | None = None
 
     def __post_init__(self) -> None:
         if not (self.period_s > 0 and math.isfinite(self.period_s)):
@@ -129,13 +141,15 @@ def window_settings(config: PlantConfig, measured_s: float | None = None,
 
     The scan period is ``solver.scan_period`` when the config sets it, else ``measured_s``
     (the data's own period, :func:`measured_scan_period`), else
-    :data:`NOMINAL_SCAN_PERIOD_S`; never longer than the window.
+    :data:`NOMINAL_SCAN_PERIOD_S`; never longer than the window. Values are judged by the
+    config's ``[plausibility]`` limits (every path that windows scans judges them alike).
     """
     s = config.solver
     period = s.scan_period if s.scan_period is not None else measured_s
     period = NOMINAL_SCAN_PERIOD_S if period is None else min(float(period), s.window)
     kwargs: dict[str, Any] = {"period_s": s.window, "scan_period_s": period,
-                              "min_fraction": s.min_good_fraction}
+                              "min_fraction": s.min_good_fraction,
+                              "plausibility": plausibility_from_config(config)}
     kwargs.update(overrides)
     return WindowSettings(**kwargs)
 
@@ -146,13 +160,15 @@ def window_end(time_ns: int, period_ns: int) -> int:
 
 
 class _Sums:
-    __slots__ = ("bin_n", "bin_sum", "n_scans", "values")
+    __slots__ = ("bin_n", "bin_sum", "n_scans", "refused", "values", "why")
 
     def __init__(self, n_bins: int) -> None:
         self.n_scans = 0
         self.values: dict[str, list[float]] = {name: [] for name in SCAN_SIGNALS}
         self.bin_sum = {name: [0.0] * n_bins for name in MODEL_SIGNALS}
         self.bin_n = {name: [0] * n_bins for name in MODEL_SIGNALS}
+        self.refused: dict[str, int] = {}
+        self.why: dict[str, str] = {}  # the first reason a signal's value was refused
 
 
 class WindowAccumulator:
@@ -166,6 +182,10 @@ class WindowAccumulator:
         Emit windows from the one holding ``start_ns + 1`` on (gap windows before the first
         scan included); by default the first window is the first scan's.
 
+    judge_state : dict, optional
+        :meth:`InputJudge.state` as it was at the start of the window being filled (from
+        :attr:`judge_state_at_window_start` of a checkpointed accumulator): its scans, fed
+        again, are judged as they were.
     max_gap_windows : int, optional
         Longest run of empty (gap) windows emitted at once: of a longer gap only the last
         ``max_gap_windows`` are emitted, the others are counted in ``n_skipped`` and the gap's
@@ -179,8 +199,14 @@ class WindowAccumulator:
     """
 
     def __init__(self, settings: WindowSettings | None = None, *,
-                 start_ns: int | None = None, max_gap_windows: int | None = None) -> None:
+                 start_ns: int | None = None, max_gap_windows: int | None = None,
+                 judge_state: Mapping[str, Any] | None = None) -> None:
         self.settings = settings or WindowSettings()
+        self.judge = InputJudge(self.settings.plausibility or Plausibility(limits={}))
+        if judge_state is not None:
+            self.judge.restore(judge_state)
+        #: the judge's memory when the window being filled began (what a checkpoint keeps)
+        self.judge_state_at_window_start = self.judge.state()
         self._period = self.settings.period_ns
         self._end: int | None = None  # end of the window being filled
         self._sums = _Sums(self.settings.n_bins)
@@ -224,11 +250,17 @@ class WindowAccumulator:
         b = min(max((t - (self._end - self._period) - 1) // self.settings.bin_ns, 0),
                 self.settings.n_bins - 1)
         for name, v in values.items():
-            if math.isfinite(v):
-                sums.values[name].append(v)
-                if name in sums.bin_sum:
-                    sums.bin_sum[name][b] += v
-                    sums.bin_n[name][b] += 1
+            if not math.isfinite(v):
+                continue
+            why = self.judge.judge(name, t, v)
+            if why is not None:  # judged before it is summed: never part of a mean
+                sums.refused[name] = sums.refused.get(name, 0) + 1
+                sums.why.setdefault(name, why)
+                continue
+            sums.values[name].append(v)
+            if name in sums.bin_sum:
+                sums.bin_sum[name][b] += v
+                sums.bin_n[name][b] += 1
         return out
 
     def advance(self, now_ns: int) -> list[Window]:
@@ -269,6 +301,7 @@ class WindowAccumulator:
             end += self._period
         self._emitted_end = last_end if last_end >= self._end else self._end
         self._end = end
+        self.judge_state_at_window_start = self.judge.state()
         return out
 
     def _build(self, start: int, end: int, sums: _Sums) -> Window:
@@ -281,11 +314,15 @@ class WindowAccumulator:
             vals = sums.values[name]
             n_good[name] = len(vals)
             if vals and len(vals) >= min_good:
-                means[name] = math.fsum(vals) / len(vals)
+                means[name] = math.fsum(vals) / len(vals)  # every value judged: no overflow
             else:
                 means[name] = None
                 reasons[name] = (f"{len(vals)} good values in {sums.n_scans} scans, "
                                  f"{min_good} of {expected} expected needed")
+            if name in sums.refused:
+                refused = (f"{sums.refused[name]} implausible values refused (first: "
+                           f"{sums.why[name]})")
+                reasons[name] = f"{reasons[name]}; {refused}" if name in reasons else refused
         stale = False
         if sums.n_scans < min_good:
             stale = True
@@ -297,7 +334,8 @@ class WindowAccumulator:
         bins = {name: [sums.bin_sum[name][b] / n if n else None
                        for b, n in enumerate(sums.bin_n[name])] for name in MODEL_SIGNALS}
         return Window(start_ns=start, end_ns=end, means=means, n_scans=sums.n_scans,
-                      n_good=n_good, stale=stale, reasons=reasons, bin_s=s.bin_s, bins=bins)
+                      n_good=n_good, stale=stale, reasons=reasons, bin_s=s.bin_s, bins=bins,
+                      refused=dict(sums.refused))
 
 
 def windows_from_scans(scans: Iterable[tuple[int, Mapping[str, Any]]],

@@ -42,6 +42,7 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 from softsensor.errors import IngestError
 from softsensor.ingest.registers import decode_raw, raw_to_si
 from softsensor.ingest.tagmap import ReadRequest, TagMap, TagSpec, group_reads
+from softsensor.log_throttle import Throttle, outside_text
 
 log = logging.getLogger(__name__)
 
@@ -128,6 +129,7 @@ class ModbusPoller:
         self._disconnected = f"not_connected: no connection to {s.host}:{s.port} yet"
         self._seen: dict[str, _Seen] = {}
         self._bad: dict[str, str] = {}
+        self._throttle = Throttle()
 
     @property
     def connected(self) -> bool:
@@ -291,12 +293,14 @@ class ModbusPoller:
         return Scan(time_ns, body, quality)
 
     def _log_changes(self, quality: dict[str, str]) -> None:
+        # a flapping sensor changes every scan: its lines are rate-limited per signal
         for sig in self._signals:
             old, new = self._bad.get(sig), quality.get(sig)
             if new and (old is None or old.split(":")[0] != new.split(":")[0]):
-                log.warning("%s bad: %s", sig, new)
+                self._throttle.log(log, f"bad {sig}", logging.WARNING, "%s bad: %s", sig,
+                                   outside_text(new))
             elif old and not new:
-                log.info("%s good again", sig)
+                self._throttle.log(log, f"good {sig}", logging.INFO, "%s good again", sig)
         self._bad = dict(quality)
 
     async def run(self, stop: asyncio.Event) -> None:
@@ -315,7 +319,8 @@ class ModbusPoller:
                     await asyncio.wait_for(self.sink(*scan), period)
                 except Exception:  # the sink's failure must not stop the polling
                     self.stats.sink_failures += 1
-                    log.exception("scan sink failed")
+                    self._throttle.log(log, "sink", logging.ERROR, "scan sink failed",
+                                       exc_info=True)
                 next_t += period
                 now = loop.time()
                 if next_t <= now:

@@ -9,8 +9,12 @@ IEEE-754 float32, high word first (ABCD), integers unsigned and big-endian; an e
 is missing is NaN with the health code saying why.
 
 The server serves the estimator's outputs and nothing else: every other function code,
-writes included, is answered with exception 1 (illegal function). The softsensor's Modbus
-client to the PLC is a different program path and never writes either.
+writes, diagnostics (8), server id (17) and device identification (43) included, is answered
+with exception 1 (illegal function). pymodbus answers some of them itself (8, 17, 43) or
+validates the address first (exception 2 to a read of holding registers), so the rule is
+applied where every response leaves: a response to anything but function code 4 is replaced
+by exception 1 (:func:`only_input_registers`). The softsensor's Modbus client to the PLC is a
+different program path and never writes either.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from pymodbus.constants import ExcCodes
+from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
@@ -88,6 +93,16 @@ def estimate_registers(body: Mapping[str, Any], time_ns: int, counter: int,
     return words
 
 
+def only_input_registers(pdu: ModbusPDU) -> ModbusPDU:
+    """The response ``pdu`` if it answers function code 4, else exception 1 in its place
+    (same transaction and unit)."""
+    code = pdu.function_code & 0x7F
+    if code == READ_INPUT_REGISTERS:
+        return pdu
+    return ExceptionResponse(code, ExcCodes.ILLEGAL_FUNCTION, device_id=pdu.dev_id,
+                             transaction=pdu.transaction_id)
+
+
 class EstimateModbusServer:
     """The register server (module docstring); :meth:`publish` may be called from any
     thread once :meth:`start` has run in the daemon's event loop."""
@@ -104,9 +119,17 @@ class EstimateModbusServer:
     async def _action(self, function_code: int, _start: int, _address: int, _count: int,
                       _registers: list[int], _set_values: object) -> ExcCodes | None:
         if function_code != READ_INPUT_REGISTERS:
-            self.refused += 1
-            return ExcCodes.ILLEGAL_FUNCTION
+            return ExcCodes.ILLEGAL_FUNCTION  # (counted in _trace, where it leaves)
         return None
+
+    def _trace(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
+        """pymodbus's hook on every PDU in and out: responses pass :func:`only_input_registers`."""
+        if not sending:
+            return pdu
+        out = only_input_registers(pdu)
+        if out is not pdu:
+            self.refused += 1
+        return out
 
     def _device(self) -> SimDevice:
         empty = [SimData(address=0, values=0, datatype=DataType.BITS)]
@@ -118,7 +141,8 @@ class EstimateModbusServer:
     async def start(self) -> None:
         """Bind and serve; NaN estimates and health 3 until the first estimate."""
         s = self.settings
-        server = ModbusTcpServer([self._device()], address=(s.host, s.port))
+        server = ModbusTcpServer([self._device()], address=(s.host, s.port),
+                                 trace_pdu=self._trace)
         try:
             await server.serve_forever(background=True)
         except OSError as exc:

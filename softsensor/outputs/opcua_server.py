@@ -122,9 +122,10 @@ class EstimateOpcUaServer:
         await self._variables(server)
         try:
             await server.start()
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:  # asyncua: "Could not start listen" (taken)
             raise ConfigError(f"outputs.opcua: cannot listen on {self.settings.host}:"
-                              f"{self.settings.port}: {exc.strerror or exc}") from exc
+                              f"{self.settings.port}: "
+                              f"{getattr(exc, 'strerror', None) or exc}") from exc
         self._server, self._loop = server, asyncio.get_running_loop()
         log.info("estimate served on %s", self.endpoint)
 

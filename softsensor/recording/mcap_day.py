@@ -137,17 +137,28 @@ class _UnbufferedFile:
     """A write-only file whose writes reach the OS at once (the MCAP writer writes whole chunks).
 
     ``mcap.Writer`` keeps any stream that is not an ``io.RawIOBase`` as it is (it would wrap a
-    raw file in a buffer), so every finished chunk is in the OS and survives a SIGKILL.
+    raw file in a buffer), so every finished chunk is in the OS and survives a SIGKILL. The
+    writer hands over one whole record (a chunk, its indexes) per call; a call that fails (a
+    full disk) is cut off again, so the file always ends after a complete record.
     """
 
     def __init__(self, path: Path) -> None:
         self._f = open(path, "wb", buffering=0)  # noqa: SIM115 - closed in close()
 
     def write(self, data: bytes) -> int:
+        start = self._f.tell()
         view = memoryview(data)
-        while view:
-            n = self._f.write(view)
-            view = view[n:]
+        try:
+            while view:
+                n = self._f.write(view)
+                view = view[n:]
+        except OSError:
+            try:  # no half record: what was written before this call stays readable
+                self._f.truncate(start)
+                self._f.seek(start)
+            except OSError:
+                pass
+            raise
         return len(data)
 
     def tell(self) -> int:
@@ -190,10 +201,19 @@ class DayWriter:
             raise IngestError(f"{self.path}: cannot create MCAP file: {exc.strerror}") from exc
         self._writer = Writer(self._file, chunk_size=chunk_size,
                               compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library="softsensor")
+        try:
+            self._writer.start(profile="", library="softsensor")
+        except OSError as exc:  # a full disk: no empty file left behind
+            self._file.close()
+            self.path.unlink(missing_ok=True)
+            raise IngestError(f"{self.path}: cannot create MCAP file: {exc.strerror}") from exc
+        self._header_end = self._file.tell()
         self._channels: dict[str, int] = {}
         self._closed = False
         self.n_messages = 0
+        #: messages written since the last chunk reached the file (lost if it never does:
+        #: a recorder that has to cut the file keeps them for the next one)
+        self.unsaved: list[tuple[str, int, dict[str, Any]]] = []
 
     def _channel(self, topic: str) -> int:
         channel_id = self._channels.get(topic)
@@ -212,14 +232,19 @@ class DayWriter:
         if self._closed:
             raise ValueError(f"{self.path}: write after close")
         t = int(log_time_ns)
+        self.unsaved.append((topic, t, body))
+        size = self._file.tell()
         self._writer.add_message(self._channel(topic), log_time=t, data=encode_body(body),
                                  publish_time=t)
+        if self._file.tell() != size:  # the chunk, this message last, is in the file
+            self.unsaved.clear()
         self.n_messages += 1
 
     def flush(self) -> None:
         """Close the open chunk and hand it to the OS (costs compression ratio if done often)."""
         if not self._closed:
             self._writer.flush()
+            self.unsaved.clear()
 
     def close(self) -> None:
         """Finish the file (summary, footer) and close it. Idempotent."""
@@ -228,8 +253,24 @@ class DayWriter:
         self._closed = True
         try:
             self._writer.finish()
+            self.unsaved.clear()
         finally:
             self._file.close()
+
+    def abandon(self) -> bool:
+        """Close without finishing (the disk has no room for the summary): the file ends after
+        its last complete chunk and reads with ``allow_truncated``; one that holds no chunk is
+        removed. True when the file was kept."""
+        self._closed = True
+        self._file.close()  # (again, after a close() whose summary did not fit)
+        try:
+            size = self.path.stat().st_size
+        except FileNotFoundError:
+            return False
+        if size <= self._header_end:
+            self.path.unlink(missing_ok=True)
+            return False
+        return True
 
     @property
     def closed(self) -> bool:

@@ -22,6 +22,7 @@ import zenoh
 
 from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
 from softsensor.errors import SoftsensorError
+from softsensor.log_throttle import Throttle
 from softsensor.recording.recorder import RECORDER_CHUNK_SIZE, Recorder
 from softsensor.service.time_gate import TimeGate
 
@@ -72,11 +73,12 @@ class BusRecorder:
             self.recorder.write(message.topic, t, body, file_time_ns=clock())
 
     def _tick_loop(self, tick_s: float) -> None:
+        throttle = Throttle()
         while not self._stop.wait(tick_s):
             try:
                 self.recorder.tick()
             except Exception:  # noqa: BLE001 - keep the ticker alive, report it
-                log.exception("recorder tick failed")
+                throttle.log(log, "tick", logging.ERROR, "recorder tick failed", exc_info=True)
 
     @property
     def n_received(self) -> int:

@@ -13,7 +13,10 @@ default, optionally connected to a router)::
 
 The estimator state is checkpointed after every tick (atomic replace, see
 :mod:`.checkpoint`); a restart resumes from it, and the windows missed while the daemon was down
-are ticked as stale gaps. Logs are one line per event (:mod:`.logs`).
+are ticked as stale gaps. A checkpoint whose times lie further ahead of the daemon's clock than
+``max_future_s`` (written by a clock that was ahead) is refused like any other future time:
+resumed, it would drop every real scan as late until the clock caught up. Logs are one line
+per event (:mod:`.logs`).
 
 Time: the daemon's clock is a :class:`ScaledClock`. At ``time_scale = 1`` it is the wall
 clock. At ``N > 1`` it runs N times faster from ``clock_start`` (default now; after a restart
@@ -216,6 +219,8 @@ class Daemon:
         self.opcua: Any = None  #: the OPC UA server when [outputs.opcua] is enabled
         self.watchdog: Watchdog | None = None
         self.health: HealthQueryable | None = None
+        self.resumed = False  #: the service continues from the checkpoint
+        self._recording_said: str | None = None  #: recorder state health last said
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
@@ -271,7 +276,7 @@ class Daemon:
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
-        doc = self._load_checkpoint()
+        doc = self._not_from_the_future(self._load_checkpoint())
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
         service = self._service(doc, scan_period_s)
         # compile the estimator's kernels now, not in the first live tick (which would hold
@@ -280,7 +285,7 @@ class Daemon:
             warm_up, lambda: make_service(self.config, s, self.kind, scan_period_s), self.config)
         event(log, "warmed_up", seconds=round(warm.seconds, 2),
               ticks=None if warm.stats is None else warm.stats.ticks, error=warm.error)
-        self.clock = clock = self._clock(None if doc is None else doc.get("saved_at_ns"))
+        self.clock = clock = self._clock(doc["saved_at_ns"] if self.resumed else None)
         gate = TimeGate(clock.now_ns, s.max_future_s, s.max_past_s)
         service.time_gate = gate
         async with contextlib.AsyncExitStack() as stack:
@@ -306,11 +311,12 @@ class Daemon:
             endpoints = listening_endpoints(session) if s.zenoh_adminspace else listen
             self.info = DaemonInfo(self.unit, service.kind, endpoints,
                                    f"{m.host}:{m.port}", s.data_dir if s.record else None,
-                                   doc is not None, clock.start_ns, served)
+                                   self.resumed, clock.start_ns, served)
             event(log, "started", unit=self.unit, estimator=service.kind,
                   zenoh=",".join(self.info.endpoints) or "none", plc=self.info.plc,
                   data_dir=self.info.data_dir, time_scale=s.time_scale,
-                  resumed=self.info.resumed, outputs=",".join(served) or "none")
+                  resumed=self.info.resumed, outputs=",".join(served) or "none",
+                  clock_ns=clock.now_ns())  # plant time now: what a driver of the clock needs
             if ready is not None:
                 ready(self.info)
             await self._housekeeping(stop, poll_task)
@@ -326,6 +332,24 @@ class Daemon:
             return self.store.load()
         except ConfigError as exc:
             return self._reject_checkpoint(str(exc))
+
+    def _not_from_the_future(self, doc: dict | None) -> dict | None:
+        """``doc``, or None when its times are further ahead of the clock this daemon will
+        run on than ``max_future_s`` (then rejected, :meth:`_reject_checkpoint`)."""
+        if doc is None:
+            return None
+        state = doc.get("service", {})
+        times = [doc["saved_at_ns"]] + [state.get(k) for k in ("now_ns", "ticked_end_ns",
+                                                               "closed_end_ns")]
+        latest = max(t for t in times if isinstance(t, int) and not isinstance(t, bool))
+        now = self._clock(doc["saved_at_ns"]).now_ns()
+        ahead_s = (latest - now) / 1e9
+        if ahead_s <= self.settings.max_future_s:
+            return doc
+        self._reject_checkpoint(f"{self.store.path}: checkpoint from the future: its time is "
+                                f"{ahead_s:.0f} s ahead of the daemon's clock (at most "
+                                f"{self.settings.max_future_s:g} s)")
+        return None
 
     def _reject_checkpoint(self, reason: str) -> None:
         """A checkpoint that cannot be used: with ``resume="required"`` a one-line error
@@ -355,6 +379,7 @@ class Daemon:
         except EstimationError as exc:
             self._reject_checkpoint(f"{self.store.path}: {exc}")
             return make_service(self.config, self.settings, self.kind, scan_period_s)
+        self.resumed = True
         event(log, "resumed", checkpoint=str(self.store.path),
               ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
         return service
@@ -364,7 +389,9 @@ class Daemon:
         """Record every key of the unit into the daily files, closed with ``stack``."""
         s = self.settings
         self.recorder = Recorder(s.data_dir, self.unit, chunk_size=s.chunk_size,
-                                 flush_interval_s=s.flush_interval_s)
+                                 flush_interval_s=s.flush_interval_s,
+                                 reserve_bytes=s.record_reserve_bytes)
+        self._recording_said = "ok"
         stack.callback(self.recorder.close)
         bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS, gate=gate)
         stack.callback(bus_rec.close)
@@ -468,17 +495,49 @@ class Daemon:
                          "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
         pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
                                    checkpoint_every=s.checkpoint_every,
-                                   on_output=self._on_output, limits=limits)
+                                   on_output=self._on_output, limits=limits,
+                                   decorate=self._decorate)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,
                                  lambda: pipeline.pending)
         return pipeline
 
+    def _recording(self) -> str | None:
+        """The recorder's state for health: ``ok``, why it is paused, or None (not recording)."""
+        r = self.recorder
+        return None if r is None else (r.failure or "ok")
+
+    def _decorate(self, out: Output) -> None:
+        """Health says when recording is paused (estimates go on without it)."""
+        if out.kind != "health":
+            return
+        state = self._recording()
+        out.body["recording"] = state
+        if state not in (None, "ok") and "recording:" not in str(out.body.get("detail")):
+            out.body["detail"] = f"{out.body.get('detail')}; recording: {state}"
+
+    def _recording_changed(self) -> None:
+        """Publish health at once when recording pauses or resumes (not only at the next
+        tick): the one health line an operator sees for a full disk."""
+        state = self._recording()
+        if state == self._recording_said or self.health is None or self.pipeline is None \
+                or self.clock is None:
+            return
+        self._recording_said = state
+        body = dict(self.health.latest)
+        body["detail"] = str(body.get("detail", "")).split("; recording:")[0]
+        out = Output("health", body, self.clock.now_ns())
+        self._decorate(out)
+        event(log, "recording", logging.ERROR if state != "ok" else logging.INFO,
+              state=state, lost=None if self.recorder is None else self.recorder.n_lost)
+        self.pipeline.publisher.put(out.kind, out.body, out.time_ns)
+        self._on_output(out)
+
     def _health_extra(self) -> dict[str, Any]:
         """What a health query adds to the last health body: the watchdog and the inputs."""
         p, w = self.pipeline, self.watchdog
-        return {"stalled": bool(w is not None and w.stalled),
+        return {"stalled": bool(w is not None and w.stalled), "recording": self._recording(),
                 "last_tick_age_s": None if p is None
                 else round(time.monotonic() - p.last_tick_at, 1),
                 "pending": None if p is None else p.pending,
@@ -508,6 +567,7 @@ class Daemon:
                 raise IngestError(f"the Modbus poller stopped: {exc!r}")
             self.pipeline.advance(self.clock.now_ns())
             self._watch()
+            self._recording_changed()
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
                 self._status()
@@ -520,7 +580,8 @@ class Daemon:
               read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
               stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
               labs_refused=st.labs_refused, checkpoints=self.store.n_saved,
-              recorded=None if self.recorder is None else self.recorder.n_written)
+              recorded=None if self.recorder is None else self.recorder.n_written,
+              recording=self._recording())
 
 
 __all__ = ["Daemon", "DaemonInfo", "ScaledClock", "daemon_tagmap"]

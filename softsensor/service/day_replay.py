@@ -70,12 +70,19 @@ def parse_time(value: int | str | datetime | None, name: str = "time") -> int | 
         if value.tzinfo is None:
             value = value.replace(tzinfo=UTC)
         delta = value - _EPOCH
-        return (delta.days * 86_400 + delta.seconds) * 10**9 + delta.microseconds * 1000
+        return _in_range((delta.days * 86_400 + delta.seconds) * 10**9
+                         + delta.microseconds * 1000, name)
     raise ConfigError(f"{name} must be ns since the epoch or an ISO-8601 time, got {value!r}")
 
 
+#: Paces a replay may run at: from a hundred times slower than real time (no day ends at
+#: 1e-300, and its sleeps overflow) to a million times faster (beyond: use ``max``).
+RATE_RANGE: tuple[float, float] = (0.01, 1e6)
+
+
 def parse_rate(value: float | str) -> float | None:
-    """Speed-up factor over real time; ``None`` for ``"max"`` (no pacing)."""
+    """Speed-up factor over real time (within :data:`RATE_RANGE`); ``None`` for ``"max"``
+    (no pacing)."""
     if isinstance(value, str):
         if value.strip().lower() == "max":
             return None
@@ -86,6 +93,10 @@ def parse_rate(value: float | str) -> float | None:
     rate = float(value)
     if not math.isfinite(rate) or rate <= 0:
         raise ConfigError(f"rate must be a positive number or 'max', got {value!r}")
+    lo, hi = RATE_RANGE
+    if not lo <= rate <= hi:
+        raise ConfigError(f"rate must be between {lo:g} and {hi:g} times real time, or 'max', "
+                          f"got {value!r}")
     return rate
 
 

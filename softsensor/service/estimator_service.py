@@ -19,6 +19,11 @@ Events and what they return (a list of :class:`Output`, in publishing order):
   ``gap_after_s`` past their end are closed (stale) and ticked, and health turns ``stale``.
 * :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
 
+Scan values are judged before a window sums them (:mod:`softsensor.estimation.plausibility`,
+inside the accumulator); an estimate body is judged before it goes out: one with a value
+outside its physical range (:func:`~softsensor.estimation.plausibility.estimate_problems`) is
+never ``ok``; it is published ``degraded`` with the reason first in its ``detail``.
+
 Health (CONTRACT section 2) is emitted at every tick and whenever the input state changes
 between ticks. Its ``status`` is the worse of the last tick's status (the estimator's verdict:
 ``ok``, ``degraded`` when its innovations are inconsistent or the model failed, ``stale`` for
@@ -45,7 +50,9 @@ from softsensor.estimation.lab_history import (
     window_from_json,
     window_to_json,
 )
+from softsensor.estimation.plausibility import EstimateRanges, estimate_problems
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
+from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
 
@@ -81,6 +88,7 @@ class ServiceStats:
     labs_refused: int = 0
     refused_time: int = 0  #: scans and labs stamped too far from the daemon's clock
     skipped_windows: int = 0  #: gap windows not ticked (a gap longer than max_gap_windows)
+    unphysical_ticks: int = 0  #: estimates with a value outside its physical range
 
 
 def _worst(a: str, b: str) -> str:
@@ -105,12 +113,16 @@ class EstimatorService:
     max_gap_windows : int
         Of a longer gap only the last this many windows are ticked (stale); the rest is one
         "stale since" state in health, so one scan stamped far ahead costs bounded work.
+    ranges : EstimateRanges, optional
+        Physical range of each estimate field; an estimate outside is never ``ok``.
     """
 
     def __init__(self, estimator: Estimator, window: WindowSettings | None = None, *,
                  unit: str = "dryer1", tick_delay_s: float = 10.0,
-                 gap_after_s: float = 60.0, max_gap_windows: int = 36) -> None:
+                 gap_after_s: float = 60.0, max_gap_windows: int = 36,
+                 ranges: EstimateRanges | None = None) -> None:
         self.estimator = estimator
+        self.ranges = ranges or EstimateRanges()
         self.kind = estimator_kind(estimator)
         self.window = window or WindowSettings()
         self.unit = unit
@@ -138,6 +150,7 @@ class EstimatorService:
         self.time_gate: Callable[[int], str | None] | None = None
         #: lab results that may wait for one tick; more are refused (a flood)
         self.max_pending_labs = 50
+        self._throttle = Throttle()  # bad scans from a broken peer: a few lines, counted
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -145,7 +158,9 @@ class EstimatorService:
         if kind == "scan":
             if time_ns is None:
                 self.stats.bad_scans += 1
-                log.warning("scan without time_ns ignored")
+                self._throttle.log(log, "no time", logging.WARNING,
+                                   "scan without time_ns ignored (%d bad scans so far)",
+                                   self.stats.bad_scans)
                 return []
             return self.on_scan(time_ns, body)
         if kind == "lab":
@@ -172,7 +187,9 @@ class EstimatorService:
             closed = self._acc.add(t, body)
         except IngestError as exc:
             self.stats.bad_scans += 1
-            log.warning("scan at %d ns ignored: %s", t, exc)
+            self._throttle.log(log, "bad scan", logging.WARNING,
+                               "scan at %d ns ignored: %s (%d bad scans so far)", t,
+                               outside_text(exc), self.stats.bad_scans)
             return []
         if closed:
             self._window_scans = []
@@ -286,19 +303,32 @@ class EstimatorService:
         if body.get("lab_updated"):
             self.stats.lab_updates += 1
         detail = str(body.get("detail") or status)
-        self._tick_status = (status, detail)
-        body.update(unit=self.unit, n_scans=window.n_scans, stale=window.stale)
-        body.setdefault("estimator", self.kind)
-        body.setdefault("window_start_ns", window.start_ns)
-        body.setdefault("window_end_ns", window.end_ns)
         for key in ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
                     "T_dryer_out_model", "T_cyclone_out_model"):
             v = body.get(key)
             if isinstance(v, float) and not math.isfinite(v):
                 body[key] = None
+        problems = estimate_problems(body, self.ranges)
+        if problems:
+            # whatever the estimator says, a value no dryer can have is not an ok estimate
+            self.stats.unphysical_ticks += 1
+            if status == "ok":
+                status = "degraded"
+            detail = "not physical: " + ", ".join(problems) + "; " + detail
+        if window.refused:
+            body["inputs_refused"] = dict(window.refused)
+            detail += "; implausible inputs refused: " + ", ".join(
+                f"{name} {n}" for name, n in sorted(window.refused.items()))
+        body.update(status=status, detail=detail)
+        self._tick_status = (status, detail)
+        body.update(unit=self.unit, n_scans=window.n_scans, stale=window.stale)
+        body.setdefault("estimator", self.kind)
+        body.setdefault("window_start_ns", window.start_ns)
+        body.setdefault("window_end_ns", window.end_ns)
         return [Output("estimate", body, window.end_ns), self._health(window.end_ns)]
 
     def _refuse(self, reason: str) -> None:
+        reason = outside_text(reason)  # a sample id or a value from outside, cut short
         self.stats.labs_refused += 1
         self._last_refusal = reason
         n = self.stats.labs_refused
@@ -368,6 +398,7 @@ class EstimatorService:
             "ticked_end_ns": self._ticked_end, "last_scan_ns": self._last_scan,
             "now_ns": self._now, "ready": [window_to_json(w) for w in self._ready],
             "window_scans": [[t, b] for t, b in self._window_scans],
+            "judge": self._acc.judge_state_at_window_start,
             "labs": [lab_to_json(r) for r in self._labs],
             "tick_status": list(self._tick_status) if self._tick_status else None,
             "stats": dataclasses.asdict(self.stats),
@@ -402,15 +433,19 @@ class EstimatorService:
             tick = snapshot["tick_status"]
             self._tick_status = None if tick is None else (str(tick[0]), str(tick[1]))
             self.stats = ServiceStats(**{k: int(v) for k, v in snapshot["stats"].items()})
+            # the open window, fed again to an accumulator whose judge remembers what it did
+            # at the window's start: its scans are judged (and refused) as they were live
+            self._acc = WindowAccumulator(self.window, start_ns=self._closed_end,
+                                          max_gap_windows=self.max_gap_windows,
+                                          judge_state=snapshot.get("judge"))
+            for t, body in self._window_scans:
+                self._acc.add(t, body)
         except EstimationError as exc:
             raise EstimationError(f"{where}: {exc}") from exc
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+        except (KeyError, TypeError, ValueError, IndexError, ArithmeticError,
+                SoftsensorError) as exc:
             raise EstimationError(f"{where}: malformed checkpoint ({exc!r})") from exc
-        self._acc = WindowAccumulator(self.window, start_ns=self._closed_end,
-                                      max_gap_windows=self.max_gap_windows)
         self._skipped_seen = 0
-        for t, body in self._window_scans:  # the open window, as it was
-            self._acc.add(t, body)
 
     # ------------------------------------------------------------------ views
     @property

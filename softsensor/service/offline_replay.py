@@ -39,6 +39,8 @@ from softsensor.bus.zenoh_bus import (
     wait_for_peers,
 )
 from softsensor.errors import IngestError, SoftsensorError
+from softsensor.estimation.plausibility import Plausibility, estimate_ranges
+from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.windowing import WindowSettings, measured_scan_period
 from softsensor.estimation.windowing import window_settings as core_window_settings
 from softsensor.files import atomic_path
@@ -201,10 +203,13 @@ def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None =
     # a gap is ticked window by window up to the past horizon the service accepts data for;
     # longer ones are one "stale since" state (a scan stamped years ahead costs no more)
     max_gap = max(1, math.ceil(settings.max_past_s / window.period_s))
+    est = estimator_settings(cfg)
+    ranges = estimate_ranges(window.plausibility or Plausibility(),
+                             (est.moisture_in_min, est.moisture_in_max))
     return EstimatorService(make_estimator(kind, cfg), window,
                             unit=resolve_unit(settings, cfg),
                             tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
-                            max_gap_windows=max_gap)
+                            max_gap_windows=max_gap, ranges=ranges)
 
 
 def truth_rmse(day: str | os.PathLike[str], estimates: list[tuple[int, dict[str, Any]]],

@@ -28,6 +28,7 @@ import zenoh
 
 from softsensor.bus.zenoh_bus import BusMessage, Publisher, to_message
 from softsensor.errors import IngestError, SoftsensorError
+from softsensor.log_throttle import Throttle, outside_text
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
@@ -101,14 +102,19 @@ class ServicePipeline:
     limits : InputLimits, optional
         Queue bound, a rate per input kind and message size (drop and count beyond them);
         unbounded by default (a replay feeds a recorded day as fast as it can).
+    decorate : callable, optional
+        Called with every :class:`Output` before it is published (the daemon adds what the
+        service cannot know to health: the recorder's state).
     """
 
     def __init__(self, session: zenoh.Session, service: EstimatorService, *,
                  unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
-                 limits: InputLimits | None = None) -> None:
+                 limits: InputLimits | None = None,
+                 decorate: Callable[[Output], None] | None = None) -> None:
         self.service = service
+        self.decorate = decorate
         self.unit = unit
         self.checkpoints = checkpoints
         self.checkpoint_every = max(1, int(checkpoint_every))
@@ -130,6 +136,7 @@ class ServicePipeline:
         self._buckets = {kind: _Bucket(rate, self.limits.burst)
                          for kind, rate in self.limits.rates_per_s.items()}
         self._drop_logged = 0.0
+        self._throttle = Throttle()  # repeated failures: a line now and then, with a count
         self._ticks_unsaved = 0
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
@@ -196,11 +203,14 @@ class ServicePipeline:
                 self._publish(outputs)
             except Exception:  # noqa: BLE001 - one bad message must not stop the service
                 self.n_errors += 1
-                log.exception("processing %s message failed", item.kind)
+                self._throttle.log(log, "processing", logging.ERROR,
+                                   "processing %s message failed", item.kind, exc_info=True)
             self.n_in += 1
 
     def _publish(self, outputs: list[Output]) -> None:
         for out in outputs:
+            if self.decorate is not None:
+                self.decorate(out)
             self.publisher.put(out.kind, out.body, out.time_ns)
             self.n_out += 1
             if out.kind == "estimate":
@@ -210,7 +220,8 @@ class ServicePipeline:
                 try:
                     self.on_output(out)
                 except Exception:  # noqa: BLE001 - a logging hook must not stop the service
-                    log.exception("output hook failed")
+                    self._throttle.log(log, "hook", logging.ERROR, "output hook failed",
+                                       exc_info=True)
         if self._ticks_unsaved >= self.checkpoint_every:
             self._save()
 
@@ -224,7 +235,13 @@ class ServicePipeline:
                                   unit=self.unit)
             self._ticks_unsaved = 0
         except SoftsensorError as exc:
-            event(log, "checkpoint_failed", logging.ERROR, error=str(exc))
+            # tried again at the next tick, not at every message until then; and every tick
+            # fails alike (a read-only folder): the news, not one line a tick
+            self._ticks_unsaved = 0
+            held = self._throttle.ready("checkpoint")
+            if held is not None:
+                event(log, "checkpoint_failed", logging.ERROR, error=outside_text(exc),
+                      not_logged_since=held)
 
     # ------------------------------------------------------------------ public API
     def call(self, fn: Callable[[], Any], timeout: float = 60.0) -> Any:
@@ -247,7 +264,9 @@ class ServicePipeline:
                 self._publish(self.service.advance(now_ns))
             except Exception:  # noqa: BLE001 - one bad tick must not stop the service
                 self.n_errors += 1
-                log.exception("advancing the estimator to %d failed", now_ns)
+                self._throttle.log(log, "advance", logging.ERROR,
+                                   "advancing the estimator to %d failed", now_ns,
+                                   exc_info=True)
 
         self._q.put(_Call(run))
 
@@ -314,6 +333,7 @@ class InputSubscription:
         self.n_errors = 0
         self.max_bytes = max_bytes
         self._on_too_large = on_too_large
+        self._throttle = Throttle()
         self._callback = callback
         self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(
             f"plant/{unit}/*", self._on_sample)
@@ -328,11 +348,11 @@ class InputSubscription:
         try:
             message = to_message(key, sample.payload.to_bytes(), self.unit)
             if message.kind not in INPUT_KINDS:
-                raise IngestError(f"{key}: not an input key")
+                raise IngestError(f"{outside_text(key)}: not an input key")
             self._callback(message)
         except Exception as exc:  # noqa: BLE001 - must not escape into zenoh's thread
-            self.n_errors += 1
-            log.warning("%s", exc)
+            self.n_errors += 1  # (a flood of them is a few lines, with counts)
+            self._throttle.log(log, "bad input", logging.WARNING, "%s", outside_text(exc))
             return
         self.n_received += 1
 

@@ -43,6 +43,10 @@ ZENOH_MODES: tuple[str, ...] = ("peer", "client")
 UNIT_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
 UNIT_RULE = "must be 1 to 64 letters, digits, '_' or '-' (it names keys and files)"
 LOG_FORMATS: tuple[str, ...] = ("kv", "json")
+#: Zenoh's link limit in multiples of ``max_message_bytes`` (see :func:`bus_options`).
+LINK_LIMIT_FACTOR = 4
+#: Where a daemon's clock may start [ns since the epoch]: 2000-01-01 to 2200-01-01.
+CLOCK_START_RANGE: tuple[int, int] = (946_684_800 * 10**9, 7_258_118_400 * 10**9)
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,10 @@ class ServiceSettings:
         Uncompressed MCAP chunk size of the recorder [bytes]; bounds what a crash loses.
     flush_interval_s : float
         Longest time a recorded message waits in an open chunk [s, wall].
+    record_reserve_bytes : int
+        Recording pauses (files finished, messages kept in memory, health says ``recording:
+        disk full``) when less than this is free in ``data_dir``, and resumes once twice as
+        much is [bytes].
     checkpoint : str
         Estimator checkpoint file (JSON, replaced atomically).
     checkpoint_every : int
@@ -111,7 +119,9 @@ class ServiceSettings:
         Zenoh access control refusing ``put`` on ``softsensor/<unit>/**`` from other sessions:
         no peer can publish estimates or health in the daemon's name into it or its recorder.
     max_message_bytes : int
-        Larger bus messages are dropped (by Zenoh on receipt, and counted by the daemon).
+        Larger bus messages are dropped before decoding and counted (``too_large``); above
+        four times this Zenoh drops them on the link, uncounted (nothing of them reaches
+        the daemon, which holds at most that much per link).
     max_queue : int
         Input messages waiting for the estimator thread; more are dropped and counted.
     max_scan_rate_hz, max_lab_rate_per_h : float
@@ -130,6 +140,7 @@ class ServiceSettings:
     record: bool = True
     chunk_size: int = num(16 * 1024, ge=1024, le=64 * 1024 * 1024)
     flush_interval_s: float = num(30.0, gt=0, le=3600)
+    record_reserve_bytes: int = num(16 * 1024 * 1024, ge=0, le=2**40)
     checkpoint: str = "state/checkpoint.json"
     checkpoint_every: int = num(1, ge=1, le=10_000)
     lab_dir: str | None = "lab-drop"
@@ -139,7 +150,9 @@ class ServiceSettings:
     zenoh_listen: Any = ("tcp/127.0.0.1:7447",)
     zenoh_connect: Any = ()
     estimator: str | None = None
-    time_scale: float = num(1.0, gt=0, le=100_000)
+    # below 0.01 no window ever ends and the folder's poll waits overflow (1e-300 killed the
+    # lab thread)
+    time_scale: float = num(1.0, ge=0.01, le=100_000)
     clock_start: str | None = None
     min_good_fraction: float = num(0.5, ge=0, le=1)
     tick_delay_s: float = num(10.0, ge=0, le=3600)
@@ -184,9 +197,13 @@ class ServiceSettings:
             from softsensor.errors import ConfigError
             from softsensor.service.day_replay import parse_time
             try:
-                parse_time(self.clock_start, "clock_start")
+                start = parse_time(self.clock_start, "clock_start")
             except ConfigError as exc:
                 return str(exc)
+            # the time gate refuses every message before 2000, so a clock there hears none
+            if start is not None and not CLOCK_START_RANGE[0] <= start < CLOCK_START_RANGE[1]:
+                return (f"clock_start must be between 2000-01-01 and 2200-01-01, got "
+                        f"{self.clock_start!r}")
         return None
 
     @property
@@ -258,8 +275,12 @@ def bus_options(settings: ServiceSettings, unit: str) -> dict[str, Any]:
     from softsensor.bus.zenoh_bus import output_guard_acl
     from softsensor.errors import ConfigError
 
+    # Zenoh's own limit is a few times the daemon's: what lies between reaches the daemon,
+    # which drops and counts it (too_large) before decoding; beyond it Zenoh drops the message
+    # on the link, unseen (no counter reaches Python), so that a peer can never make the
+    # daemon hold more than this per link while a message is reassembled
     kwargs: dict[str, Any] = {"adminspace": settings.zenoh_adminspace,
-                              "max_message_bytes": settings.max_message_bytes}
+                              "max_message_bytes": LINK_LIMIT_FACTOR * settings.max_message_bytes}
     if settings.zenoh_password_file is not None:
         try:
             with open(settings.zenoh_password_file, encoding="utf-8") as f:

@@ -12,6 +12,12 @@ messages wait; again every window while it lasts.
 with the latest health, the watchdog's verdict and the input counters, so a container health
 check or an operator's script need not wait up to a window for the next publication
 (``softsensor health``).
+
+Only the daemon may answer: its access control refuses a queryable or reply on its keys from
+any other session (:func:`~softsensor.bus.zenoh_bus.output_guard_acl`), and
+:func:`query_health` takes every reply, not Zenoh's consolidated latest, and gives an answer
+only when exactly one session answered and it is the one the client is connected to (the
+daemon's endpoint); otherwise it says why it cannot tell.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import zenoh
@@ -97,6 +104,12 @@ class HealthQueryable:
         with self._lock:
             self._latest = dict(body)
 
+    @property
+    def latest(self) -> dict[str, Any]:
+        """A copy of the health body last published."""
+        with self._lock:
+            return dict(self._latest)
+
     def _answer(self, query: zenoh.Query) -> None:
         try:
             with self._lock:
@@ -117,19 +130,48 @@ class HealthQueryable:
                 pass
 
 
-def query_health(session: zenoh.Session, unit: str, timeout_s: float = 5.0
-                 ) -> dict[str, Any] | None:
-    """The daemon's answer to ``get softsensor/<unit>/health`` (None: no answer in time)."""
-    replies = session.get(f"softsensor/{unit}/health", timeout=timeout_s)
-    for reply in replies:
-        if reply.ok is not None:
-            try:
-                doc = json.loads(reply.ok.payload.to_bytes())
-            except ValueError:
-                continue
-            if isinstance(doc, dict):
-                return doc
-    return None
+@dataclass(frozen=True)
+class HealthAnswer:
+    """What :func:`query_health` learned: the daemon's answer, or why there is none."""
+
+    doc: dict[str, Any] | None
+    problem: str | None = None
+    replier: str | None = None  #: Zenoh id of the session that answered
 
 
-__all__ = ["HealthQueryable", "Watchdog", "query_health"]
+def _zid(reply: zenoh.Reply) -> str | None:
+    rid = reply.replier_id
+    return None if rid is None else str(rid.zid)
+
+
+def query_health(session: zenoh.Session, unit: str, timeout_s: float = 5.0) -> HealthAnswer:
+    """Ask ``softsensor/<unit>/health`` and attribute the answer (module docstring)."""
+    key = f"softsensor/{unit}/health"
+    answers: dict[str | None, dict[str, Any]] = {}
+    for reply in session.get(key, timeout=timeout_s,
+                             consolidation=zenoh.ConsolidationMode.NONE):
+        if reply.ok is None:
+            continue
+        try:
+            doc = json.loads(reply.ok.payload.to_bytes())
+        except ValueError:
+            doc = None
+        answers[_zid(reply)] = doc if isinstance(doc, dict) else {}
+    if not answers:
+        return HealthAnswer(None, f"no answer within {timeout_s:g} s")
+    if len(answers) > 1:
+        return HealthAnswer(None, f"{len(answers)} sessions answered on {key}: cannot tell "
+                                  f"which is the daemon (another peer answers in its name)")
+    (replier, doc), = answers.items()
+    direct = {str(z) for z in session.info.peers_zid()}
+    if replier is None or replier not in direct:
+        return HealthAnswer(None, f"the answer came from session {replier}, not from the "
+                                  f"session this client is connected to: cannot tell it is "
+                                  f"the daemon (connect to the daemon's own endpoint)",
+                            replier)
+    if not doc:
+        return HealthAnswer(None, "the daemon's answer is not a JSON object", replier)
+    return HealthAnswer(doc, None, replier)
+
+
+__all__ = ["HealthAnswer", "HealthQueryable", "Watchdog", "query_health"]

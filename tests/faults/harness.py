@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,25 +30,35 @@ class Running:
 def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings:
     """``[service]`` of the built-in plant, all files in ``tmp_path``, accelerated 240x."""
     cfg = load_plant_config()
-    return service_settings(cfg).with_overrides(
-        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
-        lab_dir=str(tmp_path / "lab"), zenoh_listen=["tcp/127.0.0.1:0"], time_scale=SCALE,
-        flush_interval_s=0.2, clock_start=str(start_ns), **changes)
+    table = {"data_dir": str(tmp_path / "rec"), "checkpoint": str(tmp_path / "ckpt.json"),
+             "lab_dir": str(tmp_path / "lab"), "zenoh_listen": ["tcp/127.0.0.1:0"],
+             "flush_interval_s": 0.2, "time_scale": SCALE, "clock_start": str(start_ns),
+             **changes}
+    return service_settings(cfg).with_overrides(**table)
 
 
 @contextlib.asynccontextmanager
-async def running_daemon(tmp_path: Path, *, ticks: int = 1, **changes
-                         ) -> AsyncIterator[Running]:
-    """A daemon on a looping simulated day, yielded once it has ticked ``ticks`` times;
-    stopped (and awaited, at most 30 s) on exit."""
+async def running_daemon(tmp_path: Path, *, ticks: int = 1,
+                         plc_values: Callable[[dict], dict] | None = None,
+                         resume: bool | str = True, poll_period_s: float | None = None,
+                         **changes) -> AsyncIterator[Running]:
+    """A daemon on a looping simulated day, yielded once it has ticked ``ticks`` times (0:
+    once it is up); stopped (and awaited, at most 30 s) on exit. ``plc_values`` may change
+    what the PLC serves at each of its scans (a broken sensor); ``poll_period_s`` is the
+    poller's period in plant seconds (the tag map's 10 s by default)."""
     cfg = load_plant_config()
     day = simulate_day(cfg, 3.0, 12)
     settings = daemon_settings(tmp_path, int(day.scans.index[0]), **changes)
     feed = PlantFeed(day, loop=True)
     tm = load_tagmap()
-    plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
+    if poll_period_s is not None:
+        tm = tm.with_settings(poll_period_s=poll_period_s)
+    values = feed.next_values if plc_values is None else (
+        lambda: plc_values(feed.next_values()))
+    plc = PlcServer(tm, values, port=0, period_s=10.0 / SCALE)
     await plc.start()
-    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port),
+                    resume=resume)
     stop, up = asyncio.Event(), []
     task = asyncio.create_task(daemon.run(stop, ready=up.append))
     loop = asyncio.get_running_loop()

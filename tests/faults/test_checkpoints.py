@@ -55,7 +55,7 @@ def test_a_good_checkpoint_resumes(saved, tmp_path):
     doc = d._load_checkpoint()
     assert doc is not None
     service = d._service(doc, 10.0)
-    assert service.stats.ticks == saved["service"]["stats"]["ticks"] > 0
+    assert service.stats.ticks == saved["service"]["stats"]["ticks"] > 0 and d.resumed
 
 
 def _bad_docs(saved: dict) -> dict[str, dict | str]:
@@ -79,7 +79,7 @@ def test_a_bad_checkpoint_is_moved_aside_and_the_daemon_starts_afresh(saved, tmp
                                                                      caplog):
     d, path = _daemon(tmp_path, _bad_docs(saved)[case])
     service = d._service(d._load_checkpoint(), 10.0)
-    assert service.stats.ticks == 0  # fresh
+    assert service.stats.ticks == 0 and not d.resumed  # fresh
     assert not path.exists() and len(list(tmp_path.glob("checkpoint.json.bad-*"))) == 1
     assert any("checkpoint_rejected" in r.getMessage() for r in caplog.records)
 
@@ -90,3 +90,22 @@ def test_resume_required_stops_with_one_line(saved, tmp_path, case):
     with pytest.raises(ConfigError, match="--resume=required") as err:
         d._service(d._load_checkpoint(), 10.0)
     assert "\n" not in str(err.value) and path.exists()  # left where it was
+
+
+def test_a_daemon_whose_checkpoint_was_rejected_does_not_say_it_resumed(saved, tmp_path):
+    """Issue 25, item 8: the ``started`` line (and ``softsensor run``'s first line) said
+    ``resumed=true`` after the checkpoint had been moved aside."""
+    import asyncio
+
+    from harness import running_daemon
+
+    (tmp_path / "ckpt.json").write_text(json.dumps(_bad_docs(saved)["nan state"]))
+    got = {}
+
+    async def main() -> None:
+        async with running_daemon(tmp_path, ticks=0) as r:
+            got["resumed"] = r.daemon.info.resumed
+
+    asyncio.run(asyncio.wait_for(main(), 120))
+    assert got["resumed"] is False
+    assert len(list(tmp_path.glob("ckpt.json.bad-*"))) == 1
