@@ -425,7 +425,8 @@ class Daemon:
             stack.push_async_callback(self.opcua.stop)
             served.append(self.opcua.endpoint)
         if o.web.enabled:
-            self.web = LivePage(o.web, self.display, self.unit)
+            self.web = LivePage(o.web, self.display, self.unit,
+                                clock=self.clock.now_ns if self.clock else time.time_ns)
             self.web.time_scale = self.settings.time_scale
             self.web.start()
             stack.callback(self.web.stop)
