@@ -12,6 +12,7 @@ Example ``config/dryer1.toml`` fragment::
     [outputs.prometheus]    # http://host:port/metrics
     enabled = true
     port = 9108
+    site = "mill-north"     # the ``site`` label of every metric (``unit`` is the unit)
 
     [outputs.opcua]         # opc.tcp://host:port/softsensor/, typed, with engineering units
     enabled = true
@@ -57,6 +58,7 @@ class MetricsSettings:
     enabled: bool = False
     host: str = "127.0.0.1"
     port: int = 9108
+    site: str = "plant"  # the label ``site`` of every metric (a dashboard chooses by it)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:
@@ -71,6 +73,7 @@ class OpcUaSettings:
     enabled: bool = False
     host: str = "127.0.0.1"
     port: int = 4840
+    history_h: float = num(48.0, gt=0, le=24 * 31)  # HistoryRead: the last hours of windows
 
     def check(self) -> str | None:
         if not 1 <= self.port <= 65535:

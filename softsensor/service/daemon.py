@@ -412,7 +412,8 @@ class Daemon:
             stack.push_async_callback(self.modbus_out.stop)
             served.append(f"modbus://{o.modbus.host}:{self.modbus_out.port}")
         if o.prometheus.enabled:
-            self.metrics = DaemonMetrics(o.prometheus, self._counters())
+            self.metrics = DaemonMetrics(o.prometheus, self._counters(), unit=self.unit,
+                                         display=self.display)
             self.metrics.start()
             stack.callback(self.metrics.stop)
             served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
