@@ -96,6 +96,17 @@ def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
     return float(moisture_pct(x + dx, basis) - moisture_pct(x, basis))
 
 
+def plant_error(name: str, value: float, x_ref: float, settings: DisplaySettings
+                ) -> tuple[float, str]:
+    """An error (RMSE, offset) of the output channel ``name`` in what people read: a kelvin
+    difference is the same number of °C; a moisture difference [kg/kg dry] near ``x_ref``
+    becomes % points on the display basis. Returns the value and its unit."""
+    if name.startswith("moisture"):
+        basis = settings.moisture_basis
+        return moisture_pct_points(value, x_ref, basis), f"% points ({basis} basis)"
+    return float(value), "°C"
+
+
 def celsius(T: float | np.ndarray) -> float | np.ndarray:
     """Temperature [K] in °C."""
     return T - C0
@@ -118,4 +129,4 @@ def local_clock(time_ns: int, settings: DisplaySettings) -> str:
 
 
 __all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
-           "local_clock", "local_times", "moisture_pct", "moisture_pct_points"]
+           "local_clock", "local_times", "moisture_pct", "moisture_pct_points", "plant_error"]

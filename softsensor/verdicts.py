@@ -119,6 +119,18 @@ def calibration_verdict(rmse_new: Mapping[str, float] | None,
     return " ".join(parts)
 
 
+def validation_verdict(rmse: Mapping[str, float], ratio: float | None, x_ref: float,
+                       basis: str = "wet") -> str:
+    """The errors of a model on independent data in plant units (°C, % points on ``basis``
+    at the moisture ``x_ref`` [kg/kg dry]): the one sentence the validation page and the
+    ``validate`` line share."""
+    pts = moisture_pct_points(rmse["moisture_out"], x_ref, basis)
+    tail = "." if ratio is None else f"; {ratio:.2f} times its cost on the calibration data."
+    return (f"On this independent data the calibrated model's errors (RMSE) are dryer outlet "
+            f"{rmse['T_dryer_out']:.2f} °C, cyclone outlet {rmse['T_cyclone_out']:.2f} °C and "
+            f"outlet moisture {pts:.2f} % points ({basis} basis){tail}")
+
+
 def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
     """:func:`calibration_verdict` of a :class:`~softsensor.calibration.pipeline.
     CalibrationResult`: its held-out errors (its calibration data when nothing was held
@@ -169,4 +181,4 @@ def health_words(body: Mapping[str, Any]) -> str:
 
 
 __all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
-           "diagnosis_verdict", "health_words"]
+           "diagnosis_verdict", "health_words", "validation_verdict"]

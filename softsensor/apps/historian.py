@@ -1,10 +1,11 @@
-"""``softsensor import`` and ``softsensor export``: historian tables in, estimate tables out.
+"""``softsensor import`` (and, from :mod:`.export`, ``softsensor export``): historian tables
+in, estimate tables out.
 
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map
-(:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`.
-``export`` writes the estimates (and health) of a replay or daemon recording as a CSV or
-Parquet table (:mod:`softsensor.recording.estimates_table`). Both print one summary line.
+(:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`
+and :mod:`softsensor.ingest.lims`. ``--preview`` prints what the map makes of the export and
+writes nothing. It prints one summary line, its times on the map's clock.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
+from softsensor.apps.export import add_export_command
 from softsensor.apps.output import writing
-from softsensor.errors import ConfigError, IngestError
+from softsensor.errors import ConfigError
 from softsensor.ingest.historian import ScanTable
 from softsensor.ingest.lims import LabTable
 from softsensor.messages import iso_utc, lab_body
@@ -164,26 +166,6 @@ def _import(args: argparse.Namespace) -> int:
     return 0
 
 
-def _export(args: argparse.Namespace) -> int:
-    from softsensor.ingest.tables import table_kind, write_table
-    from softsensor.recording.estimates_table import estimates_table
-
-    targets = [(p, kind) for p, kind in ((args.csv, "csv"), (args.parquet, "parquet")) if p]
-    if not targets:
-        raise ConfigError("export: give --csv OUT.csv and/or --parquet OUT.parquet")
-    for p, kind in targets:
-        if table_kind(Path(p)) != kind:
-            raise IngestError(f"--{kind} {p}: the file name does not end in .{kind}")
-    table = estimates_table(args.recording)
-    for p, kind in targets:
-        with writing(p, f"--{kind}") as tmp:
-            write_table(table, tmp)
-    print(f"exported {args.recording}: {len(table)} estimates "
-          f"{table['time_utc'].iloc[0]} .. {table['time_utc'].iloc[-1]}, "
-          f"{table.shape[1]} columns; wrote {', '.join(p for p, _ in targets)}", file=sys.stderr)
-    return 0
-
-
 def add_commands(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("import", help="historian export (CSV/Parquet) and LIMS file -> MCAP day",
                        description="Convert a historian export and a LIMS file into a "
@@ -201,11 +183,4 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                         "converted scans, and write nothing")
     p.set_defaults(func=_import)
 
-    e = sub.add_parser("export", help="estimates of a recording -> CSV/Parquet table",
-                       description="One row per estimate: time_utc, time_ns, every numeric "
-                                   "estimate field, the health at that time (health_*).")
-    e.add_argument("recording", metavar="EST.mcap", help="replay or daemon recording")
-    e.add_argument("--csv", default=None, metavar="OUT.csv", help="CSV file to write")
-    e.add_argument("--parquet", default=None, metavar="OUT.parquet",
-                   help="Parquet file to write")
-    e.set_defaults(func=_export)
+    add_export_command(sub)
