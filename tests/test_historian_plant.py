@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import resource
 import subprocess
 import sys
 from pathlib import Path
@@ -182,13 +181,23 @@ def test_every_key_of_the_map_is_documented_in_docs():
         assert not missing, (cls.__name__, missing)
 
 
+_MEASURED = """
+import resource, sys
+from softsensor.cli import main
+try:
+    rc = main(sys.argv[1:])
+finally:
+    sys.stderr.write(f"peak RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss}\\n")
+sys.exit(rc)
+"""
+
+
 def _import_rss(*args: str) -> tuple[int, str, float]:
-    """``softsensor import`` in a child; its exit status, stderr and peak RSS [MB]."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    r = subprocess.run([sys.executable, "-m", "softsensor.cli", "import", *args],
+    """``softsensor import`` in a child; its exit status, stderr and its own peak RSS [MB]."""
+    r = subprocess.run([sys.executable, "-c", _MEASURED, "import", *args],
                        capture_output=True, text=True, timeout=120)
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    return r.returncode, r.stderr, max(peak, before) / 1024
+    err, _, rss = r.stderr.rpartition("peak RSS ")
+    return r.returncode, err, int(rss) / 1024
 
 
 def test_huge_exports_are_refused_before_they_are_read(tmp_path):
