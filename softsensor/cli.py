@@ -84,6 +84,16 @@ def check_numbers(args: argparse.Namespace) -> str | None:
     return None
 
 
+def setup_logging(verbose: bool = False) -> None:
+    """The project's loggers (``softsensor.*``) at INFO, every library's at WARNING (asyncua
+    alone logs about a thousand INFO lines while its server starts; pymodbus, numba and
+    matplotlib add more); ``--verbose`` shows everything at DEBUG."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.WARNING,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+                        stream=sys.stderr)
+    logging.getLogger("softsensor").setLevel(logging.DEBUG if verbose else logging.INFO)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         parser = build_parser()
@@ -95,9 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if problem is not None:
         print(one_line(f"softsensor {args.verb}: error: {problem}"), file=sys.stderr)
         return 2
-    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-                        stream=sys.stderr)
+    setup_logging(args.verbose)
     try:
         return int(args.func(args) or 0)
     except SoftsensorError as exc:

@@ -10,6 +10,13 @@ Example ``config/dryer1.toml`` fragment::
     [display]
     time_zone = "Europe/Stockholm"   # IANA name; figure axes and report times in it
     moisture_basis = "wet"           # "wet": w = X / (1 + X) in %; "dry": X in %
+    moisture_target = 0.10           # outlet moisture target [kg/kg dry basis], drawn ...
+    moisture_low = 0.06              # ... with the acceptable band (CONTRACT section 6)
+    moisture_high = 0.16
+
+Every human output reads this one table: the daemon's log lines, the live page, report pages
+and figures, verdicts, ``import`` and ``export`` summaries, ``export --local-time
+--moisture-percent`` tables.
 """
 
 from __future__ import annotations
@@ -19,7 +26,7 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 
-from softsensor.configfile import build_section
+from softsensor.configfile import build_section, num
 from softsensor.plantconfig import PlantConfig
 
 MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
@@ -37,12 +44,21 @@ class DisplaySettings:
         IANA time zone of the plant's clock (``UTC`` by default).
     moisture_basis : str
         ``wet`` (% of the wet mass, what most labs report) or ``dry`` (% of the dry mass).
+    moisture_target, moisture_low, moisture_high : float
+        The outlet moisture target and its acceptable band [kg/kg dry basis, as every
+        moisture in a config]; pages and dashboards draw them in % on ``moisture_basis``.
     """
 
     time_zone: str = "UTC"
     moisture_basis: str = "wet"
+    moisture_target: float = num(0.10, gt=0, le=2)  #: [kg/kg dry] CONTRACT section 6
+    moisture_low: float = num(0.06, gt=0, le=2)  #: acceptable band [kg/kg dry]
+    moisture_high: float = num(0.16, gt=0, le=2)
 
     def check(self) -> str | None:
+        if not self.moisture_low < self.moisture_target < self.moisture_high:
+            return (f"moisture_target must lie inside moisture_low..moisture_high, got "
+                    f"{self.moisture_target} not in {self.moisture_low}..{self.moisture_high}")
         if self.moisture_basis not in MOISTURE_BASES:
             return (f"moisture_basis must be one of {', '.join(MOISTURE_BASES)}, "
                     f"got {self.moisture_basis!r}")
@@ -80,6 +96,17 @@ def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
     return float(moisture_pct(x + dx, basis) - moisture_pct(x, basis))
 
 
+def plant_error(name: str, value: float, x_ref: float, settings: DisplaySettings
+                ) -> tuple[float, str]:
+    """An error (RMSE, offset) of the output channel ``name`` in what people read: a kelvin
+    difference is the same number of °C; a moisture difference [kg/kg dry] near ``x_ref``
+    becomes % points on the display basis. Returns the value and its unit."""
+    if name.startswith("moisture"):
+        basis = settings.moisture_basis
+        return moisture_pct_points(value, x_ref, basis), f"% points ({basis} basis)"
+    return float(value), "°C"
+
+
 def celsius(T: float | np.ndarray) -> float | np.ndarray:
     """Temperature [K] in °C."""
     return T - C0
@@ -102,4 +129,4 @@ def local_clock(time_ns: int, settings: DisplaySettings) -> str:
 
 
 __all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
-           "local_clock", "local_times", "moisture_pct", "moisture_pct_points"]
+           "local_clock", "local_times", "moisture_pct", "moisture_pct_points", "plant_error"]

@@ -118,7 +118,7 @@ def encode_body(body: dict[str, Any]) -> bytes:
     return dumps(body).encode()
 
 
-#: Plausible range of a lab moisture result [kg/kg dry basis].
+#: Plausible range of a lab moisture result [kg/kg dry basis]; 0 itself is refused.
 MOISTURE_RANGE: tuple[float, float] = (0.0, 2.0)
 #: Sample times before this are refused (likely seconds or ms given as ns) [ns since epoch].
 EARLIEST_SAMPLE_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z
@@ -179,9 +179,12 @@ def _moisture(value: Any, where: str) -> float:
     if not math.isfinite(x):
         raise IngestError(f"{where}: moisture_out {raw!r} is not finite")
     lo, hi = MOISTURE_RANGE
-    if not lo <= x <= hi:
+    if x == lo:  # a bone-dry sample out of a dryer is a LIMS default or a typing slip
+        raise IngestError(f"{where}: moisture_out 0 is not a measurement (a LIMS default or "
+                          "a typing slip)")
+    if not lo < x <= hi:
         raise IngestError(f"{where}: moisture_out {x:g} kg/kg is outside the plausible range "
-                          f"{lo:g}..{hi:g}")
+                          f"{lo:g}..{hi:g} kg/kg dry basis")
     return x
 
 

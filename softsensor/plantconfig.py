@@ -203,7 +203,7 @@ _SECTIONS = {
 }
 #: Sections owned by other parts of the program (validated there), kept as raw tables.
 EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration", "display",
-                  "outputs", "plausibility")
+                  "outputs", "plausibility", "lab")
 
 
 def _parameters(table: Any, source: str) -> dict[str, ParameterSpec]:

@@ -119,6 +119,18 @@ def calibration_verdict(rmse_new: Mapping[str, float] | None,
     return " ".join(parts)
 
 
+def validation_verdict(rmse: Mapping[str, float], ratio: float | None, x_ref: float,
+                       basis: str = "wet") -> str:
+    """The errors of a model on independent data in plant units (°C, % points on ``basis``
+    at the moisture ``x_ref`` [kg/kg dry]): the one sentence the validation page and the
+    ``validate`` line share."""
+    pts = moisture_pct_points(rmse["moisture_out"], x_ref, basis)
+    tail = "." if ratio is None else f"; {ratio:.2f} times its cost on the calibration data."
+    return (f"On this independent data the calibrated model's errors (RMSE) are dryer outlet "
+            f"{rmse['T_dryer_out']:.2f} °C, cyclone outlet {rmse['T_cyclone_out']:.2f} °C and "
+            f"outlet moisture {pts:.2f} % points ({basis} basis){tail}")
+
+
 def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
     """:func:`calibration_verdict` of a :class:`~softsensor.calibration.pipeline.
     CalibrationResult`: its held-out errors (its calibration data when nothing was held
@@ -134,5 +146,39 @@ def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
         result.at_bounds, float(np.median(labs)) if labs.size else 0.1, basis, where=where)
 
 
+#: What the estimator's health says, in the words of the control room: (keyword found in the
+#: health's detail, what it means). The first that matches names the reason; the detail itself
+#: stays beside it for the engineer.
+_HEALTH_REASONS: tuple[tuple[str, str], ...] = (
+    ("stalled", "the estimator is late: no new estimate came when one was due"),
+    ("waiting for the first", "starting: waiting for the first complete 10-minute window"),
+    ("no estimate yet", "starting: no estimate yet"),
+    ("stale window", "too few good PLC scans in the last window: the moisture is predicted "
+                     "without the temperatures"),
+    ("stale since", "the PLC has sent no usable scans for a while"),
+    ("model lost the plant", "the model has lost the plant: the outlet moisture follows the "
+                             "last lab result"),
+    ("input:", "a measured input is missing or implausible (see the detail)"),
+    ("estimator failed", "the estimator failed on the last window"),
+    ("innovation", "the outlet temperatures disagree with the model more than usual"),
+    ("nis", "the outlet temperatures disagree with the model more than usual"),
+)
+
+
+def health_words(body: Mapping[str, Any]) -> str:
+    """A health body (docs/interface.md section 2: ``status``, ``detail``) as one sentence an
+    operator reads without knowing the filter."""
+    status = str(body.get("status", "stale"))
+    detail = str(body.get("detail") or "").lower()
+    if body.get("stalled"):
+        detail = "stalled " + detail
+    reason = next((text for key, text in _HEALTH_REASONS if key in detail), None)
+    if status == "ok":
+        return "Reliable: the model follows the measured outlet temperatures."
+    if status == "degraded":
+        return f"Less certain than usual: {reason or 'see the detail'}."
+    return f"No estimate from data: {reason or 'the PLC sends no usable scans'}."
+
+
 __all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
-           "diagnosis_verdict"]
+           "diagnosis_verdict", "health_words", "validation_verdict"]

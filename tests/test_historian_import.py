@@ -210,9 +210,16 @@ def _err(capsys, tmp_path: Path, map_path: Path, csv_text: str) -> str:
     return err
 
 
-def _csv(times: list[str], value: str = "1.0") -> str:
+#: A plausible value of every column of PLANT, in its plant unit.
+NOMINAL = {"TI101": "200", "FI102": "295", "WI103": "21.6", "TI104": "97", "FI105": "1800",
+           "TI001": "50", "MI002": "8", "TIC110.OP": "40", "TIC110.SP": "348",
+           "TIC110.PV": "75", "TI111": "72"}
+
+
+def _csv(times: list[str], value: str | None = None) -> str:
     header = "time," + ",".join(col for col, *_ in PLANT.values())
-    return header + "\n" + "\n".join(t + ("," + value) * len(PLANT) for t in times) + "\n"
+    row = ",".join(value or NOMINAL[col] for col, *_ in PLANT.values())
+    return header + "\n" + "\n".join(f"{t},{row}" for t in times) + "\n"
 
 
 def test_naive_times_without_a_zone_are_refused(tmp_path, capsys) -> None:

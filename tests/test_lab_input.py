@@ -133,17 +133,29 @@ def test_failed_sink_does_not_swallow_the_result() -> None:
 def test_csv_parsing() -> None:
     text = ("\ufeffsample_time,moisture_out,sample_id,operator\n"
             "2025-06-15T15:06:40Z,0.101,A1,jo\n"
-            f"{T_NS + 10**9},0.102,A2,jo\n"
             "\n"
-            "2025-06-15T16:00:00Z,abc,A3,jo\n"
-            "2025-06-15T16:00:00Z,0.1,A4\n")
+            "2025-06-15T15:06:41Z,0.102,A2,jo\n")
     parsed = parse_lab_csv(text, log_time_ns=NOW_NS, where="day.csv")
     assert [r.sample_id for r in parsed.results] == ["A1", "A2"]
     assert parsed.results[1].sample_time_ns == T_NS + 10**9
-    reasons = [r for _, r in parsed.bad]
-    assert reasons[0].startswith("day.csv line 5: moisture_out 'abc' is not a number")
-    assert reasons[1] == "day.csv line 6: 3 fields, header has 4"
-    with pytest.raises(IngestError, match=r"x.csv: header 'time,value' lacks sample_time"):
+    assert all(r.log_time_ns == NOW_NS for r in parsed.results)
+    ns = parse_lab_csv(f"sample_time_ns,moisture_out,sample_id\n{T_NS},0.1,N1\n")
+    assert ns.results[0].sample_time_ns == T_NS
+    # one bad entry refuses the file, naming the row and the column, quoting none of it
+    for body, match in [
+        ("2025-06-15T16:00:00Z,abc,A3,jo\n", r"day.csv row 2: moisture_out value is neither"),
+        ("2025-06-15T16:00:00Z,0.1,A4\n", r"day.csv line 3: 3 fields, the header has 4"),
+        ("2025-06-15T16:00:00Z,5,A5,jo\n", r"row 2: moisture_out gives a moisture outside"),
+        ("2025-06-15T16:00:00Z,0,A6,jo\n", r"row 2: moisture_out is 0: a bone-dry sample"),
+        ("15.06.2025 16:00Z,0.1,A7,jo\n", r"row 2: sample_time is not a time in format"),
+    ]:
+        bad = text.splitlines(keepends=True)[:2] + [body]
+        with pytest.raises(IngestError, match=match) as info:
+            parse_lab_csv("".join(bad), log_time_ns=NOW_NS, where="day.csv")
+        assert not any(cell in str(info.value) for cell in ("abc", "A4", "A5", "A6", "15.06")), \
+            info.value
+    with pytest.raises(IngestError, match=r"x.csv: column 'sample_time' of "
+                                          r"lab.sample_time_column is not in the file$"):
         parse_lab_csv("time,value\n1,2\n", where="x.csv")
     with pytest.raises(IngestError, match="no lab results after the header"):
         parse_lab_csv("sample_time,moisture_out,sample_id\n", where="x.csv")
@@ -153,15 +165,19 @@ def test_json_parsing() -> None:
     one = json.dumps({"sample_time": "2025-06-15T15:06:40Z", "moisture_out": 0.1,
                       "sample_id": "J1"})
     assert parse_lab_json(one).results[0].sample_time_ns == T_NS
-    many = json.dumps([{"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "J2"},
-                       {"sample_time_ns": T_NS, "moisture_out": 3.0, "sample_id": "J3"},
-                       "junk"])
-    parsed = parse_lab_json(many, where="m.json")
-    assert [r.sample_id for r in parsed.results] == ["J2"]
-    assert [r for _, r in parsed.bad] == [
-        "m.json entry 1: moisture_out 3 kg/kg is outside the plausible range 0..2",
-        "m.json entry 2: lab entry is a JSON str, not an object",
-    ]
+    many = [{"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "J2"},
+            {"sample_time_ns": T_NS + 1, "moisture_out": 0.12, "sample_id": "J3"}]
+    assert [r.sample_id for r in parse_lab_json(json.dumps(many)).results] == ["J2", "J3"]
+    for extra, match in [
+        ({"sample_time_ns": T_NS, "moisture_out": 3.0, "sample_id": "J4"},
+         r"m.json row 3: moisture_out gives a moisture outside the plausible range 0..2 kg/kg "
+         r"dry basis as kg/kg on a dry basis \(set lab.unit"),
+        ("junk", r"m.json entry 2: a JSON str, not an object"),
+        ({"sample_time_ns": T_NS, "moisture_out": [1], "sample_id": "J5"},
+         r"m.json entry 2: values must be numbers or text"),
+    ]:
+        with pytest.raises(IngestError, match=match):
+            parse_lab_json(json.dumps([*many, extra]), where="m.json")
     with pytest.raises(IngestError, match="m.json: not valid JSON"):
         parse_lab_json("{", where="m.json")
     with pytest.raises(IngestError, match="not an object or a list"):
@@ -198,27 +214,34 @@ def test_malformed_file_is_rejected_with_reason(inbox, tmp_path: Path) -> None:
         "notes.txt", "notes.txt.reason.txt"]
     assert "bad.json: not valid JSON" in (rej / "bad.json.reason.txt").read_text()
     assert "unsupported file type '.txt'" in (rej / "notes.txt.reason.txt").read_text()
-    assert "lacks sample_time" in (rej / "hdr.csv.reason.txt").read_text()
+    assert "column 'sample_time' of lab.sample_time_column is not in the file; nothing of " \
+        "the file was applied" in (rej / "hdr.csv.reason.txt").read_text()
     assert (rej / "bad.json").read_text() == "{not json"  # moved intact
     assert len(report.rejected) == 3
 
 
-def test_partly_bad_file(inbox, tmp_path: Path) -> None:
+def test_a_partly_bad_file_is_rejected_whole_and_only_rejected(inbox, tmp_path: Path) -> None:
+    """Issue 24 item 2: such a file also landed in processed/ with the reason "1 of 1 entries
+    rejected; the others were accepted". Now nothing of it is applied, it is in rejected/
+    only, and its reason quotes none of its content."""
     watcher, got = inbox
     _drop(tmp_path, "mix.csv", "sample_time,moisture_out,sample_id\n"
           "2025-06-15T15:06:40Z,0.1,M1\n"
           "2025-06-15T15:06:40Z,nan,M2\n"
           "2025-06-15T15:06:40Z,5,M3\n")
-    watcher.poll_once()
-    assert [lab.sample_id for lab in got] == ["M1"]
-    assert (tmp_path / "processed" / "mix.csv").exists()
-    bad = (tmp_path / "rejected" / "mix.csv").read_text().splitlines()
-    assert bad == ["sample_time,moisture_out,sample_id", "2025-06-15T15:06:40Z,nan,M2",
-                   "2025-06-15T15:06:40Z,5,M3"]
+    report = watcher.poll_once()
+    assert got == [] and not report.processed and not (tmp_path / "processed" / "mix.csv").exists()
+    assert sorted(p.name for p in (tmp_path / "rejected").iterdir()) == ["mix.csv",
+                                                                         "mix.csv.reason.txt"]
     reason = (tmp_path / "rejected" / "mix.csv.reason.txt").read_text()
-    assert "2 of 3 entries rejected" in reason
-    assert "line 3: moisture_out 'nan' is not finite" in reason
-    assert "line 4: moisture_out 5 kg/kg is outside" in reason
+    assert reason == "mix.csv row 3: moisture_out gives a moisture outside the plausible range " \
+        "0..2 kg/kg dry basis as kg/kg on a dry basis (set lab.unit = \"%\" and lab.basis); " \
+        "nothing of the file was applied\n", reason
+    # fixed and dropped again, it is taken (M1 was never marked seen)
+    _drop(tmp_path, "mix.csv", "sample_time,moisture_out,sample_id\n"
+          "2025-06-15T15:06:40Z,0.1,M1\n2025-06-15T15:06:40Z,0.11,M3\n")
+    watcher.poll_once()
+    assert [lab.sample_id for lab in got] == ["M1", "M3"]
 
 
 def test_duplicates_across_files_and_same_name_again(inbox, tmp_path: Path) -> None:
@@ -281,10 +304,12 @@ def test_naive_times_in_lab_files_are_on_the_plant_clock(tmp_path):
     from softsensor.ingest.lab_input import parse_lab_file
 
     f = tmp_path / "lims.csv"
-    f.write_text("sample_time,moisture_out,sample_id\n2026-01-05 10:00:00,0.1,A\n"
-                 "2026-01-05T10:00:00+00:00,0.1,B\n")
+    f.write_text("sample_time,moisture_out,sample_id\n2026-01-05 10:00:00,0.1,A\n")
+    g = tmp_path / "lims-utc.csv"
+    g.write_text("sample_time,moisture_out,sample_id\n2026-01-05T10:00:00+00:00,0.1,B\n")
     local = parse_lab_file(f, zone=ZoneInfo("Europe/Stockholm")).results
-    utc = parse_lab_file(f).results
+    local += parse_lab_file(g, zone=ZoneInfo("Europe/Stockholm")).results
+    utc = parse_lab_file(f).results + parse_lab_file(g).results
     t_utc10 = 1_767_607_200 * 10**9  # 2026-01-05T10:00Z
     assert local[0].sample_time_ns == t_utc10 - 3600 * 10**9
     assert local[1].sample_time_ns == utc[1].sample_time_ns == t_utc10

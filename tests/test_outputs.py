@@ -131,27 +131,49 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_mbpoll_and_refuses_wr
             lp.run(server.stop())
 
 
-def _scrape(port: int) -> dict[str, float]:
+def _scrape(port: int, unit: str = "dryer1", site: str = "plant") -> dict[str, float]:
+    """Every sample by name and labels; each must carry the ``unit`` and ``site`` labels
+    (left out of the key)."""
     text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
     out = {}
     for fam in text_string_to_metric_families(text):
         for s in fam.samples:
-            key = s.name + ("" if not s.labels else str(sorted(s.labels.items())))
+            labels = dict(s.labels)
+            assert (labels.pop("unit", None), labels.pop("site", None)) == (unit, site), s
+            key = s.name + ("" if not labels else str(sorted(labels.items())))
             out[key] = s.value
     return out
 
 
 def test_metrics_parse_with_prometheus_client_and_read_the_counters_live():
     ticks = [3]
-    m = DaemonMetrics(MetricsSettings(enabled=True, port=0),
-                      {"softsensor_ticks": ("ticks", lambda: ticks[0])})
+    m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill-north"),
+                      {"softsensor_ticks": ("ticks", lambda: ticks[0])}, unit="dryer2",
+                      display=DisplaySettings(moisture_basis="dry"))
     m.start()
     try:
-        first = _scrape(m.port)
+        first = _scrape(m.port, "dryer2", "mill-north")
         assert math.isnan(first["softsensor_moisture_out_kg_per_kg"])
-        m.publish(BODY, T_NS, duration_s=0.04)
+        body = {**BODY, "T_dryer_out_measured": 348.65, "T_dryer_out_model": 348.15}
+        m.publish(body, T_NS, duration_s=0.04)
         ticks[0] = 4
-        got = _scrape(m.port)
+        got = _scrape(m.port, "dryer2", "mill-north")
+        # % wet basis whatever the display basis (what a lab and an operator read)
+        wet = 100 * 0.1034 / 1.1034
+        assert got["softsensor_moisture_out_wet_basis_percent"] == pytest.approx(wet)
+        assert got["softsensor_moisture_in_wet_basis_percent"] == pytest.approx(
+            100 * 1.0312 / 2.0312)
+        low = got["softsensor_moisture_out_band_wet_basis_percent[('bound', 'low')]"]
+        high = got["softsensor_moisture_out_band_wet_basis_percent[('bound', 'high')]"]
+        assert low < wet < high and high - low == pytest.approx(
+            100 * (0.1034 + 1.96 * 0.0042) / (1.1034 + 1.96 * 0.0042)
+            - 100 * (0.1034 - 1.96 * 0.0042) / (1.1034 - 1.96 * 0.0042))
+        assert got["softsensor_moisture_out_limit_wet_basis_percent[('level', 'target')]"] \
+            == pytest.approx(100 * 0.10 / 1.10)
+        assert got["softsensor_outlet_temperature_celsius[('channel', 'T_dryer_out'), "
+                   "('source', 'measured')]"] == pytest.approx(75.5)
+        assert got["softsensor_outlet_temperature_celsius[('channel', 'T_dryer_out'), "
+                   "('source', 'model')]"] == pytest.approx(75.0)
         assert got["softsensor_moisture_out_kg_per_kg"] == pytest.approx(0.1034)
         assert got["softsensor_moisture_in_std_kg_per_kg"] == pytest.approx(0.021)
         assert got["softsensor_window_end_seconds"] == pytest.approx(T_NS / 1e9)

@@ -1,5 +1,7 @@
-"""The estimate on OPC UA (``[outputs.opcua]``, issue 13), read by an asyncua client on
-127.0.0.1: typed variables with engineering units, the values published, writes refused."""
+"""The estimate on OPC UA (``[outputs.opcua]``, issues 13 and 24 item 6), read by an asyncua
+client on 127.0.0.1: AnalogItemType variables with EURange and EngineeringUnits, each value
+stamped with the end of its window and a status from the health, HistoryRead over the last
+48 h, writes refused."""
 
 from __future__ import annotations
 
@@ -7,7 +9,7 @@ import asyncio
 import math
 import socket
 import threading
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 
 import pytest
 from asyncua import Client, ua
@@ -17,14 +19,20 @@ from softsensor.outputs.opcua_server import NAMESPACE, EstimateOpcUaServer
 from softsensor.outputs.settings import OpcUaSettings
 
 BODY = {"moisture_out": 0.1034, "moisture_out_std": 0.0042, "moisture_in": 1.0312,
-        "moisture_in_std": 0.021, "status": "degraded", "lab_updated": True}
+        "moisture_in_std": 0.021, "status": "degraded", "lab_updated": True,
+        "T_dryer_out_measured": 348.65, "T_dryer_out_model": 348.15}
 T_NS = 1_767_607_800 * 10**9
+W_NS = 600 * 10**9
 
 
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def _utc(ns: int) -> datetime:
+    return datetime.fromtimestamp(ns / 1e9, UTC)
 
 
 async def _read(endpoint: str, names: list[str], write: bool = False) -> dict:
@@ -34,10 +42,23 @@ async def _read(endpoint: str, names: list[str], write: bool = False) -> dict:
         out = {}
         for n in names:
             node = await obj.get_child([f"{idx}:{n}"])
-            out[n] = (await node.read_value(), await node.read_data_type_as_variant_type())
+            dv = await node.read_data_value(raise_on_bad_status=False)
+            out[n] = (dv.Value.Value, await node.read_data_type_as_variant_type())
+            out[n + ":dv"] = dv
             if n == "moisture_out":
+                out["type"] = await node.read_type_definition()
                 eu = await node.get_child(["0:EngineeringUnits"])
                 out["eu"] = (await eu.read_value()).DisplayName.Text
+                rng = await (await node.get_child(["0:EURange"])).read_value()
+                out["range"] = (rng.Low, rng.High)
+                out["historizing"] = (await node.read_attribute(
+                    ua.AttributeIds.Historizing)).Value.Value
+                access = (await node.read_attribute(ua.AttributeIds.AccessLevel)).Value.Value
+                out["history_read"] = bool(access & (1 << ua.AccessLevel.HistoryRead))
+                end = _utc(T_NS + 10 * W_NS)
+                history = await node.read_raw_history(end - timedelta(hours=48), end)
+                out["history"] = [(d.SourceTimestamp.replace(tzinfo=UTC), d.Value.Value)
+                                  for d in history]
                 if write:
                     try:
                         await node.write_value(ua.Variant(0.5, ua.VariantType.Double))
@@ -47,7 +68,7 @@ async def _read(endpoint: str, names: list[str], write: bool = False) -> dict:
         return out
 
 
-def test_an_asyncua_client_reads_typed_values_with_units_and_cannot_write():
+def test_an_asyncua_client_reads_analog_items_with_source_times_and_history():
     server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=_free_port()),
                                  DisplaySettings(moisture_basis="wet"))
     loop = asyncio.new_event_loop()
@@ -57,26 +78,40 @@ def test_an_asyncua_client_reads_typed_values_with_units_and_cannot_write():
     def run(coro, timeout=30.0):
         return asyncio.run_coroutine_threadsafe(coro, loop).result(timeout)
 
-    names = ["moisture_out", "moisture_in_pct", "window_end", "health", "health_code",
-             "lab_updated"]
+    names = ["moisture_out", "moisture_in_pct", "T_dryer_out_measured", "window_end",
+             "health", "health_code", "lab_updated"]
     try:
         run(server.start())
         before = run(_read(server.endpoint, names))
-        assert math.isnan(before["moisture_out"][0]) and before["health_code"][0] == 3
-        server.publish(BODY, T_NS)  # from this thread, as the estimator's
+        assert before["moisture_out"][0] is None or math.isnan(before["moisture_out"][0])
+        assert before["health_code"][0] == 3 and before["health"][0] == "stale"
+        assert before["moisture_out:dv"].StatusCode.value == \
+            ua.StatusCodes.BadWaitingForInitialData
+        # three windows, published from this thread as the estimator's, 10 min apart
+        for k, x in enumerate((0.101, 0.102, 0.1034)):
+            server.publish({**BODY, "moisture_out": x}, T_NS + k * W_NS)
+            run(asyncio.sleep(0.1))
         got = before
-        for _ in range(100):  # bounded: the write is handed to the server's loop
+        for _ in range(100):  # bounded: the writes are handed to the server's loop
             got = run(_read(server.endpoint, names, write=True))
-            if got["health"][0] == "degraded":
+            if got["health"][0] == "degraded" and len(got["history"]) == 3:
                 break
+        assert got["type"] == ua.NodeId(ua.ObjectIds.AnalogItemType)
         assert got["moisture_out"] == (pytest.approx(0.1034), ua.VariantType.Double)
+        assert got["eu"] == "kg/kg" and got["range"] == (0.0, 2.0)
+        dv = got["moisture_out:dv"]
+        # the value is as of its window's end, not of the write; degraded: Uncertain
+        assert dv.SourceTimestamp.replace(tzinfo=UTC) == _utc(T_NS + 2 * W_NS)
+        assert dv.StatusCode.value == ua.StatusCodes.Uncertain
+        assert got["historizing"] is True and got["history_read"]
+        assert got["history"] == [(_utc(T_NS + k * W_NS), pytest.approx(x))
+                                  for k, x in enumerate((0.101, 0.102, 0.1034))]
         assert got["moisture_in_pct"][0] == pytest.approx(100 * 1.0312 / 2.0312)
-        assert got["window_end"][0].replace(tzinfo=UTC) == datetime.fromtimestamp(
-            T_NS / 1e9, UTC)
+        assert got["T_dryer_out_measured"][0] == pytest.approx(75.5)
+        assert got["window_end"][0].replace(tzinfo=UTC) == _utc(T_NS + 2 * W_NS)
         assert got["health"] == ("degraded", ua.VariantType.String)
         assert got["health_code"] == (1, ua.VariantType.UInt16)
         assert got["lab_updated"] == (True, ua.VariantType.Boolean)
-        assert got["eu"] == "kg/kg"
         assert got["write"] != "accepted", got["write"]
     finally:
         run(server.stop())

@@ -21,14 +21,20 @@ from softsensor.calibration.identifiability import (
     Sensitivities,
 )
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
-from softsensor.display import display_settings
+from softsensor.display import DisplaySettings, display_settings, plant_error
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import calibration_result_verdict
+from softsensor.verdicts import calibration_result_verdict, validation_verdict
 
 _UNIT = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
+
+
+def lab_reference(segments) -> float:
+    """The moisture [kg/kg dry] at which kg/kg errors become % points: the median lab."""
+    labs = np.concatenate([seg.lab_value for seg in segments]) if segments else np.zeros(0)
+    return float(np.median(labs)) if labs.size else 0.1
 
 
 def _dir(path: str | Path) -> Path:
@@ -40,11 +46,17 @@ def _dir(path: str | Path) -> Path:
     return d
 
 
-def fit_table(fit: Fit, weights: np.ndarray) -> str:
+def fit_table(fit: Fit, weights: np.ndarray, display: DisplaySettings, x_ref: float) -> str:
+    """Errors per channel in plant units (°C, % points on the display basis at ``x_ref``),
+    as the verdict above them says them; the weighted terms of eq. 4 beside."""
     w = weighted_rmse(fit, weights)
-    rows = [(n, _UNIT[n], fit.n[n], f"{fit.rmse[n]:.4g}", f"{w[n]:.4g}") for n in OUTPUT_NAMES]
+    rows = []
+    for n in OUTPUT_NAMES:
+        value, unit = plant_error(n, fit.rmse[n], x_ref, display)
+        rows.append((n, unit, fit.n[n], f"{value:.3g}", f"{w[n]:.4g}"))
     rows.append(("**cost J (eq. 4)**", "", "", "", f"**{fit.cost:.4g}**"))
-    return figures.markdown_table(("channel", "unit", "samples", "RMSE", "WF x RMSE"), rows)
+    return figures.markdown_table(("channel", "unit", "samples", "RMSE", "WF x RMSE (SI)"),
+                                  rows)
 
 
 def identifiability_table(ident: Identifiability, config: PlantConfig,
@@ -104,7 +116,9 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     sections.append(("Calibrated parameters", figures.markdown_table(
         ("parameter", "calibrated", "config", "bounds"), rows)))
     cur = result.current_evaluation
-    sections.append(("Fit on the calibration data", fit_table(result.fit, cfg.cost.weights())
+    disp, x_ref = display_settings(cfg), lab_reference(result.segments)
+    sections.append(("Fit on the calibration data", fit_table(result.fit, cfg.cost.weights(),
+                                                              disp, x_ref)
                      + "\n\nEq. 4 at the current parameters: "
                      + ("n/a" if cur is None else f"{cur.fit.cost:.4g}")
                      + f"\n\n{result.verdict_line()}"))
@@ -155,25 +169,21 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
 def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path
                     ) -> Path:
     d = _dir(directory)
+    disp, x_ref = display_settings(config), lab_reference(result.segments)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
                               "Validation: calibrated model (nominal inlet moisture) vs "
-                              "independent data", display_settings(config))
+                              "independent data", disp)
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     sections = [
         ("Fit with the inlet moisture fitted to the temperatures",
-         fit_table(result.fit, config.cost.weights())
+         fit_table(result.fit, config.cost.weights(), disp, x_ref)
          + f"\n\nValidation cost / calibration cost: {ratio}"),
         ("Open loop (nominal inlet moisture)",
-         fit_table(result.evaluation.open_fit, config.cost.weights())),
+         fit_table(result.evaluation.open_fit, config.cost.weights(), disp, x_ref)),
         ("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"),
     ]
     title = ", ".join(s.source for s in result.segments)
-    verdict = (f"On this independent data the calibrated model's errors (RMSE) are dryer "
-               f"outlet {result.fit.rmse['T_dryer_out']:.2f} °C, cyclone outlet "
-               f"{result.fit.rmse['T_cyclone_out']:.2f} °C and outlet moisture "
-               f"{100 * result.fit.rmse['moisture_out']:.2f} % points (dry basis)"
-               + ("." if result.ratio is None
-                  else f"; {ratio} times its cost on the calibration data."))
+    verdict = validation_verdict(result.fit.rmse, result.ratio, x_ref, disp.moisture_basis)
     return figures.write_page(d, f"Validation report: {title}", sections, verdict=verdict)
 
 
@@ -189,4 +199,4 @@ def identifiability_verdict(ident: Identifiability) -> str:
 
 
 __all__ = ["calibration_page", "fit_table", "identifiability_table", "identify_page",
-           "validation_page"]
+           "lab_reference", "validation_page"]

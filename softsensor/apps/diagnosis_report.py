@@ -40,6 +40,7 @@ from softsensor.display import (  # noqa: E402
     local_times,
     moisture_pct,
     moisture_pct_points,
+    plant_error,
 )
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
@@ -179,8 +180,16 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
              r["evidence"].replace("|", "/")] for r in doc["ranking"]]
     table = markdown_table(["cause", "score", "held-out gain", "penalised log-lik. gain",
                             "evidence"], rows)
-    rm = markdown_table(["channel", "baseline RMSE", "extended RMSE"],
-                        [[n, _fmt(doc["baseline_rmse"][n]), _fmt(doc["extended_rmse"][n])]
+    disp = display_settings(d.problem.config)
+    labs = d.problem.windows.lab_value
+    x_ref = float(np.median(labs)) if labs.size else 0.1
+
+    def plant(n: str, v: float | None) -> str:
+        return "n/a" if v is None else f"{plant_error(n, v, x_ref, disp)[0]:.3g}"
+
+    rm = markdown_table(["channel", "unit", "baseline RMSE", "extended RMSE"],
+                        [[n, plant_error(n, 0.0, x_ref, disp)[1],
+                          plant(n, doc["baseline_rmse"][n]), plant(n, doc["extended_rmse"][n])]
                          for n in OUTPUT_NAMES])
     stats = (f"**Cause: `{doc['cause']}`**"
              + (f" on `{doc['channel']}`" if doc.get("channel") else "")
@@ -202,6 +211,3 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
     return write_page(out, f"Diagnosis of {doc.get('day', 'the day')}", sections,
                       verdict=diagnosis_verdict(doc))
 
-
-def _fmt(v: float | None) -> str:
-    return "n/a" if v is None else f"{v:.4g}"

@@ -1,10 +1,11 @@
-"""``softsensor import`` and ``softsensor export``: historian tables in, estimate tables out.
+"""``softsensor import`` (and, from :mod:`.export`, ``softsensor export``): historian tables
+in, estimate tables out.
 
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map
-(:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`.
-``export`` writes the estimates (and health) of a replay or daemon recording as a CSV or
-Parquet table (:mod:`softsensor.recording.estimates_table`). Both print one summary line.
+(:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`
+and :mod:`softsensor.ingest.lims`. ``--preview`` prints what the map makes of the export and
+writes nothing. It prints one summary line, its times on the map's clock.
 """
 
 from __future__ import annotations
@@ -14,9 +15,13 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from softsensor.apps.export import add_export_command
 from softsensor.apps.output import writing
-from softsensor.errors import ConfigError, IngestError
-from softsensor.ingest.historian import LabTable, ScanTable
+from softsensor.errors import ConfigError
+from softsensor.ingest.historian import ScanTable
+from softsensor.ingest.lims import LabTable
 from softsensor.messages import iso_utc, lab_body
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
 
@@ -46,24 +51,105 @@ def _counts(counts: dict[str, int]) -> str:
     return ", ".join(parts) if parts else "none"
 
 
-def _import(args: argparse.Namespace) -> int:
-    from softsensor.ingest.historian import convert_labs, convert_scans
-    from softsensor.ingest.historian_map import load_map
+def _clock(ns: int, zone: str | None) -> str:
+    """A time as the plant's clock reads it (the map's zone), or UTC."""
+    if zone is None:
+        return iso_utc(ns)
+    from softsensor.display import DisplaySettings, local_clock
+
+    return local_clock(ns, DisplaySettings(time_zone=zone))
+
+
+def _read_scans(hmap, path: Path, strict: bool) -> ScanTable:
+    from softsensor.ingest.historian import convert_scans
     from softsensor.ingest.tables import read_table
+
+    src = hmap.source
+    frame = read_table(path, delimiter=src.delimiter, skip_rows=src.skip_rows,
+                       max_rows=src.max_rows)
+    return convert_scans(frame, hmap, str(path), strict=strict)
+
+
+def _read_labs(hmap, path: Path) -> LabTable:
+    from softsensor.ingest.lims import convert_labs
+    from softsensor.ingest.tables import read_table
+
+    lab = hmap.lab
+    assert lab is not None
+    frame = read_table(path, delimiter=lab.delimiter, skip_rows=lab.skip_rows)
+    return convert_labs(frame, lab, hmap.source.time_zone, str(path))
+
+
+def _aligned(rows: list[tuple[str, ...]]) -> list[str]:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    return ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip()
+            for r in rows]
+
+
+def preview_text(hmap, scans: ScanTable, path: Path, rows: int) -> str:
+    """What ``import --preview`` prints: each signal's source, unit and range in the export's
+    unit and in SI, the values outside the physical ranges, then the first scans (SI)."""
+    from softsensor.ingest.units import PHYSICAL_RANGE
+    from softsensor.signals import SCAN_SIGNALS
+
+    zone = hmap.source.time_zone
+    period, _ = scans.period_s()
+    out = [f"preview of {path} (nothing written): {scans.rows_read} rows, {len(scans)} scans "
+           f"{_clock(int(scans.times_ns[0]), zone)} .. {_clock(int(scans.times_ns[-1]), zone)}"
+           + ("" if math.isnan(period) else f", period {period:g} s")]
+    head = ("signal", "from", "unit", "min", "max", "SI unit", "SI min", "SI max",
+            "physical range", "bad", "missing")
+    table = [head]
+
+    def rng(v) -> tuple[str, str]:
+        ok = v[np.isfinite(v)]
+        return (f"{ok.min():.4g}", f"{ok.max():.4g}") if ok.size else ("-", "-")
+
+    for name, si_unit in SCAN_SIGNALS.items():
+        sm = hmap.signals.get(name)
+        lo, hi = PHYSICAL_RANGE[name]
+        if sm is None:
+            table.append((name, "(not in the map)", "", "", "", si_unit, "", "",
+                          f"{lo:g}..{hi:g}", "", str(len(scans))))
+            continue
+        unit = sm.unit + ("" if sm.quantity == "humidity_ratio" else f" ({sm.quantity})")
+        table.append((name, sm.column or sm.tag or f"constant {sm.constant:g}", unit,
+                      *rng(scans.raw[name]), si_unit, *rng(scans.values[name]),
+                      f"{lo:g}..{hi:g}", str(scans.bad[name]), str(scans.missing[name])))
+    out += _aligned(table)
+    out += [f"OUTSIDE: {p}" for p in scans.out_of_range]
+    names = list(SCAN_SIGNALS)
+    out.append(f"first {min(rows, len(scans))} scans (SI units, time UTC):")
+    first = [("time_utc", *names)]
+    for i in range(min(rows, len(scans))):
+        body = scans.body(i)
+        first.append((iso_utc(int(scans.times_ns[i])),
+                      *("null" if body[n] is None else f"{body[n]:.6g}" for n in names)))
+    out += _aligned(first)
+    return "\n".join(out)
+
+
+def _import(args: argparse.Namespace) -> int:
+    from softsensor.ingest.historian_map import load_map
 
     hmap = load_map(args.map)
     if args.lab and hmap.lab is None:
         raise ConfigError(f"{hmap.path}: --lab given but the map has no [lab] section")
+    if args.preview is not None and not 1 <= args.preview <= 10_000:
+        raise ConfigError(f"--preview {args.preview}: give 1 to 10000 rows")
+    if args.out is None and args.preview is None:
+        raise ConfigError("import: give --out DAY.mcap (or --preview to look first)")
     scans_path = Path(args.scans)
-    scans = convert_scans(read_table(scans_path, delimiter=hmap.source.delimiter), hmap,
-                          str(scans_path))
-    labs = None
-    if args.lab:
-        assert hmap.lab is not None
-        lab_path = Path(args.lab)
-        labs = convert_labs(read_table(lab_path, delimiter=hmap.lab.delimiter), hmap.lab,
-                            hmap.source.time_zone, str(lab_path))
+    scans = _read_scans(hmap, scans_path, strict=args.preview is None)
+    labs = _read_labs(hmap, Path(args.lab)) if args.lab else None
+    if args.preview is not None:
+        print(preview_text(hmap, scans, scans_path, args.preview), flush=True)
+        lab_txt = "" if labs is None else f", {len(labs.results)} lab results"
+        print(f"import --preview: {len(scans)} scans{lab_txt} read; nothing written",
+              file=sys.stderr)
+        return 0
     write_imported_day(args.out, scans, labs)
+    zone = hmap.source.time_zone
     period, regular = scans.period_s()
     period_txt = ("period n/a (one scan)" if math.isnan(period)
                   else f"period {period:g} s ({'regular' if regular else 'irregular'})")
@@ -74,29 +160,9 @@ def _import(args: argparse.Namespace) -> int:
         lab_txt = (f"; {len(labs.results)} labs written from {labs.rows_read} rows"
                    + (f" ({labs.bad} without a result)" if labs.bad else ""))
     print(f"imported {scans_path}: {scans.rows_read} rows read{skipped}, {len(scans)} scans "
-          f"{iso_utc(int(scans.times_ns[0]))} .. {iso_utc(int(scans.times_ns[-1]))}, "
+          f"{_clock(int(scans.times_ns[0]), zone)} .. {_clock(int(scans.times_ns[-1]), zone)}, "
           f"{period_txt}; bad values: {_counts(scans.bad)}; missing: {_counts(scans.missing)}"
           f"{unmapped}{lab_txt}; wrote {args.out}", file=sys.stderr)
-    return 0
-
-
-def _export(args: argparse.Namespace) -> int:
-    from softsensor.ingest.tables import table_kind, write_table
-    from softsensor.recording.estimates_table import estimates_table
-
-    targets = [(p, kind) for p, kind in ((args.csv, "csv"), (args.parquet, "parquet")) if p]
-    if not targets:
-        raise ConfigError("export: give --csv OUT.csv and/or --parquet OUT.parquet")
-    for p, kind in targets:
-        if table_kind(Path(p)) != kind:
-            raise IngestError(f"--{kind} {p}: the file name does not end in .{kind}")
-    table = estimates_table(args.recording)
-    for p, kind in targets:
-        with writing(p, f"--{kind}") as tmp:
-            write_table(table, tmp)
-    print(f"exported {args.recording}: {len(table)} estimates "
-          f"{table['time_utc'].iloc[0]} .. {table['time_utc'].iloc[-1]}, "
-          f"{table.shape[1]} columns; wrote {', '.join(p for p, _ in targets)}", file=sys.stderr)
     return 0
 
 
@@ -111,14 +177,10 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="historian export, .csv or .parquet (wide or long layout)")
     p.add_argument("--lab", default=None, metavar="LIMS",
                    help="LIMS file, .csv or .parquet (needs the map's [lab] section)")
-    p.add_argument("--out", required=True, metavar="DAY.mcap", help="MCAP file to write")
+    p.add_argument("--out", default=None, metavar="DAY.mcap", help="MCAP file to write")
+    p.add_argument("--preview", type=int, nargs="?", const=5, default=None, metavar="ROWS",
+                   help="print each signal's source, unit and range and the first ROWS (5) "
+                        "converted scans, and write nothing")
     p.set_defaults(func=_import)
 
-    e = sub.add_parser("export", help="estimates of a recording -> CSV/Parquet table",
-                       description="One row per estimate: time_utc, time_ns, every numeric "
-                                   "estimate field, the health at that time (health_*).")
-    e.add_argument("recording", metavar="EST.mcap", help="replay or daemon recording")
-    e.add_argument("--csv", default=None, metavar="OUT.csv", help="CSV file to write")
-    e.add_argument("--parquet", default=None, metavar="OUT.parquet",
-                   help="Parquet file to write")
-    e.set_defaults(func=_export)
+    add_export_command(sub)

@@ -62,7 +62,7 @@ def simulate_plant(cfg: PlantConfig, args: argparse.Namespace) -> SimulatedDay:
 async def _serve(args: argparse.Namespace) -> int:
     from softsensor.ingest.tagmap import load_tagmap
     from softsensor.plant.plc_feed import PlantFeed
-    from softsensor.plant.plc_server import PlcServer
+    from softsensor.plant.plc_server import PlcServer, check_port
     from softsensor.plant.settings import virtual_plant_settings
 
     cfg = load_plant(args)
@@ -72,6 +72,7 @@ async def _serve(args: argparse.Namespace) -> int:
     if args.lab_dir is not None and Path(args.lab_dir).exists() \
             and not Path(args.lab_dir).is_dir():
         raise ConfigError(f"--lab-dir {args.lab_dir}: exists and is not a folder")
+    check_port(args.host, args.port)
     day = simulate_plant(cfg, args)
     feed = PlantFeed(day, lab_dir=args.lab_dir, loop=not args.once)
     period = virtual_plant_settings(cfg).scan_period / args.speed

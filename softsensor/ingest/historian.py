@@ -1,18 +1,18 @@
-"""Historian exports and LIMS tables into scans and lab results (CONTRACT sections 1 and 2).
+"""Historian exports into scans (CONTRACT sections 1 and 2).
 
 Pure: tables in (pandas DataFrames, as :mod:`softsensor.ingest.tables` reads them from CSV or
-Parquet), SI arrays and :class:`~softsensor.messages.LabResult` out, laid out by a
-:class:`~softsensor.ingest.historian_map.HistorianMap`.
+Parquet), SI arrays out, laid out by a :class:`~softsensor.ingest.historian_map.HistorianMap`.
+Cells become numbers and times by :mod:`softsensor.ingest.cells` (time zones, bad-value
+strings, decimal marks); LIMS files are :mod:`softsensor.ingest.lims`.
 
-* Times: ISO-8601 text (or the map's ``time_format``) with an offset is taken as written;
-  naive text is local time in the map's IANA zone (``zoneinfo`` rules, so DST shifts are
-  right; an hour repeated when clocks go back is resolved from the order of the rows); numeric
-  timestamps are since the epoch in the map's ``time_unit``. A time before 2000 or after
-  now + 1 day is refused with a hint about the unit.
-* Values: numbers, converted to SI by pint (:mod:`softsensor.ingest.units`); empty cells are
-  missing; the bad-quality strings of the map (``Bad``, ``I/O Timeout``, ``Shutdown``, ...) and
-  rows whose quality is not good are bad. Missing and bad are both ``null`` in the scan body
-  and counted per signal. Any other text is refused, so a wrong column is not read as nulls.
+* Values are converted to SI by pint (:mod:`softsensor.ingest.units`); an ambient humidity
+  given as relative humidity (with the ambient temperature of the same scan) or as a dew point
+  becomes a humidity ratio by the model's psychrometrics (:mod:`softsensor.ingest.humidity`).
+  Missing and bad cells are both ``null`` in the scan body and counted per signal.
+* Every value is checked against its signal's physical range
+  (:data:`~softsensor.ingest.units.PHYSICAL_RANGE`): outside it the import stops with one line
+  naming the tag, its value in the export's unit and in SI, and the map key to check (or, with
+  ``out_of_range = "null"``, the value is bad).
 * Scans are kept at the export's own timestamps (no resampling); the wide layout gives one scan
   per row, the long layout one per distinct time of a mapped tag.
 """
@@ -20,191 +20,28 @@ Parquet), SI arrays and :class:`~softsensor.messages.LabResult` out, laid out by
 from __future__ import annotations
 
 import math
-import re
-import time
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from softsensor.errors import IngestError
-from softsensor.ingest.historian_map import (
-    DEFAULT_BAD_VALUES,
-    TIME_UNITS,
-    HistorianMap,
-    LabMap,
+from softsensor.ingest.cells import (
+    TimeSpec,
+    bad_quality,
+    column,
+    numbers,
+    text_cells,
+    timestamps_ns,
 )
-from softsensor.ingest.units import moisture_dry_basis, to_signal_si
-from softsensor.messages import LabResult, iso_utc, make_lab_result
+from softsensor.ingest.historian_map import DEFAULT_BAD_VALUES, HistorianMap, SignalMap
+from softsensor.ingest.humidity import ratio_from_dew_point, ratio_from_relative_humidity
+from softsensor.ingest.units import PHYSICAL_RANGE, to_signal_si, to_unit
+from softsensor.messages import iso_utc
 from softsensor.signals import SCAN_SIGNALS
 
-#: Earliest plausible time [ns since epoch]: 2000-01-01T00:00:00Z.
-EARLIEST_NS = 946_684_800 * 10**9
-#: How far after now a time may lie (clock skew between historian and this machine) [ns].
-FUTURE_SLACK_NS = 86_400 * 10**9
-
-_OFFSET = re.compile(r"(?:Z|[+-]\d\d:?\d\d)$", re.IGNORECASE)
-_NUMERIC = re.compile(r"^[+-]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?$")
-
-
-@dataclass(frozen=True)
-class TimeSpec:
-    """How a time column is written: zone of naive times, unit of numbers, text format."""
-
-    column: str
-    zone: str | None
-    unit: str | None
-    fmt: str | None
-    key: str  #: map section the spec comes from, for messages ("source", "lab")
-
-
-# ----------------------------------------------------------------------------------------------
-# Times
-
-
-def _text(series: pd.Series) -> pd.Series:
-    """Cells as trimmed strings, ``""`` for empty or missing."""
-    return series.map(lambda v: "" if v is None or (isinstance(v, float) and math.isnan(v))
-                      else str(v).strip())
-
-
-def _check_range(ns: np.ndarray, spec: TimeSpec, where: str, raw: Any = None) -> None:
-    latest = time.time_ns() + FUTURE_SLACK_NS
-    bad = np.flatnonzero((ns < EARLIEST_NS) | (ns > latest))
-    if not len(bad):
-        return
-    i = int(bad[0])
-    side = "before 2000" if ns[i] < EARLIEST_NS else "more than a day in the future"
-    msg = (f"{where} row {i + 1}: {spec.column} {raw[i] if raw is not None else ''!s} gives "
-           f"{iso_utc(int(ns[i])) if abs(int(ns[i])) < 2**62 else 'an absurd time'}, {side}")
-    if spec.unit is not None and raw is not None:
-        fits = [u for u, size in TIME_UNITS.items()
-                if EARLIEST_NS <= float(raw[i]) * size <= latest]
-        hint = f"; as {fits[0]} it would be {iso_utc(int(float(raw[i]) * TIME_UNITS[fits[0]]))}" \
-            if fits else ""
-        msg += f" (is {spec.key}.time_unit = {spec.unit!r} right?{hint})"
-    else:
-        msg += f" (check {spec.key}.time_column and {spec.key}.time_format)"
-    raise IngestError(msg)
-
-
-def _from_numbers(values: np.ndarray, spec: TimeSpec, where: str) -> np.ndarray:
-    if spec.unit is None:
-        raise IngestError(f"{where}: {spec.column} holds numbers; {spec.key}.time_unit must say "
-                          f"which unit since the epoch ({', '.join(TIME_UNITS)})")
-    if not np.all(np.isfinite(values)):
-        i = int(np.flatnonzero(~np.isfinite(values))[0])
-        raise IngestError(f"{where} row {i + 1}: {spec.column} is empty or not a time")
-    size = TIME_UNITS[spec.unit]
-    approx = values.astype(float) * size  # checked in float first: int64 would wrap around
-    _check_range(approx, spec, where, values)
-    if values.dtype.kind in "iu":
-        return values.astype(np.int64) * size
-    return np.round(approx).astype(np.int64)
-
-
-def _localize(naive: pd.DatetimeIndex, spec: TimeSpec, where: str) -> pd.DatetimeIndex:
-    if spec.zone is None:
-        raise IngestError(f"{where}: {spec.column} has times without a UTC offset and the map "
-                          f"names no zone: set {spec.key}.time_zone (an IANA name such as "
-                          "'Europe/Stockholm', or 'UTC')")
-    from zoneinfo import ZoneInfo
-
-    # Localise each run of equal consecutive times once (the long layout repeats a time for
-    # every tag), in row order, so that 'infer' can place the hour repeated when clocks go
-    # back from the order of the rows (a repeated wall-clock time is not one instant).
-    values = naive.asi8
-    starts = np.concatenate(([True], values[1:] != values[:-1]))
-    codes = np.cumsum(starts) - 1
-    try:
-        local = naive[starts].tz_localize(ZoneInfo(spec.zone), ambiguous="infer",
-                                          nonexistent="raise")
-    except (ValueError, TypeError) as exc:  # pytz/pandas Ambiguous/NonExistentTimeError
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise IngestError(f"{where}: {spec.column} local times cannot be placed in "
-                          f"{spec.zone} ({first}); export with a UTC offset or in UTC") from exc
-    return local[codes]
-
-
-def timestamps_ns(series: pd.Series, spec: TimeSpec, where: str) -> np.ndarray:
-    """The time column ``series`` as int64 ns since the epoch, UTC (see the module doc)."""
-    if pd.api.types.is_datetime64_any_dtype(series.dtype):
-        idx = pd.DatetimeIndex(series)
-        if idx.hasnans:
-            i = int(np.flatnonzero(idx.isna())[0])
-            raise IngestError(f"{where} row {i + 1}: {spec.column} is empty")
-        if idx.tz is None:
-            idx = _localize(idx, spec, where)
-        ns = idx.tz_convert("UTC").as_unit("ns").asi8
-        _check_range(ns, spec, where)
-        return ns
-    if pd.api.types.is_numeric_dtype(series.dtype) and not pd.api.types.is_bool_dtype(series):
-        return _from_numbers(series.to_numpy(), spec, where)
-    text = _text(series)
-    empty = np.flatnonzero((text == "").to_numpy())
-    if len(empty):
-        raise IngestError(f"{where} row {int(empty[0]) + 1}: {spec.column} is empty")
-    if text.str.match(_NUMERIC).all():
-        nums = pd.to_numeric(text)
-        return _from_numbers(nums.to_numpy(), spec, where)
-    aware = text.str.contains(_OFFSET).to_numpy()
-    if aware.any() and not aware.all():
-        i = int(np.flatnonzero(aware != aware[0])[0])
-        raise IngestError(f"{where} row {i + 1}: {spec.column} {text.iloc[i]!r} mixes times "
-                          "with and without a UTC offset")
-    fmt = spec.fmt or "ISO8601"
-    parsed = pd.to_datetime(text, format=fmt, errors="coerce", utc=bool(aware[0]))
-    if parsed.isna().any():
-        i = int(np.flatnonzero(parsed.isna().to_numpy())[0])
-        raise IngestError(f"{where} row {i + 1}: {spec.column} {text.iloc[i]!r} is not a time "
-                          f"in format {fmt} (set {spec.key}.time_format)")
-    idx = pd.DatetimeIndex(parsed)
-    if idx.tz is None:
-        idx = _localize(idx, spec, where)
-    ns = idx.tz_convert("UTC").as_unit("ns").asi8
-    _check_range(ns, spec, where, text.to_numpy())
-    return ns
-
-
-# ----------------------------------------------------------------------------------------------
-# Values
-
-
-def _values(series: pd.Series, name: str, bad_strings: frozenset[str], decimal: str,
-            where: str, bad_key: str) -> tuple[np.ndarray, np.ndarray]:
-    """Numbers of a value column and a mask of its bad cells (NaN where missing or bad)."""
-    if pd.api.types.is_numeric_dtype(series.dtype) and not pd.api.types.is_bool_dtype(series):
-        vals = series.to_numpy(dtype=float)
-        bad = np.isinf(vals)
-        return np.where(bad, np.nan, vals), bad
-    text = _text(series)
-    numeric = text.str.replace(",", ".", regex=False) if decimal == "," else text
-    nums = pd.to_numeric(numeric.where(numeric != ""), errors="coerce")
-    nums = nums.to_numpy(dtype=float, copy=True)
-    nonnum = (text != "").to_numpy() & ~np.isfinite(nums)
-    bad = np.zeros(len(text), dtype=bool)
-    for i in np.flatnonzero(nonnum):
-        cell = text.iloc[i]
-        if cell.lower() not in bad_strings:
-            raise IngestError(f"{where} row {i + 1}: {name} value {cell!r} is neither a number "
-                              f"nor a known bad-quality string (add it to {bad_key})")
-        bad[i] = True
-    nums[bad] = np.nan
-    return nums, bad
-
-
-def _bad_quality(series: pd.Series, good: frozenset[str]) -> np.ndarray:
-    text = _text(series).str.lower()
-    return ((text != "") & ~text.isin(good)).to_numpy()
-
-
-def _column(frame: pd.DataFrame, name: str, key: str, where: str) -> pd.Series:
-    if name not in frame.columns:
-        cols = ", ".join(map(str, frame.columns[:12])) + (", ..." if frame.shape[1] > 12 else "")
-        raise IngestError(f"{where}: column {name!r} of {key} is not in the file "
-                          f"(columns: {cols})")
-    return frame[name]
+#: Largest relative humidity read as a measurement [-]: transmitters overshoot a little.
+RH_MAX = 1.05
 
 
 @dataclass
@@ -217,6 +54,10 @@ class ScanTable:
     bad: dict[str, int] = field(default_factory=dict)  #: bad-quality values per signal
     missing: dict[str, int] = field(default_factory=dict)  #: empty or absent per signal
     skipped_rows: int = 0  #: long layout: rows of tags the map does not name
+    #: per mapped signal, the values as the export wrote them (its unit; NaN = null)
+    raw: dict[str, np.ndarray] = field(default_factory=dict)
+    #: values outside a signal's physical range, one line each (the import stops on them)
+    out_of_range: list[str] = field(default_factory=list)
 
     def __len__(self) -> int:
         return len(self.times_ns)
@@ -261,11 +102,11 @@ def _wide(frame: pd.DataFrame, hmap: HistorianMap, t_all: np.ndarray,
         if sm.column is None:
             continue
         key = f"signals.{name}.column"
-        vals, bad = _values(_column(frame, sm.column, key, where), sm.column, bad_strings,
-                            src.decimal, where, "source.bad_values")
+        vals, bad = numbers(column(frame, sm.column, key, where), sm.column, bad_strings,
+                            src.decimal, where, "source.bad_values", thousands=src.thousands)
         if sm.quality_column is not None:
-            q = _bad_quality(_column(frame, sm.quality_column,
-                                     f"signals.{name}.quality_column", where), good)
+            q = bad_quality(column(frame, sm.quality_column,
+                                    f"signals.{name}.quality_column", where), good)
             bad |= q
             vals = np.where(q, np.nan, vals)
         raw[name] = (vals, bad, pos)
@@ -279,13 +120,14 @@ def _long(frame: pd.DataFrame, hmap: HistorianMap, t_all: np.ndarray,
     (timestamp, tag, value[, quality])."""
     src = hmap.source
     raw: _Raw = {}
-    tags = _text(_column(frame, src.tag_column or "", "source.tag_column", where))
-    vals_all, bad_all = _values(
-        _column(frame, src.value_column or "", "source.value_column", where),
-        src.value_column or "", bad_strings, src.decimal, where, "source.bad_values")
+    tags = text_cells(column(frame, src.tag_column or "", "source.tag_column", where))
+    vals_all, bad_all = numbers(
+        column(frame, src.value_column or "", "source.value_column", where),
+        src.value_column or "", bad_strings, src.decimal, where, "source.bad_values",
+        thousands=src.thousands)
     if src.quality_column is not None:
-        q = _bad_quality(_column(frame, src.quality_column, "source.quality_column", where),
-                         good)
+        q = bad_quality(column(frame, src.quality_column, "source.quality_column", where),
+                        good)
         bad_all |= q
         vals_all = np.where(q, np.nan, vals_all)
     by_tag = {sm.tag: name for name, sm in hmap.signals.items() if sm.tag is not None}
@@ -307,88 +149,116 @@ def _long(frame: pd.DataFrame, hmap: HistorianMap, t_all: np.ndarray,
     return times, raw, skipped
 
 
-def convert_scans(frame: pd.DataFrame, hmap: HistorianMap, where: str) -> ScanTable:
-    """Scans of a historian export ``frame`` laid out by ``hmap`` (see the module doc)."""
+def _hint_units_row(exc: IngestError, hmap: HistorianMap) -> IngestError:
+    """A failure on the first row of an export without ``skip_rows``: most often the units
+    row PI and IP.21 write under the header."""
+    text = str(exc)
+    if hmap.source.skip_rows == 0 and " row 1:" in text:
+        return IngestError(f"{text} (a units row under the header? set source.skip_rows = 1)")
+    return exc
+
+
+def _label(sm: SignalMap) -> str:
+    return sm.column or sm.tag or "constant"
+
+
+def _humidity(raw: np.ndarray, sm: SignalMap, T_amb: np.ndarray,
+              problems: list[str], when: np.ndarray, where: str) -> np.ndarray:
+    """``H_amb`` [kg/kg] from a column of relative humidity or dew point (``sm.quantity``)."""
+    if sm.quantity == "dew_point":
+        return ratio_from_dew_point(to_unit(raw, sm.unit, "kelvin"), sm.pressure_pa)
+    phi = to_unit(raw, sm.unit, "dimensionless")
+    with np.errstate(invalid="ignore"):
+        outside = np.isfinite(phi) & ((phi < 0.0) | (phi > RH_MAX))
+    if outside.any():
+        i = int(np.flatnonzero(outside)[0])
+        problems.append(f"{where}: {_label(sm)} (signals.H_amb) at {iso_utc(int(when[i]))}: "
+                        f"relative humidity {raw[i]:g} {sm.unit} is outside 0..{RH_MAX:.0%} "
+                        f"(is signals.H_amb.unit right?)")
+        phi = np.where(outside, np.nan, phi)
+    return ratio_from_relative_humidity(phi, T_amb, sm.pressure_pa)
+
+
+def _check_range(name: str, sm: SignalMap, si: np.ndarray, raw: np.ndarray,
+                 times: np.ndarray, where: str, problems: list[str]) -> np.ndarray:
+    """Mask of the values of ``name`` outside its physical range; a problem line for the
+    first of them unless the map says they are bad (``out_of_range = "null"``)."""
+    lo, hi = PHYSICAL_RANGE[name]
+    with np.errstate(invalid="ignore"):
+        outside = np.isfinite(si) & ((si < lo) | (si > hi))
+    if outside.any() and sm.out_of_range == "refuse":
+        i = int(np.flatnonzero(outside)[0])
+        si_unit = SCAN_SIGNALS[name]
+        more = int(outside.sum()) - 1
+        hint = f"is signals.{name}.unit right?"
+        if name == "H_amb" and sm.quantity == "humidity_ratio":
+            hint += " A relative humidity needs signals.H_amb.quantity = 'relative_humidity'"
+        given = f"{raw[i]:g} {sm.unit}" if math.isfinite(raw[i]) else "its value"
+        problems.append(
+            f"{where}: {_label(sm)} (signals.{name}) at {iso_utc(int(times[i]))}: {given} is "
+            f"{si[i]:.4g} {si_unit}, outside the physical range {lo:g}..{hi:g} {si_unit} of "
+            f"{name}{f' (and {more} more values)' if more else ''} ({hint}; or "
+            f'out_of_range = "null" drops such values)')
+    return outside
+
+
+def convert_scans(frame: pd.DataFrame, hmap: HistorianMap, where: str, *,
+                  strict: bool = True) -> ScanTable:
+    """Scans of a historian export ``frame`` laid out by ``hmap`` (see the module doc).
+
+    ``strict``: raise on the first value outside its physical range; otherwise list them
+    in :attr:`ScanTable.out_of_range` (what ``import --preview`` shows)."""
     src = hmap.source
-    spec = TimeSpec(src.time_column, src.time_zone, src.time_unit, src.time_format, "source")
+    spec = TimeSpec(src.time_column, src.time_zone, src.time_unit, src.time_format, "source",
+                    dayfirst=src.dayfirst)
     if len(frame) == 0:
         raise IngestError(f"{where}: no rows after the header")
     bad_strings = frozenset(s.lower() for s in (*DEFAULT_BAD_VALUES, *src.bad_values))
     good = frozenset(s.lower() for s in src.good_quality)
-    t_all = timestamps_ns(_column(frame, src.time_column, "source.time_column", where),
-                          spec, where)
-    if src.layout == "wide":
-        times, raw = _wide(frame, hmap, t_all, bad_strings, good, where)
-        skipped = 0
-    else:
-        times, raw, skipped = _long(frame, hmap, t_all, bad_strings, good, where)
+    try:
+        t_all = timestamps_ns(column(frame, src.time_column, "source.time_column", where),
+                              spec, where)
+        if src.layout == "wide":
+            times, raw = _wide(frame, hmap, t_all, bad_strings, good, where)
+            skipped = 0
+        else:
+            times, raw, skipped = _long(frame, hmap, t_all, bad_strings, good, where)
+    except IngestError as exc:
+        raise _hint_units_row(exc, hmap) from exc
     n = len(times)
     out = ScanTable(times_ns=times, values={}, rows_read=len(frame), skipped_rows=skipped)
-    for name in SCAN_SIGNALS:
-        sm = hmap.signals.get(name)
+    n_bad: dict[str, int] = {}
+    for name, sm in hmap.signals.items():  # the export's values, per scan
         col = np.full(n, np.nan)
-        n_bad = 0
-        if sm is not None and sm.constant is not None:
-            col[:] = to_signal_si(np.array([sm.constant]), sm.unit, name)[0]
-        elif sm is not None:
+        n_bad[name] = 0
+        if sm.constant is not None:
+            col[:] = sm.constant
+        else:
             vals, bad, pos = raw[name]
-            col[pos] = to_signal_si(vals, sm.unit, name)
-            n_bad = int(bad.sum())
-        out.values[name] = col
-        out.bad[name] = n_bad
-        out.missing[name] = int(np.isnan(col).sum()) - n_bad
+            col[pos] = vals
+            n_bad[name] = int(bad.sum())
+        out.raw[name] = col
+    problems: list[str] = []
+    for name in SCAN_SIGNALS:  # T_amb before H_amb: a relative humidity needs it
+        sm = hmap.signals.get(name)
+        si = np.full(n, np.nan)
+        if sm is not None:
+            if name == "H_amb" and sm.quantity != "humidity_ratio":
+                si = _humidity(out.raw[name], sm, out.values["T_amb"], problems, times, where)
+            else:
+                si = to_signal_si(out.raw[name], sm.unit, name)
+            outside = _check_range(name, sm, si, out.raw[name], times, where, problems)
+            si = np.where(outside, np.nan, si)
+            n_bad[name] += int(outside.sum())
+        out.values[name] = si
+        out.bad[name] = n_bad.get(name, 0)
+        out.missing[name] = int(np.isnan(si).sum()) - out.bad[name]
+    out.out_of_range = problems
+    if strict and problems:
+        raise IngestError(problems[0] + (f" [{len(problems) - 1} more signals outside their "
+                                         f"range: softsensor import --preview lists them]"
+                                         if len(problems) > 1 else ""))
     return out
 
 
-# ----------------------------------------------------------------------------------------------
-# Lab results
-
-
-@dataclass
-class LabTable:
-    """Lab results converted from a LIMS table, and how many rows had no usable result."""
-
-    results: list[LabResult]
-    rows_read: int
-    bad: int  #: rows whose moisture was empty or a bad-quality string
-
-
-def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None,
-                 where: str) -> LabTable:
-    """Lab results [kg/kg dry basis] of a LIMS ``frame``, logged when they became available."""
-    if len(frame) == 0:
-        raise IngestError(f"{where}: no rows after the header")
-    zone = lab.time_zone or default_zone
-    sample = timestamps_ns(
-        _column(frame, lab.sample_time_column, "lab.sample_time_column", where),
-        TimeSpec(lab.sample_time_column, zone, lab.time_unit, lab.time_format, "lab"), where)
-    if lab.available_column is not None:
-        avail = timestamps_ns(
-            _column(frame, lab.available_column, "lab.available_column", where),
-            TimeSpec(lab.available_column, zone, lab.time_unit, lab.time_format, "lab"), where)
-    else:
-        avail = sample + int(round((lab.delay_min or 0.0) * 60e9))
-    bad_strings = frozenset(s.lower() for s in DEFAULT_BAD_VALUES)
-    raw, bad = _values(_column(frame, lab.moisture_column, "lab.moisture_column", where),
-                       lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export")
-    dry = moisture_dry_basis(raw, lab.unit, lab.basis)
-    ids = (_text(_column(frame, lab.sample_id_column, "lab.sample_id_column", where))
-           if lab.sample_id_column else None)
-    results: list[LabResult] = []
-    n_bad = 0
-    for i in range(len(frame)):
-        if np.isnan(raw[i]):
-            n_bad += 1
-            continue
-        at = f"{where} row {i + 1}"
-        if not math.isfinite(dry[i]):
-            raise IngestError(f"{at}: {lab.moisture_column} {raw[i]:g} {lab.unit} on a wet "
-                              "basis leaves no dry fibre (is lab.basis right?)")
-        if avail[i] < sample[i]:
-            raise IngestError(f"{at}: result available at {iso_utc(int(avail[i]))}, before "
-                              f"the sample was taken ({iso_utc(int(sample[i]))})")
-        sid = ids.iloc[i] if ids is not None else f"lab-{iso_utc(int(sample[i]))}"
-        results.append(make_lab_result(int(sample[i]), float(dry[i]), sid,
-                                       log_time_ns=int(avail[i]), where=at))
-    results.sort(key=lambda r: (r.log_time_ns, r.sample_time_ns))
-    return LabTable(results=results, rows_read=len(frame), bad=n_bad)
+__all__ = ["ScanTable", "convert_scans"]

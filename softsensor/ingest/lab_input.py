@@ -3,33 +3,37 @@
 Two ways in, one check:
 
 * a JSON body on ``plant/<unit>/lab``: ``{"sample_time_ns": int, "moisture_out": float,
-  "sample_id": str}`` (plus ``time_ns``, the time the result became available);
-* a file dropped in a folder: CSV with the header ``sample_time,moisture_out,sample_id``
-  (``sample_time`` ISO-8601 or ns since the epoch) or JSON (one object or a list of objects
-  with ``sample_time`` or ``sample_time_ns``). An ISO time without an offset is the plant's
-  clock: the watcher's ``zone`` (the daemon's ``[display] time_zone``, UTC by default), so a
-  LIMS writing local time is read right once the zone is set.
+  "sample_id": str}`` (plus ``time_ns``, the time the result became available), checked by
+  :func:`softsensor.messages.lab_from_body` (the parser the recorded days use too);
+* a file dropped in a folder, CSV or JSON (one object or a list of objects), laid out by the
+  plant config's ``[lab]`` table: the same keys as the ``[lab]`` section of a historian map
+  (columns, unit, wet or dry basis, time zone, day-first dates), so the LIMS file that
+  ``softsensor import`` reads is read here too, by the same converter
+  (:func:`softsensor.ingest.lims.convert_labs`). Without the table the columns are
+  ``sample_time`` (ISO-8601 or ns since the epoch; ``sample_time_ns`` also), ``moisture_out``
+  [kg/kg dry basis] and ``sample_id``. An ISO time without an offset is on the plant's clock
+  (the table's ``time_zone``, else the daemon's ``[display] time_zone``).
 
-Every entry becomes a :class:`~softsensor.messages.LabResult` (``moisture_out`` in kg/kg
-dry basis) or is refused with a one-line reason by :func:`softsensor.messages.lab_from_body`
-(the parser the recorded days use too): a missing or malformed field, a non-finite
-value, a moisture outside 0..2 kg/kg, a sample time before 2000 (seconds given for ns?) or in
-the future. :class:`LabInput` ignores (and logs) a ``sample_id`` it has seen before.
+:class:`LabInput` ignores (and logs) a ``sample_id`` it has seen before.
 
-:class:`LabFolderWatcher` polls the folder (no extra dependency). A file whose entries are all
-usable goes to ``processed/``; a file that cannot be read at all goes to ``rejected/`` with
-``<name>.reason.txt``; a file with some bad entries is processed for the good ones and its bad
-entries are written to ``rejected/`` (same name) with a reason file listing each one, so
-nothing is lost silently. Files still being written (changed within ``settle_s``) wait for the
-next poll.
+:class:`LabFolderWatcher` polls the folder (no extra dependency). A file is taken whole or not
+at all: every entry usable, it goes to ``processed/`` and its new results to the estimator; any
+entry unusable, the whole file goes to ``rejected/`` with ``<name>.reason.txt`` saying which
+row and why, and nothing of it is applied (fix it and drop it again). The lab input's rate
+limit (``[service] max_lab_rate_per_h``) and the estimator's bound on results waiting for one
+tick are respected here rather than met downstream, where a result beyond them would be dropped
+after being marked seen: a file whose new results exceed what the rate allows now waits in the
+folder for a later poll, and one holding more than :data:`BURST` new results (more than the
+folder ever hands on at once) is rejected whole.
+Files still being written (changed within ``settle_s``) wait for the next poll.
 
 The folder is a boundary: anyone who can write to it is untrusted. A file is opened with
 ``O_NOFOLLOW`` (a symbolic link is moved to ``rejected/`` without its target being read), must
 be a regular file of at most ``max_bytes`` and ``max_rows`` entries, and any failure at all
-(not only a malformed entry: a 5000-digit number, JSON nested 100,000 deep) rejects it with a
-short reason that names the problem, not the file's content. Accepted ``sample_id`` values are
-remembered in ``.seen-ids`` in the folder, so a file dropped again after a restart is still a
-duplicate.
+rejects it with a short reason that names the row and the column, never any of the file's
+content (a hard link to a secret file must not reach the log). Accepted ``sample_id`` values
+are remembered in ``.seen-ids`` in the folder, so a file dropped again after a restart is still
+a duplicate.
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ import errno
 import io
 import json
 import logging
+import math
 import os
 import shutil
 import stat
@@ -50,8 +55,12 @@ from datetime import tzinfo
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
+
 from softsensor.errors import IngestError, one_line
 from softsensor.files import atomic_path
+from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
+from softsensor.ingest.lims import convert_labs
 from softsensor.messages import (
     MOISTURE_RANGE,
     LabResult,
@@ -69,94 +78,120 @@ SUFFIXES: tuple[str, ...] = (".csv", ".json")
 MAX_BYTES = 1024 * 1024
 #: Most entries (rows after the header, or JSON objects) a lab file may hold.
 MAX_ROWS = 10_000
+#: Most new results taken from the folder at once, and per estimator window after that
+#: (:func:`folder_rate`): half the 50 lab results the estimator holds for one tick, leaving
+#: the rest to lab results on the bus.
+BURST = 25
 #: Sample ids remembered across restarts (the newest), in ``.seen-ids`` of the folder.
 SEEN_IDS_KEPT = 20_000
-#: Longest reason line written to ``rejected/`` and the log [characters]: what an untrusted
-#: file made a parser say (a quoted value) cannot fill pages.
+#: Longest reason line written to ``rejected/`` and the log [characters].
 REASON_CHARS = 300
 
 
 @dataclass
 class ParsedFile:
-    """Entries of one lab file: the good ones, and the bad ones with their reasons."""
+    """The results of one lab file (every entry usable: a bad one raises)."""
 
     results: list[LabResult] = field(default_factory=list)
-    bad: list[tuple[Any, str]] = field(default_factory=list)  # (raw entry, reason)
+    rows_without_result: int = 0  #: rows with an empty or bad-quality moisture, skipped
 
 
-def parse_lab_csv(text: str, *, log_time_ns: int | None = None,
-                  where: str = "lab.csv", zone: tzinfo | None = None) -> ParsedFile:
-    """Parse a CSV lab file; :class:`IngestError` if the file as a whole is unusable."""
+def _zone_name(zone: tzinfo | str | None) -> str:
+    """An IANA name for the converter (a ZoneInfo's key; UTC when none)."""
+    if zone is None:
+        return "UTC"
+    return zone if isinstance(zone, str) else getattr(zone, "key", None) or str(zone)
+
+
+def _csv_frame(text: str, where: str) -> pd.DataFrame:
+    """A CSV lab file as text cells; blank lines skipped."""
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
     rows: list[list[str]] = []
-    lines: list[int] = []
     try:
         for row in reader:
             if any(c.strip() for c in row):
+                if len(rows) > MAX_ROWS:
+                    raise IngestError(f"{where}: more than the {MAX_ROWS} rows a lab file may "
+                                      "have")
+                if rows and len(row) != len(rows[0]):
+                    raise IngestError(f"{where} line {reader.line_num}: {len(row)} fields, "
+                                      f"the header has {len(rows[0])}")
                 rows.append(row)
-                lines.append(reader.line_num)
     except csv.Error as exc:
-        raise IngestError(f"{where} line {reader.line_num}: not CSV ({exc})") from exc
+        raise IngestError(f"{where} line {reader.line_num}: not CSV") from exc
     if not rows:
         raise IngestError(f"{where}: empty file")
-    header = [c.strip() for c in rows[0]]
-    cols = {name: i for i, name in enumerate(header)}
-    if "sample_time" not in cols and "sample_time_ns" in cols:
-        cols["sample_time"] = cols["sample_time_ns"]
-    missing = [c for c in CSV_COLUMNS if c not in cols]
-    if missing:
-        raise IngestError(f"{where}: header {','.join(header)!r} lacks {', '.join(missing)} "
-                          f"(expected {','.join(CSV_COLUMNS)})")
     if len(rows) == 1:
         raise IngestError(f"{where}: no lab results after the header")
-    if len(rows) - 1 > MAX_ROWS:
-        raise IngestError(f"{where}: {len(rows) - 1} rows, more than the {MAX_ROWS} a lab "
-                          f"file may have")
-    out = ParsedFile()
-    for n, row in zip(lines[1:], rows[1:], strict=True):
-        at = f"{where} line {n}"
-        if len(row) != len(header):
-            out.bad.append((row, f"{at}: {len(row)} fields, header has {len(header)}"))
-            continue
-        try:
-            out.results.append(make_lab_result(
-                row[cols["sample_time"]], row[cols["moisture_out"]], row[cols["sample_id"]],
-                log_time_ns=log_time_ns, where=at, zone=zone))
-        except IngestError as exc:
-            out.bad.append((row, one_line(str(exc), REASON_CHARS)))
-        except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
-            out.bad.append((row, f"{at}: unusable entry ({type(exc).__name__})"))
-    return out
+    header = [c.strip() for c in rows[0]]
+    if len(set(header)) != len(header):
+        raise IngestError(f"{where}: the header names a column twice")
+    return pd.DataFrame(rows[1:], columns=header, dtype=str)
 
 
-def parse_lab_json(text: str, *, log_time_ns: int | None = None,
-                   where: str = "lab.json", zone: tzinfo | None = None) -> ParsedFile:
-    """Parse a JSON lab file (one object or a list); :class:`IngestError` if unusable."""
+def _finite(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError("a number too large for a float")
+    return value
+
+
+def _json_frame(text: str, where: str) -> pd.DataFrame:
+    """A JSON lab file (one object or a list of objects of numbers and text) as a table."""
     try:
-        data = json.loads(text)
-    except ValueError as exc:
-        raise IngestError(f"{where}: not valid JSON ({exc.args[0] if exc.args else exc})"
-                          ) from exc
+        data = json.loads(text, parse_float=_finite, parse_constant=_finite)
     except RecursionError as exc:
         raise IngestError(f"{where}: JSON nested too deeply") from exc
+    except ValueError as exc:  # JSONDecodeError: its message names a position, not content
+        msg = exc.msg if isinstance(exc, json.JSONDecodeError) else "a number not finite"
+        raise IngestError(f"{where}: not valid JSON ({msg})") from exc
+    if not isinstance(data, (list, dict)):
+        raise IngestError(f"{where}: a JSON {type(data).__name__}, not an object or a list")
     entries = data if isinstance(data, list) else [data]
     if not entries:
         raise IngestError(f"{where}: empty list of lab results")
     if len(entries) > MAX_ROWS:
-        raise IngestError(f"{where}: {len(entries)} entries, more than the {MAX_ROWS} a lab "
-                          f"file may have")
-    if not isinstance(data, list) and not isinstance(data, dict):
-        raise IngestError(f"{where}: a JSON {type(data).__name__}, not an object or a list")
-    out = ParsedFile()
+        raise IngestError(f"{where}: more than the {MAX_ROWS} entries a lab file may have")
     for n, entry in enumerate(entries):
-        at = f"{where} entry {n}" if isinstance(data, list) else where
-        try:
-            out.results.append(lab_from_body(entry, log_time_ns, where=at, zone=zone))
-        except IngestError as exc:
-            out.bad.append((entry, one_line(str(exc), REASON_CHARS)))
-        except Exception as exc:  # noqa: BLE001 - untrusted input: any failure is a bad entry
-            out.bad.append((entry, f"{at}: unusable entry ({type(exc).__name__})"))
-    return out
+        if not isinstance(entry, dict):
+            raise IngestError(f"{where} entry {n}: a JSON {type(entry).__name__}, not an "
+                              "object")
+        if not all(isinstance(v, (str, int, float)) and not isinstance(v, bool)
+                   and not (isinstance(v, int) and abs(v) >= 2**63) for v in entry.values()):
+            raise IngestError(f"{where} entry {n}: values must be numbers or text")
+    return pd.DataFrame(entries)
+
+
+def parse_lab_text(text: str, suffix: str, *, log_time_ns: int | None = None,
+                   where: str = "lab.csv", zone: tzinfo | str | None = None,
+                   lab_map: LabMap = DEFAULT_LAB_MAP) -> ParsedFile:
+    """The results of a lab file's text (``.csv`` or ``.json``), laid out by ``lab_map``,
+    logged at ``log_time_ns`` (default now); :class:`IngestError` naming the row (and no
+    content) if any entry is unusable."""
+    frame = _csv_frame(text, where) if suffix == ".csv" else _json_frame(text, where)
+    cols = set(frame.columns)
+    if lab_map is DEFAULT_LAB_MAP and "sample_time" not in cols and "sample_time_ns" in cols:
+        frame = frame.rename(columns={"sample_time_ns": "sample_time"})
+    arrived = time.time_ns() if log_time_ns is None else log_time_ns
+    table = convert_labs(frame, lab_map, _zone_name(zone), where, log_time_ns=arrived,
+                         echo=False, where_key="lab")
+    return ParsedFile(results=table.results, rows_without_result=table.bad)
+
+
+def parse_lab_csv(text: str, *, log_time_ns: int | None = None, where: str = "lab.csv",
+                  zone: tzinfo | str | None = None,
+                  lab_map: LabMap = DEFAULT_LAB_MAP) -> ParsedFile:
+    """A CSV lab file's results (:func:`parse_lab_text`)."""
+    return parse_lab_text(text, ".csv", log_time_ns=log_time_ns, where=where, zone=zone,
+                          lab_map=lab_map)
+
+
+def parse_lab_json(text: str, *, log_time_ns: int | None = None, where: str = "lab.json",
+                   zone: tzinfo | str | None = None,
+                   lab_map: LabMap = DEFAULT_LAB_MAP) -> ParsedFile:
+    """A JSON lab file's results (:func:`parse_lab_text`)."""
+    return parse_lab_text(text, ".json", log_time_ns=log_time_ns, where=where, zone=zone,
+                          lab_map=lab_map)
 
 
 def read_untrusted(path: Path, max_bytes: int) -> bytes:
@@ -191,9 +226,11 @@ def _write_new(path: Path, text: str) -> None:
 
 
 def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = None,
-                   zone: tzinfo | None = None) -> ParsedFile:
+                   zone: tzinfo | str | None = None,
+                   lab_map: LabMap = DEFAULT_LAB_MAP) -> ParsedFile:
     """Parse a ``.csv`` or ``.json`` lab file; :class:`IngestError` naming the file if unusable.
-    ISO times without an offset are on the clock of ``zone`` (UTC when None)."""
+    ISO times without an offset are on the clock of ``zone`` (UTC when None) unless the
+    map names its own."""
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix not in SUFFIXES:
@@ -203,8 +240,8 @@ def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = No
         text = read_untrusted(p, MAX_BYTES).decode("utf-8-sig")
     except UnicodeDecodeError as exc:
         raise IngestError(f"{p.name}: not UTF-8 text") from exc
-    parse = parse_lab_csv if suffix == ".csv" else parse_lab_json
-    return parse(text, log_time_ns=log_time_ns, where=p.name, zone=zone)
+    return parse_lab_text(text, suffix, log_time_ns=log_time_ns, where=p.name, zone=zone,
+                          lab_map=lab_map)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -298,16 +335,33 @@ def _unique(dest: Path) -> Path:
     raise IngestError(f"{dest}: too many files of that name")
 
 
-def _dump_bad_entries(suffix: str, bad: list[tuple[Any, str]], header: list[str] | None) -> str:
-    if suffix == ".csv":
-        buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        if header:
-            w.writerow(header)
-        for row, _ in bad:
-            w.writerow(row)
-        return buf.getvalue()
-    return json.dumps([entry for entry, _ in bad], indent=1, default=str) + "\n"
+def folder_rate(max_per_h: float, window_s: float, time_scale: float = 1.0) -> float:
+    """Lab results per wall second the folder hands on: the lab rate limit, and at most
+    :data:`BURST` per estimator window of ``window_s`` [s], on a clock ``time_scale`` times
+    faster than the wall's."""
+    return min(max_per_h / 3600.0, BURST / window_s) * time_scale
+
+
+class _Budget:
+    """How many lab results the folder may hand on now: a token bucket of ``rate_per_s``
+    (None: no limit) holding at most :data:`BURST`, on the wall clock as the pipeline's."""
+
+    def __init__(self, rate_per_s: float | None, burst: int = BURST,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.rate, self.burst, self.clock = rate_per_s, burst, clock
+        self.tokens, self.at = float(burst), clock()
+
+    def available(self) -> float:
+        if self.rate is None:
+            return math.inf
+        now = self.clock()
+        self.tokens = min(float(self.burst), self.tokens + (now - self.at) * self.rate)
+        self.at = now
+        return self.tokens
+
+    def take(self, n: int) -> None:
+        if self.rate is not None:
+            self.tokens -= n
 
 
 class LabFolderWatcher:
@@ -324,13 +378,23 @@ class LabFolderWatcher:
     settle_s : float
         A file modified less than this long ago, or whose size changed since the last poll,
         is left for the next poll (it may still be being written) [s].
+    zone : tzinfo or str, optional
+        The plant's clock, for ISO times without an offset (UTC when None).
+    lab_map : LabMap
+        The files' layout: the plant config's ``[lab]`` table (module docstring).
+    rate_per_s : float, optional
+        Lab results per wall second the estimator takes (:func:`folder_rate`); files beyond
+        it wait. None: no limit.
     """
 
     def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
                  poll_s: float = 2.0, settle_s: float = 1.0,
-                 zone: tzinfo | None = None) -> None:
+                 zone: tzinfo | str | None = None, lab_map: LabMap = DEFAULT_LAB_MAP,
+                 rate_per_s: float | None = None) -> None:
         self.folder = Path(folder)
         self.zone = zone  # the clock of ISO times without an offset (the plant's)
+        self.lab_map = lab_map
+        self.budget = _Budget(rate_per_s)
         self.processed_dir = self.folder / "processed"
         self.rejected_dir = self.folder / "rejected"
         for d in (self.processed_dir, self.rejected_dir):
@@ -416,16 +480,29 @@ class LabFolderWatcher:
         for r in reasons:
             log.warning("lab file rejected: %s", r)
 
-    def _handle(self, path: Path, report: PollReport) -> None:
+    def _handle(self, path: Path, report: PollReport) -> bool:
+        """Take one settled file whole or not at all; False when it waits for the rate."""
         now_ns = self.lab_input.clock()
         try:
-            parsed = parse_lab_file(path, log_time_ns=now_ns, zone=self.zone)
+            parsed = parse_lab_file(path, log_time_ns=now_ns, zone=self.zone,
+                                    lab_map=self.lab_map)
         except IngestError as exc:
-            self._reject(path, [str(exc)], report)
-            return
+            self._reject(path, [f"{exc}; nothing of the file was applied"], report)
+            return True
         except Exception as exc:  # noqa: BLE001 - untrusted input: never retried forever
-            self._reject(path, [f"{path.name}: unusable file ({type(exc).__name__})"], report)
-            return
+            self._reject(path, [f"{path.name}: unusable file ({type(exc).__name__}); nothing "
+                                "of the file was applied"], report)
+            return True
+        fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)]
+        if len(fresh) > BURST:
+            self._reject(path, [f"{path.name}: {len(fresh)} new results, more than the {BURST} "
+                                "the estimator takes at once (service.max_lab_rate_per_h); "
+                                "split the file; nothing of it was applied"], report)
+            return True
+        if len(fresh) > self.budget.available():
+            report.waiting.append(path)  # kept whole for a later poll, nothing marked seen
+            return False
+        self.budget.take(len(fresh))
         for lab in parsed.results:
             reason = self.lab_input.submit(lab)
             if reason is None:
@@ -433,25 +510,13 @@ class LabFolderWatcher:
                 self._remember(lab.sample_id)
             else:
                 report.duplicates.append(lab.sample_id)
-        if parsed.bad:
-            header = None
-            if path.suffix.lower() == ".csv":
-                text = read_untrusted(path, MAX_BYTES).decode("utf-8-sig")
-                header = next(csv.reader(io.StringIO(text)), None)
-            bad_path = _unique(self.rejected_dir / path.name)
-            _write_new(bad_path, _dump_bad_entries(path.suffix.lower(), parsed.bad, header))
-            reasons = [reason for _, reason in parsed.bad]
-            _write_new(bad_path.with_name(bad_path.name + ".reason.txt"),
-                f"{len(parsed.bad)} of {len(parsed.bad) + len(parsed.results)} entries "
-                f"rejected; the others were accepted (original in processed/)\n"
-                + "\n".join(reasons) + "\n")
-            report.rejected.append(bad_path)
-            report.reasons.extend(reasons)
-            for r in reasons:
-                log.warning("lab entry rejected: %s", r)
+        if parsed.rows_without_result:
+            log.info("lab file %s: %d rows without a result skipped", one_line(path.name, 100),
+                     parsed.rows_without_result)
         dest = _unique(self.processed_dir / path.name)
         shutil.move(str(path), dest)
         report.processed.append(dest)
+        return True
 
     def poll_once(self, now: float | None = None) -> PollReport:
         """Handle every settled file in the folder once; ``now`` [s, epoch] for tests."""
@@ -466,7 +531,9 @@ class LabFolderWatcher:
                 continue
             self._sizes.pop(path.name, None)
             try:
-                self._handle(path, report)
+                if not self._handle(path, report):
+                    report.waiting.extend(candidates[candidates.index(path) + 1:])
+                    break  # the rate is spent: the rest waits, unread, for the next poll
             except OSError as exc:
                 msg = f"{path.name}: cannot move or write: {exc}"
                 report.reasons.append(msg)

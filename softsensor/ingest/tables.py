@@ -4,6 +4,11 @@ CSV cells are read as text, so :mod:`softsensor.ingest.historian` decides what i
 bad-quality string or a time (pandas would silently turn a column with one ``Bad`` into text
 and guess date formats). Parquet keeps its typed columns. Every problem is one
 :class:`~softsensor.errors.IngestError` line naming the file.
+
+What is read is bounded before it is read, so that no export can take the machine's memory:
+a CSV is first streamed in 1 MiB blocks to count its lines and measure the longest (a 50 MB
+file of one line is refused after reading 64 kiB of it into memory at most), a Parquet file's
+footer gives its rows, columns and uncompressed size (a 170 kB file can hold 3 million rows).
 """
 
 from __future__ import annotations
@@ -15,6 +20,14 @@ import pandas as pd
 from softsensor.errors import IngestError, require_packages
 
 CSV_SUFFIXES: tuple[str, ...] = (".csv", ".txt", ".tsv")
+#: Most rows read from a table unless the caller allows more (a map's ``source.max_rows``).
+MAX_ROWS = 1_000_000
+#: Longest line of a CSV [bytes]: a wide export of 500 tags is about 10 kB a line.
+MAX_LINE_BYTES = 65_536
+#: Most columns of a Parquet file, and its largest uncompressed size [bytes].
+MAX_COLUMNS = 10_000
+MAX_PARQUET_BYTES = 512 * 1024 * 1024
+_BLOCK = 1 << 20
 PARQUET_SUFFIXES: tuple[str, ...] = (".parquet", ".pq")
 
 
@@ -30,21 +43,64 @@ def table_kind(path: Path) -> str:
                       f"(expected {', '.join(CSV_SUFFIXES + PARQUET_SUFFIXES)})")
 
 
-def read_table(path: str | Path, *, delimiter: str = ",") -> pd.DataFrame:
-    """A CSV (cells as text) or Parquet file as a DataFrame with a 0-based row index."""
+def _csv_bounds(p: Path, max_rows: int, skip_rows: int) -> None:
+    """Refuse a CSV with a line longer than :data:`MAX_LINE_BYTES` or more than ``max_rows``
+    data rows, streaming it (memory: one block)."""
+    lines, longest, current = 0, 0, 0
+    with p.open("rb") as f:
+        while block := f.read(_BLOCK):
+            start = 0
+            while (nl := block.find(b"\n", start)) >= 0:
+                longest = max(longest, current + nl - start)
+                current, start, lines = 0, nl + 1, lines + 1
+            current += len(block) - start
+            longest = max(longest, current)
+            if longest > MAX_LINE_BYTES:
+                raise IngestError(f"{p}: line {lines + 1} is longer than {MAX_LINE_BYTES} bytes "
+                                  "(not a historian export, or the wrong delimiter?)")
+            if lines - 1 - skip_rows > max_rows:
+                raise IngestError(f"{p}: more than {max_rows} rows (split the export, or raise "
+                                  "source.max_rows)")
+
+
+def _parquet_bounds(p: Path, max_rows: int) -> None:
+    """Refuse a Parquet file whose footer promises more than the bounds, before reading it."""
+    import pyarrow.parquet as pq
+
+    meta = pq.read_metadata(p)
+    size = sum(meta.row_group(i).total_byte_size for i in range(meta.num_row_groups))
+    if meta.num_rows > max_rows:
+        raise IngestError(f"{p}: {meta.num_rows} rows, more than {max_rows} (split the export, "
+                          "or raise source.max_rows)")
+    if meta.num_columns > MAX_COLUMNS or size > MAX_PARQUET_BYTES:
+        raise IngestError(f"{p}: {meta.num_columns} columns, {size / 2**20:.0f} MiB "
+                          f"uncompressed: more than the {MAX_COLUMNS} columns and "
+                          f"{MAX_PARQUET_BYTES // 2**20} MiB read at once")
+
+
+def read_table(path: str | Path, *, delimiter: str = ",", skip_rows: int = 0,
+               max_rows: int = MAX_ROWS) -> pd.DataFrame:
+    """A CSV (cells as text) or Parquet file as a DataFrame with a 0-based row index, its
+    first ``skip_rows`` rows under the header left out (a units row), at most ``max_rows``
+    rows (more: IngestError before the data is read)."""
     p = Path(path)
     kind = table_kind(p)
     if not p.is_file():
         raise IngestError(f"{p}: no such file")
     try:
         if kind == "csv":
+            _csv_bounds(p, max_rows, skip_rows)
             frame = pd.read_csv(p, sep=delimiter, dtype=str, keep_default_na=False,
-                                skipinitialspace=True, encoding="utf-8-sig")
+                                skipinitialspace=True, encoding="utf-8-sig",
+                                skiprows=range(1, 1 + skip_rows), nrows=max_rows + 1)
         else:
-            frame = pd.read_parquet(p)
+            _parquet_bounds(p, max_rows)
+            frame = pd.read_parquet(p).iloc[skip_rows:]
     except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise IngestError(f"{p}: cannot read as {kind}: {first}") from exc
+    if len(frame) > max_rows:  # the file grew since it was measured
+        raise IngestError(f"{p}: more than {max_rows} rows")
     frame.columns = [str(c).strip() for c in frame.columns]
     return frame.reset_index(drop=True)
 

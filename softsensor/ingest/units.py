@@ -20,6 +20,26 @@ from softsensor.signals import SCAN_SIGNALS
 PINT_SI: dict[str, str] = {"K": "kelvin", "kg/s": "kg/s", "kg/kg": "dimensionless",
                            "%": "percent"}
 
+#: Physical range of each scan signal [SI]: CONTRACT section 6's operating envelope of dryer1
+#: widened to what the instrument can read at all (a stopped dryer in winter, a flow meter's
+#: small negative zero), so that only a wrong unit or a broken instrument falls outside. Each
+#: bound also catches the usual unit slips: °C read as K (T < 230 K), t/h as kg/s (m_fiber
+#: 21.6, m_air 295), kg/h as t/h (m_steam 1800 t/h), relative humidity or g/kg as a humidity
+#: ratio (H_amb 0.9 or 9 kg/kg).
+PHYSICAL_RANGE: dict[str, tuple[float, float]] = {
+    "T_air_in": (230.0, 900.0),      # envelope 440..560 K; cold when the burner is off
+    "m_air": (-2.0, 200.0),          # envelope 82 kg/s +-10 %
+    "m_fiber": (-0.5, 20.0),         # envelope 4.5..7.0 kg/s
+    "T_fiber_in": (230.0, 450.0),    # about 370 K
+    "m_steam": (-0.2, 5.0),          # about 0.5 kg/s
+    "T_amb": (220.0, 330.0),         # envelope 255..310 K
+    "H_amb": (0.0, 0.05),            # envelope 0.001..0.02 kg/kg; saturated at 40 °C: 0.049
+    "flap_cmd": (-5.0, 105.0),       # a PID output 0..100 %
+    "T_sp": (230.0, 500.0),          # nominal 348 K
+    "T_dryer_out": (230.0, 500.0),   # near T_sp
+    "T_cyclone_out": (230.0, 500.0),  # a few K below T_dryer_out
+}
+
 
 @functools.cache
 def registry() -> pint.UnitRegistry:
@@ -39,6 +59,19 @@ def check_unit(unit: str, target: str, key: str) -> None:
         raise ConfigError(f"{key} {unit!r} cannot be converted to {target}") from exc
     except (pint.PintError, AttributeError, TypeError, ValueError) as exc:
         raise ConfigError(f"{key} {unit!r} is not a unit pint can parse ({exc})") from exc
+
+
+def quantity_si(text: str, target: str, key: str) -> float:
+    """A quantity written with its unit (``"1013 hPa"``, ``"1 atm"``) in ``target``;
+    :class:`ConfigError` naming ``key`` when it is not one."""
+    try:
+        q = registry().Quantity(text)
+        return float(q.to(target).magnitude)
+    except pint.DimensionalityError as exc:
+        raise ConfigError(f"{key} {text!r} cannot be converted to {target}") from exc
+    except (pint.PintError, AttributeError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{key} {text!r} is not a quantity with a unit pint knows "
+                          "(e.g. '1013 hPa', '101.3 kPa', '1 atm')") from exc
 
 
 def to_unit(values: np.ndarray, unit: str, target: str) -> np.ndarray:

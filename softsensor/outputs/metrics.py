@@ -6,9 +6,14 @@ the numbers are the ones the daemon's status line prints. A registry of its own 
 process-global one) keeps tests and several daemons in one process apart. Served by
 ``prometheus_client``'s own HTTP server on loopback unless configured.
 
-Metric names follow Prometheus' conventions: base units in the name, ``_total`` for
-counters, ``_seconds`` for durations; moisture stays kg/kg on a dry basis (SI, like every
-interface the program offers to other programs).
+Every sample carries the labels ``unit`` (the dryer, ``dryer1``) and ``site`` (the table's
+``site``), so one Prometheus scrapes several dryers and sites and a dashboard chooses among
+them (``docs/grafana/softsensor.json``). Metric names follow Prometheus' conventions: base
+units in the name, ``_total`` for counters, ``_seconds`` for durations, ``_celsius`` for
+temperatures. Moisture is given twice: in kg/kg on a dry basis (SI, like every interface the
+program offers to other programs) and in % on a wet basis (what a plant's lab and operators
+read), with the 95 % band and the ``[display]`` target and acceptable band, so a dashboard
+plots them without arithmetic.
 """
 
 from __future__ import annotations
@@ -20,19 +25,26 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_server
 from prometheus_client.core import CounterMetricFamily
 
+from softsensor.display import DisplaySettings, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.settings import MetricsSettings
 
 HEALTH_STATES: tuple[str, ...] = ("ok", "degraded", "stale")
 _ESTIMATES = ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std")
+#: The labels of every metric.
+LABELS: tuple[str, ...] = ("unit", "site")
+#: Outlet temperatures: (channel, source) -> key of the estimate body.
+_TEMPERATURES = {(c, s): f"{c}_{s}" for c in ("T_dryer_out", "T_cyclone_out")
+                 for s in ("measured", "model")}
 
 
 class _Counters:
     """Counters read from the daemon's parts at scrape time (a custom collector, so they are
     exposed as counters, not gauges)."""
 
-    def __init__(self, counters: Mapping[str, tuple[str, Callable[[], float]]]) -> None:
-        self.counters = dict(counters)
+    def __init__(self, counters: Mapping[str, tuple[str, Callable[[], float]]],
+                 labels: tuple[str, str]) -> None:
+        self.counters, self.labels = dict(counters), labels
 
     def collect(self):
         for name, (doc, fn) in self.counters.items():
@@ -40,7 +52,13 @@ class _Counters:
                 value = float(fn())
             except Exception:  # noqa: BLE001 - a part not started yet: no sample this scrape
                 continue
-            yield CounterMetricFamily(name, doc, value=value)
+            family = CounterMetricFamily(name, doc, labels=LABELS)
+            family.add_metric(list(self.labels), value)
+            yield family
+
+
+def _num(v: Any) -> float:
+    return math.nan if v is None else float(v)
 
 
 class DaemonMetrics:
@@ -49,25 +67,50 @@ class DaemonMetrics:
     time."""
 
     def __init__(self, settings: MetricsSettings,
-                 counters: Mapping[str, tuple[str, Callable[[], float]]] | None = None) -> None:
+                 counters: Mapping[str, tuple[str, Callable[[], float]]] | None = None, *,
+                 unit: str = "dryer1", display: DisplaySettings | None = None) -> None:
         self.settings = settings
+        self.display = display or DisplaySettings()
         self.registry = CollectorRegistry()
-        r = self.registry
-        self.estimate = {k: Gauge(f"softsensor_{k}_kg_per_kg",
-                                  f"latest {k} estimate [kg/kg dry basis]", registry=r)
-                         for k in _ESTIMATES}
-        for g in self.estimate.values():
-            g.set(math.nan)
-        self.window_end = Gauge("softsensor_window_end_seconds",
-                                "end of the latest estimated window [s since the epoch]",
-                                registry=r)
-        self.health = Gauge("softsensor_health", "1 for the current health status",
-                            ["status"], registry=r)
+        self.labels = {"unit": unit, "site": settings.site}
+        r, lab = self.registry, list(LABELS)
+
+        def gauge(name: str, doc: str, extra: tuple[str, ...] = ()) -> Gauge:
+            return Gauge(name, doc, [*lab, *extra], registry=r)
+
+        self.estimate = {k: gauge(f"softsensor_{k}_kg_per_kg",
+                                  f"latest {k} estimate [kg/kg dry basis]") for k in _ESTIMATES}
+        self.wet = {k: gauge(f"softsensor_{k}_wet_basis_percent",
+                             f"latest {k} estimate [% wet basis]")
+                    for k in ("moisture_out", "moisture_in")}
+        self.band = gauge("softsensor_moisture_out_band_wet_basis_percent",
+                          "95 % band of the outlet moisture [% wet basis]", ("bound",))
+        self.limits = gauge("softsensor_moisture_out_limit_wet_basis_percent",
+                            "outlet moisture target and acceptable band of [display] "
+                            "[% wet basis]", ("level",))
+        self.temperature = gauge("softsensor_outlet_temperature_celsius",
+                                 "outlet temperature, window mean of the measurement or the "
+                                 "model's [°C]", ("channel", "source"))
+        self.window_end = gauge("softsensor_window_end_seconds",
+                                "end of the latest estimated window [s since the epoch]")
+        self.health = gauge("softsensor_health", "1 for the current health status",
+                            ("status",))
         self.tick = Histogram("softsensor_tick_duration_seconds",
-                              "wall time the estimator took for one tick [s]",
+                              "wall time the estimator took for one tick [s]", lab,
                               buckets=(0.01, 0.05, 0.1, 0.5, 1, 5, 30, 60, 300, 600, 1200),
                               registry=r)
-        r.register(_Counters(counters or {}))
+        for g in (*self.estimate.values(), *self.wet.values()):
+            g.labels(**self.labels).set(math.nan)
+        for bound in ("low", "high"):
+            self.band.labels(**self.labels, bound=bound).set(math.nan)
+        d = self.display
+        for level, x in (("target", d.moisture_target), ("low", d.moisture_low),
+                         ("high", d.moisture_high)):
+            self.limits.labels(**self.labels, level=level).set(float(moisture_pct(x)))
+        for channel, source in _TEMPERATURES:
+            self.temperature.labels(**self.labels, channel=channel, source=source).set(math.nan)
+        self.set_health("stale")
+        r.register(_Counters(counters or {}, (unit, settings.site)))
         self._server: Any = None
         self.port = settings.port
 
@@ -84,17 +127,25 @@ class DaemonMetrics:
     def publish(self, body: Mapping[str, Any], time_ns: int, duration_s: float | None = None
                 ) -> None:
         """Set the gauges from an estimate body; ``duration_s``: the tick's wall time."""
+        lab = self.labels
         for k, g in self.estimate.items():
-            v = body.get(k)
-            g.set(math.nan if v is None else float(v))
-        self.window_end.set(time_ns / 1e9)
+            g.labels(**lab).set(_num(body.get(k)))
+        for k, g in self.wet.items():
+            g.labels(**lab).set(float(moisture_pct(_num(body.get(k)))))
+        x, sd = _num(body.get("moisture_out")), _num(body.get("moisture_out_std"))
+        self.band.labels(**lab, bound="low").set(float(moisture_pct(x - 1.96 * sd)))
+        self.band.labels(**lab, bound="high").set(float(moisture_pct(x + 1.96 * sd)))
+        for (channel, source), key in _TEMPERATURES.items():
+            self.temperature.labels(**lab, channel=channel, source=source).set(
+                _num(body.get(key)) - 273.15)
+        self.window_end.labels(**lab).set(time_ns / 1e9)
         self.set_health(str(body.get("status")))
         if duration_s is not None:
-            self.tick.observe(duration_s)
+            self.tick.labels(**lab).observe(duration_s)
 
     def set_health(self, status: str) -> None:
         for s in HEALTH_STATES:
-            self.health.labels(status=s).set(1.0 if s == status else 0.0)
+            self.health.labels(**self.labels, status=s).set(1.0 if s == status else 0.0)
 
     def stop(self) -> None:
         server, self._server = self._server, None
@@ -103,4 +154,4 @@ class DaemonMetrics:
             server.server_close()
 
 
-__all__ = ["HEALTH_STATES", "DaemonMetrics"]
+__all__ = ["HEALTH_STATES", "LABELS", "DaemonMetrics"]

@@ -2,12 +2,19 @@
 
 An OPC UA server at ``opc.tcp://host:port/softsensor/`` holds, under ``Objects/<unit>`` in the
 namespace ``urn:softsensor``, one read-only variable per value: the outlet and inlet moisture
-and their standard deviations [kg/kg dry basis, Double], both moistures in % on the display
-basis [Double], the window end [DateTime, UTC], the health [String] and its code [UInt16],
-and whether a lab result corrected the window [Boolean]. Every numeric variable carries the
-standard ``EngineeringUnits`` property (an ``EUInformation``, UNECE codes where one exists),
-so a SCADA client shows the unit without configuration. A missing estimate is NaN, with the
-health saying why.
+and their standard deviations [kg/kg dry basis], both moistures in % on the display basis,
+the outlet temperatures measured and modelled [°C], the window end [DateTime, UTC], the health
+[String] and its code [UInt16], and whether a lab result corrected the window [Boolean].
+
+The numeric values are ``AnalogItemType`` variables (OPC UA Part 8) of type Double, each with
+its ``EURange`` (the range a SCADA scales a bar or trend to) and ``EngineeringUnits`` (an
+``EUInformation``, UNECE codes where one exists), so a client shows them without
+configuration. Every value carries the end of its window as ``SourceTimestamp`` (when the
+value is true, not when it was written) and a status: Good when the health is ``ok``,
+Uncertain when ``degraded``, Bad when ``stale`` or missing (NaN). The values are historized
+(``Historizing``, ``HistoryRead`` in the access level): a client's HistoryRead returns the last
+``history_h`` hours (48) of windows, kept in memory by count, so an accelerated demo whose
+clock runs ahead of the wall keeps them too.
 
 The server accepts anonymous, unencrypted sessions (``None`` security policy) on loopback by
 default; a plant network that needs more puts it behind the site's OPC UA gateway or sets
@@ -25,6 +32,7 @@ from datetime import UTC, datetime
 from typing import Any
 
 from asyncua import Server, ua
+from asyncua.common.instantiate_util import instantiate
 
 from softsensor.display import DisplaySettings, moisture_pct
 from softsensor.errors import ConfigError
@@ -34,24 +42,42 @@ log = logging.getLogger(__name__)
 
 NAMESPACE = "urn:softsensor"
 _UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
-#: name -> (variant type, unit shown, UNECE common code or None, description)
-VARIABLES: dict[str, tuple[ua.VariantType, str | None, str | None, str]] = {
-    "moisture_out": (ua.VariantType.Double, "kg/kg", None,
+#: name -> (variant type, unit shown, UNECE common code or None, EURange or None, description)
+VARIABLES: dict[str, tuple[ua.VariantType, str | None, str | None, tuple[float, float] | None,
+                           str]] = {
+    "moisture_out": (ua.VariantType.Double, "kg/kg", None, (0.0, 2.0),
                      "fibre moisture at the outlet, kg water per kg dry fibre"),
-    "moisture_out_std": (ua.VariantType.Double, "kg/kg", None, "its standard deviation"),
-    "moisture_in": (ua.VariantType.Double, "kg/kg", None,
+    "moisture_out_std": (ua.VariantType.Double, "kg/kg", None, (0.0, 0.5),
+                         "its standard deviation"),
+    "moisture_in": (ua.VariantType.Double, "kg/kg", None, (0.0, 2.0),
                     "fibre moisture at the inlet, kg water per kg dry fibre"),
-    "moisture_in_std": (ua.VariantType.Double, "kg/kg", None, "its standard deviation"),
-    "moisture_out_pct": (ua.VariantType.Double, "%", "P1", "outlet moisture in %"),
-    "moisture_in_pct": (ua.VariantType.Double, "%", "P1", "inlet moisture in %"),
-    "window_end": (ua.VariantType.DateTime, None, None, "end of the estimated window (UTC)"),
-    "health": (ua.VariantType.String, None, None, "ok, degraded or stale"),
-    "health_code": (ua.VariantType.UInt16, None, None,
+    "moisture_in_std": (ua.VariantType.Double, "kg/kg", None, (0.0, 0.5),
+                        "its standard deviation"),
+    "moisture_out_pct": (ua.VariantType.Double, "%", "P1", (0.0, 100.0),
+                         "outlet moisture in % on the display basis"),
+    "moisture_in_pct": (ua.VariantType.Double, "%", "P1", (0.0, 100.0),
+                        "inlet moisture in % on the display basis"),
+    "T_dryer_out_measured": (ua.VariantType.Double, "°C", "CEL", (0.0, 200.0),
+                             "dryer outlet temperature, window mean of the measurement"),
+    "T_dryer_out_model": (ua.VariantType.Double, "°C", "CEL", (0.0, 200.0),
+                          "dryer outlet temperature, the model's"),
+    "T_cyclone_out_measured": (ua.VariantType.Double, "°C", "CEL", (0.0, 200.0),
+                               "cyclone outlet temperature, window mean of the measurement"),
+    "T_cyclone_out_model": (ua.VariantType.Double, "°C", "CEL", (0.0, 200.0),
+                            "cyclone outlet temperature, the model's"),
+    "window_end": (ua.VariantType.DateTime, None, None, None,
+                   "end of the estimated window (UTC)"),
+    "health": (ua.VariantType.String, None, None, None, "ok, degraded or stale"),
+    "health_code": (ua.VariantType.UInt16, None, None, None,
                     "0 ok, 1 degraded, 2 stale, 3 no estimate yet"),
-    "lab_updated": (ua.VariantType.Boolean, None, None,
+    "lab_updated": (ua.VariantType.Boolean, None, None, None,
                     "a lab result corrected this window"),
 }
 _CODES = {"ok": 0, "degraded": 1, "stale": 2}
+#: The status of a value by the health of its window.
+_QUALITY = {"ok": ua.StatusCodes.Good, "degraded": ua.StatusCodes.Uncertain}
+#: Length of one estimator window [s]: the history is kept by count, one value a window.
+WINDOW_S = 600.0
 
 
 def _unit_id(code: str | None) -> int:
@@ -76,12 +102,26 @@ def opcua_values(body: Mapping[str, Any], time_ns: int, display: DisplaySettings
     basis = display.moisture_basis
     out["moisture_out_pct"] = float(moisture_pct(out["moisture_out"], basis))
     out["moisture_in_pct"] = float(moisture_pct(out["moisture_in"], basis))
+    for key in ("T_dryer_out_measured", "T_dryer_out_model", "T_cyclone_out_measured",
+                "T_cyclone_out_model"):
+        out[key] = num(key) - 273.15
     out["window_end"] = datetime.fromtimestamp(time_ns / 1e9, UTC)
     status = str(body.get("status", "stale"))
     out["health"] = status
     out["health_code"] = _CODES.get(status, 3)
     out["lab_updated"] = bool(body.get("lab_updated"))
     return out
+
+
+def _data_value(value: Any, vtype: ua.VariantType, status: str,
+                when: datetime | None) -> ua.DataValue:
+    """A value with its status (health, NaN: Bad) and source time (its window's end)."""
+    bad = isinstance(value, float) and not math.isfinite(value)
+    code = ua.StatusCodes.Bad if bad else _QUALITY.get(status, ua.StatusCodes.Bad)
+    if vtype != ua.VariantType.Double:
+        code = ua.StatusCodes.Good  # health, window end and flags are what they say
+    return ua.DataValue(ua.Variant(value, vtype), StatusCode=ua.StatusCode(code),
+                        SourceTimestamp=when, ServerTimestamp=datetime.now(UTC))
 
 
 class EstimateOpcUaServer:
@@ -96,22 +136,46 @@ class EstimateOpcUaServer:
         self._nodes: dict[str, Any] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
 
+    async def _analog(self, server: Server, obj: Any, idx: int, name: str) -> Any:
+        """An ``AnalogItemType`` Double variable with its EURange and EngineeringUnits."""
+        _vtype, unit, code, eu_range, text = VARIABLES[name]
+        node = (await instantiate(obj, server.get_node(ua.ObjectIds.AnalogItemType),
+                                  bname=ua.QualifiedName(name, idx), idx=idx,
+                                  instantiate_optional=False))[0]
+        await node.write_attribute(ua.AttributeIds.DataType, ua.DataValue(
+            ua.Variant(ua.NodeId(ua.ObjectIds.Double), ua.VariantType.NodeId)))
+        assert eu_range is not None and unit is not None
+        eur = await node.get_child(["0:EURange"])
+        await eur.write_value(ua.Variant(ua.Range(Low=eu_range[0], High=eu_range[1]),
+                                         ua.VariantType.ExtensionObject))
+        eu = ua.EUInformation(NamespaceUri=_UNECE, UnitId=_unit_id(code),
+                              DisplayName=ua.LocalizedText(unit),
+                              Description=ua.LocalizedText(text))
+        await node.add_property(0, "EngineeringUnits", ua.Variant(eu))
+        return node
+
     async def _variables(self, server: Server) -> None:
         idx = await server.register_namespace(NAMESPACE)
         obj = await server.nodes.objects.add_object(idx, self.unit)
-        for name, (vtype, unit, code, text) in VARIABLES.items():
-            start = {ua.VariantType.Double: math.nan, ua.VariantType.String: "stale",
-                     ua.VariantType.UInt16: 3, ua.VariantType.Boolean: False,
-                     ua.VariantType.DateTime: datetime.fromtimestamp(0, UTC)}[vtype]
-            node = await obj.add_variable(idx, name, ua.Variant(start, vtype))
+        start = {ua.VariantType.Double: math.nan, ua.VariantType.String: "stale",
+                 ua.VariantType.UInt16: 3, ua.VariantType.Boolean: False,
+                 ua.VariantType.DateTime: datetime.fromtimestamp(0, UTC)}
+        for name, (vtype, _unit, _code, eu_range, text) in VARIABLES.items():
+            if eu_range is not None:
+                node = await self._analog(server, obj, idx, name)
+            else:
+                node = await obj.add_variable(idx, name, ua.Variant(start[vtype], vtype))
             await node.write_attribute(ua.AttributeIds.Description,
                                        ua.DataValue(ua.Variant(ua.LocalizedText(text))))
-            if unit is not None:
-                eu = ua.EUInformation(NamespaceUri=_UNECE, UnitId=_unit_id(code),
-                                      DisplayName=ua.LocalizedText(unit),
-                                      Description=ua.LocalizedText(text))
-                await node.add_property(0, "EngineeringUnits", ua.Variant(eu))
+            waiting = (ua.StatusCodes.BadWaitingForInitialData
+                       if vtype == ua.VariantType.Double else ua.StatusCodes.Good)
+            await node.write_value(ua.DataValue(  # stamped: history compares the times
+                ua.Variant(start[vtype], vtype), StatusCode=ua.StatusCode(waiting),
+                SourceTimestamp=datetime.now(UTC), ServerTimestamp=datetime.now(UTC)))
             self._nodes[name] = (node, vtype)
+        count = int(self.settings.history_h * 3600 / WINDOW_S) + 1
+        await server.historize_node_data_change([n for n, _ in self._nodes.values()],
+                                                period=None, count=count)
 
     async def start(self) -> None:
         server = Server()
@@ -129,23 +193,26 @@ class EstimateOpcUaServer:
         self._server, self._loop = server, asyncio.get_running_loop()
         log.info("estimate served on %s", self.endpoint)
 
-    async def _write(self, values: Mapping[str, Any]) -> None:
+    async def _write(self, values: Mapping[str, Any], status: str,
+                     when: datetime | None) -> None:
         for name, value in values.items():
             node, vtype = self._nodes[name]
-            await node.write_value(ua.Variant(value, vtype))
+            await node.write_value(_data_value(value, vtype, status, when))
 
     def publish(self, body: Mapping[str, Any], time_ns: int) -> None:
-        """Serve a new estimate (thread-safe: handed to the server's event loop)."""
+        """Serve a new estimate (thread-safe: handed to the server's event loop), stamped
+        with the end of its window."""
         if self._loop is not None:
+            values = opcua_values(body, time_ns, self.display)
             asyncio.run_coroutine_threadsafe(
-                self._write(opcua_values(body, time_ns, self.display)), self._loop)
+                self._write(values, values["health"], values["window_end"]), self._loop)
 
     def health(self, status: str) -> None:
-        """A health change between estimates."""
+        """A health change between estimates (stamped now)."""
         if self._loop is not None:
             asyncio.run_coroutine_threadsafe(
-                self._write({"health": status, "health_code": _CODES.get(status, 3)}),
-                self._loop)
+                self._write({"health": status, "health_code": _CODES.get(status, 3)}, status,
+                            datetime.now(UTC)), self._loop)
 
     async def stop(self) -> None:
         server, self._server = self._server, None
@@ -154,4 +221,4 @@ class EstimateOpcUaServer:
                 await server.stop()
 
 
-__all__ = ["NAMESPACE", "VARIABLES", "EstimateOpcUaServer", "opcua_values"]
+__all__ = ["NAMESPACE", "VARIABLES", "WINDOW_S", "EstimateOpcUaServer", "opcua_values"]

@@ -12,6 +12,7 @@ Example ``config/dryer1.toml`` fragment::
     [outputs.prometheus]    # http://host:port/metrics
     enabled = true
     port = 9108
+    site = "mill-north"     # the ``site`` label of every metric (``unit`` is the unit)
 
     [outputs.opcua]         # opc.tcp://host:port/softsensor/, typed, with engineering units
     enabled = true
@@ -20,6 +21,7 @@ Example ``config/dryer1.toml`` fragment::
     enabled = true
     port = 8050
     diagnosis = "reports/latest.json"   # shown when present (softsensor diagnose --json)
+    workers = 8             # threads answering; 32 more connections wait, the rest are closed
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from softsensor.configfile import build_section
+from softsensor.configfile import build_section, num
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PlantConfig
 
@@ -56,6 +58,7 @@ class MetricsSettings:
     enabled: bool = False
     host: str = "127.0.0.1"
     port: int = 9108
+    site: str = "plant"  # the label ``site`` of every metric (a dashboard chooses by it)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:
@@ -70,6 +73,7 @@ class OpcUaSettings:
     enabled: bool = False
     host: str = "127.0.0.1"
     port: int = 4840
+    history_h: float = num(48.0, gt=0, le=24 * 31)  # HistoryRead: the last hours of windows
 
     def check(self) -> str | None:
         if not 1 <= self.port <= 65535:
@@ -87,6 +91,9 @@ class WebSettings:
     history_h: float = 48.0  # hours of estimates and lab results the page shows
     refresh_s: float = 30.0  # the browser reloads the page this often [s, wall]
     diagnosis: str | None = None  # REPORT.json of `softsensor diagnose --json` to show
+    workers: int = num(8, ge=1, le=64)  # threads answering requests
+    backlog: int = num(32, ge=0, le=1024)  # accepted connections waiting; more are closed
+    timeout_s: float = num(10.0, gt=0, le=300)  # a client idle this long is dropped [s]
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:

@@ -1,71 +1,143 @@
-"""A live page for the control room (``[outputs.web]``): the last 48 h on one screen.
+"""A live page for the control room (``[outputs.web]``): the soft sensor as a DCS faceplate.
 
-``GET /`` is one self-contained HTML page (no script, no external resources: plant networks
-are closed), drawn on the server as inline SVG and reloaded by the browser every
-``refresh_s``: the outlet moisture with its 95 % band and the lab results at their sample
-times, the inlet moisture with its band, the health with its detail, and the last diagnosis
-(the plain-language verdict of the ``diagnosis`` report file, re-read when it changes).
-What a person reads is in plant units (:mod:`softsensor.display`: % on the
-display basis, the plant's local clock). ``GET /api/latest.json`` gives the latest estimate
-and health as the bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers
-200 while estimates arrive and 503 when none came for three windows (a container's health
-check).
+``GET /`` (and ``HEAD /``) is one self-contained HTML page (no script, no external resources:
+plant networks are closed), drawn on the server as inline SVG and reloaded by the browser every
+``refresh_s``:
 
-The history is fed from the daemon's estimator thread (:meth:`LivePage.add_estimate`,
-:meth:`add_lab`, :meth:`set_health`) and read by the server's threads under one lock; it is
-bounded by ``history_h``. Every string that reaches the page is escaped.
+* the health in plain words (:func:`softsensor.verdicts.health_words`), the technical detail
+  beside it in small type;
+* the outlet and inlet moisture now, with their 95 % band, the target and acceptable band of
+  the ``[display]`` table, the last lab result, and the age of each value;
+* trends of the outlet moisture (95 % band, lab results at their sample times, the target line
+  and the acceptable band), the outlet temperatures measured beside the model's, and the inlet
+  moisture; the time axis spans the data, or the range chosen with ``?range=2h|8h|48h`` (links
+  on the page), with ticks on round clock times and round values (:mod:`.web_charts`);
+* the last diagnosis when a report exists (the ``diagnosis`` key: a ``softsensor diagnose
+  --json`` file, re-read when it changes).
+
+What a person reads is in plant units (:mod:`softsensor.display`: % on the display basis, °C,
+the plant's local clock). ``GET /api/latest.json`` gives the latest estimate and health as the
+bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers 200 while
+estimates arrive and 503 when none came for three windows (a container's health check).
+
+The server answers from a fixed pool of threads (:class:`BoundedHTTPServer`): a thousand slow
+clients hold at most ``workers + backlog`` connections and no more threads than workers (each
+connection may idle ``timeout_s``); the rest are closed at once. The history is fed from the
+daemon's estimator thread (:meth:`LivePage.add_estimate`, :meth:`add_lab`, :meth:`set_health`)
+and read by the server's threads under one lock; it is bounded by ``history_h``. Every string
+that reaches the page is escaped.
 """
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
+import logging
 import math
 import os
+import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from http.server import BaseHTTPRequestHandler, HTTPServer
 from typing import Any
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
 from softsensor.display import (
     DisplaySettings,
     local_clock,
-    local_times,
     moisture_pct,
     moisture_pct_points,
 )
 from softsensor.errors import ConfigError
 from softsensor.jsonable import dumps
 from softsensor.outputs.settings import WebSettings
-from softsensor.verdicts import diagnosis_verdict
+from softsensor.outputs.web_charts import Chart, Series, legend, svg
+from softsensor.verdicts import diagnosis_verdict, health_words
+
+log = logging.getLogger(__name__)
 
 NS = 10**9
 WINDOW_NS = 600 * NS
-#: Colours of the page; the tests look for the line colours in a screenshot.
+#: Colours of the page; the tests look for them in a screenshot.
 LINE = "#1f77b4"
 BAND = "#c6dbef"
 LAB = "#2ca02c"
 INLET = "#d62728"
+MEASURED = "#ff7f0e"
+MODEL = "#6a3d9a"
 HEALTH_COLOURS = {"ok": "#2ca02c", "degraded": "#ff7f0e", "stale": "#d62728"}
+#: The ranges an operator can choose (``?range=``), in hours; without one the axis fits the
+#: data (at least :data:`MIN_SPAN_H`).
+RANGES_H: dict[str, float] = {"2h": 2.0, "8h": 8.0, "48h": 48.0}
+MIN_SPAN_H = 1.0
+
+
+class BoundedHTTPServer(HTTPServer):
+    """An HTTP server answering from ``workers`` threads; at most ``backlog`` more accepted
+    connections wait, further ones are closed at once (counted in :attr:`refused`)."""
+
+    request_queue_size = 128  # the kernel's queue before accept: a burst is taken and sorted
+
+    def __init__(self, address: tuple[str, int], handler: type, *, workers: int = 8,
+                 backlog: int = 32) -> None:
+        super().__init__(address, handler)
+        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="web")
+        self._slots = threading.BoundedSemaphore(workers + backlog)
+        self._open: set[socket.socket] = set()
+        self._lock = threading.Lock()
+        self.refused = 0
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.refused += 1
+            self.shutdown_request(request)
+            return
+        with self._lock:
+            self._open.add(request)
+        self._pool.submit(self._serve, request, client_address)
+
+    def _serve(self, request: Any, client_address: Any) -> None:
+        try:
+            self.finish_request(request, client_address)
+        except Exception as exc:  # noqa: BLE001 - a client that went away: one debug line
+            log.debug("web client %s: %s", client_address[0], type(exc).__name__)
+        finally:
+            self.shutdown_request(request)
+            with self._lock:
+                self._open.discard(request)
+            self._slots.release()
+
+    def server_close(self) -> None:
+        super().server_close()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        with self._lock:
+            waiting, self._open = list(self._open), set()
+        for request in waiting:  # queued, never served: close them now
+            with contextlib.suppress(OSError):
+                request.close()
 
 
 class LivePage:
     """The page's history and its HTTP server (module docstring)."""
 
-    def __init__(self, settings: WebSettings, display: DisplaySettings, unit: str = "dryer1"
-                 ) -> None:
+    def __init__(self, settings: WebSettings, display: DisplaySettings, unit: str = "dryer1",
+                 clock: Callable[[], int] = time.time_ns) -> None:
         self.settings, self.display, self.unit = settings, display, unit
+        self.clock = clock  #: the plant's clock [ns] (the daemon's, scaled in demos)
         self._lock = threading.Lock()
         self._est: deque[tuple[int, dict[str, Any]]] = deque()
         self._labs: deque[tuple[int, float, str]] = deque()
         self._health: dict[str, Any] = {"status": "stale", "detail": "no estimate yet"}
+        self._health_at: int | None = None
         self._diagnosis: str | None = None
         self._last_arrival: float | None = None
-        self._server: ThreadingHTTPServer | None = None
+        self._server: BoundedHTTPServer | None = None
         self.port = settings.port
         self.time_scale = 1.0  #: plant seconds per wall second (accelerated demos)
         self._report_cache: tuple[int, str] | None = None
@@ -89,9 +161,10 @@ class LivePage:
             self._labs.append((int(sample_time_ns), float(moisture_out), str(sample_id)))
             self._labs = deque(sorted(self._labs))
 
-    def set_health(self, body: Mapping[str, Any]) -> None:
+    def set_health(self, body: Mapping[str, Any], time_ns: int | None = None) -> None:
         with self._lock:
             self._health = dict(body)
+            self._health_at = time_ns
 
     def set_diagnosis(self, text: str | None) -> None:
         with self._lock:
@@ -136,48 +209,69 @@ class LivePage:
             return False
         return time.monotonic() - self._last_arrival < 3 * WINDOW_NS / NS / self.time_scale
 
-    def page(self) -> str:
+    def page(self, range_key: str | None = None) -> str:
         est, labs, health, diag = self.snapshot()
-        return render_page(est, labs, health, diag, self.display, self.settings, self.unit)
+        return render_page(est, labs, health, diag, self.display, self.settings, self.unit,
+                           now_ns=self.clock(), range_key=range_key)
 
     # -- serving ---------------------------------------------------------------------------
-    def start(self) -> None:
-        s, page = self.settings, self
+    def _handler(self) -> type:
+        page = self
 
         class Handler(BaseHTTPRequestHandler):
-            def do_GET(self) -> None:  # noqa: N802 - the stdlib's name
-                path = self.path.split("?")[0]
-                if path == "/":
-                    self._send(200, "text/html; charset=utf-8", page.page())
-                elif path == "/api/latest.json":
-                    self._send(200, "application/json", page.latest_json())
-                elif path == "/healthz":
-                    ok = page.healthy()
-                    self._send(200 if ok else 503, "text/plain", "ok\n" if ok else "stale\n")
-                else:
-                    self._send(404, "text/plain", "not found\n")
+            timeout = page.settings.timeout_s  # a client idle this long is dropped
 
-            def _send(self, code: int, kind: str, text: str) -> None:
+            def do_GET(self) -> None:  # noqa: N802 - the stdlib's name
+                self._answer(body=True)
+
+            def do_HEAD(self) -> None:  # noqa: N802
+                self._answer(body=False)
+
+            def _answer(self, body: bool) -> None:
+                url = urlsplit(self.path)
+                if url.path == "/":
+                    choice = parse_qs(url.query).get("range", [None])[0]
+                    self._send(200, "text/html; charset=utf-8", page.page(choice), body)
+                elif url.path == "/api/latest.json":
+                    self._send(200, "application/json", page.latest_json(), body)
+                elif url.path == "/healthz":
+                    ok = page.healthy()
+                    self._send(200 if ok else 503, "text/plain", "ok\n" if ok else "stale\n",
+                               body)
+                else:
+                    self._send(404, "text/plain", "not found\n", body)
+
+            def _send(self, code: int, kind: str, text: str, body: bool) -> None:
                 data = text.encode("utf-8")
                 self.send_response(code)
                 self.send_header("Content-Type", kind)
                 self.send_header("Content-Length", str(len(data)))
                 self.send_header("Cache-Control", "no-store")
                 self.end_headers()
-                self.wfile.write(data)
+                if body:
+                    self.wfile.write(data)
 
             def log_message(self, *_args: Any) -> None:  # the daemon logs, not the stdlib
                 pass
 
+        return Handler
+
+    def start(self) -> None:
+        s = self.settings
         try:
-            self._server = ThreadingHTTPServer((s.host, s.port), Handler)
+            self._server = BoundedHTTPServer((s.host, s.port), self._handler(),
+                                             workers=s.workers, backlog=s.backlog)
         except OSError as exc:
             raise ConfigError(f"outputs.web: cannot listen on {s.host}:{s.port}: "
                               f"{exc.strerror or exc}") from exc
-        self._server.daemon_threads = True
         self.port = self._server.server_address[1]
         threading.Thread(target=self._server.serve_forever, name="web-page",
                          daemon=True).start()
+
+    @property
+    def refused(self) -> int:
+        """Connections closed unanswered because every worker and waiting slot was taken."""
+        return 0 if self._server is None else self._server.refused
 
     def stop(self) -> None:
         server, self._server = self._server, None
@@ -186,94 +280,47 @@ class LivePage:
             server.server_close()
 
 
-# -- drawing -----------------------------------------------------------------------------------
-W, H, PAD_L, PAD_R, PAD_T, PAD_B = 960, 300, 60, 20, 16, 34
+# -- the page ----------------------------------------------------------------------------------
 
 
-def _scale(values: np.ndarray, lo: float, hi: float, a: float, b: float) -> np.ndarray:
-    return a + (values - lo) / (hi - lo) * (b - a) if hi > lo else np.full_like(values, a)
+def age(now_ns: int, t_ns: int) -> str:
+    """How long ago ``t_ns`` was, as a person says it ("7 min ago", "2 h 05 min ago")."""
+    s = max((now_ns - t_ns) / NS, 0.0)
+    if s < 60:
+        return "just now"
+    m = int(s // 60)
+    if m < 60:
+        return f"{m} min ago"
+    h, m = divmod(m, 60)
+    return f"{h} h {m:02d} min ago" if h < 48 else f"{h // 24} d {h % 24} h ago"
 
 
-def _path(x: np.ndarray, y: np.ndarray) -> str:
-    """SVG path of a line, broken where a value is missing."""
-    parts, pen = [], "M"
-    for xi, yi in zip(x, y, strict=True):
-        if not math.isfinite(yi):
-            pen = "M"
-            continue
-        parts.append(f"{pen}{xi:.1f},{yi:.1f}")
-        pen = "L"
-    return " ".join(parts)
+def _num(v: Any) -> float:
+    return math.nan if v is None else float(v)
 
 
-def _axes(t0: int, t1: int, lo: float, hi: float, unit: str, display: DisplaySettings) -> str:
-    """Frame, grid and tick labels (local clock every 6 h, moisture every step)."""
-    out = [f'<rect x="{PAD_L}" y="{PAD_T}" width="{W - PAD_L - PAD_R}" '
-           f'height="{H - PAD_T - PAD_B}" fill="white" stroke="#888"/>']
-    step = 6 * 3600 * NS
-    for t in range(-(-t0 // step) * step, t1 + 1, step):
-        x = float(_scale(np.array([t]), t0, t1, PAD_L, W - PAD_R)[0])
-        label = local_times(np.array([t]), display)[0].strftime("%a %H:%M")
-        out.append(f'<line x1="{x:.1f}" y1="{PAD_T}" x2="{x:.1f}" y2="{H - PAD_B}" '
-                   f'stroke="#eee"/><text x="{x:.1f}" y="{H - 14}" font-size="11" '
-                   f'text-anchor="middle">{html.escape(label)}</text>')
-    for v in np.linspace(lo, hi, 5):
-        y = float(_scale(np.array([v]), lo, hi, H - PAD_B, PAD_T)[0])
-        out.append(f'<line x1="{PAD_L}" y1="{y:.1f}" x2="{W - PAD_R}" y2="{y:.1f}" '
-                   f'stroke="#eee"/><text x="{PAD_L - 6}" y="{y + 4:.1f}" font-size="11" '
-                   f'text-anchor="end">{v:.1f}</text>')
-    out.append(f'<text x="{PAD_L + 6}" y="{PAD_T + 14}" font-size="11" fill="#555">'
-               f'{html.escape(unit)}</text>')
-    return "".join(out)
+def _series(est: list, key: str) -> np.ndarray:
+    return np.array([_num(b.get(key)) for _t, b in est], dtype=float)
 
 
-def chart(t: np.ndarray, v: np.ndarray, sd: np.ndarray, t_lab: np.ndarray, v_lab: np.ndarray,
-          t0: int, t1: int, colour: str, display: DisplaySettings) -> str:
-    """One SVG chart: a value [kg/kg dry] with its 95 % band, optional lab points; in %."""
-    basis = display.moisture_basis
-    mid = moisture_pct(v, basis)
-    lo_b, hi_b = moisture_pct(v - 1.96 * sd, basis), moisture_pct(v + 1.96 * sd, basis)
-    labs = moisture_pct(v_lab, basis)
-    pool = np.concatenate([lo_b[np.isfinite(lo_b)], hi_b[np.isfinite(hi_b)],
-                           labs[np.isfinite(labs)]])
-    lo, hi = (float(pool.min()), float(pool.max())) if pool.size else (0.0, 1.0)
-    pad = max(0.1 * (hi - lo), 0.2)
-    lo, hi = lo - pad, hi + pad
-    x = _scale(t.astype(float), t0, t1, PAD_L, W - PAD_R)
-    svg = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}">',
-           _axes(t0, t1, lo, hi, display.moisture_unit, display)]
-    ok = np.isfinite(lo_b) & np.isfinite(hi_b)
-    if ok.sum() >= 2:
-        top = [f"{a:.1f},{b:.1f}" for a, b in zip(x[ok], _scale(hi_b[ok], lo, hi, H - PAD_B,
-                                                                PAD_T), strict=True)]
-        bot = [f"{a:.1f},{b:.1f}" for a, b in zip(x[ok], _scale(lo_b[ok], lo, hi, H - PAD_B,
-                                                                PAD_T), strict=True)]
-        svg.append(f'<polygon points="{" ".join(top + bot[::-1])}" fill="{BAND}"/>')
-    svg.append(f'<path d="{_path(x, _scale(mid, lo, hi, H - PAD_B, PAD_T))}" fill="none" '
-               f'stroke="{colour}" stroke-width="2.5"/>')
-    xl = _scale(t_lab.astype(float), t0, t1, PAD_L, W - PAD_R)
-    yl = _scale(labs, lo, hi, H - PAD_B, PAD_T)
-    for a, b in zip(xl, yl, strict=True):
-        if math.isfinite(b) and PAD_L <= a <= W - PAD_R:
-            svg.append(f'<rect x="{a - 5:.1f}" y="{b - 5:.1f}" width="10" height="10" '
-                       f'fill="{LAB}"/>')
-    svg.append("</svg>")
-    return "".join(svg)
+def span(est: list, now_ns: int, range_key: str | None, history_h: float) -> tuple[int, int]:
+    """The time axis: the chosen range up to the last estimate, or the data's own span."""
+    t1 = est[-1][0] if est else now_ns
+    if range_key in RANGES_H:
+        return t1 - int(RANGES_H[range_key] * 3600 * NS), t1
+    t0 = est[0][0] if est else t1
+    t0 = max(min(t0, t1 - int(MIN_SPAN_H * 3600 * NS)), t1 - int(history_h * 3600 * NS))
+    return t0, t1
 
 
-def _series(est: list, key: str) -> tuple[np.ndarray, np.ndarray]:
-    def num(v: Any) -> float:
-        return math.nan if v is None else float(v)
-
-    return (np.array([num(b.get(key)) for _t, b in est], dtype=float),
-            np.array([num(b.get(key + "_std")) for _t, b in est], dtype=float))
-
-
-def _now_line(est: list, health: Mapping[str, Any], display: DisplaySettings) -> str:
+def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> str:
+    basis, unit = display.moisture_basis, html.escape(display.moisture_unit)
+    target = (f"target {moisture_pct(display.moisture_target, basis):.1f} {unit}, acceptable "
+              f"{moisture_pct(display.moisture_low, basis):.1f} to "
+              f"{moisture_pct(display.moisture_high, basis):.1f} {unit}")
     if not est:
-        return "<p class='big'>No estimate yet.</p>"
+        return f"<p class='big' id='now'>No estimate yet.</p><p>Outlet moisture {target}.</p>"
     t, b = est[-1]
-    basis, unit = display.moisture_basis, display.moisture_unit
 
     def pct(key: str) -> str:
         v, sd = b.get(key), b.get(key + "_std")
@@ -281,54 +328,109 @@ def _now_line(est: list, health: Mapping[str, Any], display: DisplaySettings) ->
             return "n/a"
         band = ("" if sd is None else
                 f" &plusmn; {moisture_pct_points(1.96 * float(sd), float(v), basis):.2f}")
-        return f"{float(moisture_pct(float(v), basis)):.2f}{band} {html.escape(unit)}"
+        return f"{float(moisture_pct(float(v), basis)):.2f}{band} {unit}"
 
     def deg(key: str) -> str:
         v = b.get(key)
         return "n/a" if v is None else f"{float(v) - 273.15:.1f} °C"
 
-    return (f"<p class='big'>Outlet moisture <b>{pct('moisture_out')}</b> &nbsp; "
-            f"Inlet moisture <b>{pct('moisture_in')}</b></p>"
-            f"<p>Model outlet temperatures: dryer {deg('T_dryer_out_model')}, cyclone "
-            f"{deg('T_cyclone_out_model')}</p>"
-            f"<p>Window ending {html.escape(local_clock(t, display))}"
-            f"{' &middot; lab result applied' if b.get('lab_updated') else ''}</p>")
+    when = html.escape(local_clock(t, display))
+    lab = "no lab result yet"
+    if labs:
+        ts, x, sid = labs[-1]
+        lab = (f"{moisture_pct(x, basis):.2f} {unit} ({html.escape(sid)}), sampled "
+               f"{html.escape(local_clock(ts, display))}, <span class='age'>"
+               f"{age(now_ns, ts)}</span>")
+    return (f"<p class='big' id='now'>Outlet moisture <b id='moisture-out'>"
+            f"{pct('moisture_out')}</b> &nbsp; Inlet moisture <b id='moisture-in'>"
+            f"{pct('moisture_in')}</b></p>"
+            f"<p>Window ending {when} <span class='age' id='estimate-age'>({age(now_ns, t)})"
+            f"</span>{' &middot; lab result applied' if b.get('lab_updated') else ''}. "
+            f"Outlet moisture {target}.</p>"
+            f"<p id='temperatures'>Outlet temperatures, measured / model: dryer "
+            f"{deg('T_dryer_out_measured')} / {deg('T_dryer_out_model')}, cyclone "
+            f"{deg('T_cyclone_out_measured')} / {deg('T_cyclone_out_model')}</p>"
+            f"<p id='last-lab'>Last lab result: {lab}</p>")
+
+
+def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -> str:
+    basis, unit = display.moisture_basis, display.moisture_unit
+    t = np.array([x for x, _b in est], dtype=np.int64)
+    mo, mo_sd = _series(est, "moisture_out"), _series(est, "moisture_out_std")
+    mi, mi_sd = _series(est, "moisture_in"), _series(est, "moisture_in_std")
+    t_lab = np.array([x[0] for x in labs], dtype=np.int64)
+    v_lab = np.array([x[1] for x in labs], dtype=float)
+
+    def pct(x: np.ndarray) -> np.ndarray:
+        return np.asarray(moisture_pct(x, basis), dtype=float)
+
+    outlet = Chart("outlet", unit, t0, t1, target=float(moisture_pct(display.moisture_target,
+                                                                     basis)),
+                   limits=(float(moisture_pct(display.moisture_low, basis)),
+                           float(moisture_pct(display.moisture_high, basis))))
+    outlet.series += [
+        Series("band", t, pct(mo - 1.96 * mo_sd), BAND, "band", pct(mo + 1.96 * mo_sd)),
+        Series("moisture_out", t, pct(mo), LINE),
+        Series("lab", t_lab, pct(v_lab), LAB, "points")]
+    temps = Chart("temperatures", "°C", t0, t1)
+    for name, dashed in (("T_dryer_out", False), ("T_cyclone_out", True)):
+        temps.series += [
+            Series(f"{name}_measured", t, _series(est, f"{name}_measured") - 273.15, MEASURED,
+                   dashed=dashed, width=2.0),
+            Series(f"{name}_model", t, _series(est, f"{name}_model") - 273.15, MODEL,
+                   dashed=dashed, width=2.0)]
+    inlet = Chart("inlet", unit, t0, t1)
+    inlet.series += [
+        Series("band", t, pct(mi - 1.96 * mi_sd), BAND, "band", pct(mi + 1.96 * mi_sd)),
+        Series("moisture_in", t, pct(mi), INLET)]
+    return ("<h2>Outlet moisture</h2>" + svg(outlet, display)
+            + legend([("estimate", LINE), ("95 % band", BAND), ("lab result at its sample "
+                                                                 "time", LAB),
+                      ("target", "#238b45"), ("acceptable", "#e5f5e0")])
+            + "<h2>Outlet temperatures</h2>" + svg(temps, display)
+            + legend([("measured", MEASURED), ("model", MODEL),
+                      ("solid: dryer outlet, dashed: cyclone outlet", "#ffffff")])
+            + "<h2>Inlet moisture (estimated)</h2>" + svg(inlet, display)
+            + legend([("estimate", INLET), ("95 % band", BAND)]))
 
 
 def render_page(est: list, labs: list, health: Mapping[str, Any], diagnosis: str | None,
-                display: DisplaySettings, settings: WebSettings, unit: str) -> str:
+                display: DisplaySettings, settings: WebSettings, unit: str, *,
+                now_ns: int | None = None, range_key: str | None = None) -> str:
     """The whole page (module docstring)."""
-    t1 = est[-1][0] if est else time.time_ns()
-    t0 = t1 - int(settings.history_h * 3600 * NS)
-    t = np.array([x for x, _b in est], dtype=np.int64)
-    mo, mo_sd = _series(est, "moisture_out")
-    mi, mi_sd = _series(est, "moisture_in")
-    t_lab = np.array([x[0] for x in labs], dtype=np.int64)
-    v_lab = np.array([x[1] for x in labs], dtype=float)
+    now_ns = time.time_ns() if now_ns is None else now_ns
+    t0, t1 = span(est, now_ns, range_key, settings.history_h)
     status = str(health.get("status", "stale"))
     colour = HEALTH_COLOURS.get(status, "#888")
+    chosen = range_key if range_key in RANGES_H else "fit"
+    links = " ".join(
+        f"<a class='range{' chosen' if key == chosen else ''}' href='?range={key}'>"
+        f"{html.escape(label)}</a>"
+        for key, label in (("2h", "2 h"), ("8h", "8 h"), ("48h", "48 h"), ("fit", "all")))
+    diag = ("" if diagnosis is None else
+            f"<h2>Last diagnosis</h2><p id='diagnosis'>{html.escape(diagnosis)}</p>")
     return (
         f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
         f"<meta http-equiv='refresh' content='{settings.refresh_s:g}'>"
         f"<title>softsensor {html.escape(unit)}</title><style>"
         "body{font-family:sans-serif;margin:1em 2em;color:#222} .big{font-size:1.4em}"
         ".health{display:inline-block;padding:.2em .6em;color:white;border-radius:4px}"
+        ".detail,.age{color:#777;font-size:.85em} h2{font-size:1.1em;margin:.8em 0 .2em}"
+        ".range{margin-right:.8em} .chosen{font-weight:bold;text-decoration:none;color:#222}"
+        ".legend{font-size:.85em;margin:0 0 .5em}"
         "</style></head><body>"
         f"<h1>softsensor {html.escape(unit)}: fibre moisture</h1>"
-        f"<p><span class='health' style='background:{colour}'>{html.escape(status)}</span> "
-        f"{html.escape(str(health.get('detail', '')))}</p>"
-        + _now_line(est, health, display)
-        + f"<h2>Outlet moisture, last {settings.history_h:g} h (band: 95 %; squares: lab "
-        f"results at their sample times)</h2>"
-        + chart(t, mo, mo_sd, t_lab, v_lab, t0, t1, LINE, display)
-        + f"<h2>Inlet moisture, last {settings.history_h:g} h</h2>"
-        + chart(t, mi, mi_sd, np.zeros(0, np.int64), np.zeros(0), t0, t1, INLET, display)
-        + "<h2>Last diagnosis</h2><p>"
-        + (html.escape(diagnosis) if diagnosis else "none yet")
-        + f"</p><p style='color:#888'>Times: {html.escape(display.time_zone)}. Moisture: % "
-        f"on a {html.escape(display.moisture_basis)} basis. Reloads every "
-        f"{settings.refresh_s:g} s. Data: <a href='/api/latest.json'>/api/latest.json</a>"
-        f"</p></body></html>")
+        f"<p id='health'><span class='health' style='background:{colour}'>"
+        f"{html.escape(status)}</span> <span id='health-words'>"
+        f"{html.escape(health_words(health))}</span><br><span class='detail'>Detail: "
+        f"{html.escape(str(health.get('detail', '')))}</span></p>"
+        + _now_block(est, labs, display, now_ns)
+        + f"<p id='ranges'>Show: {links}</p>"
+        + _charts(est, labs, display, t0, t1)
+        + diag
+        + f"<p class='detail'>Times: {html.escape(display.time_zone)}. Moisture: % on a "
+        f"{html.escape(display.moisture_basis)} basis. Reloads every {settings.refresh_s:g} "
+        "s. Data: <a href='/api/latest.json'>/api/latest.json</a></p></body></html>")
 
 
-__all__ = ["LivePage", "chart", "render_page"]
+__all__ = ["BoundedHTTPServer", "LivePage", "RANGES_H", "age", "render_page", "span"]

@@ -24,6 +24,8 @@ import asyncio
 import contextlib
 import functools
 import logging
+import os
+import socket
 from collections.abc import Callable, Mapping, Sequence
 
 from pymodbus.constants import ExcCodes
@@ -234,6 +236,21 @@ class PlcServer:
             self._faults.add(signal)
         else:
             self._faults.discard(signal)
+
+
+def check_port(host: str, port: int) -> None:
+    """Refuse, before anything slow starts, a port this machine cannot listen on (in use,
+    or ``host`` not one of its addresses): the virtual plant simulates a day before it
+    serves, and "address already in use" after that half minute helps nobody."""
+    if port == 0:
+        return
+    try:
+        with socket.create_server((host, port), reuse_port=False) as _:
+            pass
+    except OSError as exc:
+        raise ConfigError(f"plant-server cannot listen on {host}:{port}: "
+                          f"{os.strerror(exc.errno) if exc.errno else exc} (another --port?)"
+                          ) from exc
 
 
 async def _no_such_unit(*_args: object) -> ExcCodes:

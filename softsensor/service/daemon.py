@@ -54,7 +54,8 @@ from softsensor.display import (
 )
 from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult
-from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
+from softsensor.ingest.historian_map import plant_lab_map
+from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.messages import lab_body
@@ -213,6 +214,7 @@ class Daemon:
         self.info: DaemonInfo | None = None
         self.display = display_settings(config)
         self.output_settings = output_settings(config)
+        self.lab_map = plant_lab_map(config)  # the lab folder's files: [lab], checked now
         self.modbus_out: EstimateModbusServer | None = None
         self.metrics: DaemonMetrics | None = None
         self.web: LivePage | None = None
@@ -405,7 +407,10 @@ class Daemon:
             publisher.put("lab", lab_body(lab), lab.log_time_ns)
             if self.web is not None:
                 self.web.add_lab(lab.sample_time_ns, lab.moisture_out, lab.sample_id)
-            event(log, "lab", sample_id=lab.sample_id, moisture_out=lab.moisture_out,
+            d = self.display  # as a tick line: the plant's clock, % on the display basis
+            event(log, "lab", sample_id=lab.sample_id,
+                  sample_time=local_clock(lab.sample_time_ns, d),
+                  moisture_out=_pct(lab.moisture_out, d), unit=d.moisture_unit,
                   sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
 
         self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
@@ -413,8 +418,17 @@ class Daemon:
             watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
                                        poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
                                        settle_s=s.lab_settle_s,
-                                       zone=self.display.zone).start()
+                                       zone=self.display.zone,
+                                       lab_map=self.lab_map,
+                                       rate_per_s=folder_rate(
+                                           s.max_lab_rate_per_h, self._window_s(),
+                                           s.time_scale)).start()
             stack.callback(watcher.close)
+
+    def _window_s(self) -> float:
+        """The estimator's window [s, plant time]."""
+        assert self.pipeline is not None
+        return float(self.pipeline.service.window.period_s)
 
     async def _start_outputs(self, stack: contextlib.AsyncExitStack) -> tuple[str, ...]:
         """Start the enabled operator outputs, stopped with ``stack``; what they serve."""
@@ -425,7 +439,8 @@ class Daemon:
             stack.push_async_callback(self.modbus_out.stop)
             served.append(f"modbus://{o.modbus.host}:{self.modbus_out.port}")
         if o.prometheus.enabled:
-            self.metrics = DaemonMetrics(o.prometheus, self._counters())
+            self.metrics = DaemonMetrics(o.prometheus, self._counters(), unit=self.unit,
+                                         display=self.display)
             self.metrics.start()
             stack.callback(self.metrics.stop)
             served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
@@ -438,7 +453,8 @@ class Daemon:
             stack.push_async_callback(self.opcua.stop)
             served.append(self.opcua.endpoint)
         if o.web.enabled:
-            self.web = LivePage(o.web, self.display, self.unit)
+            self.web = LivePage(o.web, self.display, self.unit,
+                                clock=self.clock.now_ns if self.clock else time.time_ns)
             self.web.time_scale = self.settings.time_scale
             self.web.start()
             stack.callback(self.web.stop)

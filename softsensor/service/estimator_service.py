@@ -322,6 +322,8 @@ class EstimatorService:
         body.update(status=status, detail=detail)
         self._tick_status = (status, detail)
         body.update(unit=self.unit, n_scans=window.n_scans, stale=window.stale)
+        for name in ("T_dryer_out", "T_cyclone_out"):  # measured beside model, for operators
+            body.setdefault(f"{name}_measured", window.means.get(name))
         body.setdefault("estimator", self.kind)
         body.setdefault("window_start_ns", window.start_ns)
         body.setdefault("window_end_ns", window.end_ns)

@@ -12,7 +12,7 @@ from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plant.plc_feed import PlantFeed
 from softsensor.plant.plc_server import PlcServer
 from softsensor.plant.simulator import simulate_day
-from softsensor.plantconfig import load_plant_config
+from softsensor.plantconfig import default_config_path, load_plant_config
 from softsensor.service.daemon import Daemon
 from softsensor.service.settings import ServiceSettings, service_settings
 
@@ -27,9 +27,10 @@ class Running:
     endpoint: str  #: where the daemon's Zenoh session listens
 
 
-def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings:
-    """``[service]`` of the built-in plant, all files in ``tmp_path``, accelerated 240x."""
-    cfg = load_plant_config()
+def daemon_settings(tmp_path: Path, start_ns: int, cfg=None, **changes) -> ServiceSettings:
+    """``[service]`` of the built-in plant (or ``cfg``), all files in ``tmp_path``,
+    accelerated 240x."""
+    cfg = cfg or load_plant_config()
     table = {"data_dir": str(tmp_path / "rec"), "checkpoint": str(tmp_path / "ckpt.json"),
              "lab_dir": str(tmp_path / "lab"), "zenoh_listen": ["tcp/127.0.0.1:0"],
              "flush_interval_s": 0.2, "time_scale": SCALE, "clock_start": str(start_ns),
@@ -41,14 +42,19 @@ def daemon_settings(tmp_path: Path, start_ns: int, **changes) -> ServiceSettings
 async def running_daemon(tmp_path: Path, *, ticks: int = 1,
                          plc_values: Callable[[dict], dict] | None = None,
                          resume: bool | str = True, poll_period_s: float | None = None,
-                         **changes) -> AsyncIterator[Running]:
+                         config_extra: str = "", **changes) -> AsyncIterator[Running]:
     """A daemon on a looping simulated day, yielded once it has ticked ``ticks`` times (0:
     once it is up); stopped (and awaited, at most 30 s) on exit. ``plc_values`` may change
     what the PLC serves at each of its scans (a broken sensor); ``poll_period_s`` is the
-    poller's period in plant seconds (the tag map's 10 s by default)."""
+    poller's period in plant seconds (the tag map's 10 s by default); ``config_extra``: TOML
+    tables appended to the built-in plant config."""
     cfg = load_plant_config()
+    if config_extra:
+        path = tmp_path / "plant.toml"
+        path.write_text(default_config_path().read_text() + "\n" + config_extra)
+        cfg = load_plant_config(path)
     day = simulate_day(cfg, 3.0, 12)
-    settings = daemon_settings(tmp_path, int(day.scans.index[0]), **changes)
+    settings = daemon_settings(tmp_path, int(day.scans.index[0]), cfg, **changes)
     feed = PlantFeed(day, loop=True)
     tm = load_tagmap()
     if poll_period_s is not None:

@@ -121,3 +121,151 @@ def test_a_reason_file_planted_as_a_link_is_not_written_through(tmp_path: Path):
     (drop / "bad.csv").write_text("not,a,lab\n1,2,3\n")
     report = _poll(_watcher(drop, []))
     assert report.rejected and target.read_text() == "keep\n"
+
+
+# --- issue 25, item 7 and issue 24, item 2 ----------------------------------------------------
+
+
+def test_a_bone_dry_result_is_refused_and_the_file_rejected_whole(tmp_path: Path):
+    (tmp_path / "a.csv").write_text("sample_time,moisture_out,sample_id\n"
+                                    + _row(1) + f"{NOW_NS - 10**12},0.0,S2\n")
+    got: list = []
+    report = _poll(_watcher(tmp_path, got))
+    assert not got and [p.name for p in report.rejected] == ["a.csv"]
+    assert not (tmp_path / "processed" / "a.csv").exists()  # rejected/ only
+    reason = (tmp_path / "rejected" / "a.csv.reason.txt").read_text()
+    assert reason.startswith("a.csv row 2: moisture_out is 0: a bone-dry sample is a LIMS "
+                             "default or a typing slip"), reason
+    assert not (tmp_path / ".seen-ids").exists()  # S1 not marked seen: the file can come back
+
+
+def test_a_rejected_files_content_is_never_echoed(tmp_path: Path, caplog):
+    """A hard link to a root-only file (not a symbolic link, so it is read): its first line
+    must reach neither the reason file nor the log, whatever fails."""
+    secret = tmp_path / "shadow"
+    drop = tmp_path / "drop"
+    drop.mkdir()
+    cases = {
+        "header.csv": SECRET + "\n1,2\n",
+        "cell.csv": f"sample_time,moisture_out,sample_id\n{SECRET},0.1,A\n",
+        "value.csv": f"sample_time,moisture_out,sample_id\n{NOW_NS - 10**12},{SECRET},A\n",
+        "fields.csv": f"sample_time,moisture_out,sample_id\n{SECRET}\n",
+        "entry.json": f'[{{"sample_time": "{SECRET}", "moisture_out": 0.1, "sample_id": "A"}}]',
+        "broken.json": f'[{{"{SECRET}": ',
+    }
+    for name, text in cases.items():
+        secret.write_text(text)
+        os.link(secret, drop / name)
+        secret.unlink()
+    got: list = []
+    with caplog.at_level(logging.DEBUG):
+        report = _poll(_watcher(drop, got))
+    assert not got and sorted(p.name for p in report.rejected) == sorted(cases)
+    texts = [p.read_text() for p in (drop / "rejected").glob("*.reason.txt")]
+    assert len(texts) == len(cases)
+    for text in [*texts, caplog.text]:
+        assert "secret" not in text and "root:x" not in text, text
+
+
+def test_a_file_beyond_what_the_estimator_takes_at_once_is_refused_not_lost(tmp_path: Path):
+    """A valid 10,000-row file went to processed/ and into .seen-ids while the rate limit
+    dropped 9,871 of its rows. Now it is refused whole, nothing marked seen."""
+    from softsensor.ingest.lab_input import BURST
+
+    rows = "".join(_row(i) for i in range(10_000))
+    (tmp_path / "all.csv").write_text("sample_time,moisture_out,sample_id\n" + rows)
+    got: list = []
+    report = _poll(_watcher(tmp_path, got))
+    assert not got and [p.name for p in report.rejected] == ["all.csv"]
+    assert f"10000 new results, more than the {BURST} the estimator takes at once" \
+        in report.reasons[0]
+    assert not (tmp_path / ".seen-ids").exists()
+
+
+def test_files_beyond_the_rate_wait_in_the_folder(tmp_path: Path):
+    from softsensor.ingest.lab_input import BURST
+
+    for i in range(BURST + 5):
+        (tmp_path / f"r{i:03d}.csv").write_text("sample_time,moisture_out,sample_id\n"
+                                               + _row(i))
+    got: list = []
+    w = LabFolderWatcher(tmp_path, LabInput(got.append, clock=lambda: NOW_NS), settle_s=0.0,
+                         rate_per_s=1e-9)
+    first = _poll(w)
+    assert len(got) == BURST and len(first.processed) == BURST and not first.rejected
+    assert len(first.waiting) == 5 and len(list(tmp_path.glob("r*.csv"))) == 5
+    seen = (tmp_path / ".seen-ids").read_text().splitlines()
+    assert len(seen) == BURST  # only what was handed on is marked seen
+    w.budget.tokens = 5.0  # the rate allows five more
+    _poll(w)
+    assert len(got) == BURST + 5 and not list(tmp_path.glob("r*.csv"))
+
+
+def test_the_daemon_reads_the_lims_file_and_applies_every_result_of_a_flood(tmp_path: Path,
+                                                                          caplog):
+    """The daemon's lab folder, laid out by the plant config's [lab] table (the historian
+    map's own section): the LIMS file of ``softsensor import`` is read as it is (% wet basis,
+    day-first Madrid time), its lab line is on the plant's clock in % (issue 24, items 2 and
+    7); then 120 one-result files, more than the estimator holds for one tick, are handed on
+    at the rate it takes: every one applied, none dropped or refused (issue 25, item 7)."""
+    import asyncio
+    from datetime import UTC, datetime
+    from zoneinfo import ZoneInfo
+
+    from tests.faults.harness import running_daemon
+
+    map_lab = (Path(__file__).resolve().parents[2] / "replay" / "historian-map.toml"
+               ).read_text().split("[lab]", 1)[1]
+    extra = '[display]\ntime_zone = "Europe/Madrid"\n\n[lab]' + map_lab
+    n_flood = 120
+    got: dict = {}
+
+    async def main() -> None:
+        async with running_daemon(tmp_path, ticks=2, config_extra=extra) as run:
+            d = run.daemon
+            lab_dir = tmp_path / "lab"
+            now = d.clock.now_ns()
+
+            def local(ns: int) -> str:
+                return datetime.fromtimestamp(ns / 1e9, UTC).astimezone(
+                    ZoneInfo("Europe/Madrid")).strftime("%d/%m/%Y %H:%M:%S")
+
+            sample = now - 300 * 10**9
+            (lab_dir / "lims.csv").write_text(
+                "Sample ID,Sample Time,Result Time,Moisture\n"
+                f"L-1,{local(sample)},{local(now)},9.500\n")
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + 30
+            while d.lab_input.n_accepted < 1:
+                assert loop.time() < deadline, "the LIMS file was not taken"
+                await asyncio.sleep(0.05)
+            got["lims_sample"] = sample
+            base = d.clock.now_ns() - 120 * 10**9
+            for i in range(n_flood):
+                (lab_dir / f"flood-{i:03d}.csv").write_text(
+                    "Sample ID,Sample Time,Result Time,Moisture\n"
+                    f"F-{i},{local(base - i * 10**9)},{local(base)},9.{i % 10}\n")
+            stats = d.pipeline.service.stats
+            deadline = loop.time() + 90
+            while stats.labs_accepted + stats.labs_refused < 1 + n_flood:
+                assert loop.time() < deadline, (stats, d.pipeline.dropped)
+                await asyncio.sleep(0.1)
+            got["stats"] = (stats.labs_accepted, stats.labs_refused)
+            got["dropped"] = dict(d.pipeline.dropped)
+            got["left"] = sorted(p.name for p in lab_dir.glob("*.csv"))
+            got["rejected"] = sorted(p.name for p in (lab_dir / "rejected").iterdir())
+            got["seen"] = (lab_dir / ".seen-ids").read_text().splitlines()
+
+    # the daemon's own logger: a replay verb run earlier in this process quiets its parents
+    with caplog.at_level(logging.INFO, logger="softsensor.service.daemon"):
+        asyncio.run(asyncio.wait_for(main(), 240))
+    assert got["stats"] == (1 + n_flood, 0), got
+    assert got["dropped"]["rate"] == 0 and got["dropped"]["queue_full"] == 0, got["dropped"]
+    assert got["left"] == [] and got["rejected"] == [] and len(got["seen"]) == 1 + n_flood
+    lab = next(r for r in caplog.records if r.getMessage() == "lab"
+               and r.softsensor_fields["sample_id"] == "L-1").softsensor_fields
+    # 9.5 % wet basis, on the plant's clock (Madrid, +01:00 in winter)
+    assert lab["moisture_out"] == 9.5 and lab["unit"] == "% wb", lab
+    when = datetime.fromtimestamp(got["lims_sample"] // 10**9, UTC).astimezone(
+        ZoneInfo("Europe/Madrid")).isoformat(timespec="seconds")
+    assert lab["sample_time"] == when and when.endswith("+01:00"), (lab, when)

@@ -1,0 +1,132 @@
+"""LIMS tables into lab results: one format for ``softsensor import`` and the lab folder.
+
+A LIMS file is laid out by a :class:`~softsensor.ingest.historian_map.LabMap`: the ``[lab]``
+table of a historian map (``import``) or of the plant config (the daemon's lab folder, which
+reads :data:`~softsensor.ingest.historian_map.DEFAULT_LAB_MAP` without one). Its moisture is
+in any unit pint reads as a fraction (%, kg/kg, g/kg) on a wet or dry basis and becomes
+``moisture_out`` [kg/kg, dry basis] (CONTRACT section 1).
+
+A result is refused, with its row and what to check, when its moisture is missing, leaves no
+dry fibre (a wet basis of 100 %), is zero (a bone-dry sample out of a dryer is a LIMS default
+or a typing slip, not a measurement) or is outside the plausible 0..2 kg/kg dry basis (a % read
+as kg/kg: the message says which map key sets the unit), or its sample time is not a time.
+``import`` stops at the first such row and quotes it; the lab folder (``echo=False``) refuses
+the whole file and quotes nothing of it (anyone may drop a file there, a link to a secret too).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from softsensor.errors import IngestError
+from softsensor.ingest.cells import TimeSpec, column, numbers, text_cells, timestamps_ns
+from softsensor.ingest.historian_map import DEFAULT_BAD_VALUES, LabMap
+from softsensor.ingest.units import moisture_dry_basis
+from softsensor.messages import (
+    FUTURE_TOLERANCE_NS,
+    MOISTURE_RANGE,
+    LabResult,
+    iso_utc,
+    make_lab_result,
+)
+
+
+@dataclass
+class LabTable:
+    """Lab results converted from a LIMS table, and how many rows had no usable result."""
+
+    results: list[LabResult]
+    rows_read: int
+    bad: int  #: rows whose moisture was empty or a bad-quality string
+
+
+def _moisture_problem(raw: float, dry: float, lab: LabMap, where_key: str) -> str | None:
+    """Why a moisture ``raw`` (in ``lab.unit`` on ``lab.basis``) giving ``dry`` [kg/kg] is
+    not a measurement, or None."""
+    lo, hi = MOISTURE_RANGE
+    if not np.isfinite(dry):
+        return (f"{lab.moisture_column} on a wet basis leaves no dry fibre (100 % or more: is "
+                f"{where_key}.basis right?)")
+    if raw == 0.0:
+        return (f"{lab.moisture_column} is 0: a bone-dry sample is a LIMS default or a typing "
+                "slip, not a measurement")
+    if not lo < dry <= hi:
+        hint = (f"set {where_key}.unit = \"%\" and {where_key}.basis" if lab.unit != "%"
+                else f"is {where_key}.unit right?")
+        return (f"{lab.moisture_column} gives a moisture outside the plausible range {lo:g}.."
+                f"{hi:g} kg/kg dry basis as {lab.unit} on a {lab.basis} basis ({hint})")
+    return None
+
+
+def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, where: str, *,
+                 log_time_ns: int | None = None, echo: bool = True,
+                 where_key: str = "lab") -> LabTable:
+    """Lab results [kg/kg dry basis] of a LIMS ``frame``, logged when they became available.
+
+    ``log_time_ns``: when the whole file arrived (the lab folder), instead of the map's
+    ``available_column`` or ``delay_min``. ``echo=False``: messages quote no cell (module
+    doc). ``where_key``: the config table the map came from, for hints (``lab``)."""
+    if len(frame) == 0:
+        raise IngestError(f"{where}: no rows after the header")
+    if log_time_ns is None and lab.available_column is None and lab.delay_min is None:
+        raise IngestError(f"{where}: {where_key}.available_column or {where_key}.delay_min "
+                          "must say when each result became available")
+    zone = lab.time_zone or default_zone
+
+    def times(name: str, key: str) -> np.ndarray:
+        spec = TimeSpec(name, zone, lab.time_unit, lab.time_format, where_key,
+                        dayfirst=lab.dayfirst, echo=echo)
+        return timestamps_ns(column(frame, name, f"{where_key}.{key}", where, echo), spec,
+                             where)
+
+    sample = times(lab.sample_time_column, "sample_time_column")
+    if log_time_ns is not None:
+        avail = np.full(len(frame), int(log_time_ns), dtype=np.int64)
+    elif lab.available_column is not None:
+        avail = times(lab.available_column, "available_column")
+    else:
+        avail = sample + int(round((lab.delay_min or 0.0) * 60e9))
+    bad_strings = frozenset(s.lower() for s in DEFAULT_BAD_VALUES)
+    raw, bad = numbers(column(frame, lab.moisture_column, f"{where_key}.moisture_column",
+                              where, echo),
+                       lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export",
+                       thousands=lab.thousands, echo=echo)
+    dry = moisture_dry_basis(raw, lab.unit, lab.basis)
+    ids = (text_cells(column(frame, lab.sample_id_column, f"{where_key}.sample_id_column",
+                             where, echo))
+           if lab.sample_id_column else None)
+    results: list[LabResult] = []
+    n_bad = 0
+    for i in range(len(frame)):
+        if np.isnan(raw[i]):
+            n_bad += 1
+            continue
+        at = f"{where} row {i + 1}"
+        problem = _moisture_problem(float(raw[i]), float(dry[i]), lab, where_key)
+        if problem is not None:
+            value = f" ({raw[i]:g} {lab.unit})" if echo else ""
+            raise IngestError(f"{at}: {problem}{value}")
+        if avail[i] < sample[i] and log_time_ns is None:
+            raise IngestError(f"{at}: result available at {iso_utc(int(avail[i]))}, before "
+                              f"the sample was taken ({iso_utc(int(sample[i]))})")
+        if sample[i] > avail[i] + FUTURE_TOLERANCE_NS:
+            raise IngestError(f"{at}: {lab.sample_time_column} lies after the file arrived "
+                              f"(is {where_key}.time_zone right?)")
+        sid = ids.iloc[i] if ids is not None else f"lab-{iso_utc(int(sample[i]))}"
+        if ids is not None and not sid:
+            raise IngestError(f"{at}: {lab.sample_id_column} is empty")
+        try:
+            results.append(make_lab_result(int(sample[i]), float(dry[i]), sid,
+                                           log_time_ns=int(avail[i]), where=at))
+        except IngestError as exc:
+            if echo:
+                raise
+            raise IngestError(f"{at}: not a usable lab result") from exc
+    results.sort(key=lambda r: (r.log_time_ns, r.sample_time_ns))
+    return LabTable(results=results, rows_read=len(frame), bad=n_bad)
+
+
+__all__ = ["LabTable", "convert_labs"]
