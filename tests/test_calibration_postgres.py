@@ -106,9 +106,11 @@ def test_two_workers_share_one_postgresql_study(tmp_path: Path):
         for w in workers:
             _, err = w.communicate(timeout=300)
             assert w.returncode == 0, err[-2000:]
-        study = optuna.load_study(study_name="shared", storage=url)
+        storage = optuna.storages.RDBStorage(url)
+        study = optuna.load_study(study_name="shared", storage=storage)
         finished = [t for t in study.get_trials(deepcopy=False) if t.state.is_finished()]
         best = study.best_value
+        storage.engine.dispose()  # close its connections before the cluster stops
     w = [json.loads((tmp_path / f"w{k}.json").read_text()) for k in (1, 2)]
     # the union: one budget, every trial of both workers in the study, none twice
     assert all(x["trials_this_process"] >= 1 for x in w), w

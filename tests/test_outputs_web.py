@@ -272,6 +272,7 @@ def test_a_thousand_slow_clients_hold_no_more_threads_than_workers(tmp_path):
     finally:
         child.kill()
         child.wait(10)
+        child.stdout.close()
         page.stop()
 
 

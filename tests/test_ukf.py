@@ -128,8 +128,8 @@ CALIBRATED = {"T_offset_std": 0.2, "T_channel_std": 0.1, "moisture_in_walk": 0.0
 #: No covariance matching, no outlier gate, no noise adaptation: the plain filter.
 NO_ADAPT = {"moisture_in_adapt": 1e9, "moisture_out_bias_adapt": 1e9, "lab_gate": 1e9,
             "adapt_limit": 1.0}
-#: The inlet gain held at zero: the linear Kalman filter is then the oracle (its product with
-#: the inlet moisture is not linear).
+#: The inlet gain held at zero, as without a history: the linear Kalman filter is then the
+#: oracle (its product with the inlet moisture is not linear).
 NO_GAIN = {"inlet_gain_std": 1e-9, "inlet_gain_walk": 0.0}
 
 
@@ -214,7 +214,9 @@ def test_tick_equals_filterpys_unscented_kalman_filter_with_the_model_in_hx():
     of that Gaussian) gives the posterior, innovation and NIS of filterpy's own
     UnscentedKalmanFilter run on the same prior with the model in ``hx``, one sigma point at a
     time, to round-off."""
-    s = dataclasses.replace(EstimatorSettings(), offset_adapt=1e9, **NO_ADAPT)
+    # the inlet gain on (as with a history), so its product with the model is checked too
+    s = dataclasses.replace(EstimatorSettings(), offset_adapt=1e9, inlet_gain_std=1.0,
+                            **NO_ADAPT)
     model = CurvedDryer()
     est = UkfEstimator(CFG, s, model=model)
     wins, truth = synthetic_day(1, seed=5, plant=model)
@@ -331,8 +333,8 @@ def test_inlet_gain_learns_a_weaker_response_from_the_labs():
     wins, truth = synthetic_day(150, seed=21, plant=plant,
                                 x_in=lambda k: 1.0 + 0.08 * math.sin(k / 12.0))
     labs = {k: [lab(k - 3, truth[k - 3, 1], f"L{k}")] for k in range(8, 150, 6)}
-    learned = run(make(**CALIBRATED), wins, labs)
-    held = run(make(**CALIBRATED, **NO_GAIN), wins, labs)
+    learned = run(make(**CALIBRATED, inlet_gain_std=1.0), wins, labs)
+    held = run(make(**CALIBRATED), wins, labs)  # no history: the gain is held at zero
 
     def err(bodies: list[dict]) -> float:
         e = [b["moisture_out"] - t for b, t in zip(bodies[75:], truth[75:, 1], strict=True)]
@@ -534,18 +536,32 @@ def test_a_model_error_shared_by_both_temperatures_goes_to_the_common_offset():
 
 
 def test_a_model_that_has_lost_the_plant_publishes_the_last_lab_flagged():
-    """Outlet moisture 0.06 kg/kg off the model (six times the error the estimator expects):
-    the guard publishes the last lab result with a wide band, health degraded and why."""
-    plant = LinearDryer(mo_offset=0.06)
+    """Outlet temperatures 20 K off the model's: no inlet moisture in its range explains
+    them, the estimate sits at the bound, and the guard publishes the last lab result with a
+    wide band, health degraded and why."""
+    plant = LinearDryer(T_offset=20.0)
     wins, truth = synthetic_day(80, seed=19, plant=plant)
     labs = {k: [lab(k - 2, truth[k - 2, 1], f"L{k}")] for k in range(10, 80, 12)}
-    bodies = run(make(**CALIBRATED, **NO_GAIN), wins, labs)  # an offset, not a response error
+    bodies = run(make(**CALIBRATED), wins, labs)
     end = bodies[-1]
     assert end["fallback"] and end["status"] == "degraded"
-    assert "model lost the plant" in end["detail"] and "moisture_out_bias" in end["detail"]
+    assert "model lost the plant" in end["detail"] and "bound of its range" in end["detail"]
     last = [r for k, v in labs.items() if k <= 79 for r in v][-1]
     assert end["moisture_out"] == pytest.approx(last.moisture_out)
     assert end["moisture_out_std"] > EstimatorSettings().lab_std
+    assert abs(end["moisture_out"] - truth[-1, 1]) < 0.01
+
+
+def test_a_bias_beyond_its_prior_degrades_the_health_and_keeps_tracking_the_labs():
+    """Outlet moisture 0.06 kg/kg off the model (six times the bias the estimator expects):
+    not a lost model (the temperatures are right), so the filter's estimate stays published,
+    following the labs, with health degraded and the bias named."""
+    plant = LinearDryer(mo_offset=0.06)
+    wins, truth = synthetic_day(80, seed=19, plant=plant)
+    labs = {k: [lab(k - 2, truth[k - 2, 1], f"L{k}")] for k in range(10, 80, 12)}
+    end = run(make(**CALIBRATED, **NO_GAIN), wins, labs)[-1]  # an offset, not a response
+    assert not end["fallback"] and end["status"] == "degraded"
+    assert "moisture_out_bias" in end["detail"]
     assert abs(end["moisture_out"] - truth[-1, 1]) < 0.01
 
 
@@ -553,7 +569,7 @@ def test_the_fallback_at_a_lab_tick_is_that_lab_whether_it_came_on_time_or_late(
     """A lost model publishes the last lab result; at the tick whose window holds a result,
     that is the result itself, and the same whether it was delivered on time (applied at the
     tick) or late (the tick re-filtered)."""
-    plant = LinearDryer(mo_offset=0.06)
+    plant = LinearDryer(T_offset=20.0)
     wins, truth = synthetic_day(60, seed=23, plant=plant)
     samples = {k: lab(k, truth[k, 1], f"L{k}") for k in range(8, 50, 10)}
     on_time = run(make(**CALIBRATED), wins, {k: [r] for k, r in samples.items()})

@@ -67,11 +67,13 @@ class EstimatorSettings:
         Their default correlation times [h]. The calibration sets the common offset's (the
         model's energy balance drifts with the conditions); a channel's own offset keeps the
         long default (a thermometer that reads off stays off).
-    inlet_gain_std : float
+    inlet_gain_std : float or None
         Prior standard deviation of the relative error of the model's outlet-moisture
         response to the inlet moisture (:mod:`~softsensor.estimation.discrepancy`,
         ``inlet_gain``): 1 says the plant's response may be anywhere from none to twice the
-        model's. [-]
+        model's. Default (None): 1 when the parameters carry a history's ``[model_error]``
+        (the history says how the model is not the plant), else the gain is held at zero
+        (a model nobody has compared with its plant is taken as it is). [-]
     inlet_gain_walk : float
         Its random-walk intensity (the fibre's drying behaviour changes slowly). [-/sqrt(h)]
     moisture_out_bias_std : float
@@ -133,13 +135,13 @@ class EstimatorSettings:
     moisture_in_adapt: float = num(3.0, gt=0)
     moisture_in_min: float = num(0.3, gt=0, lt=5)
     moisture_in_max: float = num(2.5, gt=0, lt=5)
-    moisture_out_bias_adapt: float = num(3.0, gt=0)
+    moisture_out_bias_adapt: float = num(5.0, gt=0)
     offset_adapt: float = num(3.0, gt=0)
     T_offset_std: float = num(1.0, gt=0, lt=50)
     T_channel_std: float = num(0.5, gt=0, lt=50)
     T_offset_tau_h: float = num(6.0, gt=0, le=240)
     T_channel_tau_h: float = num(24.0, gt=0, le=240)
-    inlet_gain_std: float = num(1.0, gt=0, le=10)
+    inlet_gain_std: float | None = num(None, gt=0, le=10)
     inlet_gain_walk: float = num(0.05, ge=0, le=10)
     moisture_out_bias_std: float = num(0.01, gt=0, lt=1)
     moisture_out_bias_tau_h: float = num(24.0, gt=0, le=2400)
