@@ -171,7 +171,7 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
     d = _dir(directory)
     disp, x_ref = display_settings(config), lab_reference(result.segments)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
-                              "Validation: calibrated model (nominal inlet moisture) vs "
+                              "Validation: calibrated model vs "
                               "independent data", disp)
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     sections = [

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import optuna
 
-from softsensor.calibration.chunked_run import evaluate_parameters, simulate_segments
+from softsensor.calibration.chunked_run import ChunkedRun, evaluate_parameters
 from softsensor.calibration.cost import ModelRun, weighted_rmse
 from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
 from softsensor.calibration.disturbance import InletPrior
@@ -254,20 +254,32 @@ class ValidationResult:
                 "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}
 
 
+def validate_many(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
+                  thetas: Sequence[np.ndarray], calibration_costs: Sequence[float | None],
+                  model: DryerModel) -> list[ValidationResult]:
+    """:func:`validate` of several parameter sets through one batched run (the members run
+    on the model's threads; each gets the numbers it gets alone)."""
+    for seg in segments:
+        seg.require_labs(1)
+    vspec = dataclasses.replace(spec, inlet_from_labs=False)
+    run = ChunkedRun(model, segments, np.stack([np.asarray(t, float) for t in thetas]), vspec,
+                     n_chunks=1)
+    evs = run.run()
+    return [ValidationResult(theta=np.asarray(t, float), evaluation=ev, segments=list(segments),
+                             runs=run.model_lines(b, ev), weights=config.cost.weights(),
+                             calibration_cost=cost)
+            for b, (t, ev, cost) in enumerate(zip(thetas, evs, calibration_costs, strict=True))]
+
+
 def validate(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
              theta: np.ndarray | None = None, calibration_cost: float | None = None,
              model: DryerModel | None = None) -> ValidationResult:
     """Score ``theta`` (default: the config's values) on ``segments`` with the inlet
-    trajectory fitted to the temperatures only (module docstring)."""
-    for seg in segments:
-        seg.require_labs(1)
+    trajectory fitted to the temperatures only (module docstring). Its ``runs`` hold the
+    model with that trajectory (row 0, what the scores compare) and open loop (row 1)."""
     model = model or DryerModel(config)
     theta = config.parameter_vector() if theta is None else np.asarray(theta, float)
-    vspec = dataclasses.replace(spec, inlet_from_labs=False)
-    ev = evaluate_parameters(model, segments, theta, vspec)[0]
-    runs = simulate_segments(model, segments, theta)
-    return ValidationResult(theta=theta, evaluation=ev, segments=list(segments), runs=runs,
-                            weights=config.cost.weights(), calibration_cost=calibration_cost)
+    return validate_many(segments, config, spec, [theta], [calibration_cost], model)[0]
 
 
 def at_bounds(theta: np.ndarray, bounds: np.ndarray, margin: float) -> list[str]:
@@ -485,8 +497,7 @@ def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: Objective
                    model: DryerModel) -> tuple[ValidationResult, ValidationResult, Discrepancy]:
     """The result and the current parameters on the held-out data, and the result's
     discrepancy there (the [discrepancy] the estimator and the diagnosis use)."""
-    val = validate(held, config, spec, theta, fit_cost, model)
-    cur_val = validate(held, config, spec, current, None, model)
+    val, cur_val = validate_many(held, config, spec, [theta, current], [fit_cost, None], model)
     return val, cur_val, discrepancy(val.evaluation, held)
 
 
@@ -541,8 +552,9 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
             refinement = _polish(study, model, fit_segs, theta, config, spec)
         if refinement.improved:
             theta = refinement.theta
-    evs = evaluate_parameters(model, fit_segs, np.stack([theta, current]), spec)
-    runs = simulate_segments(model, fit_segs, theta)
+    run = ChunkedRun(model, fit_segs, np.stack([theta, current]), spec, n_chunks=1)
+    evs = run.run()
+    runs = run.model_lines(0, evs[0])
     val = cur_val = disc = None
     if held:
         with _phase("validate", timings, say):
@@ -576,4 +588,5 @@ __all__ = [
     "objective_spec",
     "split_holdout",
     "validate",
+    "validate_many",
 ]
