@@ -167,7 +167,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     on instead of the held-out hours."""
     say = progress or (lambda phase: None)
     model = model or DryerModel(config)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     choices, held = choose_windows(days, window_hours, fit_hours, min_labs)
     if validation:
         held = list(validation)
@@ -183,16 +183,18 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
     say("model error")
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     levels = inlet_levels(model, days, theta, result)
     me = fit_model_error(model, days, theta, float(np.mean(levels)),
                          float(np.std(levels)) if len(levels) > 1 else 0.0)
     timings["model_error"] = time.perf_counter() - t1
+    timings["model_error_cpu"] = time.process_time() - c1
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
         disc = discrepancy(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
+    timings["history_total_cpu"] = time.process_time() - c0
     return HistoryResult(result, theta, kept, reason, levels, me, disc, list(days), timings)
 
 
