@@ -13,7 +13,8 @@ nothing; the user's next command failed on the missing file). With ``--force`` i
 because ``--force`` asked. ``validate`` shows the config's default parameters beside the
 ones validated, and its line is the validation page's sentence
 (:func:`~softsensor.verdicts.validation_verdict`). The README's exit-code table names every
-verb once.
+verb once; ``--windows-per-day`` on one day fits that many windows (it was parsed and then
+ignored).
 """
 
 from __future__ import annotations
@@ -147,3 +148,14 @@ def test_the_readme_exit_codes_table_names_every_verb():
     assert set(named) == verbs, (sorted(verbs - set(named)), sorted(set(named) - verbs))
     assert table.splitlines()[0] == "| verb | 0 | 1 | 2 | 130 |"
 
+
+def test_windows_per_day_picks_that_many_windows_of_one_day(days, tmp_path, capsys):
+    d1, _, true = days
+    out, summary = tmp_path / "two.toml", tmp_path / "two.json"
+    argv = ["calibrate", d1, "--params", true, "--trials", "2", "--no-polish", "--no-identify",
+            "--window-hours", "5", "--min-labs", "2", "--quiet", "--out", str(out), "--json",
+            str(summary)]
+    assert cli_main([*argv, "--windows-per-day", "2"]) == 0
+    windows = json.loads(summary.read_text())["windows"]
+    assert len(windows) == 2, windows
+    assert len(read_toml(out)["fit"]["windows"]) == 2

@@ -50,7 +50,8 @@ def _add_data_arguments(p: argparse.ArgumentParser) -> None:
                         f"with the most natural variability (default {DEFAULT_WINDOW_HOURS:g} "
                         f"for one day, {HISTORY_WINDOW_HOURS:g} for several)")
     p.add_argument("--windows-per-day", type=int, default=1,
-                   help="non-overlapping windows to take from each day (default 1)")
+                   help="non-overlapping windows to take from a single day (default 1; "
+                        "several days: windows are picked across them up to --fit-hours)")
     p.add_argument("--min-labs", type=int, default=DEFAULT_MIN_LABS,
                    help=f"lab samples a window must hold (default {DEFAULT_MIN_LABS})")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
@@ -216,6 +217,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              current_theta=current.parameter_vector(),
                              window_hours=selection.window_hours, fit_hours=args.fit_hours,
                              min_labs=selection.min_labs,
+                             windows_per_day=selection.windows_per_day,
                              polish=not args.no_polish,
                              identify_result=not args.no_identify, force=args.force,
                              validation=validation, progress=progress)

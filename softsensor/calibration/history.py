@@ -134,11 +134,13 @@ def validation_pieces(days: Sequence[Segment], choices: Sequence[WindowChoice],
 
 
 def choose_windows(days: Sequence[Segment], window_hours: float, fit_hours: float,
-                   min_labs: int) -> tuple[list[WindowChoice], list[Segment] | None]:
-    """The calibration windows and the validation data: one day, its best window and (None)
-    its held-out tail; several days, windows across them and the rest of every day."""
+                   min_labs: int, windows_per_day: int = 1
+                   ) -> tuple[list[WindowChoice], list[Segment] | None]:
+    """The calibration windows and the validation data: one day, its ``windows_per_day``
+    best windows and (None) their held-out tails; several days, windows across them and the
+    rest of every day."""
     if len(days) == 1:
-        return select_windows(days[0], window_hours, 1, min_labs), None
+        return select_windows(days[0], window_hours, windows_per_day, min_labs), None
     choices = select_across(list(days), window_hours, fit_hours, min_labs)
     held = validation_pieces(days, choices)
     return choices, held or None
@@ -159,7 +161,8 @@ def inlet_levels(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
 def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: StudySettings,
                       calibration: CalibrationSettings, *, current_theta: np.ndarray,
                       window_hours: float, fit_hours: float, min_labs: int = 3,
-                      polish: bool = True, identify_result: bool = True, force: bool = False,
+                      windows_per_day: int = 1, polish: bool = True,
+                      identify_result: bool = True, force: bool = False,
                       validation: Sequence[Segment] | None = None,
                       model: DryerModel | None = None,
                       progress: Callable[[str], None] | None = None) -> HistoryResult:
@@ -168,7 +171,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     say = progress or (lambda phase: None)
     model = model or DryerModel(config)
     t0, c0 = time.perf_counter(), time.process_time()
-    choices, held = choose_windows(days, window_hours, fit_hours, min_labs)
+    choices, held = choose_windows(days, window_hours, fit_hours, min_labs, windows_per_day)
     if validation:
         held = list(validation)
     result = calibrate([c.segment for c in choices], config, settings, calibration,
