@@ -79,6 +79,9 @@ STATE_UNITS: dict[str, str] = {"moisture_in": "kg/kg", "T_air_in_offset": "K",
                                "moisture_out_bias": "kg/kg", "inlet_gain": "-"}
 #: The states that enter the model (the others act on its outputs).
 MODEL_STATES: tuple[int, ...] = (X_IN, X_HEAT)
+#: Largest correlation of the error states at the start (the history's outlet temperatures
+#: move together at 0.99 and more; a correlation of one would make the covariance singular).
+MAX_CORRELATION = 0.98
 #: The inlet gain's prior standard deviation with a history (``estimator.inlet_gain_std``
 #: unset), and the one that holds it at zero without one [-].
 DEFAULT_INLET_GAIN_STD = 1.0
@@ -134,10 +137,16 @@ class ErrorPriors:
     tau: np.ndarray
     source: str
     walk: np.ndarray = field(default_factory=lambda: np.zeros(len(ERROR_STATES)))
+    corr: np.ndarray = field(default_factory=lambda: np.eye(len(ERROR_STATES)))
 
     def sd(self, name: str) -> float:
         """``sigma`` of the error state ``name``."""
         return float(self.sigma[ERROR_STATES.index(name)])
+
+    def covariance(self) -> np.ndarray:
+        """The error states' covariance at the start: ``sigma`` with the correlation the
+        history's day offsets showed (:attr:`corr`, the identity without a history)."""
+        return self.corr * np.outer(self.sigma, self.sigma)
 
     @classmethod
     def from_config(cls, config: PlantConfig, s: EstimatorSettings, heat_gain: float
@@ -168,7 +177,25 @@ class ErrorPriors:
                 tau[i] = math.inf
                 walk[i] = ch.walk / 60.0
             source = f"history [model_error] ({me.days} days)"
+            return cls(sigma=sigma, tau=tau, source=source, walk=walk,
+                       corr=_offset_correlation(me.day_covariance()))
         return cls(sigma=sigma, tau=tau, source=source, walk=walk)
+
+
+def _offset_correlation(cov: np.ndarray) -> np.ndarray:
+    """The error states' correlation (:data:`ERROR_STATES` order) with the two channel
+    offsets' and the bias's taken from the history's day-offset covariance ``cov`` (3, 3)
+    (a channel without spread stays uncorrelated)."""
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    R = np.eye(len(ERROR_STATES))
+    ok = sd > 0
+    block = np.eye(3)
+    block[np.ix_(ok, ok)] = cov[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
+    # a correlation of exactly one would make the starting covariance singular
+    block = np.clip(block, -MAX_CORRELATION, MAX_CORRELATION)
+    np.fill_diagonal(block, 1.0)
+    R[1:4, 1:4] = block
+    return R
 
 
 def _from_discrepancy(config: PlantConfig, s: EstimatorSettings, sigma: np.ndarray,
