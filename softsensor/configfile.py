@@ -4,9 +4,10 @@ Each TOML section maps onto one frozen dataclass. Fields without a default are r
 unknown keys are rejected; a field typed ``tuple[float, ...]`` (or of another scalar type) is
 an array whose items are checked one by one, a field typed as a dataclass is a sub-table built
 the same way; numbers are range-checked and choices checked from the field's
-metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. Every error is
-a one-line :class:`~softsensor.errors.ConfigError` naming the file and the dotted key, e.g.
-``config/dryer1.toml: tube.length must be > 0, got -3``.
+metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. A key that
+has moved (one rule, one key) is named in the class's ``MOVED_KEYS`` with where it went, and
+refused saying so. Every error is a one-line :class:`~softsensor.errors.ConfigError` naming the
+file and the dotted key, e.g. ``config/dryer1.toml: tube.length must be > 0, got -3``.
 """
 
 from __future__ import annotations
@@ -129,6 +130,9 @@ def build_section(cls: type[T], table: Any, key: str, source: str,
     hints = typing.get_type_hints(cls)
     fields = {f.metadata.get(TOML_KEY, f.name): f for f in dataclasses.fields(cls)
               if f.name not in given}
+    moved: typing.Mapping[str, str] = getattr(cls, "MOVED_KEYS", {})
+    for old in sorted(set(table) & set(moved)):
+        raise ConfigError(f"{source}: {key}.{old} is not a key any more: {moved[old]}")
     unknown = sorted(set(table) - set(fields))
     if unknown:
         raise ConfigError(f"{source}: {key}.{unknown[0]} is not a known key "
