@@ -45,20 +45,35 @@ class LabTable:
     bad: int  #: rows whose moisture was empty or a bad-quality string
 
 
-def _moisture_problem(dry: float, lab: LabMap, where_key: str) -> str | None:
-    """Why a moisture read as ``lab.unit`` on ``lab.basis`` giving ``dry`` [kg/kg] is not a
-    measurement (the lab-result contract, :func:`~softsensor.messages.moisture_problem`, with
-    the map key to check), or None."""
+def _moisture_problem(raw: float, dry: float, lab: LabMap, where_key: str, echo: bool
+                      ) -> str | None:
+    """Why a moisture ``raw`` read as ``lab.unit`` on ``lab.basis`` giving ``dry`` [kg/kg] is
+    not a measurement (the lab-result contract, :func:`~softsensor.messages.moisture_problem`,
+    with the map key to check; the value itself when ``echo``), or None."""
+    value = f" ({raw:g} {lab.unit})" if echo else ""
     if not np.isfinite(dry):
         return (f"{lab.moisture_column} on a wet basis leaves no dry fibre (100 % or more: is "
-                f"{where_key}.basis right?)")
-    problem = moisture_problem(float(dry))
+                f"{where_key}.basis right?){value}")
+    problem = moisture_problem(dry)
     if problem is None or dry == 0.0:
-        return None if problem is None else f"{lab.moisture_column} {problem}"
+        return None if problem is None else f"{lab.moisture_column} {problem}{value}"
     hint = (f"set {where_key}.unit = \"%\" and {where_key}.basis" if lab.unit != "%"
             else f"is {where_key}.unit right?")
     return (f"{lab.moisture_column} read as {lab.unit} on a {lab.basis} basis {problem} "
-            f"({hint})")
+            f"({hint}){value}")
+
+
+def _time_problem(sample: int, avail: int, lab: LabMap, where_key: str, arrived: bool
+                  ) -> str | None:
+    """Why ``sample`` [ns] cannot be the sample time of a result available at ``avail`` [ns]
+    (the contract's rule, :func:`~softsensor.messages.sample_time_problem`), with the key to
+    check: the file's arrival (``arrived``) or the map's available time set it."""
+    problem = sample_time_problem(sample, avail)
+    if problem is None:
+        return None
+    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS else "time_zone" if arrived
+           else "available_column" if lab.available_column is not None else "delay_min")
+    return f"{lab.sample_time_column} {problem} (is {where_key}.{key} right?)"
 
 
 def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, where: str, *,
@@ -99,24 +114,16 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
                              where, echo))
            if lab.sample_id_column else None)
     results: list[LabResult] = []
-    n_bad = 0
+    n_bad = int(np.isnan(raw).sum())  # empty or bad-quality cells: no result, skipped
     for i in range(len(frame)):
         if np.isnan(raw[i]):
-            n_bad += 1
             continue
         at = f"{where} row {i + 1}"
-        problem = _moisture_problem(float(dry[i]), lab, where_key)
+        problem = (_moisture_problem(float(raw[i]), float(dry[i]), lab, where_key, echo)
+                   or _time_problem(int(sample[i]), int(avail[i]), lab, where_key,
+                                    arrived=log_time_ns is not None))
         if problem is not None:
-            value = f" ({raw[i]:g} {lab.unit})" if echo else ""
-            raise IngestError(f"{at}: {problem}{value}")
-        problem = sample_time_problem(int(sample[i]), int(avail[i]))
-        if problem is not None:
-            # the contract's rule; which key to check depends on where the arrival came from
-            key = ("time_unit" if sample[i] < EARLIEST_SAMPLE_NS else "time_zone"
-                   if log_time_ns is not None else "available_column"
-                   if lab.available_column is not None else "delay_min")
-            raise IngestError(f"{at}: {lab.sample_time_column} {problem} (is "
-                              f"{where_key}.{key} right?)")
+            raise IngestError(f"{at}: {problem}")
         sid = ids.iloc[i] if ids is not None else f"lab-{iso_utc(int(sample[i]))}"
         if ids is not None and not sid:
             raise IngestError(f"{at}: {lab.sample_id_column} is empty")
