@@ -90,11 +90,11 @@ def test_the_estimator_is_warmed_up_before_the_first_message(day_file, tmp_path,
 
     def stream(*args, **kwargs):
         order.append("stream")
-        return offline_replay_day(*args, **kwargs)
+        return offline_replay_messages(*args, **kwargs)
 
-    offline_warm_up, offline_replay_day = offline.warm_up, offline.replay_day
+    offline_warm_up, offline_replay_messages = offline.warm_up, offline.replay_messages
     monkeypatch.setattr(offline, "warm_up", warm)
-    monkeypatch.setattr(offline, "replay_day", stream)
+    monkeypatch.setattr(offline, "replay_messages", stream)
     start = int(read_day(day_file).scans.index[0])
     rc, out, err = replay(capsys, str(day_file), "--out", str(tmp_path / "w.mcap"),
                           "--end", str(start + H))
@@ -128,6 +128,25 @@ def test_time_range_rate_params_and_the_open_loop_estimator(day_file, tmp_path, 
     # twice the heat loss: the model's outlet air is colder
     assert all(h["T_dryer_out_model"] < b["T_dryer_out_model"] - 0.1
                for h, b in zip(hot[1:], base[1:], strict=True))
+
+
+def test_the_day_file_is_opened_once(day_file, tmp_path, monkeypatch) -> None:
+    """The scan period, the first-scan check, the replay and the truth come from one read of
+    the day (it was opened four times: each a decompression and CRC check of the file)."""
+    import softsensor.recording.mcap_day as mcap_day
+    from softsensor.service.offline_replay import replay_to_file
+
+    opened: list[Path] = []
+    real = mcap_day._open
+
+    def counting(path: Path):
+        opened.append(Path(path))
+        return real(path)
+
+    monkeypatch.setattr(mcap_day, "_open", counting)
+    summary = replay_to_file(day_file, tmp_path / "once.mcap", load_plant_config())
+    assert opened.count(day_file) == 1, opened
+    assert summary.ticks == 25 and summary.rmse is not None
 
 
 def test_bad_input_gives_one_line_and_no_output(day_file, tmp_path, capsys) -> None:
