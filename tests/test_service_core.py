@@ -268,7 +268,12 @@ def test_service_settings_defaults_and_validation(tmp_path) -> None:
                          ({"time_scale": 0}, r"service\.time_scale must be >= 0\.01"),
                          ({"zenoh_listen": ["7447"]}, r"service\.zenoh_listen entry '7447'"),
                          ({"zenoh_mode": "client"}, r"service\.zenoh_connect must name"),
-                         ({"estimator": "kalman"}, r"service\.estimator must be one of"),
+                         # one key for one rule: the estimator's kind and a window's
+                         # good share are set where the estimator and the windowing read them
+                         ({"estimator": "ukf"}, r"service\.estimator is not a key any more: "
+                                                r"set estimator\.kind"),
+                         ({"min_good_fraction": 0.5}, r"service\.min_good_fraction is not a "
+                                                      r"key any more: set solver\."),
                          ({"clock_start": "yesterday"}, r"clock_start must be")]:
         bad = plant_config_from_dict({**data, "service": table}, "plant.toml")
         with pytest.raises(ConfigError, match=match) as e:

@@ -21,8 +21,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import ClassVar
 
-from softsensor.configfile import build_section, num
-from softsensor.plantconfig import PlantConfig
+from softsensor.configfile import num
+from softsensor.plantconfig import PlantConfig, section_of
 
 #: Estimator kinds the service can build (see :func:`softsensor.estimation.registry.build`).
 ESTIMATOR_KINDS: tuple[str, ...] = ("ukf", "openloop")
@@ -211,8 +211,6 @@ class EstimatorSettings:
 
 
 def estimator_settings(cfg: PlantConfig) -> EstimatorSettings:
-    """The validated ``[estimator]`` table of ``cfg``, or the defaults when it has none."""
-    table = cfg.extra.get("estimator")
-    if table is None:
-        return EstimatorSettings()
-    return build_section(EstimatorSettings, table, "estimator", cfg.source)
+    """The validated ``[estimator]`` table of ``cfg`` (built once), or the defaults when it
+    has none."""
+    return section_of(cfg, "estimator", EstimatorSettings)
