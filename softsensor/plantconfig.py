@@ -241,9 +241,10 @@ def section_of(cfg: PlantConfig, name: str, cls: type[T]) -> T:
 
 
 def _keeping_tables(old: PlantConfig, new: PlantConfig) -> PlantConfig:
-    """``new`` with the tables ``old`` built from the very tables ``new`` still holds."""
+    """``new`` with the tables ``old`` built from the very tables ``new`` still holds (or
+    from their absence, which it shares)."""
     new._tables.update({k: v for k, v in old._tables.items()
-                        if k in new.extra and new.extra[k] is old.extra.get(k)})
+                        if new.extra.get(k) is old.extra.get(k)})
     return new
 
 

@@ -96,9 +96,13 @@ def test_a_calibration_in_memory_may_leave_unknown_numbers_as_nan():
 def test_tables_are_built_once_per_config(tmp_path, monkeypatch):
     """Built at the load point, then only read: building the daemon's service builds no table
     again (each owner used to parse its raw table at every call)."""
-    base, cfg = _load(_config(tmp_path, "[estimator]\nhistory_hours = 6.0\n"))
-    assert estimator_settings(cfg) is estimator_settings(cfg)
-    assert output_settings(cfg) is output_settings(base)  # the same raw table: kept
+    params = tmp_path / "params.toml"
+    params.write_text("[parameters.mult_D]\nvalue = 0.9\n")
+    base, cfg = _load(_config(tmp_path, "[estimator]\nhistory_hours = 6.0\n"), params)
+    assert cfg is not base and estimator_settings(cfg) is estimator_settings(cfg)
+    # --params changes no table of the plant config: what the load point built is kept
+    assert output_settings(cfg) is output_settings(base)
+    assert estimator_settings(cfg) is estimator_settings(base)
     calls = []
     real = configfile.build_section
 
