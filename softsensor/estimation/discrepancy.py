@@ -64,7 +64,7 @@ import numpy as np
 
 from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.settings import EstimatorSettings
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import DiscrepancyPrior, PlantConfig, discrepancy_of
 
 #: Filter state layout; the inlet moisture first (it alone moves the model's sigma points with
 #: the heat input's offset).
@@ -202,20 +202,17 @@ def _from_discrepancy(config: PlantConfig, s: EstimatorSettings, sigma: np.ndarr
                       tau: np.ndarray) -> str:
     """Fill ``sigma``/``tau`` of the four output error states from the calibration's
     ``[discrepancy]`` (in place); returns where the numbers came from."""
-    d = config.extra.get("discrepancy") or {}
-    if not d:
+    d = discrepancy_of(config)
+    if d is None or d == DiscrepancyPrior():
         return "estimator defaults"
-    found = {k: float(v) for k, v in d.items() if isinstance(v, (int, float))
-             and math.isfinite(float(v))}
-    fitted = [found.get("common_std"), found.get("dryer_std"), found.get("cyclone_std"),
-              found.get("moisture_std")]
+    fitted = [d.common_std, d.dryer_std, d.cyclone_std, d.moisture_std]
     for i, v in enumerate(fitted):
         if v is not None:
             sigma[i] = max(v, s.discrepancy_floor[i])
-    if "tau_s" in found and found["tau_s"] > 0:
+    if d.tau_s is not None:
         # the default is a floor: the validation day's lag-one autocorrelation sees how fast
         # the error wanders, not how long its offset persists
-        tau[0] = np.clip(found["tau_s"], tau[0], 48 * 3600.0)
+        tau[0] = np.clip(d.tau_s, tau[0], 48 * 3600.0)
     return "calibration [discrepancy]"
 
 

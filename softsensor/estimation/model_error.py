@@ -39,7 +39,7 @@ import numpy as np
 
 from softsensor.configfile import build_section, num
 from softsensor.errors import ConfigError
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES, SCAN_SIGNALS
 
 #: The operating point the discrepancy is a function of: the measured model inputs and the
@@ -228,11 +228,14 @@ def model_error_from_table(table: Any, source: str) -> ModelError:
 
 
 def model_error_of(config: PlantConfig) -> ModelError | None:
-    """The ``[model_error]`` a PARAMS.toml gave ``config`` (``None`` without one)."""
+    """The ``[model_error]`` a PARAMS.toml gave ``config`` (``None`` without one), built once
+    (:func:`~softsensor.plantconfig.built_table`)."""
+    return built_table(config, "model_error", _model_error)
+
+
+def _model_error(config: PlantConfig) -> ModelError | None:
     table = config.extra.get("model_error")
-    if table is None:
-        return None
-    if isinstance(table, ModelError):
+    if table is None or isinstance(table, ModelError):
         return table
     return model_error_from_table(table, config.source)
 

@@ -78,10 +78,12 @@ filter state at the start of the tick and the lab results applied there. A resul
 time lies in a past window is attached to that tick, and the next :meth:`UkfEstimator.tick`
 re-filters from it to now, so the current estimate is exactly what it would have been had the
 lab been on time; results arriving out of order give the same estimate as in order. A result
-sampled after the last tick waits for its window. Older than the history: logged and skipped.
-Duplicate ``sample_id``: ignored. Out-of-range value or a value further than
-``estimator.lab_gate`` standard deviations from the estimate at its sample time: refused with
-the reason (a second one in a row on the same side is taken: the model is off, not the lab).
+sampled after the last tick is applied at the coming one (results wait for their window in
+the service's queue, not here). Older than the history: logged and skipped. Duplicate
+``sample_id``: ignored. A value further than ``estimator.lab_gate`` standard deviations from
+the estimate at its sample time: refused with the reason (a second one in a row on the same
+side is taken: the model is off, not the lab). Its values need no other check: a
+:class:`~softsensor.messages.LabResult` holds the lab-result contract.
 """
 
 from __future__ import annotations
