@@ -162,6 +162,9 @@ class DiscrepancyModel:
         return out
 
 
+#: Largest correlation of the day levels (the history's outlet temperatures move together at
+#: 0.99 and more; a correlation of one would make the covariance singular).
+MAX_CORRELATION = 0.98
 #: The temperature filter of the plant's normal: each channel reads its day level and its
 #: wander (states: level T_dryer_out, level T_cyclone_out, wander of each).
 _H_NORMAL = np.array([[1.0, 0.0, 1.0, 0.0],
@@ -179,7 +182,8 @@ def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> Discrep
     d, c, m = (me.channel(n) for n in CHANNELS)
     sd_lvl = np.sqrt(np.clip(np.diag(cov)[:2], 1e-12, None))
     corr = np.eye(4)
-    corr[:2, :2] = np.clip(cov[:2, :2] / np.outer(sd_lvl, sd_lvl), -0.98, 0.98)
+    corr[:2, :2] = np.clip(cov[:2, :2] / np.outer(sd_lvl, sd_lvl), -MAX_CORRELATION,
+                              MAX_CORRELATION)
     np.fill_diagonal(corr, 1.0)
     source = f"history [model_error] ({me.days} days): day levels and wander"
     T = ErrorPriors(np.r_[sd_lvl, d.wander_sd, c.wander_sd],
