@@ -4,9 +4,10 @@ Each TOML section maps onto one frozen dataclass. Fields without a default are r
 unknown keys are rejected; a field typed ``tuple[float, ...]`` (or of another scalar type) is
 an array whose items are checked one by one, a field typed as a dataclass is a sub-table built
 the same way; numbers are range-checked and choices checked from the field's
-metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. Every error is
-a one-line :class:`~softsensor.errors.ConfigError` naming the file and the dotted key, e.g.
-``config/dryer1.toml: tube.length must be > 0, got -3``.
+metadata (:func:`num`, :func:`choice`); a ``check()`` method adds cross-field rules. A key that
+has moved (one rule, one key) is named in the class's ``MOVED_KEYS`` with where it went, and
+refused saying so. Every error is a one-line :class:`~softsensor.errors.ConfigError` naming the
+file and the dotted key, e.g. ``config/dryer1.toml: tube.length must be > 0, got -3``.
 """
 
 from __future__ import annotations
@@ -77,6 +78,10 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
         typ = args[0]
     if dataclasses.is_dataclass(typ):
         return build_section(typ, value, key, source)
+    if typing.get_origin(typ) is dict:  # a table another part of the program builds
+        if not isinstance(value, dict):
+            raise ConfigError(f"{source}: [{key}] must be a table, got {type(value).__name__}")
+        return value
     if typing.get_origin(typ) is tuple:
         return _check_tuple(value, typing.get_args(typ), key, source, meta)
     if typ is bool:
@@ -118,7 +123,8 @@ def _check_tuple(value: Any, args: tuple[Any, ...], key: str, source: str, meta:
 
 def build_section(cls: type[T], table: Any, key: str, source: str,
                   given: typing.Mapping[str, Any] | None = None) -> T:
-    """Build the frozen dataclass ``cls`` from the TOML ``table`` found at dotted ``key``.
+    """Build the frozen dataclass ``cls`` from the TOML ``table`` found at dotted ``key``
+    (``""``: the file's top level, whose keys are its sections).
 
     ``given`` holds field values that do not come from the table (e.g. the name of the table
     itself); their fields are not TOML keys.
@@ -129,22 +135,32 @@ def build_section(cls: type[T], table: Any, key: str, source: str,
     hints = typing.get_type_hints(cls)
     fields = {f.metadata.get(TOML_KEY, f.name): f for f in dataclasses.fields(cls)
               if f.name not in given}
+    moved: typing.Mapping[str, str] = getattr(cls, "MOVED_KEYS", {})
+    for old in sorted(set(table) & set(moved)):
+        raise ConfigError(f"{source}: {_dotted(key, old)} is not a key any more: {moved[old]}")
     unknown = sorted(set(table) - set(fields))
     if unknown:
-        raise ConfigError(f"{source}: {key}.{unknown[0]} is not a known key "
-                          f"(known: {', '.join(fields)})")
+        what = (f"{key}.{unknown[0]} is not a known key" if key
+                else f"[{unknown[0]}] is not a known section")
+        raise ConfigError(f"{source}: {what} (known: {', '.join(fields)})")
     values: dict[str, Any] = given
     for toml_key, f in fields.items():
         if toml_key not in table:
             if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise ConfigError(f"{source}: {key}.{toml_key} is missing")
+                what = f"{key}.{toml_key}" if key else f"section [{toml_key}]"
+                raise ConfigError(f"{source}: {what} is missing")
             continue
-        values[f.name] = _check_value(table[toml_key], hints[f.name], f"{key}.{toml_key}",
+        values[f.name] = _check_value(table[toml_key], hints[f.name], _dotted(key, toml_key),
                                       source, dict(f.metadata))
     obj = cls(**values)
     check = getattr(obj, "check", None)
     if check is not None:
         problem = check()
         if problem:
-            raise ConfigError(f"{source}: {key}.{problem}")
+            raise ConfigError(f"{source}: {_dotted(key, problem)}")
     return obj
+
+
+def _dotted(key: str, name: str) -> str:
+    """``key.name``, or ``name`` at the file's top level."""
+    return f"{key}.{name}" if key else name

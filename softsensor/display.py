@@ -26,8 +26,8 @@ from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
 
-from softsensor.configfile import build_section, num
-from softsensor.plantconfig import PlantConfig
+from softsensor.configfile import num
+from softsensor.plantconfig import PlantConfig, section_of
 
 MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
 #: 0 °C in kelvin [K].
@@ -79,8 +79,9 @@ class DisplaySettings:
 
 
 def display_settings(cfg: PlantConfig) -> DisplaySettings:
-    """The validated ``[display]`` table of ``cfg`` (UTC and wet basis when absent)."""
-    return build_section(DisplaySettings, cfg.extra.get("display", {}), "display", cfg.source)
+    """The validated ``[display]`` table of ``cfg`` (built once; UTC and wet basis when
+    absent)."""
+    return section_of(cfg, "display", DisplaySettings)
 
 
 def moisture_pct(x: float | np.ndarray, basis: str = "wet") -> float | np.ndarray:

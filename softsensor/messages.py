@@ -7,7 +7,10 @@ Both sides import this module: the adapters (:mod:`softsensor.recording`, :mod:`
 * :func:`scan_values`: a ``/plant/scan`` body (CONTRACT section 2) to SI floats per signal;
 * :class:`Window`: the scans of one model window, averaged (the estimator's and the
   calibration's unit of data, built by :mod:`softsensor.estimation.windowing`);
-* :class:`LabResult`: one laboratory moisture result with its sample and log times;
+* :class:`LabResult`: one laboratory moisture result with its sample and log times, valid by
+  construction: the one lab-result contract (:func:`moisture_problem`,
+  :func:`sample_time_problem`, :func:`sample_id_problem`) is checked when one is made, so
+  whoever holds one (the service's queue, the estimator, calibration) need not check again;
 * :func:`encode_body`: a body as the JSON bytes sent on the bus and written to MCAP (one
   encoding for both, so a recorded day replays byte for byte).
 * :func:`lab_from_body`: a ``/plant/lab`` body (live from the bus, a dropped lab file or a
@@ -104,12 +107,34 @@ class Window:
 @dataclass(frozen=True)
 class LabResult:
     """A laboratory moisture result. ``moisture_out`` in kg/kg dry basis; times in ns since
-    the Unix epoch (UTC): when the fibre was sampled and when the result was logged."""
+    the Unix epoch (UTC): when the fibre was sampled and when the result was logged (arrived;
+    None: not known).
+
+    Valid by construction: one that breaks the lab-result contract (a moisture outside
+    :data:`MOISTURE_RANGE` or 0, a sample time before 2000 or after the result arrived, an
+    empty or overlong ``sample_id``) raises :class:`IngestError` with the reason.
+    """
 
     sample_time_ns: int
     moisture_out: float
     sample_id: str
     log_time_ns: int | None = None
+
+    def __post_init__(self) -> None:
+        problem = lab_problem(self.sample_time_ns, self.moisture_out, self.sample_id,
+                              self.log_time_ns)
+        if problem is not None:
+            raise IngestError(problem)
+
+    @property
+    def due_ns(self) -> int:
+        """When the result may be applied [ns]: once it has arrived (its log time), and never
+        before its sample time (the sample time alone when the arrival is not known). The one
+        queue of pending results, the estimator service's, hands a result over at the tick of
+        the window that holds this time."""
+        if self.log_time_ns is None:
+            return int(self.sample_time_ns)
+        return max(int(self.log_time_ns), int(self.sample_time_ns))
 
 
 def encode_body(body: dict[str, Any]) -> bytes:
@@ -118,12 +143,20 @@ def encode_body(body: dict[str, Any]) -> bytes:
     return dumps(body).encode()
 
 
-#: Plausible range of a lab moisture result [kg/kg dry basis]; 0 itself is refused.
+#: Plausible range of a lab moisture result [kg/kg dry basis], 0 itself refused: the one range
+#: every lab result is held to, on the bus, from the lab folder, from a LIMS import, in a
+#: recorded day and in the estimator (whose statistical gate judges a plausible value against
+#: its estimate). Above 2 kg/kg (67 % on a wet basis) is no fibre out of a dryer: most likely a
+#: % read as kg/kg, which the lab folder's and the import's messages name the key for.
 MOISTURE_RANGE: tuple[float, float] = (0.0, 2.0)
 #: Sample times before this are refused (likely seconds or ms given as ns) [ns since epoch].
 EARLIEST_SAMPLE_NS = 946_684_800 * 10**9  # 2000-01-01T00:00:00Z
-#: How far a sample time may lie after the time its result arrived (clock skew) [ns].
-FUTURE_TOLERANCE_NS = 3600 * 10**9
+#: How far a sample time may lie after its result arrived [ns]: not at all. A result comes
+#: tens of minutes after its sample; one stamped later than its own arrival has a clock or a
+#: time zone wrong (an hour of summer time), and applied it would correct the wrong window.
+#: With none, a result handed on when it has arrived always finds its window ticked or
+#: ticking, so the service's queue is the only place results wait.
+SAMPLE_AFTER_ARRIVAL_NS = 0
 _EPOCH = datetime(1970, 1, 1, tzinfo=UTC)
 
 def iso_utc(ns: int) -> str:
@@ -165,7 +198,7 @@ def parse_sample_time(value: Any, where: str = "lab", zone: tzinfo | None = None
 
 
 def _moisture(value: Any, where: str) -> float:
-    raw = value
+    """A moisture cell or field as a float (the contract is checked by :class:`LabResult`)."""
     if isinstance(value, bool) or value is None:
         raise IngestError(f"{where}: moisture_out {value!r} is not a number")
     if isinstance(value, str):
@@ -175,17 +208,35 @@ def _moisture(value: Any, where: str) -> float:
             raise IngestError(f"{where}: moisture_out {value!r} is not a number") from exc
     if not isinstance(value, (int, float)):
         raise IngestError(f"{where}: moisture_out {value!r} is not a number")
-    x = float(value)
+    return float(value)
+
+
+# ----------------------------------------------------------------------------------------------
+# The lab-result contract: each rule once. A rule's text names no value (the lab folder quotes
+# nothing of a file it refuses); lab_problem, for the bus and recorded days, adds them.
+
+
+def moisture_problem(x: float) -> str | None:
+    """Why ``x`` [kg/kg dry basis] cannot be a lab result's moisture (None when it can)."""
     if not math.isfinite(x):
-        raise IngestError(f"{where}: moisture_out {raw!r} is not finite")
+        return "is not finite"
     lo, hi = MOISTURE_RANGE
     if x == lo:  # a bone-dry sample out of a dryer is a LIMS default or a typing slip
-        raise IngestError(f"{where}: moisture_out 0 is not a measurement (a LIMS default or "
-                          "a typing slip)")
+        return "is 0: a bone-dry sample is a LIMS default or a typing slip, not a measurement"
     if not lo < x <= hi:
-        raise IngestError(f"{where}: moisture_out {x:g} kg/kg is outside the plausible range "
-                          f"{lo:g}..{hi:g} kg/kg dry basis")
-    return x
+        return f"is outside the plausible range {lo:g}..{hi:g} kg/kg dry basis"
+    return None
+
+
+def sample_time_problem(sample_time_ns: int, log_time_ns: int | None) -> str | None:
+    """Why a sample time [ns] cannot be that of a result that arrived at ``log_time_ns`` [ns]
+    (None when it can; :data:`SAMPLE_AFTER_ARRIVAL_NS`)."""
+    if sample_time_ns < EARLIEST_SAMPLE_NS:
+        return "is before 2000 (seconds or ms given instead of ns?)"
+    if log_time_ns is not None and sample_time_ns > log_time_ns + SAMPLE_AFTER_ARRIVAL_NS:
+        ahead = (sample_time_ns - log_time_ns) / 60e9
+        return f"lies {ahead:.1f} min after the result arrived"
+    return None
 
 
 #: Longest lab sample id [characters]: a LIMS id is short; a 60 kB one is an attack on every
@@ -193,35 +244,55 @@ def _moisture(value: Any, where: str) -> float:
 MAX_SAMPLE_ID_CHARS = 128
 
 
+def sample_id_problem(sample_id: str) -> str | None:
+    """Why ``sample_id`` cannot name a lab result (None when it can)."""
+    if not isinstance(sample_id, str):
+        return f"is a {type(sample_id).__name__}, not text"
+    if not sample_id.strip():
+        return "is empty"
+    if len(sample_id) > MAX_SAMPLE_ID_CHARS:
+        return f"of {len(sample_id)} characters is longer than {MAX_SAMPLE_ID_CHARS}"
+    return None
+
+
+def lab_problem(sample_time_ns: int, moisture_out: float, sample_id: str,
+                log_time_ns: int | None) -> str | None:
+    """Why these fields cannot make a :class:`LabResult` (None when they can): the contract,
+    one line naming the field and, for the moisture and the time, the value."""
+    problem = sample_id_problem(sample_id)
+    if problem is not None:
+        return f"sample_id {problem}"
+    problem = sample_time_problem(sample_time_ns, log_time_ns)
+    if problem is not None:
+        return f"lab {sample_id!r}: sample_time {sample_time_ns} ns {problem}"
+    problem = moisture_problem(moisture_out)
+    if problem is not None:
+        return f"lab {sample_id!r}: moisture_out {moisture_out:g} kg/kg {problem}"
+    return None
+
+
 def _sample_id(value: Any, where: str) -> str:
+    """A sample id field as text (the contract is checked by :class:`LabResult`)."""
     if isinstance(value, bool) or not isinstance(value, (str, int)):
         raise IngestError(f"{where}: sample_id {one_line(repr(value), 60)} is not a string")
-    text = str(value).strip()
-    if not text:
-        raise IngestError(f"{where}: sample_id is empty")
-    if len(text) > MAX_SAMPLE_ID_CHARS:
-        raise IngestError(f"{where}: sample_id of {len(text)} characters is longer than "
-                          f"{MAX_SAMPLE_ID_CHARS}")
-    return text
+    return str(value).strip()
 
 
 def make_lab_result(sample_time: Any, moisture_out: Any, sample_id: Any, *,
                     log_time_ns: int | None = None, where: str = "lab",
                     zone: tzinfo | None = None) -> LabResult:
-    """Validate one entry into a :class:`LabResult`; :class:`IngestError` with the reason.
+    """Parse one entry into a :class:`LabResult` (which checks the contract);
+    :class:`IngestError` naming ``where`` with the reason.
 
-    ``log_time_ns`` is when the result became available [ns since epoch]; a sample time more
-    than :data:`FUTURE_TOLERANCE_NS` after it is refused.
+    ``log_time_ns`` is when the result became available [ns since epoch].
     """
     st = parse_sample_time(sample_time, where, zone)
-    if st < EARLIEST_SAMPLE_NS:
-        raise IngestError(f"{where}: sample_time {st} ns is before 2000 "
-                          "(seconds or ms given instead of ns?)")
-    if log_time_ns is not None and st > log_time_ns + FUTURE_TOLERANCE_NS:
-        raise IngestError(f"{where}: sample_time {st} ns is after the result arrived "
-                          f"({log_time_ns} ns)")
-    return LabResult(sample_time_ns=st, moisture_out=_moisture(moisture_out, where),
-                     sample_id=_sample_id(sample_id, where), log_time_ns=log_time_ns)
+    moisture, sid = _moisture(moisture_out, where), _sample_id(sample_id, where)
+    try:
+        return LabResult(sample_time_ns=st, moisture_out=moisture, sample_id=sid,
+                         log_time_ns=log_time_ns)
+    except IngestError as exc:
+        raise IngestError(f"{where}: {one_line(str(exc), 300)}") from None
 
 
 def lab_from_body(body: dict[str, Any], log_time_ns: int | None = None,
@@ -254,8 +325,8 @@ def lab_body(lab: LabResult) -> dict[str, Any]:
 
 __all__ = [
     "EARLIEST_SAMPLE_NS",
-    "FUTURE_TOLERANCE_NS",
     "MOISTURE_RANGE",
+    "SAMPLE_AFTER_ARRIVAL_NS",
     "SCAN_EXTRA_FIELDS",
     "LabResult",
     "Window",
@@ -264,7 +335,11 @@ __all__ = [
     "iso_utc",
     "lab_body",
     "lab_from_body",
+    "lab_problem",
     "make_lab_result",
+    "moisture_problem",
     "parse_sample_time",
+    "sample_id_problem",
+    "sample_time_problem",
     "scan_values",
 ]

@@ -4,15 +4,26 @@ One frozen dataclass per TOML section (see :mod:`softsensor.configfile` for the 
 seven calibration parameters of the paper's Table 1 live in ``[parameters.<name>]`` tables with
 their value, bounds and whether the search is log-scaled; a calibrated ``PARAMS.toml`` has the
 same ``[parameters]`` layout and overrides the values (see :func:`load_parameters`).
+
+The other tables of a plant config (:data:`EXTRA_SECTIONS`: ``[service]``, ``[estimator]``,
+``[outputs]``, ...) and PARAMS.toml's ``[discrepancy]`` and ``[model_error]`` belong to higher
+layers, whose dataclasses this module cannot import. :class:`PlantConfig` keeps them as read
+(``extra``) and each owner's access function (``estimator_settings(cfg)``,
+``service_settings(cfg)``, ...) builds its frozen dataclass through :func:`built_table`: once
+per config, the same object after. The verbs' load point (:mod:`softsensor.apps.loading`)
+builds every one of them before anything starts, so a misspelt key anywhere stops the start
+with one line naming the file and the dotted key.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -149,22 +160,33 @@ class Cost:
         return np.array([self.T_dryer_out, self.T_cyclone_out, self.moisture_out])
 
 
-@dataclass(frozen=True)
-class PlantConfig:
-    """The whole plant configuration; ``source`` is the file it came from."""
+@dataclass(frozen=True, kw_only=True)
+class PlantSections:
+    """The plant's own sections of a plant config file, one dataclass each (all but
+    ``[parameters]``)."""
 
-    unit: Unit
+    unit: Unit = Unit()
     tube: Tube
     cyclone: Cyclone
     fiber: Fiber
     hot_gas: HotGas
     environment: Environment
     nominal: Nominal
-    solver: Solver
+    solver: Solver = Solver()
+    cost: Cost = Cost()
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantConfig(PlantSections):
+    """The whole plant configuration; ``source`` is the file it came from."""
+
     parameters: dict[str, ParameterSpec]
-    cost: Cost
     extra: dict[str, Any] = dataclasses.field(default_factory=dict)
     source: str = "<built-in>"
+    #: The typed objects built from ``extra`` (:func:`built_table`); a copy made with
+    #: ``dataclasses.replace`` starts empty, so it never serves a table it no longer holds.
+    _tables: dict[str, Any] = dataclasses.field(default_factory=dict, init=False, repr=False,
+                                                compare=False)
 
     def nominal_inputs(self) -> np.ndarray:
         """Model inputs at the nominal operating point, in ``signals.INPUT_NAMES`` order."""
@@ -194,50 +216,89 @@ class PlantConfig:
             if problem:
                 raise ConfigError(f"{self.source}: parameters.{name}.{problem}")
             params[name] = spec
-        return dataclasses.replace(self, parameters=params)
+        return _keeping_tables(self, dataclasses.replace(self, parameters=params))
 
 
-_SECTIONS = {
-    "unit": Unit, "tube": Tube, "cyclone": Cyclone, "fiber": Fiber, "hot_gas": HotGas,
-    "environment": Environment, "nominal": Nominal, "solver": Solver, "cost": Cost,
-}
-#: Sections owned by other parts of the program (validated there), kept as raw tables.
-EXTRA_SECTIONS = ("virtual_plant", "estimator", "service", "calibration", "display",
-                  "outputs", "plausibility", "lab")
+T = TypeVar("T")
 
 
-def _parameters(table: Any, source: str) -> dict[str, ParameterSpec]:
-    if not isinstance(table, dict):
-        raise ConfigError(f"{source}: [parameters] must be a table")
-    unknown = sorted(set(table) - set(PARAMETER_NAMES))
-    if unknown:
-        raise ConfigError(f"{source}: parameters.{unknown[0]} is not one of the paper's "
-                          f"Table 1 parameters ({', '.join(PARAMETER_NAMES)})")
-    missing = [n for n in PARAMETER_NAMES if n not in table]
-    if missing:
-        raise ConfigError(f"{source}: parameters.{missing[0]} is missing")
-    return {n: build_section(ParameterSpec, table[n], f"parameters.{n}", source)
-            for n in PARAMETER_NAMES}
+def built_table(cfg: PlantConfig, name: str, build: Callable[[PlantConfig], T]) -> T:
+    """The typed object of ``cfg``'s table ``name`` (a section of :data:`EXTRA_SECTIONS`, or
+    PARAMS.toml's ``discrepancy`` or ``model_error``): ``build(cfg)``, which reads
+    ``cfg.extra[name]``, the first time it is asked for; the same object after (module
+    docstring). ``build`` raises :class:`ConfigError` naming the file and the dotted key."""
+    tables = cfg._tables
+    if name not in tables:
+        tables[name] = build(cfg)
+    return tables[name]
+
+
+def section_of(cfg: PlantConfig, name: str, cls: type[T]) -> T:
+    """:func:`built_table` of a table that is one frozen dataclass ``cls`` whose fields all
+    have defaults (the defaults when the table is absent)."""
+    return built_table(cfg, name, lambda c: build_section(cls, c.extra.get(name, {}), name,
+                                                          c.source))
+
+
+def _keeping_tables(old: PlantConfig, new: PlantConfig) -> PlantConfig:
+    """``new`` with the tables ``old`` built from the very tables ``new`` still holds (or
+    from their absence, which it shares)."""
+    new._tables.update({k: v for k, v in old._tables.items()
+                        if new.extra.get(k) is old.extra.get(k)})
+    return new
+
+
+@dataclass(frozen=True)
+class Parameters:
+    """``[parameters]``: one ``[parameters.<name>]`` table per parameter of the paper's
+    Table 1 (:data:`PARAMETER_NAMES`)."""
+
+    mult_D: ParameterSpec
+    mult_C: ParameterSpec
+    mult_h: ParameterSpec
+    mult_k: ParameterSpec
+    mult_p: ParameterSpec
+    hm_cyc: ParameterSpec
+    hc_cyc: ParameterSpec
+
+
+assert tuple(f.name for f in dataclasses.fields(Parameters)) == PARAMETER_NAMES
+
+
+def _raw() -> Any:
+    """A section another part of the program builds (:func:`built_table`): a table, kept as
+    read."""
+    return dataclasses.field(default=None, metadata={"raw": True})
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlantFile(PlantSections):
+    """The top level of a plant config file: the plant's sections, its parameters and the
+    tables of :data:`EXTRA_SECTIONS` as read."""
+
+    parameters: Parameters
+    virtual_plant: dict[str, Any] | None = _raw()
+    estimator: dict[str, Any] | None = _raw()
+    service: dict[str, Any] | None = _raw()
+    calibration: dict[str, Any] | None = _raw()
+    display: dict[str, Any] | None = _raw()
+    outputs: dict[str, Any] | None = _raw()
+    plausibility: dict[str, Any] | None = _raw()
+    lab: dict[str, Any] | None = _raw()
+
+
+#: Sections built by other parts of the program (:func:`built_table`), kept as read.
+EXTRA_SECTIONS: tuple[str, ...] = tuple(f.name for f in dataclasses.fields(PlantFile)
+                                        if f.metadata.get("raw"))
 
 
 def plant_config_from_dict(data: dict[str, Any], source: str = "<dict>") -> PlantConfig:
     """Validate a parsed TOML document into a :class:`PlantConfig`."""
-    unknown = sorted(set(data) - set(_SECTIONS) - {"parameters"} - set(EXTRA_SECTIONS))
-    if unknown:
-        raise ConfigError(f"{source}: [{unknown[0]}] is not a known section")
-    kwargs: dict[str, Any] = {}
-    for key, cls in _SECTIONS.items():
-        if key not in data:
-            if key in ("unit", "solver", "cost"):
-                kwargs[key] = cls()
-                continue
-            raise ConfigError(f"{source}: section [{key}] is missing")
-        kwargs[key] = build_section(cls, data[key], key, source)
-    if "parameters" not in data:
-        raise ConfigError(f"{source}: section [parameters] is missing")
-    kwargs["parameters"] = _parameters(data["parameters"], source)
-    extra = {k: data[k] for k in EXTRA_SECTIONS if k in data}
-    return PlantConfig(**kwargs, extra=extra, source=source)
+    doc = build_section(PlantFile, data, "", source)
+    kwargs = {f.name: getattr(doc, f.name) for f in dataclasses.fields(PlantSections)}
+    parameters = {n: getattr(doc.parameters, n) for n in PARAMETER_NAMES}
+    extra = {k: getattr(doc, k) for k in EXTRA_SECTIONS if getattr(doc, k) is not None}
+    return PlantConfig(**kwargs, parameters=parameters, extra=extra, source=source)
 
 
 def default_config_path() -> Path:
@@ -251,13 +312,63 @@ def load_plant_config(path: str | Path | None = None) -> PlantConfig:
     return plant_config_from_dict(read_toml(p), str(p))
 
 
+@dataclass(frozen=True)
+class DiscrepancyPrior:
+    """PARAMS.toml's ``[discrepancy]``: what the calibrated model left on held-out data, the
+    estimator's prior on its own error (written by ``softsensor calibrate``,
+    :class:`softsensor.calibration.pipeline.Discrepancy`; read by
+    :meth:`softsensor.estimation.discrepancy.ErrorPriors.from_config`). Every key may be
+    absent: not known (TOML has no null; a NaN in memory counts as absent too).
+
+    Attributes
+    ----------
+    common_std, dryer_std, cyclone_std : float
+        Root mean square of the outlet temperatures' common and own residuals [K].
+    tau_s : float
+        Correlation time of the temperature residuals [s].
+    moisture_std : float
+        Root mean square of the lab residuals [kg/kg].
+    inlet_walk : float
+        Random-walk intensity of the fitted inlet trajectory [kg/kg / sqrt(h)].
+    n_windows, n_labs : float
+        Samples behind these numbers.
+    """
+
+    common_std: float | None = num(None, ge=0)
+    dryer_std: float | None = num(None, ge=0)
+    cyclone_std: float | None = num(None, ge=0)
+    tau_s: float | None = num(None, gt=0)
+    moisture_std: float | None = num(None, ge=0)
+    inlet_walk: float | None = num(None, ge=0)
+    n_windows: float | None = num(None, ge=0)
+    n_labs: float | None = num(None, ge=0)
+
+
+def _discrepancy(table: Any, source: str) -> DiscrepancyPrior | None:
+    """The ``[discrepancy]`` table built and checked (None when absent)."""
+    if table is None:
+        return None
+    if isinstance(table, dict):
+        table = {k: v for k, v in table.items() if not (isinstance(v, float) and math.isnan(v))}
+    return build_section(DiscrepancyPrior, table, "discrepancy", source)
+
+
+def discrepancy_of(cfg: PlantConfig) -> DiscrepancyPrior | None:
+    """The ``[discrepancy]`` a PARAMS.toml (or a calibration in memory) gave ``cfg``, built
+    once (:func:`built_table`); None without one."""
+    return built_table(cfg, "discrepancy",
+                       lambda c: _discrepancy(c.extra.get("discrepancy"), c.source))
+
+
 def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
 
     ``[parameters.<name>]`` tables give the values (each within its bounds); the calibration's
-    ``[discrepancy]`` table (what the model left on held-out data) and ``[model_error]`` (what
-    the history says it misses), when present, are carried in ``extra`` for the estimator
-    and the diagnosis.
+    ``[discrepancy]`` table (what the model left on held-out data, checked here:
+    :class:`DiscrepancyPrior`) and ``[model_error]`` (what the history says it misses, built by
+    :func:`softsensor.estimation.model_error.model_error_of`), when present, are carried in
+    ``extra`` for the estimator and the diagnosis. The tables ``config`` built already stay
+    built.
     """
     data = read_toml(path)
     table = data.get("parameters")
@@ -276,15 +387,18 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
         values[name] = float(v)
     cfg = config.with_parameters(values) if values else config
     extra = dict(cfg.extra)
+    built: dict[str, Any] = {}
     disc = data.get("discrepancy")
     if disc is not None:
-        if not isinstance(disc, dict) or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in disc.values()):
-            raise ConfigError(f"{path}: [discrepancy] must be a table of numbers")
-        extra["discrepancy"] = {str(k): float(v) for k, v in disc.items()}
+        prior = built["discrepancy"] = _discrepancy(disc, str(path))
+        extra["discrepancy"] = {k: v for k, v in dataclasses.asdict(prior).items()
+                                if v is not None}
     error = data.get("model_error")
     if error is not None:
         if not isinstance(error, dict):
             raise ConfigError(f"{path}: [model_error] must be a table")
         extra["model_error"] = error  # built and checked by estimation.model_error_of
-    return dataclasses.replace(cfg, extra=extra, source=f"{config.source} + {path}")
+    out = _keeping_tables(cfg, dataclasses.replace(cfg, extra=extra,
+                                                   source=f"{config.source} + {path}"))
+    out._tables.update(built)
+    return out

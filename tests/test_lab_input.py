@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -82,6 +83,28 @@ def test_bad_time_and_id() -> None:
     assert lab == LabResult(T_NS, 0.105, "42", NOW_NS)
 
 
+def test_one_lab_result_contract_for_every_path() -> None:
+    """One range and one tolerance (softsensor.messages): the bus, the lab folder, the import
+    and the estimator hold a result to the same rules, because a LabResult cannot be made
+    that breaks them. A sample time after its arrival is refused, even by a minute (it was
+    accepted up to an hour late here, and then refused by the estimator); 1.7 kg/kg is
+    possible for a lab to report (it reaches the estimator's statistical gate)."""
+    assert make_lab_result(T_NS, 1.7, "L1", log_time_ns=T_NS).moisture_out == 1.7
+    for make in (lambda: make_lab_result(T_NS + 60 * 10**9, 0.1, "L1", log_time_ns=T_NS),
+                 lambda: LabResult(T_NS + 60 * 10**9, 0.1, "L1", T_NS)):
+        with pytest.raises(IngestError, match="lies 1.0 min after the result arrived"):
+            make()
+    with pytest.raises(IngestError, match="is 0: a bone-dry sample"):
+        LabResult(T_NS, 0.0, "L1")
+    lab = LabResult(T_NS, 0.1, "L1", T_NS)
+    with pytest.raises(IngestError, match="outside the plausible range 0..2"):
+        dataclasses.replace(lab, moisture_out=2.01)
+    late = "sample_time,moisture_out,sample_id\n2025-06-15T15:07:40Z,0.1,F1\n"
+    with pytest.raises(IngestError, match=r"f.csv row 1: sample_time lies 1.0 min after the "
+                                          r"result arrived \(is lab.time_zone right\?\)"):
+        parse_lab_csv(late, log_time_ns=T_NS, where="f.csv")
+
+
 def test_bus_body() -> None:
     body = {"sample_time_ns": T_NS, "moisture_out": 0.1, "sample_id": "L1", "time_ns": NOW_NS}
     lab = lab_from_body(body)
@@ -145,7 +168,8 @@ def test_csv_parsing() -> None:
     for body, match in [
         ("2025-06-15T16:00:00Z,abc,A3,jo\n", r"day.csv row 2: moisture_out value is neither"),
         ("2025-06-15T16:00:00Z,0.1,A4\n", r"day.csv line 3: 3 fields, the header has 4"),
-        ("2025-06-15T16:00:00Z,5,A5,jo\n", r"row 2: moisture_out gives a moisture outside"),
+        ("2025-06-15T16:00:00Z,5,A5,jo\n", r"row 2: moisture_out read as kg/kg on a dry basis "
+                                           r"is outside"),
         ("2025-06-15T16:00:00Z,0,A6,jo\n", r"row 2: moisture_out is 0: a bone-dry sample"),
         ("15.06.2025 16:00Z,0.1,A7,jo\n", r"row 2: sample_time is not a time in format"),
     ]:
@@ -170,8 +194,8 @@ def test_json_parsing() -> None:
     assert [r.sample_id for r in parse_lab_json(json.dumps(many)).results] == ["J2", "J3"]
     for extra, match in [
         ({"sample_time_ns": T_NS, "moisture_out": 3.0, "sample_id": "J4"},
-         r"m.json row 3: moisture_out gives a moisture outside the plausible range 0..2 kg/kg "
-         r"dry basis as kg/kg on a dry basis \(set lab.unit"),
+         r"m.json row 3: moisture_out read as kg/kg on a dry basis is outside the plausible "
+         r"range 0..2 kg/kg dry basis \(set lab.unit"),
         ("junk", r"m.json entry 2: a JSON str, not an object"),
         ({"sample_time_ns": T_NS, "moisture_out": [1], "sample_id": "J5"},
          r"m.json entry 2: values must be numbers or text"),
@@ -234,8 +258,8 @@ def test_a_partly_bad_file_is_rejected_whole_and_only_rejected(inbox, tmp_path: 
     assert sorted(p.name for p in (tmp_path / "rejected").iterdir()) == ["mix.csv",
                                                                          "mix.csv.reason.txt"]
     reason = (tmp_path / "rejected" / "mix.csv.reason.txt").read_text()
-    assert reason == "mix.csv row 3: moisture_out gives a moisture outside the plausible range " \
-        "0..2 kg/kg dry basis as kg/kg on a dry basis (set lab.unit = \"%\" and lab.basis); " \
+    assert reason == "mix.csv row 3: moisture_out read as kg/kg on a dry basis is outside the " \
+        "plausible range 0..2 kg/kg dry basis (set lab.unit = \"%\" and lab.basis); " \
         "nothing of the file was applied\n", reason
     # fixed and dropped again, it is taken (M1 was never marked seen)
     _drop(tmp_path, "mix.csv", "sample_time,moisture_out,sample_id\n"

@@ -92,15 +92,20 @@ def test_offset_is_intercept_plus_slopes_on_the_standardised_point():
                                [float(me.offset("T_dryer_out", p)) for p in P])
 
 
-def _rows(n_days: int, per_day: int, beta: np.ndarray, day_sd: float, walk: float,
-          noise: float, seed: int, dt_h: float = 1 / 6) -> _Rows:
-    """Residuals of a known model: slopes, day offsets, a random walk and white noise."""
+def _rows(n_days: int, per_day: int, beta: np.ndarray, day_sd: float, wander_sd: float,
+          tau_h: float, noise: float, seed: int, dt_h: float = 1 / 6) -> _Rows:
+    """Residuals of a known model: slopes, day offsets, a first-order wander and white
+    noise."""
     rng = np.random.default_rng(seed)
+    a = math.exp(-dt_h / tau_h)
     r, phi, day, t = [], [], [], []
     for i in range(n_days):
         X = rng.normal(size=(per_day, beta.size))
         level = day_sd * rng.normal()
-        w = np.cumsum(walk * math.sqrt(dt_h) * rng.normal(size=per_day))
+        w = np.empty(per_day)
+        w[0] = wander_sd * rng.normal()
+        for k in range(1, per_day):
+            w[k] = a * w[k - 1] + wander_sd * math.sqrt(1 - a * a) * rng.normal()
         r.append(X @ beta + level + w + noise * rng.normal(size=per_day))
         phi.append(X)
         day.append(np.full(per_day, i))
@@ -108,24 +113,29 @@ def _rows(n_days: int, per_day: int, beta: np.ndarray, day_sd: float, walk: floa
     return _Rows(np.concatenate(r), np.vstack(phi), np.concatenate(day), np.concatenate(t))
 
 
-def test_channel_fit_recovers_slopes_day_spread_walk_and_noise():
+def test_channel_fit_recovers_slopes_day_spread_wander_and_noise():
     """Seven days of 288 windows with known statistics: the slopes within four standard
-    errors of the truth, the day spread, walk and noise within the sampling error of seven
-    days (day spread: 40 %; walk and noise: 25 %)."""
+    errors of the truth; the day spread, wander and noise within the sampling error of seven
+    days (day spread 40 %, wander and noise 25 %, its correlation time 50 %); the level's
+    walk moves it by its spread in a day."""
     beta = np.array([0.6, -0.3, 0.0, 0.1, 0.0, 0.2, -0.1, 0.4])
-    ch = _channel(_rows(7, 288, beta, day_sd=0.5, walk=0.1, noise=0.2, seed=4), 7)
+    ch = _channel(_rows(7, 288, beta, day_sd=0.5, wander_sd=0.25, tau_h=3.0, noise=0.2,
+                        seed=4), 7)
     assert ch.learned and ch.rmse_held_out < 0.5 * ch.rmse_without
     se = np.sqrt(np.diag(ch.cov))
     assert np.all(np.abs(np.array(ch.coef) - beta) < 4 * se + 0.01)
     assert ch.day_sd == pytest.approx(0.5, rel=0.4)
-    assert ch.walk == pytest.approx(0.1, rel=0.25)
+    assert ch.wander_sd == pytest.approx(0.25, rel=0.25)
+    assert ch.wander_tau_h == pytest.approx(3.0, rel=0.5)
     assert ch.noise == pytest.approx(0.2, rel=0.25)
+    assert ch.walk == pytest.approx(ch.day_sd / math.sqrt(24.0))
 
 
 def test_channel_without_a_response_learns_no_slopes():
     """Residuals that do not depend on the operating point: the held-out check keeps the
     slopes at zero (a spurious fit would only add noise to the estimator)."""
-    ch = _channel(_rows(7, 20, np.zeros(F), day_sd=0.004, walk=0.0, noise=0.003, seed=9), 7)
+    ch = _channel(_rows(7, 20, np.zeros(F), day_sd=0.004, wander_sd=0.0, tau_h=1.0,
+                        noise=0.003, seed=9), 7)
     assert not ch.learned and ch.rmse_held_out == ch.rmse_without
     assert np.all(np.asarray(ch.coef_cov) == 0.0)
     assert ch.noise == pytest.approx(0.003, rel=0.3)
@@ -134,7 +144,8 @@ def test_channel_without_a_response_learns_no_slopes():
 def test_one_day_is_cross_validated_by_quarters():
     beta = np.zeros(F)
     beta[0] = 1.0
-    ch = _channel(_rows(1, 288, beta, day_sd=0.0, walk=0.0, noise=0.1, seed=2), 1)
+    ch = _channel(_rows(1, 288, beta, day_sd=0.0, wander_sd=0.0, tau_h=1.0, noise=0.1,
+                        seed=2), 1)
     assert ch.learned and ch.coef[0] == pytest.approx(1.0, abs=0.05)
     assert ch.day_sd == 0.0
 

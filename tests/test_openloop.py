@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from softsensor.errors import EstimationError
+from softsensor.errors import EstimationError, IngestError
 from softsensor.estimation.base import LabResult
 from softsensor.estimation.openloop import OpenLoopEstimator
 from softsensor.estimation.windowing import windows_from_frame
@@ -61,8 +61,8 @@ def test_labs_leave_the_estimate_alone_and_report_the_residual(day):
     lab = LabResult(windows[4].end_ns - 60 * 10**9, 0.123, "S1", windows[9].end_ns)
     assert with_labs.add_lab(lab) is None
     assert "duplicate" in with_labs.add_lab(lab)
-    assert "outside the possible range" in with_labs.add_lab(
-        dataclasses.replace(lab, sample_id="S2", moisture_out=2.0))
+    with pytest.raises(IngestError, match="outside the plausible range"):  # the contract's
+        dataclasses.replace(lab, sample_id="S2", moisture_out=2.5)
     b += [with_labs.tick(w) for w in windows[10:20]]
     assert b[10]["lab_residual"] == {"S1": pytest.approx(0.123 - a[4]["moisture_out"])}
     assert not b[10]["lab_updated"]

@@ -198,7 +198,7 @@ def test_output_tables_are_validated(tmp_path):
     assert o.modbus.enabled and o.modbus.port == 1503
     with pytest.raises(ConfigError, match=r"outputs\.modbus\.port must be"):
         output_settings(cfg("[outputs.modbus]\nport = 70000\n"))
-    with pytest.raises(ConfigError, match=r"outputs\.scada is not a known output"):
+    with pytest.raises(ConfigError, match=r"outputs\.scada is not a known key \(known: modbus, "):
         output_settings(cfg("[outputs.scada]\nenabled = true\n"))
     with pytest.raises(ConfigError, match=r"outputs\.prometheus\.colour is not a known key"):
         output_settings(cfg("[outputs.prometheus]\ncolour = 1\n"))

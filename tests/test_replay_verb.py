@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
 import re
+import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from softsensor.cli import main as cli_main
@@ -13,6 +16,12 @@ from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+try:
+    import estimate_digest as ed
+finally:
+    sys.path.pop(0)
 
 H = 3600 * 10**9
 ROOT = Path(__file__).resolve().parents[1]
@@ -81,11 +90,11 @@ def test_the_estimator_is_warmed_up_before_the_first_message(day_file, tmp_path,
 
     def stream(*args, **kwargs):
         order.append("stream")
-        return offline_replay_day(*args, **kwargs)
+        return offline_replay_messages(*args, **kwargs)
 
-    offline_warm_up, offline_replay_day = offline.warm_up, offline.replay_day
+    offline_warm_up, offline_replay_messages = offline.warm_up, offline.replay_messages
     monkeypatch.setattr(offline, "warm_up", warm)
-    monkeypatch.setattr(offline, "replay_day", stream)
+    monkeypatch.setattr(offline, "replay_messages", stream)
     start = int(read_day(day_file).scans.index[0])
     rc, out, err = replay(capsys, str(day_file), "--out", str(tmp_path / "w.mcap"),
                           "--end", str(start + H))
@@ -119,6 +128,25 @@ def test_time_range_rate_params_and_the_open_loop_estimator(day_file, tmp_path, 
     # twice the heat loss: the model's outlet air is colder
     assert all(h["T_dryer_out_model"] < b["T_dryer_out_model"] - 0.1
                for h, b in zip(hot[1:], base[1:], strict=True))
+
+
+def test_the_day_file_is_opened_once(day_file, tmp_path, monkeypatch) -> None:
+    """The scan period, the first-scan check, the replay and the truth come from one read of
+    the day (it was opened four times: each a decompression and CRC check of the file)."""
+    import softsensor.recording.mcap_day as mcap_day
+    from softsensor.service.offline_replay import replay_to_file
+
+    opened: list[Path] = []
+    real = mcap_day._open
+
+    def counting(path: Path):
+        opened.append(Path(path))
+        return real(path)
+
+    monkeypatch.setattr(mcap_day, "_open", counting)
+    summary = replay_to_file(day_file, tmp_path / "once.mcap", load_plant_config())
+    assert opened.count(day_file) == 1, opened
+    assert summary.ticks == 25 and summary.rmse is not None
 
 
 def test_bad_input_gives_one_line_and_no_output(day_file, tmp_path, capsys) -> None:
@@ -155,18 +183,39 @@ def test_bad_input_gives_one_line_and_no_output(day_file, tmp_path, capsys) -> N
     assert kept.topic(TOPIC_ESTIMATE)
 
 
-def test_the_readme_quick_start_prints_the_demo_figures(tmp_path, capsys) -> None:
+@pytest.fixture(scope="module")
+def demo_replay(tmp_path_factory) -> tuple[str, Path]:
     """The README's first quick-start command, ``softsensor replay replay/demo-day.mcap --out
-    estimates.mcap``, prints the figures the README quotes: ticks, stale ticks and lab
+    estimates.mcap``, run once: its summary line and its output file."""
+    out = tmp_path_factory.mktemp("demo") / "estimates.mcap"
+    return ed.replay_demo(out), out
+
+
+def test_the_readme_quick_start_prints_the_demo_figures(demo_replay) -> None:
+    """The quick start prints the figures the README quotes: ticks, stale ticks and lab
     updates exactly, and both RMSEs against the truth to the 4 decimals the README prints
     (the same digits: within 5e-5 kg/kg)."""
     readme = " ".join((ROOT / "README.md").read_text().split())
     quick = readme[readme.index("## Quick start"):readme.index("## How data flows")]
     claimed = FIGURES.search(quick)
     assert claimed, "the README's quick start no longer quotes the replay's figures"
-    rc, out, err = replay(capsys, str(ROOT / "replay" / "demo-day.mcap"), "--out",
-                          str(tmp_path / "estimates.mcap"))
-    assert rc == 0, err
+    out, _ = demo_replay
     got = FIGURES.search(out)
     assert got, out
     assert got.groupdict() == claimed.groupdict(), (out, claimed.groupdict())
+
+
+def test_the_demo_estimates_are_bit_identical_to_the_stored_digest(demo_replay) -> None:
+    """Every number of every estimate of the demo day, bit for bit (``tests/estimate_digest.py``):
+    a change of the service's wiring, its config or its lab handling must not move one. When
+    the estimator changes on purpose, regenerate with ``python tests/estimate_digest.py
+    --write`` and say in the commit why the numbers moved."""
+    stored = json.loads(ed.STORED.read_text())
+    messages = ed.estimates(demo_replay[1])
+    now = ed.samples(messages)
+    moved = {k: float(abs(np.subtract(now[k], v)) / max(abs(v), 1e-300))
+             for k, v in stored["samples"].items() if isinstance(v, float) and now[k] is not None}
+    assert now["estimates"] == stored["samples"]["estimates"], now
+    assert ed.digest(messages) == stored["sha256"], (
+        f"the demo day's estimates changed (relative change of the last one's fields: {moved}); "
+        "if on purpose, run `python tests/estimate_digest.py --write`")

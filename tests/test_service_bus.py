@@ -27,7 +27,8 @@ from softsensor.plant.plc_server import NOMINAL_VALUES, PlcServer, constant_valu
 from softsensor.recording.mcap_day import read_day
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.pipeline import InputSubscription, ScanPublisher
+from softsensor.service.pipeline import InputSubscription
+from softsensor.service.scan_publisher import ScanPublisher
 
 DEADLINE = 10.0
 FAST = {"poll_period_s": 0.05, "timeout_s": 0.3, "retries": 0, "reconnect_delay_s": 0.05,
@@ -186,4 +187,51 @@ def test_a_failing_advance_is_counted_and_the_worker_goes_on():
             pipe.sync(timeout=10.0)
             assert Failing.calls == 2 and pipe.n_errors == 2 and pipe.n_out == 0
         finally:
+            pipe.close()
+
+
+def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
+    """The daemon's watchdog and recorder news used to be published from the event loop's
+    thread while the worker published the estimator's: the outputs (Modbus, OPC UA, the page,
+    the health answer) were fed by two threads at once, and could end on the older state.
+    Now both go through the pipeline's one path (publish_aside), one message at a time; and
+    not through the worker's queue, since the watchdog speaks when the worker is stuck."""
+    import threading
+
+    from softsensor.service.estimator_service import Output
+    from softsensor.service.pipeline import ServicePipeline, _Call
+
+    inside, most, seen = [0], [0], []
+    lock = threading.Lock()
+
+    def hook(out: Output) -> None:
+        with lock:
+            inside[0] += 1
+            most[0] = max(most[0], inside[0])
+        time.sleep(0.001)  # long enough for the other thread to come in, were it let
+        seen.append(out.body["n"])
+        with lock:
+            inside[0] -= 1
+
+    class Talking:
+        def advance(self, now_ns):
+            return [Output("health", {"status": "ok", "n": now_ns}, now_ns)]
+
+    stuck = threading.Event()
+    with open_session(port=None) as session:
+        pipe = ServicePipeline(session, Talking(), on_output=hook)  # type: ignore[arg-type]
+        try:
+            for k in range(200):
+                pipe.advance(k)
+            for k in range(200):
+                assert pipe.publish_aside(Output("health", {"status": "stale", "n": -k}, 0))
+            pipe.sync(timeout=DEADLINE)
+            assert most[0] == 1 and len(seen) == 400, (most, len(seen))
+            # a worker stuck inside the estimator does not silence the aside path
+            pipe._q.put(_Call(lambda: stuck.wait(30)))
+            t0 = time.monotonic()
+            assert pipe.publish_aside(Output("health", {"status": "stale", "n": -999}, 0))
+            assert seen[-1] == -999 and time.monotonic() - t0 < 1.0
+        finally:
+            stuck.set()
             pipe.close()

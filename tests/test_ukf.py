@@ -18,7 +18,7 @@ import pytest
 from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from filterpy.kalman import predict as kf_predict
 
-from softsensor.errors import ConfigError, EstimationError
+from softsensor.errors import ConfigError, EstimationError, IngestError
 from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.discrepancy import (
@@ -382,26 +382,43 @@ def test_duplicate_sample_id_is_ignored():
 
 
 @pytest.mark.parametrize("value, words", [
-    (float("nan"), "not a finite number"),
-    (-0.02, "outside the possible range"),
-    (1.7, "outside the possible range"),
+    (float("nan"), "not finite"),
+    (-0.02, "outside the plausible range"),
+    (2.5, "outside the plausible range"),
 ])
-def test_corrupted_lab_values_are_rejected_with_a_reason_and_change_nothing(value, words):
+def test_corrupted_lab_values_cannot_reach_the_estimator(value, words):
+    """The lab-result contract (softsensor.messages) refuses them when a result is made: the
+    estimator never holds one to check."""
+    with pytest.raises(IngestError, match=words) as info:
+        lab(5, value, "X")
+    assert "'X'" in str(info.value)
+
+
+def test_a_possible_but_implausible_lab_value_meets_the_gate_and_changes_nothing():
+    """1.7 kg/kg is within the contract's range (what a lab can report) but no estimate's:
+    the statistical gate refuses it, with the reason, and the estimate is as without it."""
     wins, truth = synthetic_day(20, seed=7)
     est, ref = make(), make()
     run(est, wins[:10], {})
     run(ref, wins[:10], {})
-    reason = est.add_lab(lab(5, value, "X"))
-    assert reason is not None and words in reason and "'X'" in reason
+    reason = est.add_lab(lab(5, 1.7, "X"))
+    assert reason is not None and "rejected as an outlier" in reason and "'X'" in reason
     assert run(est, wins[10:], {}) == run(ref, wins[10:], {})
-    # the corrected result under the same id is still accepted
-    assert est.add_lab(lab(5, truth[5, 1], "X")) is None
 
 
-def test_lab_sampled_after_it_was_logged_is_rejected():
+def test_a_lab_sampled_after_it_was_logged_cannot_be_made():
+    with pytest.raises(IngestError, match="after the result arrived"):
+        LabResult(T0_NS + 5 * W_NS, 0.1, "T", T0_NS + 4 * W_NS)
+
+
+def test_a_lab_handed_over_before_its_window_is_skipped_not_held():
+    """Results wait for their window in one queue, the service's (LabResult.due_ns): one
+    handed over early is not held for later ticks (it would be a second queue)."""
+    wins, truth = synthetic_day(12, seed=9)
     est = make()
-    bad = LabResult(T0_NS + 5 * W_NS, 0.1, "T", T0_NS + 4 * W_NS)
-    assert "after the result was logged" in est.add_lab(bad)
+    early = {3: [lab(8, truth[8, 1], "EARLY")]}  # sampled in window 8, handed over at 3
+    assert run(est, wins, early) == run(make(), wins, {})
+    assert "EARLY" in est._labs.seen  # accepted once (a duplicate later is still one)
 
 
 def test_lab_older_than_the_history_is_skipped_with_a_reason():
@@ -640,12 +657,12 @@ def test_chi_square_test_false_alarm_rate_matches_alpha():
 def test_restart_from_checkpoint_continues_the_same_estimate():
     wins, truth = synthetic_day(40, seed=17)
     deliveries = {12: [lab(9, truth[9, 1] + 0.004, "A")],
-                  20: [lab(21, truth[21, 1], "P")],        # sampled after the checkpoint
+                  20: [lab(20, truth[20, 1], "P")],        # for the tick after the checkpoint
                   25: [lab(17, truth[17, 1] - 0.004, "B")]}
     straight = run(make(), wins, deliveries)
     first = make()
     run(first, wins[:20], {k: v for k, v in deliveries.items() if k < 20})
-    first.add_lab(deliveries[20][0])                    # pending across the restart
+    first.add_lab(deliveries[20][0])                    # held across the restart
     snap = json.loads(json.dumps(first.checkpoint(), allow_nan=False))
     second = make()
     second.restore(snap)
@@ -676,7 +693,10 @@ def test_settings_default_without_estimator_table_and_validated_with_one():
     for table, words in [({"moisture_in_wlak": 0.1}, "estimator.moisture_in_wlak is not a known"),
                          ({"lab_std": -1.0}, "estimator.lab_std must be > 0"),
                          ({"kind": "kalman"}, "estimator.kind must be one of ukf, openloop"),
-                         ({"lab_min": 0.5, "lab_max": 0.2}, "estimator.lab_max must be >")]:
+                         ({"moisture_out_min": 0.5, "moisture_out_max": 0.2},
+                          "estimator.moisture_out_max must be >"),
+                         ({"lab_max": 0.6}, "estimator.lab_max is not a key any more: lab "
+                                            "results are held to the one contract")]:
         bad = dataclasses.replace(CFG, extra={"estimator": table})
         with pytest.raises(ConfigError, match=words.replace(".", r"\.")):
             estimator_settings(bad)

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import math
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
 
 import pytest
 import zenoh
@@ -17,6 +18,7 @@ from softsensor.bus.zenoh_bus import (
     KINDS,
     BusMessage,
     Publisher,
+    Subscription,
     decode_payload,
     encode_payload,
     kind_of_key,
@@ -24,13 +26,14 @@ from softsensor.bus.zenoh_bus import (
     make_config,
     open_session,
     subscribe,
-    subscribe_queue,
     to_message,
     wait_for_peers,
 )
 from softsensor.errors import ConfigError, IngestError
+from softsensor.log_throttle import outside_text
 
 DEADLINE = 5.0  # [s] for anything on loopback
+log = logging.getLogger(__name__)
 
 BODIES = {
     "scan": {"T_air_in": 452.1, "m_air": 82.0, "T_amb": None},
@@ -168,6 +171,39 @@ def test_malformed_payload_and_failing_callback(
         assert _wait(lambda: sub.n_errors == 2 and sub.n_received == 1)
     assert errors[0] == ("plant/dryer1/scan", "plant/dryer1/scan: payload is not valid JSON")
     assert "kaputt" in errors[1][1]
+
+
+def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
+                    queue: asyncio.Queue[BusMessage], *, unit: str = "dryer1",
+                    kinds: Iterable[str] = KINDS,
+                    on_error: Callable[[str, str], None] | None = None) -> Subscription:
+    """Put decoded messages of ``kinds`` into an asyncio ``queue`` running on ``loop`` (a
+    test's way to await bus messages; the program's consumers hand them to a thread).
+
+    The hand-off uses ``loop.call_soon_threadsafe``; when a bounded queue is full the message
+    is dropped and counted as an error (Zenoh's thread never blocks on the event loop).
+    """
+    holder: list[Subscription] = []
+
+    def _put(message: BusMessage) -> None:
+        try:
+            queue.put_nowait(message)
+        except asyncio.QueueFull:
+            if holder:
+                holder[0]._count(False)
+                holder[0].throttle.log(log, "queue full", logging.WARNING,
+                                       "%s: asyncio queue full, message dropped",
+                                       outside_text(message.key))
+
+    def _callback(message: BusMessage) -> None:
+        if loop.is_closed():
+            raise RuntimeError("event loop is closed")
+        loop.call_soon_threadsafe(_put, message)
+
+    sub = subscribe(session, _callback, unit=unit, kinds=kinds, on_error=on_error)
+    holder.append(sub)
+    return sub
+
 
 
 def test_asyncio_queue(pair: tuple[zenoh.Session, zenoh.Session]) -> None:

@@ -11,7 +11,10 @@
 * ``index.html``: a plain-language verdict first (:func:`softsensor.verdicts.
   diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"), then the
   statistics, the evidence table and the figures, embedded (the same page layout as the
-  calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
+  calibration report, :func:`softsensor.apps.calibration_figures.write_page`). The evidence
+  is a table, one row per fitted extension and channel (before, after, change, log-likelihood
+  gain, eligible or why not; :func:`evidence_table`), and the prose evidence of every ranking
+  entry follows under "Details" (:func:`details`).
 
 What a person reads is in plant units (:mod:`softsensor.display`, the ``[display]`` table):
 °C, moisture in % on the display basis, time axes in the plant's local clock time; the
@@ -20,6 +23,7 @@ program keeps SI everywhere else.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -34,7 +38,9 @@ from softsensor.apps.calibration_figures import (  # noqa: E402
     write_page,
 )
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
+from softsensor.diagnosis.verdict import ALPHA, MIN_GAIN, MIN_PENALISED, Score  # noqa: E402
 from softsensor.display import (  # noqa: E402
+    DisplaySettings,
     celsius,
     display_settings,
     local_times,
@@ -161,6 +167,80 @@ def gain_figure(d: Diagnosis, path: Path) -> Path:
     return _save(fig, path)
 
 
+#: The columns of the evidence table: one row per scored extension and channel.
+EVIDENCE_COLUMNS = ("cause", "channel", "unit", "before", "after", "change",
+                    "log-lik. gain", "eligible / why not")
+
+#: What the evidence table's numbers are (printed above it).
+EVIDENCE_NOTE = (
+    "Every extension that was fitted, in the order of the ranking, one row per channel. "
+    "*before*: RMSE of the calibrated model over the day; *after*: RMSE with the extension, "
+    "each part of the day predicted by the extension fitted on the other part; *change*: "
+    "after against before; *log-lik. gain*: what the extension explains on that channel "
+    "beyond the slow error the calibration leaves (whitened log-likelihood gain, positive: "
+    "better). An extension is eligible when it is significant, its penalised gain P (the "
+    f"channels' gains less one per fitted parameter) is at least {MIN_PENALISED:g}, it makes "
+    "no channel worse and it lowers the paper's cost (eq. 4).")
+
+
+def why_not_short(sc: Score) -> str:
+    """``eligible``, or why not in a few words (:meth:`Score.why_not
+    <softsensor.diagnosis.verdict.Score.why_not>` says it in full)."""
+    if sc.eligible:
+        return "eligible"
+    reasons = []
+    if not sc.p_value < ALPHA:
+        reasons.append("not significant")
+    if not sc.penalised >= MIN_PENALISED:
+        reasons.append(f"P {sc.penalised:+.1f} below threshold {MIN_PENALISED:g}")
+    if sc.worse:
+        reasons.append("makes " + ", ".join(sc.worse) + " worse")
+    if not sc.gain > MIN_GAIN:
+        reasons.append("no eq. 4 gain")
+    return "; ".join(reasons) or "not eligible"
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "/")
+
+
+def evidence_table(d: Diagnosis, doc: dict, plant: Callable[[str, float | None], str],
+                   x_ref: float, disp: DisplaySettings) -> str:
+    """The evidence as a table (:data:`EVIDENCE_COLUMNS`): per scored extension, in the
+    ranking's order, and channel the cross-fitted RMSE before and after in plant units
+    (:func:`~softsensor.display.plant_error`), its change, the log-likelihood gain against
+    the calibration error and whether the extension is eligible."""
+    rows = []
+    for r in doc["ranking"]:
+        sc = d.scores.get(r["cause"])
+        if sc is None:
+            continue
+        status = _cell(why_not_short(sc))
+        rel = sc.relative
+        for n in OUTPUT_NAMES:
+            change = f"{0.0 - 100.0 * rel[n]:+.1f} %" if np.isfinite(rel[n]) else "n/a"
+            ll = sc.loglik[n]
+            rows.append([r["cause"], n, _cell(plant_error(n, 0.0, x_ref, disp)[1]),
+                         plant(n, sc.baseline.rmse[n]), plant(n, sc.extended.rmse[n]),
+                         change, f"{ll:+.1f}" if np.isfinite(ll) else "n/a", status])
+    if not rows:
+        return "No extension was fitted."
+    return markdown_table(EVIDENCE_COLUMNS, rows)
+
+
+def details(doc: dict) -> str:
+    """The prose evidence of every ranking entry, as a list (what the table leaves out)."""
+    items = []
+    for r in doc["ranking"]:
+        nums = [f"score {r['score']:.3f}"]
+        if r.get("gain") is not None:
+            nums.append(f"held-out gain {r['gain']:+.3f}")
+        if r.get("penalised_loglik_gain") is not None:
+            nums.append(f"P {r['penalised_loglik_gain']:+.1f}")
+        items.append(f"- **{r['cause']}** ({', '.join(nums)}): {r['evidence']}")
+    return "\n".join(items)
+
+
 def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None) -> Path:
     """Write the figures and ``index.html`` into ``directory`` (created); returns the page."""
     out = Path(directory)
@@ -173,19 +253,14 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
     residual_figure(d, out / "residuals.png")
     trajectory_figure(d, out / "trajectories.png")
     gain_figure(d, out / "gain.png")
-    rows = [[r["cause"], f"{r['score']:.3f}",
-             "" if r.get("gain") is None else f"{r['gain']:+.3f}",
-             "" if r.get("penalised_loglik_gain") is None
-             else f"{r['penalised_loglik_gain']:+.1f}",
-             r["evidence"].replace("|", "/")] for r in doc["ranking"]]
-    table = markdown_table(["cause", "score", "held-out gain", "penalised log-lik. gain",
-                            "evidence"], rows)
     disp = display_settings(d.problem.config)
     labs = d.problem.windows.lab_value
     x_ref = float(np.median(labs)) if labs.size else 0.1
 
     def plant(n: str, v: float | None) -> str:
-        return "n/a" if v is None else f"{plant_error(n, v, x_ref, disp)[0]:.3g}"
+        if v is None or not np.isfinite(v):
+            return "n/a"
+        return f"{plant_error(n, v, x_ref, disp)[0]:.3g}"
 
     rm = markdown_table(["channel", "unit", "baseline RMSE", "extended RMSE"],
                         [[n, plant_error(n, 0.0, x_ref, disp)[1],
@@ -203,7 +278,8 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
         stats += f" Baseline residuals structured: {doc['structure']}."
     sections = [
         ("Statistics", stats + "\n\n" + rm),
-        ("Evidence", table),
+        ("Evidence", EVIDENCE_NOTE + "\n\n" + evidence_table(d, doc, plant, x_ref, disp)),
+        ("Details", details(doc)),
         ("Residuals per channel", "![residuals](residuals.png)"),
         ("Trajectories before and after the extension", "![trajectories](trajectories.png)"),
         ("Held-out gain of every extension", "![gain](gain.png)"),

@@ -54,7 +54,7 @@ def run_settings(args: argparse.Namespace
         unit=args.unit, tagmap=args.tagmap, plc_host=host, plc_port=port,
         data_dir=args.data_dir, checkpoint=args.checkpoint, lab_dir=args.lab_dir,
         zenoh_mode=args.mode, zenoh_listen=args.listen, zenoh_connect=args.connect,
-        estimator=args.estimator, time_scale=args.time_scale, clock_start=args.clock_start,
+        time_scale=args.time_scale, clock_start=args.clock_start,
         record=False if args.no_record else None, log_format=args.log_format)
     return base, cfg, settings
 
@@ -66,7 +66,8 @@ def _run(args: argparse.Namespace) -> int:
 
     base, cfg, settings = run_settings(args)
     configure_logging(settings.log_format)
-    daemon = Daemon(cfg, settings, resume=False if args.no_resume else args.resume)
+    daemon = Daemon(cfg, settings, kind=args.estimator,
+                    resume=False if args.no_resume else args.resume)
 
     def _ready(info: DaemonInfo) -> None:
         print(f"softsensor run: unit={info.unit} estimator={info.estimator} "
@@ -108,7 +109,8 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="Zenoh listen endpoint, repeatable (default tcp/127.0.0.1:7447)")
     p.add_argument("--connect", action="append", default=None, metavar="ENDPOINT",
                    help="Zenoh endpoint to connect to (e.g. a router), repeatable")
-    p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS)
+    p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS,
+                   help="estimator (default: the config's estimator.kind, ukf)")
     p.add_argument("--time-scale", type=float, default=None,
                    help="clock speed-up for accelerated demos (match plant-server --speed)")
     p.add_argument("--clock-start", default=None,

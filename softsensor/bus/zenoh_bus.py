@@ -7,15 +7,14 @@ bodies of the matching MCAP topics plus ``time_ns``, the event time [ns since ep
 Sessions are configured explicitly (:func:`make_config`): peer mode by default, listening on
 ``127.0.0.1`` only, multicast scouting off, optional ``connect`` endpoints (e.g. a router).
 Zenoh runs subscriber callbacks on its own threads; :func:`subscribe` decodes there and calls
-the user's callback, :func:`subscribe_queue` hands messages to an asyncio queue with
-``loop.call_soon_threadsafe``. Nothing uses a FIFO channel that could fill up and stall the
-session. Always close sessions (``with open_session(...) as s:``): a session left open keeps
-the process alive.
+the user's callback (which must not block: hand the message on, as the estimator service's
+pipeline queues it for its worker thread). Nothing uses a FIFO channel that could fill up and
+stall the session. Always close sessions (``with open_session(...) as s:``): a session left
+open keeps the process alive.
 """
 
 from __future__ import annotations
 
-import asyncio
 import json
 import logging
 import re
@@ -424,37 +423,6 @@ def subscribe(session: zenoh.Session, callback: Callable[[BusMessage], None], *,
     return subscription
 
 
-def subscribe_queue(session: zenoh.Session, loop: asyncio.AbstractEventLoop,
-                    queue: asyncio.Queue[BusMessage], *, unit: str = "dryer1",
-                    kinds: Iterable[str] = KINDS,
-                    on_error: Callable[[str, str], None] | None = None) -> Subscription:
-    """Put decoded messages of ``kinds`` into an asyncio ``queue`` running on ``loop``.
-
-    The hand-off uses ``loop.call_soon_threadsafe``; when a bounded queue is full the message
-    is dropped and counted as an error (Zenoh's thread never blocks on the event loop).
-    """
-    holder: list[Subscription] = []
-
-    def _put(message: BusMessage) -> None:
-        try:
-            queue.put_nowait(message)
-        except asyncio.QueueFull:
-            if holder:
-                holder[0]._count(False)
-                holder[0].throttle.log(log, "queue full", logging.WARNING,
-                                       "%s: asyncio queue full, message dropped",
-                                       outside_text(message.key))
-
-    def _callback(message: BusMessage) -> None:
-        if loop.is_closed():
-            raise RuntimeError("event loop is closed")
-        loop.call_soon_threadsafe(_put, message)
-
-    sub = subscribe(session, _callback, unit=unit, kinds=kinds, on_error=on_error)
-    holder.append(sub)
-    return sub
-
-
 __all__ = [
     "output_guard_acl",
     "KINDS",
@@ -471,7 +439,6 @@ __all__ = [
     "make_config",
     "open_session",
     "subscribe",
-    "subscribe_queue",
     "to_message",
     "wait_for_peers",
 ]

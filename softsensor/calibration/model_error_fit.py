@@ -14,9 +14,10 @@ Given the calibrated parameters and the history's days (each a whole-day
    (leave one quarter-day out when fewer than three days are given); a channel whose slopes do
    not predict held-out days better than none gets none;
 3. sizes what is left: the spread of the day offsets (less what their own estimation noise
-   explains), and from the variogram of the within-day residuals, ``V(lag) = 2 noise^2 +
-   walk^2 lag``, a random walk and white noise (Cressie, *Statistics for Spatial Data*, 1993,
-   ch. 2: the variogram of a local-level model is linear in the lag);
+   explains) and their covariance across the channels (:func:`day_covariance`), a level
+   walk that moves it within :data:`LEVEL_MOVES_IN_H`, and from the semivariogram of the
+   within-day residuals white noise and a first-order wander (:func:`wander`; Cressie,
+   *Statistics for Spatial Data*, 1993, ch. 2: the exponential model);
 4. the slopes' covariance: the ridge estimator's sandwich with the residual variance,
    inflated for serial correlation by ``(1 + rho) / (1 - rho)`` (``rho``: the lag-one
    autocorrelation of the residuals; windows of one day are not independent samples).
@@ -46,8 +47,11 @@ RIDGE_GRID: tuple[float, ...] = (1e-4, 1e-3, 1e-2, 1e-1, 1.0)
 #: Residuals a channel needs per slope (plus the intercept) to learn slopes at all: a
 #: few days of lab results (about eight a day) learn them; a day or two does not.
 MIN_SAMPLES_PER_FEATURE = 3
-#: Lags of the variogram [h] (up to this many hours).
-VARIOGRAM_MAX_H = 8.0
+#: Lag bins of the within-day variogram [h].
+LAG_EDGES_H = np.array([0.0, 0.2, 0.4, 0.75, 1.5, 3.0, 6.0, 12.0, 24.0])
+#: The time over which a channel's day level may move by its day-to-day spread (its
+#: random walk in a daemon that runs across days) [h].
+LEVEL_MOVES_IN_H = 24.0
 #: A held-out RMSE must be below this share of the RMSE without the discrepancy for it to be
 #: kept: a slope that buys less than 2 % is noise, not a response to learn.
 KEEP_BELOW = 0.98
@@ -173,32 +177,51 @@ def _lag1(e: np.ndarray, groups: np.ndarray) -> float:
     return float(np.clip(num / den, 0.0, 0.99)) if den > 0 else 0.0
 
 
-def _variogram(e: np.ndarray, t_h: np.ndarray, groups: np.ndarray) -> tuple[float, float]:
-    """Random-walk intensity [unit/sqrt(h)] and white noise [unit] of the local-level model
-    fitted to the within-day variogram of ``e`` (module docstring)."""
-    lags, sq = [], []
+def variogram(e: np.ndarray, t_h: np.ndarray, groups: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The within-day empirical variogram of ``e`` at sample times ``t_h`` [h]: per lag bin
+    of :data:`LAG_EDGES_H`, the mean lag, half the mean squared difference of the pairs that
+    far apart in the same group, and the pair count."""
+    sums = np.zeros((len(LAG_EDGES_H) - 1, 3))
     for g in np.unique(groups):
         m = groups == g
         x, t = e[m], t_h[m]
-        dt = np.abs(t[:, None] - t[None, :])
-        d2 = (x[:, None] - x[None, :]) ** 2
         iu = np.triu_indices(len(x), 1)
-        keep = dt[iu] <= VARIOGRAM_MAX_H
-        lags.append(dt[iu][keep])
-        sq.append(d2[iu][keep])
-    lag = np.concatenate(lags) if lags else np.zeros(0)
-    v = np.concatenate(sq) if sq else np.zeros(0)
+        lag = np.abs(t[:, None] - t[None, :])[iu]
+        d2 = ((x[:, None] - x[None, :]) ** 2)[iu]
+        b = np.digitize(lag, LAG_EDGES_H) - 1
+        ok = (b >= 0) & (b < len(LAG_EDGES_H) - 1)
+        np.add.at(sums, b[ok], np.column_stack([lag[ok], 0.5 * d2[ok], np.ones(ok.sum())]))
+    n = sums[:, 2]
+    seen = n > 0
+    return (sums[seen, 0] / n[seen], sums[seen, 1] / n[seen], n[seen])
+
+
+def wander(e: np.ndarray, t_h: np.ndarray, groups: np.ndarray) -> tuple[float, float, float]:
+    """White noise [unit], and standard deviation [unit] and correlation time [h] of the
+    first-order (Ornstein-Uhlenbeck) wander of ``e``, fitted to its within-day semivariogram
+    ``gamma(lag) = noise^2 + sd^2 (1 - exp(-lag / tau))`` by weighted least squares (each
+    bin by its pair count). On the independent plant's clean days the temperature residuals'
+    semivariogram levels off within about eight hours: the model's error wanders about its
+    day level (sd about 0.25 K, tau a few hours) rather than walking away from it."""
+    from scipy.optimize import least_squares
+
+    lag, gam, n = variogram(e, t_h, groups)
+    total = float(np.var(e)) if e.size else 0.0
     if lag.size < 3:
-        return 0.0, float(np.std(e)) if e.size else 0.0
-    A = np.column_stack([np.full(lag.size, 2.0), lag])
-    # non-negative least squares of V = 2 noise^2 + walk^2 lag (two unknowns: by hand)
-    sol, *_ = np.linalg.lstsq(A, v, rcond=None)
-    n2, w2 = sol
-    if w2 < 0:
-        n2, w2 = float(np.mean(v)) / 2.0, 0.0
-    elif n2 < 0:
-        n2, w2 = 0.0, float(np.sum(lag * v) / np.sum(lag * lag))
-    return math.sqrt(max(w2, 0.0)), math.sqrt(max(n2, 0.0))
+        return math.sqrt(total), 0.0, 1.0
+    w = np.sqrt(n / n.sum())
+
+    def res(p: np.ndarray) -> np.ndarray:
+        n2, s2, tau = p
+        return w * (n2 + s2 * (1.0 - np.exp(-lag / tau)) - gam)
+
+    hi = max(total, float(gam.max()), 1e-30) * 4.0
+    x0 = [0.5 * float(gam[0]), max(float(gam.max() - gam[0]), 1e-30), 2.0]
+    sol = least_squares(res, np.clip(x0, [0, 0, 0.1], [hi, hi, 48.0]),
+                        bounds=([0.0, 0.0, 0.1], [hi, hi, 48.0]))
+    n2, s2, tau = sol.x
+    return math.sqrt(n2), math.sqrt(s2), float(tau)
 
 
 def _without_slopes(rows: _Rows, F: int) -> ChannelError:
@@ -228,10 +251,11 @@ def _channel(rows: _Rows, n_days: int) -> ChannelError:
         _, offsets = _fit(rows, np.ones(rows.r.size, bool), rows.day, 1e12)
         held = without
     e = rows.r - rows.phi @ beta - offsets[np.unique(rows.day, return_inverse=True)[1]]
-    walk, noise = _variogram(e, rows.t_h, rows.day)
+    noise, wander_sd, wander_tau_h = wander(e, rows.t_h, rows.day)
     counts = np.bincount(np.unique(rows.day, return_inverse=True)[1])
     spread = float(np.var(offsets)) - float(np.mean(np.var(e) / counts))
     day_sd = math.sqrt(max(spread, 0.0)) if len(offsets) > 1 else 0.0
+    walk = day_sd / math.sqrt(LEVEL_MOVES_IN_H)
     cov = np.zeros((F, F))
     if np.any(beta != 0.0):
         rho = _lag1(e, rows.day)
@@ -243,8 +267,36 @@ def _channel(rows: _Rows, n_days: int) -> ChannelError:
         cov = 0.5 * (cov + cov.T)
     return ChannelError(coef=tuple(map(float, beta)), coef_cov=tuple(map(float, cov.ravel())),
                         intercept=float(np.mean(offsets)), day_sd=day_sd, walk=walk,
-                        noise=noise, rmse_without=without, rmse_held_out=held,
-                        samples=int(rows.r.size))
+                        noise=noise, wander_sd=wander_sd, wander_tau_h=wander_tau_h,
+                        rmse_without=without, rmse_held_out=held, samples=int(rows.r.size))
+
+
+def _day_offsets(rows: _Rows, beta: np.ndarray) -> dict[int, tuple[float, float]]:
+    """Each day's offset of a channel's residuals after its slopes, and that offset's own
+    estimation variance (the day's within scatter over its sample count)."""
+    e = rows.r - rows.phi @ np.asarray(beta, float)
+    out = {}
+    for d in np.unique(rows.day):
+        x = e[rows.day == d]
+        out[int(d)] = (float(x.mean()), float(x.var()) / max(x.size, 1))
+    return out
+
+
+def day_covariance(offsets: Sequence[dict[int, tuple[float, float]]]) -> np.ndarray | None:
+    """Covariance (C, C) of the channels' day offsets over the days all channels have, less
+    the offsets' own estimation noise on the diagonal, kept positive semi-definite (step 3
+    of the module docstring for every channel at once). The outlet temperatures' day
+    offsets move together (one energy balance: corr 0.99 on the independent plant) while a
+    thermometer's offset moves one; the labs' day offset follows them too (the day's feed)."""
+    days = sorted(set.intersection(*(set(o) for o in offsets)))
+    if len(days) < 3:
+        return None  # too few days for a covariance: each channel's spread alone
+    levels = np.array([[o[d][0] for o in offsets] for d in days])
+    cov = np.cov(levels, rowvar=False)
+    noise = np.array([np.mean([o[d][1] for d in days]) for o in offsets])
+    cov = cov - np.diag(noise)
+    w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+    return (V * np.clip(w, 0.0, None)) @ V.T
 
 
 def fit_model_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
@@ -264,12 +316,16 @@ def fit_model_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarra
             raise IngestError(f"{seg.source}: the model cannot be solved on this day at the "
                               f"calibrated parameters")
     mean, scale = _standardise(segs)
-    channels = {name: _channel(_rows(segs, runs, c, mean, scale), len(segs))
-                for c, name in enumerate(CHANNELS)}
+    rows = [_rows(segs, runs, c, mean, scale) for c in range(len(CHANNELS))]
+    channels = {name: _channel(r, len(segs)) for name, r in zip(CHANNELS, rows, strict=True)}
+    cov = day_covariance([_day_offsets(r, channels[name].coef)
+                          for name, r in zip(CHANNELS, rows, strict=True)])
     return ModelError(features=FEATURES, mean=tuple(map(float, mean)),
                       scale=tuple(map(float, scale)), days=len(segs),
                       hours=float(sum(s.hours for s in segs)), moisture_in=float(moisture_in),
-                      moisture_in_day_sd=float(moisture_in_day_sd), **channels)
+                      moisture_in_day_sd=float(moisture_in_day_sd),
+                      day_cov=() if cov is None else tuple(map(float, cov.ravel())),
+                      **channels)
 
 
 __all__ = ["RIDGE_GRID", "at_inlet_moisture", "feature_columns", "fit_model_error"]

@@ -56,6 +56,7 @@ from filterpy.kalman import predict as kf_predict
 from filterpy.kalman import update as kf_update
 
 from softsensor.estimation.discrepancy import ErrorPriors, error_decay, error_noise
+from softsensor.estimation.model_error import CHANNELS, ModelError, model_error_of
 from softsensor.estimation.settings import estimator_settings
 from softsensor.plantconfig import PlantConfig
 
@@ -74,51 +75,58 @@ class DiscrepancyModel:
 
     Attributes
     ----------
-    priors : ErrorPriors
-        The estimator's error states (sizes, correlation times or random walks), the heat
-        input's read as the outlet temperatures' common offset (a heat gain of one).
+    T_priors, lab_priors : ErrorPriors
+        The states of the temperature filter and of the lab filter, in the estimator's terms
+        (sizes, correlation times or random walks, starting correlation).
+    T_map, lab_map : numpy.ndarray
+        Which states each temperature channel (2, n) and the lab result (1, m) read.
     noise : numpy.ndarray, shape (3,)
         White measurement noise of ``T_dryer_out``, ``T_cyclone_out`` [K] and the lab
         results [kg/kg].
     window_s : float
         Window length [s].
+    source : str
+        Where the sizes came from.
     """
 
-    priors: ErrorPriors
+    T_priors: ErrorPriors
+    lab_priors: ErrorPriors
+    T_map: np.ndarray
+    lab_map: np.ndarray
     noise: np.ndarray
     window_s: float
+    source: str
 
     @property
     def sigma(self) -> np.ndarray:
-        """Starting standard deviations of :data:`STATE_NAMES` [K, K, K, kg/kg]."""
-        return np.asarray(self.priors.sigma[:4], float)
-
-    @property
-    def source(self) -> str:
-        return self.priors.source
+        """Starting standard deviations of the temperature states, then the lab states."""
+        return np.r_[self.T_priors.sigma, self.lab_priors.sigma]
 
     @classmethod
     def from_config(cls, config: PlantConfig, noise: np.ndarray) -> DiscrepancyModel:
-        """The estimator's error states (:class:`ErrorPriors`) with measurement noise
-        ``noise`` (3,). Their sizes come from the history's ``[model_error]`` and the
-        calibration's ``[discrepancy]``; a config without either (nobody said how far off the
-        model is) gets the estimator's defaults, 1 K common, 0.5 K per channel, 0.01 kg/kg
-        on the labs."""
+        """The plant's normal from the history's ``[model_error]`` (:func:`normal_states`),
+        else the estimator's error states (:class:`ErrorPriors`: the heat input's offset read
+        as the outlet temperatures' common one, the calibration's ``[discrepancy]`` or the
+        estimator's defaults, 1 K common, 0.5 K per channel, 0.01 kg/kg on the labs), with
+        measurement noise ``noise`` (3,)."""
+        me = model_error_of(config)
+        window = float(config.solver.window)
+        if me is not None:
+            return normal_states(me, noise, window)
         p = ErrorPriors.from_config(config, estimator_settings(config), heat_gain=1.0)
-        return cls(p, np.asarray(noise, float), float(config.solver.window))
-
-    def _decay_noise(self, dt_s: float, states: slice) -> tuple[np.ndarray, np.ndarray]:
-        """``F`` and ``Q`` of the ``states`` over ``dt_s`` [s] (the estimator's rule)."""
-        return (np.diag(error_decay(dt_s, self.priors)[states]),
-                np.diag(error_noise(dt_s, self.priors)[states]))
+        T = ErrorPriors(p.sigma[:3], p.tau[:3], p.source, p.walk[:3], p.corr[:3, :3])
+        lab = ErrorPriors(p.sigma[3:4], p.tau[3:4], p.source, p.walk[3:4], np.eye(1))
+        return cls(T, lab, _H, np.ones((1, 1)), np.asarray(noise, float), window, p.source)
 
     def whiten_temperatures(self, r: np.ndarray) -> np.ndarray:
         """Whitened one-step prediction errors (n, 2) of temperature residuals ``r`` (n, 2)
         of consecutive windows, NaN where a residual is missing. The filter starts from the
         states' starting spread; each window's two measurements update it in turn."""
-        F, Q = self._decay_noise(self.window_s, slice(0, 3))
+        pri = self.T_priors
+        F = np.diag(error_decay(self.window_s, pri))
+        Q = np.diag(error_noise(self.window_s, pri))
         R = self.noise[:2] ** 2
-        x, P = np.zeros(3), np.diag(self.sigma[:3] ** 2)
+        x, P = np.zeros(len(pri.sigma)), pri.covariance()
         white = np.full(r.shape, np.nan)
         for k in range(r.shape[0]):
             if k:
@@ -127,7 +135,7 @@ class DiscrepancyModel:
                 y = r[k, c]
                 if not math.isfinite(y):
                     continue
-                h = _H[c][None, :]
+                h = self.T_map[c][None, :]
                 S = (h @ P @ h.T).item() + R[c]
                 white[k, c] = (y - (h @ x).item()) / math.sqrt(S)
                 x, P = kf_update(x, P, np.array([y]), np.array([[R[c]]]), h)
@@ -135,20 +143,57 @@ class DiscrepancyModel:
 
     def whiten_labs(self, r: np.ndarray, t_s: np.ndarray) -> np.ndarray:
         """Whitened one-step prediction errors (m,) of lab residuals ``r`` at sample times
-        ``t_s`` [s] (sorted), from the lab state's starting spread."""
+        ``t_s`` [s] (sorted), from the lab states' starting spread."""
+        pri = self.lab_priors
         R = np.array([[float(self.noise[2] ** 2)]])
-        x, P = np.zeros(1), np.array([[float(self.sigma[3] ** 2)]])
-        h = np.ones((1, 1))
+        x, P = np.zeros(len(pri.sigma)), pri.covariance()
+        h = self.lab_map
         out = np.full(r.shape, np.nan)
         for i in range(r.size):
             if i:
-                F, Q = self._decay_noise(max(float(t_s[i] - t_s[i - 1]), 0.0), slice(3, 4))
-                x, P = kf_predict(x, P, F, Q)
+                dt = max(float(t_s[i] - t_s[i - 1]), 0.0)
+                x, P = kf_predict(x, P, np.diag(error_decay(dt, pri)),
+                                  np.diag(error_noise(dt, pri)))
             if not math.isfinite(r[i]):
                 continue
-            out[i] = (float(r[i]) - float(x[0])) / math.sqrt(float(P[0, 0]) + float(R[0, 0]))
+            S = (h @ P @ h.T).item() + float(R[0, 0])
+            out[i] = (float(r[i]) - (h @ x).item()) / math.sqrt(S)
             x, P = kf_update(x, P, np.array([float(r[i])]), R, h)
         return out
 
 
-__all__ = ["STATE_NAMES", "DiscrepancyModel"]
+#: Largest correlation of the day levels (the history's outlet temperatures move together at
+#: 0.99 and more; a correlation of one would make the covariance singular).
+MAX_CORRELATION = 0.98
+#: The temperature filter of the plant's normal: each channel reads its day level and its
+#: wander (states: level T_dryer_out, level T_cyclone_out, wander of each).
+_H_NORMAL = np.array([[1.0, 0.0, 1.0, 0.0],
+                      [0.0, 1.0, 0.0, 1.0]])
+
+
+def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> DiscrepancyModel:
+    """The plant's normal as the history learned it (:mod:`softsensor.estimation.model_error`):
+    per channel a day level (correlated across the temperatures as their day offsets were,
+    moving by its day spread in a day) plus a first-order wander about it, and the white
+    noise the history left. A slow drift the wander cannot make (fouling) or a thermometer's
+    offset the other does not share then stands out, where a random walk would have taken
+    them in."""
+    cov = me.day_covariance()
+    d, c, m = (me.channel(n) for n in CHANNELS)
+    sd_lvl = np.sqrt(np.clip(np.diag(cov)[:2], 1e-12, None))
+    corr = np.eye(4)
+    corr[:2, :2] = np.clip(cov[:2, :2] / np.outer(sd_lvl, sd_lvl), -MAX_CORRELATION,
+                              MAX_CORRELATION)
+    np.fill_diagonal(corr, 1.0)
+    source = f"history [model_error] ({me.days} days): day levels and wander"
+    T = ErrorPriors(np.r_[sd_lvl, d.wander_sd, c.wander_sd],
+                    np.r_[np.inf, np.inf, d.wander_tau_h, c.wander_tau_h] * 3600.0, source,
+                    np.r_[d.walk, c.walk, 0.0, 0.0] / 60.0, corr)
+    lab = ErrorPriors(np.r_[max(m.day_sd, 1e-12), m.wander_sd],
+                      np.r_[np.inf, m.wander_tau_h * 3600.0], source, np.r_[m.walk / 60.0, 0.0],
+                      np.eye(2))
+    return DiscrepancyModel(T, lab, _H_NORMAL, np.ones((1, 2)), np.asarray(noise, float),
+                            window_s, source)
+
+
+__all__ = ["STATE_NAMES", "DiscrepancyModel", "normal_states"]

@@ -15,7 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from softsensor.errors import EstimationError
-from softsensor.estimation.lab_history import LabBook, lab_problem
+from softsensor.estimation.lab_history import LabBook
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.messages import LabResult, Window
 from softsensor.plantconfig import PlantConfig
@@ -85,13 +85,11 @@ class ModelEstimator:
         self._labs = LabBook()
 
     def _screen_lab(self, lab: LabResult) -> str | None:
-        """The reason ``lab`` is refused (out of range, a duplicate ``sample_id``), or ``None``
-        after remembering its id; needs the estimator's ``_labs``
-        (:class:`~.lab_history.LabBook`)."""
-        problem = lab_problem(lab, self.settings)
-        if problem:
-            log.warning("%s; rejected", problem)
-            return problem
+        """The reason ``lab`` is refused (a duplicate ``sample_id``), or ``None`` after
+        remembering its id; needs the estimator's ``_labs`` (:class:`~.lab_history.LabBook`).
+        Its values need no check: a :class:`LabResult` holds the lab-result contract of
+        :mod:`softsensor.messages`; what the estimator adds is the history's age and its
+        statistical gate."""
         if self._labs.is_duplicate(lab):
             return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
         self._labs.remember(lab)

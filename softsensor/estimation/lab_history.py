@@ -5,10 +5,11 @@ minutes earlier. The estimators keep a history of their ticks so that such a res
 applied at the tick whose window holds its sample time (see :mod:`softsensor.estimation.ukf`).
 This module holds what does not depend on the filter:
 
-* :func:`lab_problem`: why a result cannot be true (non-finite or out-of-range value, sample
-  taken after the result was logged);
-* :class:`LabBook`: the sample ids already seen (a duplicate is ignored) and the results whose
-  sample time lies after the last tick (applied when their window arrives);
+* :class:`LabBook`: the sample ids already seen (a duplicate is ignored) and the results
+  handed over for the coming tick (sampled after the last one). A result is valid by
+  construction (:class:`~softsensor.messages.LabResult` holds the lab-result contract), and
+  results wait for their window in one queue, the estimator service's (by
+  :attr:`~softsensor.messages.LabResult.due_ns`), not here;
 * :class:`TickRecord`: one tick of the history (window, inputs, filter state at its start,
   lab results applied there, what it produced) and :class:`FilterState`;
 * JSON round trips of all of these, :class:`~softsensor.estimation.base.Window` and
@@ -18,41 +19,23 @@ This module holds what does not depend on the filter:
 
 from __future__ import annotations
 
-import math
+import logging
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from softsensor.errors import IngestError
 from softsensor.estimation.consistency import Innovation
-from softsensor.estimation.settings import EstimatorSettings
+from softsensor.jsonable import finite_or_none
 from softsensor.messages import LabResult, Window
 
-
-def lab_problem(lab: LabResult, settings: EstimatorSettings) -> str | None:
-    """Why ``lab`` cannot be a true result (``None`` when it can).
-
-    Checks: ``moisture_out`` finite and within ``[lab_min, lab_max]`` [kg/kg]; a non-empty
-    ``sample_id``; the sample time not after the log time.
-    """
-    v = lab.moisture_out
-    if not isinstance(v, (int, float)) or not math.isfinite(v):
-        return f"lab {lab.sample_id!r}: moisture_out is not a finite number ({v!r})"
-    if not settings.lab_min <= v <= settings.lab_max:
-        return (f"lab {lab.sample_id!r}: moisture_out {v:g} kg/kg outside the possible range "
-                f"[{settings.lab_min:g}, {settings.lab_max:g}] (estimator.lab_min/lab_max)")
-    if not lab.sample_id:
-        return "lab result without sample_id"
-    if lab.log_time_ns is not None and lab.sample_time_ns > lab.log_time_ns:
-        ahead = (lab.sample_time_ns - lab.log_time_ns) / 60e9
-        return (f"lab {lab.sample_id!r}: sample_time_ns is {ahead:.1f} min after the result "
-                f"was logged")
-    return None
+log = logging.getLogger(__name__)
 
 
 @dataclass
 class LabBook:
-    """Sample ids seen and lab results waiting for their window.
+    """Sample ids seen and lab results handed over for the coming tick.
 
     Attributes
     ----------
@@ -60,7 +43,9 @@ class LabBook:
         ``sample_id -> sample_time_ns`` of every result accepted or skipped for age, so a
         duplicate is recognised; entries older than the history are pruned.
     pending : list[LabResult]
-        Accepted results whose sample time is after the last tick, oldest sample first.
+        Accepted results sampled after the last tick, oldest sample first: the coming tick
+        applies them (:meth:`take_due`). They do not wait longer: a result is handed over once
+        it is due (:attr:`~softsensor.messages.LabResult.due_ns`), when its window is ticking.
     """
 
     seen: dict[str, int] = field(default_factory=dict)
@@ -75,14 +60,21 @@ class LabBook:
         self.seen[lab.sample_id] = int(lab.sample_time_ns)
 
     def add_pending(self, lab: LabResult) -> None:
-        """Queue ``lab`` until the window holding its sample time is ticked."""
+        """Hold ``lab`` (sampled after the last tick) for the coming tick."""
         self.pending.append(lab)
         self.pending.sort(key=lambda r: (r.sample_time_ns, r.sample_id))
 
     def take_due(self, end_ns: int) -> list[LabResult]:
-        """Remove and return the pending results with ``sample_time_ns <= end_ns``."""
+        """Remove every held result and return those sampled by ``end_ns``, the end of the
+        window being ticked; one sampled later was handed over before it was due and is
+        skipped with a warning (waiting is the service's queue's job, not the estimator's)."""
         due = [r for r in self.pending if r.sample_time_ns <= end_ns]
-        self.pending = [r for r in self.pending if r.sample_time_ns > end_ns]
+        for r in self.pending:
+            if r.sample_time_ns > end_ns:
+                log.warning("lab %r: sampled after the window ending %d ns it was handed over "
+                            "for (hand a result over once due: LabResult.due_ns); skipped",
+                            r.sample_id, end_ns)
+        self.pending = []
         return due
 
     def prune(self, before_ns: int) -> None:
@@ -109,21 +101,26 @@ def lab_to_json(lab: LabResult) -> dict[str, Any]:
 
 
 def lab_from_json(data: dict[str, Any]) -> LabResult:
-    """Inverse of :func:`lab_to_json`."""
+    """Inverse of :func:`lab_to_json`; ValueError for a result that breaks the lab-result
+    contract (a checkpoint is read like any other input)."""
     lt = data.get("log_time_ns")
-    return LabResult(sample_time_ns=int(data["sample_time_ns"]),
-                     moisture_out=float(data["moisture_out"]), sample_id=str(data["sample_id"]),
-                     log_time_ns=None if lt is None else int(lt))
+    try:
+        return LabResult(sample_time_ns=int(data["sample_time_ns"]),
+                         moisture_out=float(data["moisture_out"]),
+                         sample_id=str(data["sample_id"]),
+                         log_time_ns=None if lt is None else int(lt))
+    except IngestError as exc:
+        raise ValueError(str(exc)) from exc
 
 
 def window_to_json(w: Window) -> dict[str, Any]:
     """JSON form of a window (missing means as ``null``)."""
     return {"start_ns": int(w.start_ns), "end_ns": int(w.end_ns),
-            "means": {k: (None if v is None or not math.isfinite(v) else float(v))
+            "means": {k: (None if v is None else finite_or_none(v))
                       for k, v in w.means.items()},
             "n_scans": int(w.n_scans), "n_good": {k: int(v) for k, v in w.n_good.items()},
             "stale": bool(w.stale), "reasons": dict(w.reasons), "bin_s": float(w.bin_s),
-            "bins": {k: [None if v is None or not math.isfinite(v) else float(v) for v in vs]
+            "bins": {k: [None if v is None else finite_or_none(v) for v in vs]
                      for k, vs in w.bins.items()},
             "refused": {k: int(v) for k, v in w.refused.items()}}
 

@@ -15,9 +15,10 @@ Per output channel ``c`` (``T_dryer_out`` [K], ``T_cyclone_out`` [K], lab ``mois
 
 a discrepancy linear in the standardised operating point ``phi`` (window means of the measured
 inputs and the set point, :data:`FEATURES`) in the manner of Kennedy and O'Hagan's additive
-model discrepancy (J. R. Stat. Soc. B 63, 2001, eq. 5), a day offset ``d ~ N(0, day_sd^2)``, a
-within-day random walk ``w`` of intensity ``walk`` [unit/sqrt(h)] and white noise ``e`` of
-standard deviation ``noise``. The estimator adds ``g_c`` to its measurement model (its
+model discrepancy (J. R. Stat. Soc. B 63, 2001, eq. 5), a day offset ``d ~ N(0, day_sd^2)``
+(correlated across the channels, ``day_cov``), a first-order wander ``w`` about it
+(``wander_sd``, ``wander_tau_h``) and white noise ``e`` of standard deviation ``noise``. The
+estimator adds ``g_c`` to its measurement model (its
 uncertainty ``phi' C phi`` to the variance) and carries ``d + w`` as the error state of the
 channel (a random walk: an integrating disturbance per measured output, so the filter is
 offset-free, Pannocchia and Rawlings, AIChE J. 49, 2003); the diagnosis judges a day against
@@ -38,7 +39,7 @@ import numpy as np
 
 from softsensor.configfile import build_section, num
 from softsensor.errors import ConfigError
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES, SCAN_SIGNALS
 
 #: The operating point the discrepancy is a function of: the measured model inputs and the
@@ -63,9 +64,13 @@ class ChannelError:
     day_sd : float
         Standard deviation of the day offsets about it [unit].
     walk : float
-        Within-day random-walk intensity [unit/sqrt(h)].
+        Random-walk intensity of the day level, which moves by ``day_sd`` in a day
+        [unit/sqrt(h)].
     noise : float
         White residual of one sample (a window mean, or a lab result) [unit].
+    wander_sd, wander_tau_h : float
+        Standard deviation [unit] and correlation time [h] of the first-order wander about
+        the day level.
     rmse_without, rmse_held_out : float
         Within-day RMSE (day mean removed) of the residuals without the discrepancy, and with
         it fitted on the other days (leave one day out) [unit].
@@ -82,6 +87,8 @@ class ChannelError:
     rmse_without: float = num(ge=0)
     rmse_held_out: float = num(ge=0)
     samples: int = num(ge=0)
+    wander_sd: float = num(0.0, ge=0)
+    wander_tau_h: float = num(1.0, gt=0)
 
     def check(self) -> str | None:
         n = len(self.coef)
@@ -119,6 +126,12 @@ class ModelError:
         the residuals were taken and where the estimator starts [kg/kg].
     moisture_in_day_sd : float
         Spread of the days' inlet-moisture levels about it [kg/kg].
+    day_cov : tuple of float
+        Covariance of the channels' day offsets, row-major ``3 x 3`` in :data:`CHANNELS`
+        order [unit x unit] (empty: uncorrelated, from each channel's ``day_sd``). On the
+        independent plant the two outlet temperatures' day offsets move together (correlation
+        0.99: one energy balance) and the lab's follows them, so the filter starts the day
+        with correlated offsets and a thermometer's own offset stands out.
     T_dryer_out, T_cyclone_out, moisture_out : ChannelError
         Per channel.
     """
@@ -133,6 +146,7 @@ class ModelError:
     hours: float = num(0.0, ge=0)
     moisture_in: float = num(1.0, gt=0, lt=5)
     moisture_in_day_sd: float = num(0.0, ge=0, lt=2)
+    day_cov: tuple[float, ...] = ()
 
     def check(self) -> str | None:
         unknown = [f for f in self.features if f not in SCAN_SIGNALS]
@@ -146,7 +160,18 @@ class ModelError:
         for name in CHANNELS:
             if len(self.channel(name).coef) != n:
                 return f"{name}.coef must hold one number per feature ({n})"
+        c = len(CHANNELS)
+        if self.day_cov and len(self.day_cov) != c * c:
+            return f"day_cov must hold {c * c} numbers, got {len(self.day_cov)}"
         return None
+
+    def day_covariance(self) -> np.ndarray:
+        """Covariance (3, 3) of the channels' day offsets, in :data:`CHANNELS` order (from
+        the day spreads alone, uncorrelated, when the table has none)."""
+        c = len(CHANNELS)
+        if self.day_cov:
+            return np.asarray(self.day_cov, float).reshape(c, c)
+        return np.diag([self.channel(n).day_sd ** 2 for n in CHANNELS])
 
     def channel(self, name: str) -> ChannelError:
         """The :class:`ChannelError` of output channel ``name``."""
@@ -192,6 +217,7 @@ class ModelError:
         for name in CHANNELS:
             d[name]["coef"] = list(d[name]["coef"])
             d[name]["coef_cov"] = list(d[name]["coef_cov"])
+        d["day_cov"] = list(d["day_cov"])
         return d
 
 
@@ -202,11 +228,14 @@ def model_error_from_table(table: Any, source: str) -> ModelError:
 
 
 def model_error_of(config: PlantConfig) -> ModelError | None:
-    """The ``[model_error]`` a PARAMS.toml gave ``config`` (``None`` without one)."""
+    """The ``[model_error]`` a PARAMS.toml gave ``config`` (``None`` without one), built once
+    (:func:`~softsensor.plantconfig.built_table`)."""
+    return built_table(config, "model_error", _model_error)
+
+
+def _model_error(config: PlantConfig) -> ModelError | None:
     table = config.extra.get("model_error")
-    if table is None:
-        return None
-    if isinstance(table, ModelError):
+    if table is None or isinstance(table, ModelError):
         return table
     return model_error_from_table(table, config.source)
 

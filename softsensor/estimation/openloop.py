@@ -5,9 +5,9 @@ inputs and the config's nominal inlet moisture (``nominal.moisture_in``, 1.0 kg/
 ``dryer1``): the paper's validation set-up, and the baseline the filter must beat. It has no
 feedback, so it cannot know its own error: the standard deviations it reports are a fixed prior
 from the config (``estimator.openloop_moisture_in_std``, ``estimator.openloop_moisture_out_std``),
-not an estimate. Lab results are validated like the filter's (range, duplicates) but do not
-change the estimate; the next tick reports how far the model was from the lab at the sample
-time (``lab_residual``), which is what a process engineer checks first.
+not an estimate. Lab results are checked like the filter's (duplicates, the history's age)
+but do not change the estimate; the next tick reports how far the model was from the lab at the
+sample time (``lab_residual``), which is what a process engineer checks first.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from softsensor.estimation.base import LabResult, ModelEstimator, Window, Window
 from softsensor.estimation.lab_history import LabBook
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
+from softsensor.jsonable import finite_or_none
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
 
@@ -92,12 +93,12 @@ class OpenLoopEstimator(ModelEstimator):
             if held:
                 detail += f"; holding last value of {', '.join(held)}"
         return {
-            "moisture_out": _num(y[_MO]),
+            "moisture_out": finite_or_none(y[_MO]),
             "moisture_out_std": self.settings.openloop_moisture_out_std,
             "moisture_in": self.moisture_in,
             "moisture_in_std": self.settings.openloop_moisture_in_std,
-            "T_dryer_out_model": _num(y[0]),
-            "T_cyclone_out_model": _num(y[1]),
+            "T_dryer_out_model": finite_or_none(y[0]),
+            "T_cyclone_out_model": finite_or_none(y[1]),
             "lab_updated": False,
             "lab_residual": {sid: r for sid, r in residuals},
             "status": status,
@@ -132,7 +133,7 @@ class OpenLoopEstimator(ModelEstimator):
         return {"kind": self.kind, "version": _CHECKPOINT_VERSION,
                 "wall": None if self._wall is None else self._wall.tolist(),
                 "hold": self._hold.last.tolist(), "last_end": self._last_end,
-                "outputs": [[a, b, _num(c)] for a, b, c in self._outputs],
+                "outputs": [[a, b, finite_or_none(c)] for a, b, c in self._outputs],
                 "labs": self._labs.to_json(),
                 "residuals": [list(r) for r in self._residuals]}
 
@@ -151,7 +152,3 @@ class OpenLoopEstimator(ModelEstimator):
             self._residuals = [(str(a), float(b)) for a, b in snapshot["residuals"]]
         except (KeyError, TypeError, ValueError) as exc:
             raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
-
-
-def _num(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None

@@ -37,8 +37,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from softsensor.configfile import build_section, num
-from softsensor.errors import ConfigError, EstimationError
-from softsensor.plantconfig import PlantConfig
+from softsensor.errors import EstimationError
+from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import SCAN_SIGNALS
 
 NS = 10**9
@@ -105,31 +105,43 @@ class Plausibility:
     hold_s: float = HOLD_S
 
 
+@dataclass(frozen=True)
+class LimitsChange:
+    """A ``[plausibility.<signal>]`` table: the keys it sets replace the default's."""
+
+    low: float | None = None
+    high: float | None = None
+    max_rate: float | None = num(None, ge=0)
+    max_step: float | None = num(None, ge=0)
+
+
+#: The ``[plausibility]`` table: ``hold_s`` and one :class:`LimitsChange` per scan signal.
+PlausibilityTable = dataclasses.make_dataclass(
+    "PlausibilityTable",
+    [("hold_s", float, num(HOLD_S, gt=0, le=86_400)),
+     *((name, LimitsChange | None, field(default=None)) for name in SCAN_SIGNALS)],
+    frozen=True)
+
+
 def plausibility_from_config(cfg: PlantConfig) -> Plausibility:
-    """The ``[plausibility]`` table of ``cfg`` over :data:`DEFAULT_LIMITS`: ``hold_s`` and
-    one sub-table per signal whose keys replace the default's (``[plausibility.T_air_in]
-    high = 650.0``)."""
-    table = cfg.extra.get("plausibility", {})
-    if not isinstance(table, dict):
-        raise ConfigError(f"{cfg.source}: [plausibility] must be a table")
+    """The ``[plausibility]`` table of ``cfg`` over :data:`DEFAULT_LIMITS` (built once):
+    ``hold_s`` and one sub-table per signal whose keys replace the default's
+    (``[plausibility.T_air_in] high = 650.0``)."""
+    return built_table(cfg, "plausibility", _plausibility)
+
+
+def _plausibility(cfg: PlantConfig) -> Plausibility:
+    table = build_section(PlausibilityTable, cfg.extra.get("plausibility", {}), "plausibility",
+                          cfg.source)
     limits = dict(DEFAULT_LIMITS)
-    hold = HOLD_S
-    for key, value in table.items():
-        if key == "hold_s":
-            if isinstance(value, bool) or not isinstance(value, (int, float)) \
-                    or not 0 < value <= 86_400:
-                raise ConfigError(f"{cfg.source}: plausibility.hold_s must be in (0, 86400] s, "
-                                  f"got {value!r}")
-            hold = float(value)
-        elif key in SCAN_SIGNALS:
-            if not isinstance(value, dict):
-                raise ConfigError(f"{cfg.source}: [plausibility.{key}] must be a table")
-            merged = {**dataclasses.asdict(limits[key]), **value}
-            limits[key] = build_section(SignalLimits, merged, f"plausibility.{key}", cfg.source)
-        else:
-            raise ConfigError(f"{cfg.source}: plausibility.{key} is neither hold_s nor a scan "
-                              f"signal ({', '.join(SCAN_SIGNALS)})")
-    return Plausibility(limits, hold)
+    for name in SCAN_SIGNALS:
+        change = getattr(table, name)
+        if change is not None:
+            given = {k: v for k, v in dataclasses.asdict(change).items() if v is not None}
+            merged = {**dataclasses.asdict(limits[name]), **given}
+            limits[name] = build_section(SignalLimits, merged, f"plausibility.{name}",
+                                         cfg.source)
+    return Plausibility(limits, table.hold_s)
 
 
 def _g(x: float) -> str:

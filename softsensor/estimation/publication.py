@@ -172,9 +172,9 @@ def publish(filt: FilterModel, ctx: TickContext, post: Posterior, kind: str) -> 
     s = filt.settings
     status, detail = health(filt, ctx, post)
     mo, mo_std, is_fallback, status, detail = guard(filt, ctx, post, status, detail)
-    clipped = math.isfinite(mo) and not s.lab_min <= mo <= s.lab_max
+    clipped = math.isfinite(mo) and not s.moisture_out_min <= mo <= s.moisture_out_max
     if clipped:
-        mo = min(max(mo, s.lab_min), s.lab_max)
+        mo = min(max(mo, s.moisture_out_min), s.moisture_out_max)
     x, P = post.x, post.P
     x_in, x_in_std = inlet_moments(filt, x, P)
     inn = post.innovation

@@ -17,10 +17,12 @@ Example ``config/dryer1.toml`` fragment::
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import ClassVar
 
-from softsensor.configfile import build_section, num
-from softsensor.plantconfig import PlantConfig
+from softsensor.configfile import num
+from softsensor.plantconfig import PlantConfig, section_of
 
 #: Estimator kinds the service can build (see :func:`softsensor.estimation.registry.build`).
 ESTIMATOR_KINDS: tuple[str, ...] = ("ukf", "openloop")
@@ -109,8 +111,10 @@ class EstimatorSettings:
         (0.004 kg/kg on the virtual plant). A grab sample sees it, so it adds to ``lab_std``;
         and it is part of the uncertainty of the outlet moisture *at* the tick, so it adds to
         the reported ``moisture_out_std`` (``moisture_out_window_std`` leaves it out). [kg/kg]
-    lab_min, lab_max : float
-        Physically possible lab results; outside is rejected as corrupt. [kg/kg]
+    moisture_out_min, moisture_out_max : float
+        Range the published outlet moisture is held in (``clipped`` says when it was); lab
+        results are held to the one lab-result contract of :mod:`softsensor.messages`
+        (``MOISTURE_RANGE``), not to this. [kg/kg]
     lab_gate : float
         A lab result further than this many standard deviations of its innovation from the
         estimate at its sample time is rejected as an outlier. [-]
@@ -156,8 +160,8 @@ class EstimatorSettings:
     temperature_model_std: float = num(0.02, ge=0, lt=20)
     lab_std: float = num(0.003, gt=0, lt=1)
     moisture_out_jitter_std: float = num(0.004, ge=0, lt=1)
-    lab_min: float = num(0.0, ge=0, lt=5)
-    lab_max: float = num(0.6, gt=0, le=5)
+    moisture_out_min: float = num(0.0, ge=0, lt=5)
+    moisture_out_max: float = num(0.6, gt=0, le=5)
     lab_gate: float = num(6.0, gt=0)
     history_hours: float = num(8.0, gt=0, le=240)
     consistency_ticks: int = num(12, ge=1, le=10000)
@@ -168,6 +172,13 @@ class EstimatorSettings:
     openloop_moisture_in_std: float = num(0.15, gt=0, lt=2)
     openloop_moisture_out_std: float = num(0.05, gt=0, lt=1)
 
+    #: Keys that judged lab results here: the lab-result contract judges them once, for all.
+    MOVED_KEYS: ClassVar[Mapping[str, str]] = {
+        "lab_min": "lab results are held to the one contract (softsensor.messages, 0..2 kg/kg); "
+                   "the published estimate's range is estimator.moisture_out_min",
+        "lab_max": "lab results are held to the one contract (softsensor.messages, 0..2 kg/kg); "
+                   "the published estimate's range is estimator.moisture_out_max"}
+
     def check(self) -> str | None:
         """Cross-field rules (called by ``build_section``); the message names the key."""
         if self.kind not in ESTIMATOR_KINDS:
@@ -175,8 +186,9 @@ class EstimatorSettings:
         if self.moisture_in_max <= self.moisture_in_min:
             return (f"moisture_in_max must be > moisture_in_min ({self.moisture_in_min:g}), "
                     f"got {self.moisture_in_max:g}")
-        if self.lab_max <= self.lab_min:
-            return f"lab_max must be > lab_min ({self.lab_min:g}), got {self.lab_max:g}"
+        if self.moisture_out_max <= self.moisture_out_min:
+            return (f"moisture_out_max must be > moisture_out_min ({self.moisture_out_min:g}), "
+                    f"got {self.moisture_out_max:g}")
         if 2.5 * self.inlet_margin > self.moisture_in_max - self.moisture_in_min:
             return (f"inlet_margin must be below 0.4 of the inlet range, got "
                     f"{self.inlet_margin:g}")
@@ -199,8 +211,6 @@ class EstimatorSettings:
 
 
 def estimator_settings(cfg: PlantConfig) -> EstimatorSettings:
-    """The validated ``[estimator]`` table of ``cfg``, or the defaults when it has none."""
-    table = cfg.extra.get("estimator")
-    if table is None:
-        return EstimatorSettings()
-    return build_section(EstimatorSettings, table, "estimator", cfg.source)
+    """The validated ``[estimator]`` table of ``cfg`` (built once), or the defaults when it
+    has none."""
+    return section_of(cfg, "estimator", EstimatorSettings)

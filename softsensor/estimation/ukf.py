@@ -78,10 +78,12 @@ filter state at the start of the tick and the lab results applied there. A resul
 time lies in a past window is attached to that tick, and the next :meth:`UkfEstimator.tick`
 re-filters from it to now, so the current estimate is exactly what it would have been had the
 lab been on time; results arriving out of order give the same estimate as in order. A result
-sampled after the last tick waits for its window. Older than the history: logged and skipped.
-Duplicate ``sample_id``: ignored. Out-of-range value or a value further than
-``estimator.lab_gate`` standard deviations from the estimate at its sample time: refused with
-the reason (a second one in a row on the same side is taken: the model is off, not the lab).
+sampled after the last tick is applied at the coming one (results wait for their window in
+the service's queue, not here). Older than the history: logged and skipped. Duplicate
+``sample_id``: ignored. A value further than ``estimator.lab_gate`` standard deviations from
+the estimate at its sample time: refused with the reason (a second one in a row on the same
+side is taken: the model is off, not the lab). Its values need no other check: a
+:class:`~softsensor.messages.LabResult` holds the lab-result contract.
 """
 
 from __future__ import annotations
@@ -150,7 +152,9 @@ class UkfEstimator(ModelEstimator):
                               f"history ({self.max_history} ticks), got {s.consistency_ticks}")
         self.filter = _filter_model(config, s, self.model, self.theta, self.window_s)
         f = self.filter
-        P0 = np.diag(np.r_[_inlet_sd0(config, s) ** 2, f.priors.sigma**2])
+        P0 = np.zeros((len(STATE_NAMES), len(STATE_NAMES)))
+        P0[X_IN, X_IN] = _inlet_sd0(config, s) ** 2
+        P0[1:, 1:] = f.priors.covariance()
         self._hold = InputHold(config.nominal_inputs())
         self._state = FilterState(f.reference.copy(), P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
@@ -403,5 +407,11 @@ def _check_state(x: np.ndarray, P: np.ndarray, hold: np.ndarray) -> None:
         raise EstimationError("checkpoint state holds non-finite values")
     if np.max(np.abs(x)) > _STATE_LIMIT or np.max(np.abs(P)) > _COVARIANCE_LIMIT:
         raise EstimationError("checkpoint state is out of range")
-    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-12) or np.linalg.eigvalsh(P)[0] <= 0:
+    if not np.allclose(P, P.T, rtol=1e-9, atol=1e-12):
         raise EstimationError("checkpoint covariance is not symmetric positive definite")
+    # the filter's own test (a held state's variance of 1e-18 is positive definite to a
+    # Cholesky factorisation but reads as a rounding-error negative eigenvalue)
+    try:
+        np.linalg.cholesky(P)
+    except np.linalg.LinAlgError as exc:
+        raise EstimationError("checkpoint covariance is not symmetric positive definite") from exc

@@ -37,6 +37,7 @@ from softsensor.ingest.cells import (
 from softsensor.ingest.historian_map import DEFAULT_BAD_VALUES, HistorianMap, SignalMap
 from softsensor.ingest.humidity import ratio_from_dew_point, ratio_from_relative_humidity
 from softsensor.ingest.units import PHYSICAL_RANGE, to_signal_si, to_unit
+from softsensor.jsonable import finite_or_none
 from softsensor.messages import iso_utc
 from softsensor.signals import SCAN_SIGNALS
 
@@ -64,11 +65,7 @@ class ScanTable:
 
     def body(self, i: int) -> dict[str, float | None]:
         """The ``/plant/scan`` body of scan ``i``: every signal, ``None`` for null."""
-        out: dict[str, float | None] = {}
-        for name in SCAN_SIGNALS:
-            v = float(self.values[name][i])
-            out[name] = v if math.isfinite(v) else None
-        return out
+        return {name: finite_or_none(self.values[name][i]) for name in SCAN_SIGNALS}
 
     def period_s(self) -> tuple[float, bool]:
         """Median spacing of the scans [s] and whether it is regular (all within 1 %)."""

@@ -48,7 +48,7 @@ from softsensor.configfile import build_section, choice, num, read_toml
 from softsensor.errors import ConfigError
 from softsensor.ingest.humidity import HUMIDITY_QUANTITIES
 from softsensor.ingest.units import check_unit, quantity_si, signal_target
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import SCAN_SIGNALS
 
 #: Timestamp units of numeric timestamps and their size [ns].
@@ -294,7 +294,11 @@ DEFAULT_LAB_MAP = LabMap(sample_time_column="sample_time", moisture_column="mois
 def plant_lab_map(cfg: PlantConfig) -> LabMap:
     """The lab files' format of a plant: its config's ``[lab]`` table (the keys of a
     historian map's ``[lab]``, so a LIMS file ``softsensor import`` reads is read by the
-    daemon's lab folder too), else :data:`DEFAULT_LAB_MAP`."""
+    daemon's lab folder too), else :data:`DEFAULT_LAB_MAP`; built once."""
+    return built_table(cfg, "lab", _plant_lab_map)
+
+
+def _plant_lab_map(cfg: PlantConfig) -> LabMap:
     table = cfg.extra.get("lab")
     return DEFAULT_LAB_MAP if table is None else build_lab(table, cfg.source)
 

@@ -39,6 +39,7 @@ a duplicate.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import errno
 import io
 import json
@@ -62,7 +63,6 @@ from softsensor.files import atomic_path
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
 from softsensor.ingest.lims import convert_labs
 from softsensor.messages import (
-    MOISTURE_RANGE,
     LabResult,
     lab_body,
     lab_from_body,
@@ -299,13 +299,13 @@ class LabInput:
         """Check and submit a bus body; return ``None`` if delivered, else the reason."""
         try:
             lab = lab_from_body(body, log_time_ns, where)
+            if lab.log_time_ns is None:  # arrived now (checked against the contract again)
+                lab = dataclasses.replace(lab, log_time_ns=self.clock())
         except IngestError as exc:
             with self._lock:
                 self.n_rejected += 1
             log.warning("%s", exc)
             return str(exc)
-        if lab.log_time_ns is None:
-            lab = LabResult(lab.sample_time_ns, lab.moisture_out, lab.sample_id, self.clock())
         return self.submit(lab)
 
 
@@ -585,7 +585,6 @@ class LabFolderWatcher:
 
 __all__ = [
     "CSV_COLUMNS",
-    "MOISTURE_RANGE",
     "LabFolderWatcher",
     "LabInput",
     "ParsedFile",

@@ -6,10 +6,11 @@ reads :data:`~softsensor.ingest.historian_map.DEFAULT_LAB_MAP` without one). Its
 in any unit pint reads as a fraction (%, kg/kg, g/kg) on a wet or dry basis and becomes
 ``moisture_out`` [kg/kg, dry basis] (CONTRACT section 1).
 
-A result is refused, with its row and what to check, when its moisture is missing, leaves no
-dry fibre (a wet basis of 100 %), is zero (a bone-dry sample out of a dryer is a LIMS default
-or a typing slip, not a measurement) or is outside the plausible 0..2 kg/kg dry basis (a % read
-as kg/kg: the message says which map key sets the unit), or its sample time is not a time.
+A result is refused, with its row and what to check, when its moisture is missing or leaves no
+dry fibre (a wet basis of 100 %), or breaks the lab-result contract of
+:mod:`softsensor.messages` (a moisture of zero or outside the plausible range, a sample time
+after the result arrived): the message says which map key to check (``unit`` for a % read as
+kg/kg, ``time_zone`` for a sample stamped after its file arrived).
 ``import`` stops at the first such row and quotes it; the lab folder (``echo=False``) refuses
 the whole file and quotes nothing of it (anyone may drop a file there, a link to a secret too).
 """
@@ -26,11 +27,12 @@ from softsensor.ingest.cells import TimeSpec, column, numbers, text_cells, times
 from softsensor.ingest.historian_map import DEFAULT_BAD_VALUES, LabMap
 from softsensor.ingest.units import moisture_dry_basis
 from softsensor.messages import (
-    FUTURE_TOLERANCE_NS,
-    MOISTURE_RANGE,
+    EARLIEST_SAMPLE_NS,
     LabResult,
     iso_utc,
     make_lab_result,
+    moisture_problem,
+    sample_time_problem,
 )
 
 
@@ -43,22 +45,35 @@ class LabTable:
     bad: int  #: rows whose moisture was empty or a bad-quality string
 
 
-def _moisture_problem(raw: float, dry: float, lab: LabMap, where_key: str) -> str | None:
-    """Why a moisture ``raw`` (in ``lab.unit`` on ``lab.basis``) giving ``dry`` [kg/kg] is
-    not a measurement, or None."""
-    lo, hi = MOISTURE_RANGE
+def _moisture_problem(raw: float, dry: float, lab: LabMap, where_key: str, echo: bool
+                      ) -> str | None:
+    """Why a moisture ``raw`` read as ``lab.unit`` on ``lab.basis`` giving ``dry`` [kg/kg] is
+    not a measurement (the lab-result contract, :func:`~softsensor.messages.moisture_problem`,
+    with the map key to check; the value itself when ``echo``), or None."""
+    value = f" ({raw:g} {lab.unit})" if echo else ""
     if not np.isfinite(dry):
         return (f"{lab.moisture_column} on a wet basis leaves no dry fibre (100 % or more: is "
-                f"{where_key}.basis right?)")
-    if raw == 0.0:
-        return (f"{lab.moisture_column} is 0: a bone-dry sample is a LIMS default or a typing "
-                "slip, not a measurement")
-    if not lo < dry <= hi:
-        hint = (f"set {where_key}.unit = \"%\" and {where_key}.basis" if lab.unit != "%"
-                else f"is {where_key}.unit right?")
-        return (f"{lab.moisture_column} gives a moisture outside the plausible range {lo:g}.."
-                f"{hi:g} kg/kg dry basis as {lab.unit} on a {lab.basis} basis ({hint})")
-    return None
+                f"{where_key}.basis right?){value}")
+    problem = moisture_problem(dry)
+    if problem is None or dry == 0.0:
+        return None if problem is None else f"{lab.moisture_column} {problem}{value}"
+    hint = (f"set {where_key}.unit = \"%\" and {where_key}.basis" if lab.unit != "%"
+            else f"is {where_key}.unit right?")
+    return (f"{lab.moisture_column} read as {lab.unit} on a {lab.basis} basis {problem} "
+            f"({hint}){value}")
+
+
+def _time_problem(sample: int, avail: int, lab: LabMap, where_key: str, arrived: bool
+                  ) -> str | None:
+    """Why ``sample`` [ns] cannot be the sample time of a result available at ``avail`` [ns]
+    (the contract's rule, :func:`~softsensor.messages.sample_time_problem`), with the key to
+    check: the file's arrival (``arrived``) or the map's available time set it."""
+    problem = sample_time_problem(sample, avail)
+    if problem is None:
+        return None
+    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS else "time_zone" if arrived
+           else "available_column" if lab.available_column is not None else "delay_min")
+    return f"{lab.sample_time_column} {problem} (is {where_key}.{key} right?)"
 
 
 def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, where: str, *,
@@ -99,22 +114,16 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
                              where, echo))
            if lab.sample_id_column else None)
     results: list[LabResult] = []
-    n_bad = 0
+    n_bad = int(np.isnan(raw).sum())  # empty or bad-quality cells: no result, skipped
     for i in range(len(frame)):
         if np.isnan(raw[i]):
-            n_bad += 1
             continue
         at = f"{where} row {i + 1}"
-        problem = _moisture_problem(float(raw[i]), float(dry[i]), lab, where_key)
+        problem = (_moisture_problem(float(raw[i]), float(dry[i]), lab, where_key, echo)
+                   or _time_problem(int(sample[i]), int(avail[i]), lab, where_key,
+                                    arrived=log_time_ns is not None))
         if problem is not None:
-            value = f" ({raw[i]:g} {lab.unit})" if echo else ""
-            raise IngestError(f"{at}: {problem}{value}")
-        if avail[i] < sample[i] and log_time_ns is None:
-            raise IngestError(f"{at}: result available at {iso_utc(int(avail[i]))}, before "
-                              f"the sample was taken ({iso_utc(int(sample[i]))})")
-        if sample[i] > avail[i] + FUTURE_TOLERANCE_NS:
-            raise IngestError(f"{at}: {lab.sample_time_column} lies after the file arrived "
-                              f"(is {where_key}.time_zone right?)")
+            raise IngestError(f"{at}: {problem}")
         sid = ids.iloc[i] if ids is not None else f"lab-{iso_utc(int(sample[i]))}"
         if ids is not None and not sid:
             raise IngestError(f"{at}: {lab.sample_id_column} is empty")

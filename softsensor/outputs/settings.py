@@ -27,11 +27,9 @@ Example ``config/dryer1.toml`` fragment::
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
-from softsensor.configfile import build_section, num
-from softsensor.errors import ConfigError
-from softsensor.plantconfig import PlantConfig
+from softsensor.configfile import num
+from softsensor.plantconfig import PlantConfig, section_of
 
 
 @dataclass(frozen=True)
@@ -107,7 +105,7 @@ class WebSettings:
 
 @dataclass(frozen=True)
 class OutputSettings:
-    """Every output table (absent tables: their defaults, off)."""
+    """``[outputs]``: one sub-table per output (absent ones: their defaults, off)."""
 
     modbus: ModbusOutputSettings = ModbusOutputSettings()
     prometheus: MetricsSettings = MetricsSettings()
@@ -115,22 +113,9 @@ class OutputSettings:
     opcua: OpcUaSettings = OpcUaSettings()
 
 
-_TABLES: dict[str, type] = {"modbus": ModbusOutputSettings, "prometheus": MetricsSettings,
-                            "web": WebSettings, "opcua": OpcUaSettings}
-
-
 def output_settings(cfg: PlantConfig) -> OutputSettings:
-    """The validated ``[outputs.*]`` tables of ``cfg``."""
-    table: Any = cfg.extra.get("outputs", {})
-    if not isinstance(table, dict):
-        raise ConfigError(f"{cfg.source}: [outputs] must be a table")
-    unknown = sorted(set(table) - set(_TABLES))
-    if unknown:
-        raise ConfigError(f"{cfg.source}: outputs.{unknown[0]} is not a known output "
-                          f"(known: {', '.join(_TABLES)})")
-    built = {name: build_section(cls, table.get(name, {}), f"outputs.{name}", cfg.source)
-             for name, cls in _TABLES.items()}
-    return OutputSettings(**built)
+    """The validated ``[outputs.*]`` tables of ``cfg`` (built once)."""
+    return section_of(cfg, "outputs", OutputSettings)
 
 
 __all__ = ["MetricsSettings", "ModbusOutputSettings", "OpcUaSettings", "OutputSettings",

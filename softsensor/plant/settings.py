@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from softsensor.configfile import build_section, num
-from softsensor.plantconfig import PlantConfig
+from softsensor.configfile import num
+from softsensor.plantconfig import PlantConfig, section_of
 
 
 @dataclass(frozen=True)
@@ -55,6 +55,6 @@ class VirtualPlantSettings:
 
 
 def virtual_plant_settings(cfg: PlantConfig) -> VirtualPlantSettings:
-    """The validated ``[virtual_plant]`` table of ``cfg`` (defaults when absent)."""
-    return build_section(VirtualPlantSettings, cfg.extra.get("virtual_plant", {}),
-                         "virtual_plant", cfg.source)
+    """The validated ``[virtual_plant]`` table of ``cfg`` (built once; defaults when
+    absent)."""
+    return section_of(cfg, "virtual_plant", VirtualPlantSettings)

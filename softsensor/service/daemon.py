@@ -65,24 +65,16 @@ from softsensor.outputs.settings import output_settings
 from softsensor.outputs.web import LivePage
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.recorder import Recorder
+from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
+from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
-from softsensor.service.offline_replay import make_service
-from softsensor.service.pipeline import (
-    INPUT_KINDS,
-    InputLimits,
-    ScanPublisher,
-    ServicePipeline,
-)
-from softsensor.service.settings import (
-    ServiceSettings,
-    bus_options,
-    resolve_estimator_kind,
-    resolve_unit,
-)
+from softsensor.service.pipeline import INPUT_KINDS, InputLimits, ServicePipeline
+from softsensor.service.scan_publisher import ScanPublisher
+from softsensor.service.settings import ServiceSettings, bus_options, resolve_unit
 from softsensor.service.time_gate import TimeGate
 from softsensor.service.warmup import warm_up
 from softsensor.service.watchdog import HealthQueryable, Watchdog
@@ -191,6 +183,8 @@ class Daemon:
         The ``[service]`` table with command-line overrides applied.
     tagmap : TagMap, optional
         Use this tag map instead of ``settings.tagmap`` (tests).
+    kind : str, optional
+        The estimator (``--estimator``); default the config's ``estimator.kind``.
     resume : bool or str
         Continue from the checkpoint when there is one (True or ``"auto"``: an unusable one
         is moved aside and the daemon starts afresh; ``"required"``: it stops with a one-line
@@ -198,11 +192,12 @@ class Daemon:
     """
 
     def __init__(self, config: PlantConfig, settings: ServiceSettings, *,
-                 tagmap: TagMap | None = None, resume: bool = True) -> None:
+                 tagmap: TagMap | None = None, kind: str | None = None,
+                 resume: bool = True) -> None:
         self.config = config
         self.settings = settings
         self.unit = resolve_unit(settings, config)
-        self.kind = resolve_estimator_kind(settings, config)
+        self.kind = kind or default_kind(config)
         self.tagmap = daemon_tagmap(settings, tagmap)
         self.resume = resume
         self.store = CheckpointStore(settings.checkpoint)
@@ -543,12 +538,9 @@ class Daemon:
         self._recording_said = state
         body = dict(self.health.latest)
         body["detail"] = str(body.get("detail", "")).split("; recording:")[0]
-        out = Output("health", body, self.clock.now_ns())
-        self._decorate(out)
         event(log, "recording", logging.ERROR if state != "ok" else logging.INFO,
               state=state, lost=None if self.recorder is None else self.recorder.n_lost)
-        self.pipeline.publisher.put(out.kind, out.body, out.time_ns)
-        self._on_output(out)
+        self.pipeline.publish_aside(Output("health", body, self.clock.now_ns()))
 
     def _health_extra(self) -> dict[str, Any]:
         """What a health query adds to the last health body: the watchdog and the inputs."""
@@ -560,7 +552,8 @@ class Daemon:
                 "dropped": None if p is None else dict(p.dropped)}
 
     def _watch(self) -> None:
-        """Publish ``stalled`` health when the estimator thread is late (:class:`Watchdog`)."""
+        """Publish ``stalled`` health when the estimator thread is late (:class:`Watchdog`),
+        through the pipeline's one path to the bus and the outputs."""
         assert self.pipeline is not None and self.clock is not None
         if self.watchdog is None:
             return
@@ -568,9 +561,7 @@ class Daemon:
         if body is None:
             return
         body.update(unit=self.unit, estimator=self.pipeline.service.kind)
-        out = Output("health", body, self.clock.now_ns())
-        self.pipeline.publisher.put(out.kind, out.body, out.time_ns)
-        self._on_output(out)
+        self.pipeline.publish_aside(Output("health", body, self.clock.now_ns()))
 
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.pipeline is not None and self.clock is not None

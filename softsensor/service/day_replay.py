@@ -149,7 +149,19 @@ def replay_day(path: str | os.PathLike[str], sink: Sink, *, rate: float | str = 
             raise ConfigError(f"topic {topic} has no Zenoh key and cannot be replayed")
     messages = iter_messages(path, topics=selected, allow_truncated=allow_truncated,
                              start_ns=start_ns, end_ns=end_ns)
-    return _paced(messages, sink, speed, stop or threading.Event(), max_messages, clock)
+    return replay_messages(messages, sink, rate=speed or "max", stop=stop,
+                           max_messages=max_messages, clock=clock)
+
+
+def replay_messages(messages: Iterable[tuple[str, int, dict[str, Any]]], sink: Sink, *,
+                    rate: float | str = 1.0, stop: threading.Event | None = None,
+                    max_messages: int | None = None,
+                    clock: Callable[[], float] = time.monotonic) -> ReplayStats:
+    """Publish ``(topic, log_time_ns, body)`` messages already read (in log-time order, each
+    topic with a Zenoh key) through ``sink`` at ``rate``, as :func:`replay_day` does: for a
+    caller that reads the day itself, once (:mod:`.offline_replay`)."""
+    return _paced(messages, sink, parse_rate(rate), stop or threading.Event(), max_messages,
+                  clock)
 
 
 def _time_range(start: int | str | datetime | None, end: int | str | datetime | None
@@ -188,4 +200,5 @@ def _paced(messages: Iterable[tuple[str, int, dict[str, Any]]], sink: Sink,
     stats.wall_s = clock() - wall0
     return stats
 
-__all__ = ["DEFAULT_TOPICS", "ReplayStats", "parse_rate", "parse_time", "replay_day"]
+__all__ = ["DEFAULT_TOPICS", "ReplayStats", "parse_rate", "parse_time", "replay_day",
+           "replay_messages"]

@@ -13,8 +13,11 @@ Events and what they return (a list of :class:`Output`, in publishing order):
   and an ``estimate`` and a ``health`` body are emitted, both stamped with the window's end.
   Waiting ``tick_delay_s`` makes the order of lab results and ticks a function of the log
   times alone, so a replay of a recorded day reproduces the live estimates exactly.
-* :meth:`on_lab` (``/plant/lab`` body, log time): checked (:func:`~softsensor.ingest.lab_input.
-  lab_from_body`) and queued until the tick of the window holding its log time.
+* :meth:`on_lab` (``/plant/lab`` body, log time): checked against the lab-result contract
+  (:func:`~softsensor.messages.lab_from_body`) and queued until the tick of the window holding
+  its log time (:attr:`~softsensor.messages.LabResult.due_ns`): the one queue where lab
+  results wait. The estimator gets a result when it is due, so its window is ticking or in
+  its history.
 * :meth:`advance` (now [ns]): lets time pass without scans (PLC gone and poller silent): windows
   ``gap_after_s`` past their end are closed (stale) and ticked, and health turns ``stale``.
 * :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
@@ -52,6 +55,7 @@ from softsensor.estimation.lab_history import (
 )
 from softsensor.estimation.plausibility import EstimateRanges, estimate_problems
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
+from softsensor.jsonable import jsonable
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
@@ -133,7 +137,7 @@ class EstimatorService:
         self._acc = WindowAccumulator(self.window, max_gap_windows=self.max_gap_windows)
         self._window_scans: list[tuple[int, dict[str, Any]]] = []  # scans of the open window
         self._ready: deque[Window] = deque()
-        self._labs: list[LabResult] = []  # checked, waiting for their tick (log-time order)
+        self._labs: list[LabResult] = []  # the one queue: waiting for their tick (due order)
         self._closed_end: int | None = None  # end of the last window the accumulator closed
         self._ticked_end: int | None = None
         self._last_scan: int | None = None
@@ -213,15 +217,13 @@ class EstimatorService:
         except IngestError as exc:
             self._refuse(str(exc))
             return []
-        if lab.log_time_ns is None:  # no time anywhere yet: apply with the first tick
-            lab = dataclasses.replace(lab, log_time_ns=0)
         if len(self._labs) >= self.max_pending_labs:
             # a lab sends a few results a day; thousands waiting for one tick are a flood
             # (each would cost the filter an update) and would starve the estimator thread
             self._refuse(f"lab result {lab.sample_id!r} refused: {len(self._labs)} results "
                          f"already wait for the next tick (at most {self.max_pending_labs})")
             return []
-        bisect.insort(self._labs, lab, key=lambda r: (r.log_time_ns, r.sample_id))
+        bisect.insort(self._labs, lab, key=lambda r: (r.due_ns, r.sample_id))
         return []
 
     def advance(self, now_ns: int) -> list[Output]:
@@ -271,7 +273,7 @@ class EstimatorService:
         return out
 
     def _tick(self, window: Window) -> list[Output]:
-        due = [lab for lab in self._labs if lab.log_time_ns <= window.end_ns]
+        due = [lab for lab in self._labs if lab.due_ns <= window.end_ns]
         self._labs = self._labs[len(due):]
         for lab in due:
             try:
@@ -286,7 +288,8 @@ class EstimatorService:
                 self._refuse(reason)
         self._ticked_end = window.end_ns
         try:
-            body = dict(self.estimator.tick(window))
+            # the body as JSON carries it (NaN as null), once, before anything judges it
+            body = jsonable(self.estimator.tick(window))
         except (SoftsensorError, ArithmeticError, ValueError) as exc:
             self.stats.failed_ticks += 1
             detail = f"estimator failed at the window ending {window.end_ns} ns: {exc}"
@@ -303,11 +306,6 @@ class EstimatorService:
         if body.get("lab_updated"):
             self.stats.lab_updates += 1
         detail = str(body.get("detail") or status)
-        for key in ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
-                    "T_dryer_out_model", "T_cyclone_out_model"):
-            v = body.get(key)
-            if isinstance(v, float) and not math.isfinite(v):
-                body[key] = None
         problems = estimate_problems(body, self.ranges)
         if problems:
             # whatever the estimator says, a value no dryer can have is not an ok estimate

@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import sys
 from datetime import UTC, datetime
 from typing import Any
+
+from softsensor.jsonable import finite_or_none
 
 _FIELDS = "softsensor_fields"
 
@@ -46,7 +47,8 @@ def _kv_value(v: Any) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"
     if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else "null"
+        v = finite_or_none(v)  # as JSON says it
+        return "null" if v is None else repr(v)
     if isinstance(v, int):
         return str(v)
     text = v if isinstance(v, str) else json.dumps(v, default=str, separators=(",", ":"))

@@ -14,18 +14,21 @@ left to Zenoh's threads, so after publishing a lab result the replayer waits unt
 pipeline has queued it (a few per day, microseconds each). Replaying the same day twice, or
 replaying what the daemon recorded live, gives the same estimates.
 
-The summary may compare the estimates with the day's ``/truth/plant`` topic when the virtual
-plant wrote one: for reporting only, the estimator never sees it.
+The day is read once (:class:`DayStream`): its first scans give the scan period before the
+service is built, the rest streams on from the same read, and the ``/truth/plant`` topic a
+virtual plant wrote is kept aside on the way, for the summary's comparison only (the estimator
+never sees it).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import os
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,27 +42,18 @@ from softsensor.bus.zenoh_bus import (
     wait_for_peers,
 )
 from softsensor.errors import IngestError, SoftsensorError
-from softsensor.estimation.plausibility import Plausibility, estimate_ranges
-from softsensor.estimation.settings import estimator_settings
-from softsensor.estimation.windowing import WindowSettings, measured_scan_period
-from softsensor.estimation.windowing import window_settings as core_window_settings
+from softsensor.estimation.windowing import measured_scan_period
 from softsensor.files import atomic_path
-from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
+from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.day_replay import ReplayStats, parse_time, replay_day
+from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
-from softsensor.service.estimators import make_estimator
 from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
-from softsensor.service.settings import (
-    ServiceSettings,
-    resolve_estimator_kind,
-    resolve_unit,
-    service_settings,
-)
+from softsensor.service.settings import ServiceSettings, service_settings
 from softsensor.service.warmup import warm_up
-from softsensor.signals import TOPIC_SCAN, TOPIC_TRUTH
+from softsensor.signals import TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
 
 log = logging.getLogger(__name__)
 
@@ -169,76 +163,80 @@ def _wait(cond: Callable[[], bool], progress: Callable[[], int], what: str) -> N
             raise IngestError(f"replay stalled waiting for {what} ({now} so far)")
 
 
-def window_settings(cfg: PlantConfig, settings: ServiceSettings,
-                    scan_period_s: float | None = None) -> WindowSettings:
-    """The service's windowing: the core's (:func:`~softsensor.estimation.windowing.
-    window_settings`) with the ``[service]`` good share. The scan period is
-    ``solver.scan_period`` when set, else ``scan_period_s`` (live: the poll period; replay:
-    measured from the day), else the tag map's poll period [s]."""
-    if scan_period_s is None and cfg.solver.scan_period is None:
-        tagmap = load_tagmap(settings.tagmap) if settings.tagmap else load_tagmap()
-        scan_period_s = tagmap.modbus.poll_period_s
-    return core_window_settings(cfg, scan_period_s, min_fraction=settings.min_good_fraction)
+class DayStream:
+    """The one read of a replayed day: the scans and lab results logged in ``[start_ns,
+    end_ns)`` to publish, the scan period measured on the first ``n_period`` of its scans
+    (:func:`~softsensor.estimation.windowing.measured_scan_period`), and, when ``truth``, the
+    ``/truth/plant`` values met on the way (read up to ``horizon_ns`` past the end, so the last
+    window's estimate has its truth too).
+
+    Raises :class:`~softsensor.errors.IngestError` naming the file for a missing, corrupt or
+    (without ``allow_truncated``) truncated day, or one without scans in the range.
+    """
+
+    def __init__(self, day: Path, start_ns: int | None, end_ns: int | None, *,
+                 allow_truncated: bool = False, truth: bool = True, horizon_ns: int = 0,
+                 n_period: int = 2000) -> None:
+        topics = [TOPIC_SCAN, TOPIC_LAB, *([TOPIC_TRUTH] if truth else [])]
+        self.end_ns = end_ns
+        self.truth: list[tuple[int, float, float]] = []  #: (time, moisture_out, moisture_in)
+        self._it = iter_messages(day, topics=topics, allow_truncated=allow_truncated,
+                                 start_ns=start_ns,
+                                 end_ns=None if end_ns is None else end_ns + horizon_ns)
+        self._head: list[tuple[str, int, dict[str, Any]]] = []
+        times: list[int] = []
+        for message in self._it:
+            self._head.append(message)
+            if message[0] == TOPIC_SCAN and self._published(message[1]):
+                times.append(message[1])
+                if len(times) >= n_period:
+                    break
+        if not times:
+            self.close()
+            raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
+        self.scan_period_s = measured_scan_period(times)
+
+    def _published(self, t: int) -> bool:
+        return self.end_ns is None or t < self.end_ns
+
+    def messages(self) -> Iterator[tuple[str, int, dict[str, Any]]]:
+        """The scans and lab results to publish, in log-time order (the truth kept aside)."""
+        for topic, t, body in itertools.chain(self._head, self._it):
+            if topic == TOPIC_TRUTH:
+                mo, mi = body.get("moisture_out"), body.get("moisture_in")
+                self.truth.append((t, math.nan if mo is None else float(mo),
+                                   math.nan if mi is None else float(mi)))
+            elif self._published(t):
+                yield topic, t, body
+
+    def close(self) -> None:
+        """Close the file (when the replay stopped before its end)."""
+        self._it.close()
 
 
-def day_scan_period(day: str | os.PathLike[str], start_ns: int | None = None,
-                    end_ns: int | None = None, allow_truncated: bool = False,
-                    n_max: int = 2000) -> float | None:
-    """The scan period [s] of a recorded day, measured on its first ``n_max`` scans in the
-    selected range (:func:`~softsensor.estimation.windowing.measured_scan_period`)."""
-    times = []
-    for _topic, t, _body in iter_messages(day, topics=[TOPIC_SCAN], start_ns=start_ns,
-                                          end_ns=end_ns, allow_truncated=allow_truncated):
-        times.append(t)
-        if len(times) >= n_max:
-            break
-    return measured_scan_period(times)
-
-
-def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None = None,
-                 scan_period_s: float | None = None) -> EstimatorService:
-    """The estimator service of ``cfg`` as the daemon builds it (scan period in plant s)."""
-    kind = kind or resolve_estimator_kind(settings, cfg)
-    window = window_settings(cfg, settings, scan_period_s)
-    # a gap is ticked window by window up to the past horizon the service accepts data for;
-    # longer ones are one "stale since" state (a scan stamped years ahead costs no more)
-    max_gap = max(1, math.ceil(settings.max_past_s / window.period_s))
-    est = estimator_settings(cfg)
-    ranges = estimate_ranges(window.plausibility or Plausibility(),
-                             (est.moisture_in_min, est.moisture_in_max))
-    return EstimatorService(make_estimator(kind, cfg), window,
-                            unit=resolve_unit(settings, cfg),
-                            tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
-                            max_gap_windows=max_gap, ranges=ranges)
-
-
-def truth_rmse(day: str | os.PathLike[str], estimates: list[tuple[int, dict[str, Any]]],
-               allow_truncated: bool = False, max_age_s: float = 60.0) -> dict[str, float] | None:
-    """RMSE of ``moisture_out`` and ``moisture_in`` estimates against ``/truth/plant``.
+def truth_rmse(truth: list[tuple[int, float, float]],
+               estimates: list[tuple[int, dict[str, Any]]],
+               max_age_s: float = 60.0) -> dict[str, float] | None:
+    """RMSE of ``moisture_out`` and ``moisture_in`` estimates against the ``/truth/plant``
+    values ``(time, moisture_out, moisture_in)`` (:attr:`DayStream.truth`).
 
     Each estimate (window end ``t``) is compared with the last truth value at or before ``t``
     no older than ``max_age_s``. None when the day has no truth. For reporting only.
     """
-    times: list[int] = []
-    rows: list[tuple[float, float]] = []
-    for _topic, t, body in iter_messages(day, topics=[TOPIC_TRUTH],
-                                         allow_truncated=allow_truncated):
-        mo, mi = body.get("moisture_out"), body.get("moisture_in")
-        times.append(t)
-        rows.append((math.nan if mo is None else float(mo), math.nan if mi is None else float(mi)))
-    if not times:
+    if not truth:
         return None
-    tt = np.asarray(times, dtype=np.int64)
-    truth = np.asarray(rows, dtype=float)
+    tt = np.asarray([t for t, _, _ in truth], dtype=np.int64)
+    values = np.asarray([(mo, mi) for _, mo, mi in truth], dtype=float)
     out: dict[str, float] = {}
     for j, name in enumerate(("moisture_out", "moisture_in")):
         err = []
         for t, body in estimates:
             v = body.get(name)
             i = int(np.searchsorted(tt, t, side="right")) - 1
-            if v is None or i < 0 or t - tt[i] > max_age_s * 1e9 or not math.isfinite(truth[i, j]):
+            if v is None or i < 0 or t - tt[i] > max_age_s * 1e9 \
+                    or not math.isfinite(values[i, j]):
                 continue
-            err.append(float(v) - truth[i, j])
+            err.append(float(v) - values[i, j])
         if err:
             out[name] = float(np.sqrt(np.mean(np.square(err))))
     return out or None
@@ -260,34 +258,38 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     """
     day, out = Path(day), Path(out)
     start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
-    _check_day(day, out, start_ns, end_ns, allow_truncated)
+    _check_paths(day, out)
     settings = settings or service_settings(cfg)
-    measured = day_scan_period(day, start_ns, end_ns, allow_truncated)
-    service = make_service(cfg, settings, estimator, measured)
-    summary = ReplaySummary(day=day, out=out, estimator=service.kind,
-                            scan_period_s=service.window.scan_period_s,
-                            min_good=service.window.min_good,
-                            expected_scans=service.window.expected_scans)
-    # compile every kernel a tick calls before the first message goes out: a first tick that
-    # compiles holds the estimator thread for tens of seconds, which _wait would call a stall
-    summary.warmup_s = warm_up(lambda: make_service(cfg, settings, estimator, measured),
-                               cfg).seconds
+    read = DayStream(day, start_ns, end_ns, allow_truncated=allow_truncated, truth=report_truth,
+                     horizon_ns=int(round(cfg.solver.window * 1e9)))
+    try:
+        service = make_service(cfg, settings, estimator, read.scan_period_s)
+        summary = ReplaySummary(day=day, out=out, estimator=service.kind,
+                                scan_period_s=service.window.scan_period_s,
+                                min_good=service.window.min_good,
+                                expected_scans=service.window.expected_scans)
+        # compile every kernel a tick calls before the first message goes out: a first tick
+        # that compiles holds the estimator thread for tens of seconds, which _wait would call
+        # a stall
+        summary.warmup_s = warm_up(
+            lambda: make_service(cfg, settings, estimator, read.scan_period_s), cfg).seconds
 
-    def _keep(o: Output) -> None:
-        if o.kind == "estimate":
-            summary.estimates.append((o.time_ns, o.body))
-            if progress is not None:
-                progress(o.time_ns, len(summary.estimates))
+        def _keep(o: Output) -> None:
+            if o.kind == "estimate":
+                summary.estimates.append((o.time_ns, o.body))
+                if progress is not None:
+                    progress(o.time_ns, len(summary.estimates))
 
-    t0 = time.monotonic()
-    # an interrupted replay (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
-    with atomic_path(out) as partial:
-        recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
-        try:
-            stats = _stream(day, recorder, service, _keep, rate=rate, start=start_ns,
-                            end=end_ns, allow_truncated=allow_truncated)
-        finally:
-            recorder.close()
+        t0 = time.monotonic()
+        # an interrupted replay (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
+        with atomic_path(out) as partial:
+            recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
+            try:
+                stats = _stream(read.messages(), recorder, service, _keep, rate=rate)
+            finally:
+                recorder.close()
+    finally:
+        read.close()
     summary.wall_s = time.monotonic() - t0
     s = service.stats
     summary.n_replayed = stats.n_published
@@ -298,31 +300,27 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
     if stats.first_ns is not None and stats.last_ns is not None:
         summary.span_s = (stats.last_ns - stats.first_ns) / 1e9
     if report_truth:
-        summary.rmse = truth_rmse(day, summary.estimates, allow_truncated)
+        summary.rmse = truth_rmse(read.truth, summary.estimates)
     return summary
 
 
-def _check_day(day: Path, out: Path, start_ns: int | None, end_ns: int | None,
-               allow_truncated: bool) -> None:
-    """Refuse, before anything starts, a day that is ``out``, missing, corrupt or without
-    scans in the selected range (reading its first scan checks the file is intact)."""
+def _check_paths(day: Path, out: Path) -> None:
+    """Refuse, before anything starts, a day that is ``out`` or missing, and an ``out`` that
+    is no file in an existing folder."""
     if day.resolve() == out.resolve():
         raise IngestError(f"{out}: --out must differ from the replayed day")
     if out.is_dir() or not out.resolve().parent.is_dir():
         raise IngestError(f"--out {out}: not a file in an existing folder")
     if not day.is_file():
         raise IngestError(f"{day}: no such file")
-    first = next(iter(iter_messages(day, topics=[TOPIC_SCAN], allow_truncated=allow_truncated,
-                                    start_ns=start_ns, end_ns=end_ns)), None)
-    if first is None:
-        raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
 
 
-def _stream(day: Path, recorder: FileRecorder, service: EstimatorService,
-            on_output: Callable[[Output], None], **replay: Any) -> ReplayStats:
-    """Two Zenoh sessions on loopback, the plant's publishing ``day`` (``replay``: the
-    arguments of :func:`replay_day`) and the service's estimating and recording; returns once
-    every message and estimate is recorded."""
+def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileRecorder,
+            service: EstimatorService, on_output: Callable[[Output], None],
+            rate: float | str) -> ReplayStats:
+    """Two Zenoh sessions on loopback, the plant's publishing ``messages`` at ``rate`` and the
+    service's estimating and recording; returns once every message and estimate is
+    recorded."""
     unit = service.unit
     with open_session(port=0) as svc_session:
         (endpoint,) = listening_endpoints(svc_session)[:1] or (None,)
@@ -348,7 +346,7 @@ def _stream(day: Path, recorder: FileRecorder, service: EstimatorService,
                         _wait(lambda: pipeline.n_labs_received >= labs_sent[0],
                               lambda: pipeline.n_labs_received, "a lab result")
 
-                stats = replay_day(day, _sink, **replay)
+                stats = replay_messages(messages, _sink, rate=rate)
                 n = stats.n_published
                 _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
                       lambda: pipeline.n_in + bus.n_received, "the replayed messages")
@@ -362,5 +360,4 @@ def _stream(day: Path, recorder: FileRecorder, service: EstimatorService,
     return stats
 
 
-__all__ = ["FileRecorder", "ReplaySummary", "day_scan_period", "make_service", "replay_to_file",
-           "truth_rmse", "window_settings"]
+__all__ = ["DayStream", "FileRecorder", "ReplaySummary", "replay_to_file", "truth_rmse"]

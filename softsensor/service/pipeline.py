@@ -10,8 +10,11 @@ published on ``softsensor/<unit>/estimate`` and ``softsensor/<unit>/health``; af
 :class:`~softsensor.service.checkpoint.CheckpointStore`. The daemon and the ``replay`` verb
 both use this class, so they run the same path.
 
-:class:`ScanPublisher` is the Modbus poller's sink: it publishes each scan on the bus (with the
-poller's per-signal reasons under ``quality`` when a value is bad).
+One path feeds the bus and the outputs: the worker's results, and what the daemon says from
+its own thread (the watchdog's ``stalled`` health, the recorder's state) through
+:meth:`ServicePipeline.publish_aside`, one message at a time with the worker's, so an
+operator's screen never shows an older state after a newer one. (Not through the worker's
+queue: the watchdog speaks when the worker is stuck.)
 """
 
 from __future__ import annotations
@@ -138,6 +141,7 @@ class ServicePipeline:
         self._drop_logged = 0.0
         self._throttle = Throttle()  # repeated failures: a line now and then, with a count
         self._ticks_unsaved = 0
+        self._out_lock = threading.Lock()  # one message at a time to the bus and outputs
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
         self._thread.start()
@@ -208,22 +212,27 @@ class ServicePipeline:
             self.n_in += 1
 
     def _publish(self, outputs: list[Output]) -> None:
-        for out in outputs:
-            if self.decorate is not None:
-                self.decorate(out)
-            self.publisher.put(out.kind, out.body, out.time_ns)
-            self.n_out += 1
-            if out.kind == "estimate":
-                self._ticks_unsaved += 1
-                self.last_tick_at = time.monotonic()
-            if self.on_output is not None:
-                try:
-                    self.on_output(out)
-                except Exception:  # noqa: BLE001 - a logging hook must not stop the service
-                    self._throttle.log(log, "hook", logging.ERROR, "output hook failed",
-                                       exc_info=True)
+        with self._out_lock:
+            for out in outputs:
+                self._emit(out)
         if self._ticks_unsaved >= self.checkpoint_every:
             self._save()
+
+    def _emit(self, out: Output) -> None:
+        """Decorate, publish and hand ``out`` to the hook (holding ``_out_lock``)."""
+        if self.decorate is not None:
+            self.decorate(out)
+        self.publisher.put(out.kind, out.body, out.time_ns)
+        self.n_out += 1
+        if out.kind == "estimate":
+            self._ticks_unsaved += 1
+            self.last_tick_at = time.monotonic()
+        if self.on_output is not None:
+            try:
+                self.on_output(out)
+            except Exception:  # noqa: BLE001 - a logging hook must not stop the service
+                self._throttle.log(log, "hook", logging.ERROR, "output hook failed",
+                                   exc_info=True)
 
     def _save(self) -> None:
         if self.checkpoints is None:
@@ -244,6 +253,21 @@ class ServicePipeline:
                       not_logged_since=held)
 
     # ------------------------------------------------------------------ public API
+    def publish_aside(self, out: Output, timeout: float = 1.0) -> bool:
+        """Publish ``out`` from another thread than the worker (the daemon's watchdog and
+        recorder news) through the worker's path (decorated, on the bus, to the hook), one
+        message at a time with the worker's (module docstring). False, and nothing
+        published, when the worker held the path for ``timeout`` seconds."""
+        if not self._out_lock.acquire(timeout=timeout):
+            self._throttle.log(log, "aside", logging.ERROR, "%s not published: the estimator "
+                               "thread holds the outputs", out.kind)
+            return False
+        try:
+            self._emit(out)
+        finally:
+            self._out_lock.release()
+        return True
+
     def call(self, fn: Callable[[], Any], timeout: float = 60.0) -> Any:
         """Run ``fn`` on the worker thread after every message queued so far; its result."""
         c = _Call(fn)
@@ -366,25 +390,5 @@ class InputSubscription:
                 pass
 
 
-class ScanPublisher:
-    """The poller's sink: publishes each scan on ``plant/<unit>/scan``.
-
-    Bad values are ``null`` in the body (CONTRACT section 2); the poller's reasons go along
-    under ``quality`` (``{signal: "<kind>: detail"}``) when there are any.
-    """
-
-    def __init__(self, publisher: Publisher) -> None:
-        self.publisher = publisher
-        self.n_published = 0
-
-    async def __call__(self, time_ns: int, body: dict[str, float | None],
-                       quality: dict[str, str]) -> None:
-        msg: dict[str, Any] = dict(body)
-        if quality:
-            msg["quality"] = dict(quality)
-        self.publisher.put("scan", msg, time_ns)
-        self.n_published += 1
-
-
 __all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "InputLimits", "InputSubscription",
-           "ScanPublisher", "ServicePipeline"]
+           "ServicePipeline"]

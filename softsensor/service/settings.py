@@ -17,7 +17,6 @@ Example ``config/dryer1.toml`` fragment::
     lab_dir = "lab-drop"                  # watched folder for lab CSV/JSON files
     zenoh_listen = ["tcp/127.0.0.1:7447"]
     zenoh_connect = []                    # e.g. ["tcp/10.0.0.5:7447"], a router
-    estimator = "ukf"
     time_scale = 1.0                      # > 1: accelerated demos against plant-server --speed
 
 Time in the daemon is plant time: with ``time_scale = N`` the daemon's clock runs N times
@@ -30,13 +29,13 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from softsensor.configfile import build_section, num
-from softsensor.estimation.settings import ESTIMATOR_KINDS
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import PlantConfig, built_table
 
 ZENOH_MODES: tuple[str, ...] = ("peer", "client")
 #: A unit name: it is a Zenoh key chunk and part of file names, so no ``/``, ``..``, ``*``.
@@ -88,15 +87,11 @@ class ServiceSettings:
         ``peer`` (embedded peer, default) or ``client`` (needs ``zenoh_connect``).
     zenoh_listen, zenoh_connect : list of str
         Zenoh endpoints; listening on loopback by default, connect e.g. to a router.
-    estimator : str or None
-        ``ukf`` or ``openloop``; default the config's ``estimator.kind``.
     time_scale : float
         Speed of the daemon's clock relative to the wall clock [-].
     clock_start : str or None
         Start of the scaled clock, ISO-8601 or ns since the epoch (default: now); a restart
         continues from the checkpoint's time when that is later.
-    min_good_fraction : float
-        Fraction of the expected scans a window needs not to be stale [-].
     tick_delay_s : float
         A window is ticked once a scan this much past its end has arrived, so a lab result
         logged before the window's end is always applied first, live and in replay [s].
@@ -149,12 +144,10 @@ class ServiceSettings:
     zenoh_mode: str = "peer"
     zenoh_listen: Any = ("tcp/127.0.0.1:7447",)
     zenoh_connect: Any = ()
-    estimator: str | None = None
     # below 0.01 no window ever ends and the folder's poll waits overflow (1e-300 killed the
     # lab thread)
     time_scale: float = num(1.0, ge=0.01, le=100_000)
     clock_start: str | None = None
-    min_good_fraction: float = num(0.5, ge=0, le=1)
     tick_delay_s: float = num(10.0, ge=0, le=3600)
     gap_after_s: float = num(60.0, gt=0, le=86_400)
     max_future_s: float = num(300.0, gt=0, le=86_400)
@@ -171,6 +164,12 @@ class ServiceSettings:
     max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
     max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
 
+    #: One rule, one key: the estimator's kind and a window's good share are set where the
+    #: estimator and the windowing read them (these keys once set them a second time).
+    MOVED_KEYS: ClassVar[Mapping[str, str]] = {
+        "estimator": "set estimator.kind (or --estimator)",
+        "min_good_fraction": "set solver.min_good_fraction"}
+
     def check(self) -> str | None:
         """Cross-field and list rules (called by ``build_section``); message names the key."""
         for key in ("zenoh_listen", "zenoh_connect"):
@@ -184,9 +183,6 @@ class ServiceSettings:
             return f"zenoh_mode must be one of {', '.join(ZENOH_MODES)}, got {self.zenoh_mode!r}"
         if self.zenoh_mode == "client" and not self.zenoh_connect:
             return "zenoh_connect must name a router endpoint when zenoh_mode is client"
-        if self.estimator is not None and self.estimator not in ESTIMATOR_KINDS:
-            return (f"estimator must be one of {', '.join(ESTIMATOR_KINDS)}, "
-                    f"got {self.estimator!r}")
         if self.unit is not None and not UNIT_NAME.fullmatch(self.unit):
             return f"unit {self.unit!r} {UNIT_RULE}"
         if (self.zenoh_user is None) != (self.zenoh_password_file is None):
@@ -232,8 +228,12 @@ def service_settings(cfg: PlantConfig) -> ServiceSettings:
     relative to it, and without the key a ``tagmap_<unit>.toml`` there is used (else the
     packaged one). So a copied config folder (``dryer1.toml`` beside its edited
     ``tagmap_dryer1.toml``) runs with its own tag map wherever the daemon starts; the data
-    paths stay relative to the working directory.
+    paths stay relative to the working directory. Built once per config.
     """
+    return built_table(cfg, "service", _service_settings)
+
+
+def _service_settings(cfg: PlantConfig) -> ServiceSettings:
     table = cfg.extra.get("service", {})
     if isinstance(table, dict) and Path(cfg.source).is_file():
         here = Path(cfg.source).parent
@@ -258,14 +258,6 @@ def resolve_unit(settings: ServiceSettings, cfg: PlantConfig) -> str:
 
         raise ConfigError(f"{cfg.source}: unit.name {unit!r} {UNIT_RULE}")
     return unit
-
-
-def resolve_estimator_kind(settings: ServiceSettings, cfg: PlantConfig) -> str:
-    """The estimator kind: ``service.estimator``, else ``estimator.kind``, else ``ukf``."""
-    if settings.estimator is not None:
-        return settings.estimator
-    from softsensor.estimation.settings import estimator_settings
-    return estimator_settings(cfg).kind
 
 
 def bus_options(settings: ServiceSettings, unit: str) -> dict[str, Any]:

@@ -4,9 +4,11 @@ The estimator thread ticks once a window (600 plant seconds): on a scan ``tick_d
 the window's end or, with the PLC silent, ``gap_after_s`` past it. A thread that is stuck or
 starved misses that. :class:`Watchdog`, run from the daemon's housekeeping loop (another
 thread), sees no estimate for more than one window past the latest a tick can come, and then
-publishes health itself: ``status = "stale"`` (CONTRACT section 2 keeps to ``ok``,
+has health published: ``status = "stale"`` (CONTRACT section 2 keeps to ``ok``,
 ``degraded``, ``stale``) with ``stalled = true`` and a detail saying how late and how many
-messages wait; again every window while it lasts.
+messages wait; again every window while it lasts. The daemon puts it through the pipeline's
+one path to the bus and the outputs (:meth:`~softsensor.service.pipeline.ServicePipeline.
+publish_aside`), one message at a time with the estimator thread's.
 
 :class:`HealthQueryable` answers a Zenoh ``get`` on ``softsensor/<unit>/health`` at any time
 with the latest health, the watchdog's verdict and the input counters, so a container health

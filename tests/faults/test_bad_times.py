@@ -74,7 +74,7 @@ def test_a_lab_flood_is_bounded_and_does_not_starve_the_estimator():
     """40,000 lab messages used to take minutes of the estimator thread (every one sorted in
     and then applied by the filter): now at most ``max_pending_labs`` wait for a tick, the rest
     are refused and counted, and the tick after the flood takes no longer than a few updates."""
-    from softsensor.service.offline_replay import make_service
+    from softsensor.service.build import make_service
 
     cfg = load_plant_config()
     service = make_service(cfg, service_settings(cfg))
@@ -101,7 +101,7 @@ def test_a_scan_thirty_days_ahead_costs_a_bounded_number_of_ticks():
     """Where no clock refuses it (a replay, or a gate opened wide), one scan stamped 30 days
     ahead used to tick 4,320 stale windows in one burst; now the gap is one "stale since"
     state: at most the past horizon's windows are ticked, the rest counted and named."""
-    from softsensor.service.offline_replay import make_service
+    from softsensor.service.build import make_service
 
     cfg = load_plant_config()
     settings = service_settings(cfg)
@@ -128,7 +128,7 @@ def test_a_scan_thirty_days_ahead_costs_a_bounded_number_of_ticks():
 def test_skipped_windows_keep_counting_across_a_restore():
     """A restored service counts a new long gap on top of the checkpoint's count (its
     accumulator is new and starts from zero)."""
-    from softsensor.service.offline_replay import make_service
+    from softsensor.service.build import make_service
 
     cfg = load_plant_config()
     settings = service_settings(cfg)

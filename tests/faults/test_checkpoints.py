@@ -15,9 +15,9 @@ import pytest
 
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import load_plant_config
+from softsensor.service.build import make_service
 from softsensor.service.checkpoint import CheckpointStore, state_digest
 from softsensor.service.daemon import Daemon
-from softsensor.service.offline_replay import make_service
 from softsensor.service.settings import service_settings
 from softsensor.service.warmup import warm_up
 
