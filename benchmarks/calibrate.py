@@ -1,5 +1,5 @@
 """Benchmark of ``softsensor calibrate``: 200 TPE trials on a 48 h virtual-plant day, on one
-core and on two.
+core and on two; and a calibration from history, 7 independent-plant records of 48 h.
 
 The study runs as ``softsensor calibrate`` runs it (the config's ``[calibration]`` settings:
 the inlet moisture estimated, the prior, a quarter of the day held out, pruning over four
@@ -17,7 +17,23 @@ two-core ratio; the load average (the machine may be shared); whether the target
 ``benchmarks/targets.json`` (``calibrate``) are met. The paper needed 4.2 h on an i9
 workstation for its 200 trials.
 
-    python benchmarks/calibrate.py [--trials 200] [--hours 48] [--seed 0] [--batch 1]
+The history case (:func:`history`, issue 21: "Calibration on 14 days of history (7 records of
+48 h, 200 trials) in at most 120 s on two cores") runs what ``softsensor calibrate
+DAY.mcap ...`` runs with its defaults (:func:`~softsensor.calibration.history.
+calibrate_history`: 12 h windows picked across the records up to 96 h, 200 trials, the
+polish, validation on the held-out hours, the identifiability analysis, the per-day inlet
+levels and the model error) on consecutive 48 h records of one independent plant
+(``--plant-seed``), and prints per phase (study, refine, validate, identify, model error)
+the wall and CPU seconds, what the calibration reached (the objective after TPE and after
+the polish, the held-out validation against the config's parameters) and whether the
+target of ``targets.json`` (``calibrate_history``) is met. ``--records 2,7,14`` runs it on
+the first 2, 7 and 14 records and fits the seconds to ``a + b x records``: the study, the
+polish and the analysis run on at most ``--fit-hours`` of windows whatever the history's
+length, the validation and the model error on the rest of every record, so the time grows
+linearly with the records.
+
+    python benchmarks/calibrate.py [--case day|history|all] [--trials 200] [--hours 48]
+        [--seed 0] [--batch 1] [--records 7] [--plant-seed 7]
 """
 
 from __future__ import annotations
@@ -30,19 +46,31 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import optuna
 
+from softsensor.apps.calibrate import HISTORY_FIT_HOURS, HISTORY_WINDOW_HOURS
 from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.history import calibrate_history
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.pipeline import calibrate
+from softsensor.calibration.selection import DEFAULT_MIN_LABS
 from softsensor.calibration.settings import calibration_settings
 from softsensor.model import DryerModel
+from softsensor.plant.day import DEFAULT_START_NS
+from softsensor.plant.independent.simulator import simulate_independent_day
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
          "hm_cyc": 3e-4, "hc_cyc": 50.0}
-TARGETS = json.loads((Path(__file__).with_name("targets.json")).read_text())["calibrate"]
+_ALL_TARGETS = json.loads((Path(__file__).with_name("targets.json")).read_text())
+TARGETS = _ALL_TARGETS["calibrate"]
+HISTORY_TARGETS = _ALL_TARGETS["calibrate_history"]
+#: Phases of a calibration from history, as its timings name them.
+PHASES = ("study", "refine", "validate", "identify", "model_error")
+#: Seed of the first record's day (the next ones count up).
+FIRST_DAY_SEED = 1000
 
 
 class TimedModel(DryerModel):
@@ -95,18 +123,77 @@ def study(seg, config, trials: int, seed: int, batch: int, threads: int,
             "load_average_1min": [round(load, 2), round(os.getloadavg()[0], 2)]}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--trials", type=int, default=TARGETS["trials"])
-    ap.add_argument("--hours", type=float, default=TARGETS["hours"])
-    ap.add_argument("--seed", type=int, default=0, help="TPE seed")
-    ap.add_argument("--day-seed", type=int, default=11, help="virtual-plant seed")
-    ap.add_argument("--batch", type=int, default=1, help="trials asked of TPE at once")
-    args = ap.parse_args()
-    if args.trials < 1 or args.batch < 1 or not args.hours > 0:
-        ap.error("--trials and --batch must be >= 1 and --hours > 0")
-    optuna.logging.set_verbosity(optuna.logging.WARNING)
-    config = load_plant_config()
+def records(config, n: int, hours: float, plant_seed: int) -> list:
+    """``n`` consecutive records of one independent plant, as the calibration reads them."""
+    out = []
+    for i in range(n):
+        day = simulate_independent_day(config, hours, FIRST_DAY_SEED + i, plant_seed=plant_seed,
+                                       start_ns=DEFAULT_START_NS + int(i * hours * 3.6e12))
+        out.append(segment_from_day(day, config, source=f"plant {plant_seed} record {i}"))
+    return out
+
+
+def _rounded(d: dict | None) -> dict | None:
+    return None if d is None else {k: round(float(v), 5) for k, v in d.items()}
+
+
+def history(days: list, config, trials: int, seed: int) -> dict:
+    """``softsensor calibrate``'s defaults on the records ``days``: wall and CPU seconds per
+    phase and what the calibration reached."""
+    model = DryerModel(config)
+    for n in {1, model.wall_substeps}:  # compile / load the cache outside timing
+        DryerModel(config, wall_substeps=n).simulate(days[0].U[None, :2], model.theta0)
+    load = os.getloadavg()[0]
+    w0, c0 = time.perf_counter(), time.process_time()
+    h = calibrate_history(days, config, StudySettings(n_trials=trials, seed=seed,
+                                                      progress=False),
+                          calibration_settings(config), current_theta=config.parameter_vector(),
+                          window_hours=HISTORY_WINDOW_HOURS, fit_hours=HISTORY_FIT_HOURS,
+                          min_labs=DEFAULT_MIN_LABS, model=model)
+    wall, cpu = time.perf_counter() - w0, time.process_time() - c0
+    r, t = h.calibration, h.timings
+    ref = r.refinement
+    val, cur = r.validation, r.current_validation
+    return {
+        "records": len(days), "hours": round(sum(d.hours for d in days), 1),
+        "fit_hours": round(sum(s.hours for s in r.segments), 1),
+        "held_out_hours": None if val is None else round(sum(s.hours for s in val.segments), 1),
+        "phases": {p: {"wall_s": round(t[p], 2), "cpu_s": None if f"{p}_cpu" not in t
+                       else round(t[f"{p}_cpu"], 2)} for p in PHASES if p in t},
+        "wall_s": round(wall, 2), "cpu_s": round(cpu, 2),
+        "load_average_1min": [round(load, 2), round(os.getloadavg()[0], 2)],
+        "tpe_best_objective": round(float(r.tpe_best["objective"]), 6),
+        "objective": round(float(r.evaluation.objective), 6),
+        "cost": round(float(r.fit.cost), 6),
+        "refine_simulations": None if ref is None else ref.simulations,
+        "refine_jacobian_simulations": None if ref is None else getattr(ref, "jac_simulations",
+                                                                        None),
+        "validation_score": None if val is None else round(float(val.score), 6),
+        "current_validation_score": None if cur is None else round(float(cur.score), 6),
+        "validation_rmse": None if val is None else _rounded(val.fit.rmse),
+        "current_validation_rmse": None if cur is None else _rounded(cur.fit.rmse),
+        "accepted": r.accepted,
+        "identifiable": None if r.identifiability is None else r.identifiability.identifiable,
+    }
+
+
+def linear_in_records(runs: list[dict]) -> dict:
+    """Least-squares ``seconds = a + b x records`` of the total and of every phase."""
+    n = np.array([r["records"] for r in runs], float)
+    A = np.column_stack([np.ones_like(n), n])
+
+    def fit(y: list) -> dict:
+        (a, b), *_ = np.linalg.lstsq(A, np.asarray(y, float), rcond=None)
+        return {"a_s": round(float(a), 2), "b_s_per_record": round(float(b), 2)}
+
+    out = {"cpu_s": fit([r["cpu_s"] for r in runs]), "wall_s": fit([r["wall_s"] for r in runs])}
+    for p in PHASES:
+        if all(r["phases"].get(p, {}).get("cpu_s") is not None for r in runs):
+            out[p] = fit([r["phases"][p]["cpu_s"] for r in runs])
+    return out
+
+
+def day_case(config, args) -> dict:
     day = simulate_day(config.with_parameters(TRUTH), args.hours, seed=args.day_seed)
     seg = segment_from_day(day, config, source=f"virtual plant seed {args.day_seed}")
     one = study(seg, config, args.trials, args.seed, args.batch, threads=1)
@@ -116,7 +203,7 @@ def main() -> int:
                  search_wall_substeps=0)
     ratio = one["study_wall_s"] / two["study_wall_s"]
     standard = args.trials == TARGETS["trials"] and args.hours == TARGETS["hours"]
-    out = {
+    return {
         "day": {"hours": args.hours, "seed": args.day_seed, "windows": seg.n_windows,
                 "lab_samples": int(len(seg.lab_value))},
         "trials": args.trials, "batch": args.batch, "seed": args.seed,
@@ -124,7 +211,6 @@ def main() -> int:
         "full_over_fast_search_wall": round(full["study_wall_s"] / two["study_wall_s"], 3),
         "one_over_two_cores_wall": round(ratio, 3),
         "same_best_cost": one["best_cost"] == two["best_cost"],
-        "cpus": os.cpu_count(),
         "paper": {"trials": 200, "wall_time_s": 4.2 * 3600, "machine": "Intel i9, 64 GB"},
         "targets": TARGETS,
         "meets_targets": None if not standard else {
@@ -134,6 +220,50 @@ def main() -> int:
                 ratio >= TARGETS["one_over_two_cores_wall_at_least"],
         },
     }
+
+
+def history_case(config, args) -> dict:
+    counts = sorted({int(x) for x in args.records.split(",")})
+    days = records(config, max(counts), HISTORY_TARGETS["hours_per_record"], args.plant_seed)
+    runs = [history(days[:n], config, args.trials, args.seed) for n in counts]
+    T = HISTORY_TARGETS
+    standard = args.trials == T["trials"] and T["records"] in counts
+    at = next((r for r in runs if r["records"] == T["records"]), None)
+    return {
+        "plant_seed": args.plant_seed, "first_day_seed": FIRST_DAY_SEED,
+        "hours_per_record": T["hours_per_record"], "trials": args.trials,
+        "window_hours": HISTORY_WINDOW_HOURS, "fit_hours": HISTORY_FIT_HOURS, "runs": runs,
+        "linear_in_records": linear_in_records(runs) if len(runs) > 1 else None,
+        "targets": T,
+        "meets_targets": None if not standard or at is None else {
+            "wall_two_cores_at_most_s": at["wall_s"] <= T["wall_two_cores_at_most_s"]},
+    }
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", choices=("day", "history", "all"), default="all")
+    ap.add_argument("--trials", type=int, default=TARGETS["trials"])
+    ap.add_argument("--hours", type=float, default=TARGETS["hours"])
+    ap.add_argument("--seed", type=int, default=0, help="TPE seed")
+    ap.add_argument("--day-seed", type=int, default=11, help="virtual-plant seed")
+    ap.add_argument("--batch", type=int, default=1, help="trials asked of TPE at once")
+    ap.add_argument("--records", default=str(HISTORY_TARGETS["records"]),
+                    help="history records (48 h each), comma-separated for several runs")
+    ap.add_argument("--plant-seed", type=int, default=HISTORY_TARGETS["plant_seed"],
+                    help="the independent plant of the history case")
+    args = ap.parse_args()
+    if args.trials < 1 or args.batch < 1 or not args.hours > 0:
+        ap.error("--trials and --batch must be >= 1 and --hours > 0")
+    if not all(x.strip().isdigit() and int(x) >= 1 for x in args.records.split(",")):
+        ap.error(f"--records must be counts >= 1, got {args.records!r}")
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    config = load_plant_config()
+    out: dict = {"cpus": os.cpu_count()}
+    if args.case in ("day", "all"):
+        out.update(day_case(config, args))
+    if args.case in ("history", "all"):
+        out["history"] = history_case(config, args)
     print(json.dumps(out, indent=2))
     return 0
 

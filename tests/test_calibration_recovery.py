@@ -21,6 +21,7 @@ setting, a 48 h day and 200 trials.
 from __future__ import annotations
 
 import dataclasses
+import html
 import json
 
 import numpy as np
@@ -133,10 +134,13 @@ def test_recovery_24h(tmp_path, capsys):
     # the figures are inside the page (one file to mail), none left as a link
     assert page.count('src="data:image/png;base64,') == 4 and ".png\"" not in page
     assert "What the data can and cannot pin down" in page and "Table 3" in page
-    # the plain-language verdict comes first, in plant units
+    # the plain-language verdict comes first, in plant units: the terminal's last line,
+    # which file to deploy and what it holds
     first = page.index('<p class="verdict">')
-    assert first < page.index("<h2>") and "New parameters written." in page[first:]
-    assert "°C" in page[first:page.index("</p>", first)]
+    verdict = html.unescape(page[first + len('<p class="verdict">'):page.index("</p>", first)])
+    assert first < page.index("<h2>") and verdict == summary["outcome"]
+    assert verdict.startswith(f"Deploy {summary['out']}: it holds the calibrated parameters")
+    assert "°C" in verdict
     assert summary["windows"][0]["reason"].startswith("whole record")
     assert 0 < summary["pruned_share"] < 1
 

@@ -42,7 +42,6 @@ from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import calibration_result_verdict
 
 
 def _add_data_arguments(p: argparse.ArgumentParser) -> None:
@@ -51,7 +50,8 @@ def _add_data_arguments(p: argparse.ArgumentParser) -> None:
                         f"with the most natural variability (default {DEFAULT_WINDOW_HOURS:g} "
                         f"for one day, {HISTORY_WINDOW_HOURS:g} for several)")
     p.add_argument("--windows-per-day", type=int, default=1,
-                   help="non-overlapping windows to take from each day (default 1)")
+                   help="non-overlapping windows to take from a single day (default 1; "
+                        "several days: windows are picked across them up to --fit-hours)")
     p.add_argument("--min-labs", type=int, default=DEFAULT_MIN_LABS,
                    help=f"lab samples a window must hold (default {DEFAULT_MIN_LABS})")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
@@ -216,28 +216,65 @@ def calibrate_main(args: argparse.Namespace) -> int:
     hist = calibrate_history(days, base, settings, calibration,
                              current_theta=current.parameter_vector(),
                              window_hours=selection.window_hours, fit_hours=args.fit_hours,
-                             min_labs=selection.min_labs, polish=not args.no_polish,
+                             min_labs=selection.min_labs,
+                             windows_per_day=selection.windows_per_day,
+                             polish=not args.no_polish,
                              identify_result=not args.no_identify, force=args.force,
                              validation=validation, progress=progress)
     result = hist.calibration
     for c in result.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
     write_params(out, _params_doc(base, hist), _params_comment(calibration, hist))
-    summary = {"out": str(out), **result.summary(), "history": hist.summary()}
+    outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis)
+    summary = {"out": str(out), "outcome": outcome, **result.summary(),
+               "history": hist.summary()}
     if args.report:
         from softsensor.apps.calibration_report import calibration_page
 
-        summary["report"] = str(calibration_page(result, args.report))
+        summary["report"] = str(calibration_page(result, args.report, verdict=outcome))
     write_json(summary, args.json)
-    if hist.kept_current:
-        print(f"calibrate: kept the current parameters: {hist.reason}. Wrote {out} with them "
-              f"and the model error learned from {len(days)} day(s): deploy {out} "
-              f"(--force deploys the calibrated ones)", file=sys.stderr)
-        return 0
-    verdict = calibration_result_verdict(result, display_settings(base).moisture_basis)
-    print(f"calibrate: wrote {out} (calibrated on {len(days)} day(s), model error learned "
-          f"from them): deploy it. {verdict}", file=sys.stderr)
+    print(f"calibrate: {outcome}", file=sys.stderr)
     return 0
+
+
+def _errors(new: dict[str, float], old: dict[str, float], x_ref: float, basis: str) -> str:
+    """RMSEs before and after in plant units (°C, % points on ``basis`` at ``x_ref``)."""
+    def pts(v: float) -> float:
+        return moisture_pct_points(v, x_ref, basis)
+
+    return (f"RMSE current -> calibrated: dryer outlet {old['T_dryer_out']:.2f} -> "
+            f"{new['T_dryer_out']:.2f} °C, cyclone outlet {old['T_cyclone_out']:.2f} -> "
+            f"{new['T_cyclone_out']:.2f} °C, outlet moisture {pts(old['moisture_out']):.2f} -> "
+            f"{pts(new['moisture_out']):.2f} % points ({basis} basis)")
+
+
+def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
+    """What ``calibrate`` wrote and why, for a person: the file to deploy, which parameters
+    it holds and the errors before and after, in plant units. The terminal's last line and
+    the report page's verdict say this same text."""
+    from softsensor.apps.calibration_report import lab_reference
+
+    result, n = hist.calibration, hist.model_error.days
+    new, old, where = result.validation, result.current_validation, "held-out data"
+    if new is None or old is None:
+        new, old, where = result, result.current_evaluation, "calibration data"
+    errors = ("" if old is None else
+              _errors(new.fit.rmse, old.fit.rmse, lab_reference(result.segments), basis))
+    learned = f"the model error learned from {n} day(s)"
+    if hist.kept_current:
+        return (f"Deploy {out}: it holds the current parameters, kept because the calibrated "
+                f"ones predict the {where} worse ({errors}), and {learned}; --force writes the "
+                f"calibrated ones instead.")
+    flags = result.at_bounds
+    bounds = (f" At a search bound (not pinned by the data): {', '.join(flags)}."
+              if flags else "")
+    if not result.accepted:
+        return (f"Deploy {out} only if you trust it: it holds the calibrated parameters, "
+                f"written because --force asked though they predict the {where} worse than "
+                f"the current ones ({errors}), and {learned}.{bounds}")
+    return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
+            f"{where}: {errors}.{bounds}" if errors else
+            f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")
 
 
 def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
@@ -360,11 +397,29 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
     _add_objective_arguments(p)
 
 
+def validation_sentences(result: Any, default: Any, x_ref: float, basis: str) -> str:
+    """The validation in plant units: :func:`~softsensor.verdicts.validation_verdict` of
+    the parameters validated, then the config's default parameters on the same data (the
+    ``validate`` line and the page's verdict say this same text)."""
+    from softsensor.verdicts import validation_verdict
+
+    text = validation_verdict(result.fit.rmse, result.ratio, x_ref, basis)
+    if np.array_equal(result.theta, default.theta):
+        return text + " They are the config's default parameters."
+    d = default.fit.rmse
+    pts = moisture_pct_points(d["moisture_out"], x_ref, basis)
+    return (f"{text} With the config's default parameters instead: dryer outlet "
+            f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C and outlet "
+            f"moisture {pts:.2f} % points.")
+
+
 def validate_main(args: argparse.Namespace) -> int:
     """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days, with the inlet
-    moisture fitted to their temperatures (and open loop)."""
+    moisture fitted to their temperatures (and open loop), of ``--params`` and, beside them,
+    of the config's default parameters."""
     require_packages("validate", "optuna", "matplotlib")
-    from softsensor.calibration.pipeline import objective_spec, validate
+    from softsensor.apps.calibration_report import lab_reference
+    from softsensor.calibration.pipeline import objective_spec, validate_many
     from softsensor.model import DryerModel
 
     check_target(args.json)
@@ -377,28 +432,24 @@ def validate_main(args: argparse.Namespace) -> int:
     segments = [load_segment(p, config) for p in args.days]
     model = DryerModel(config)
     spec = objective_spec(model, segments, base, calibration)
-    cal_cost = fit.get("cost")
-    result = validate(segments, config, spec, config.parameter_vector(),
-                      float(cal_cost) if isinstance(cal_cost, (int, float)) else None, model)
-    doc = result.summary()
+    # the calibration cost of the parameters the file holds: the current ones when it kept them
+    cal_cost = fit.get("cost_at_current" if fit.get("deployed") == "current" else "cost")
+    result, default = validate_many(
+        segments, config, spec, [config.parameter_vector(), base.parameter_vector()],
+        [float(cal_cost) if isinstance(cal_cost, (int, float)) else None, None], model)
+    text = validation_sentences(result, default, lab_reference(segments),
+                                display_settings(base).moisture_basis)
+    doc = {**result.summary(), "summary": text,
+           "default_parameters": {k: v for k, v in default.summary().items()
+                                  if k in ("rmse", "weighted_rmse", "cost", "score",
+                                           "open_loop")}}
     if args.report:
         from softsensor.apps.calibration_report import validation_page
 
-        doc["report"] = str(validation_page(result, config, args.report))
+        doc["report"] = str(validation_page(result, config, args.report, default=default,
+                                            verdict=text))
     write_json(doc, args.json)
-    r, o = result.fit.rmse, result.evaluation.open_fit.rmse
-    basis = display_settings(base).moisture_basis
-    labs = np.concatenate([seg.lab_value for seg in segments])
-    x = float(np.median(labs)) if labs.size else 0.1
-
-    def pts(v: float) -> str:
-        return f"{moisture_pct_points(v, x, basis):.2f} % points"
-
-    print(f"validate: {len(segments)} day(s), errors (RMSE) with the inlet moisture fitted to "
-          f"the temperatures: dryer outlet {r['T_dryer_out']:.2f} °C, cyclone outlet "
-          f"{r['T_cyclone_out']:.2f} °C, outlet moisture {pts(r['moisture_out'])} ({basis} "
-          f"basis); open loop: {o['T_dryer_out']:.2f} °C, {o['T_cyclone_out']:.2f} °C, "
-          f"{pts(o['moisture_out'])}", file=sys.stderr)
+    print(f"validate: {len(segments)} day(s): {text}", file=sys.stderr)
     return 0
 
 

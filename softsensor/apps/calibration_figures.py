@@ -159,30 +159,41 @@ def clock_axis(ax, display: DisplaySettings) -> None:
     ax.xaxis.set_major_formatter(mdates.ConciseDateFormatter(loc, tz=display.zone))
 
 
-def trajectory_figure(segments: Sequence[Segment], runs: Sequence[ModelRun],
-                      path: str | Path, title: str,
-                      display: DisplaySettings | None = None) -> Path:
-    """Figs. 5 and 6: model against measurements, every channel, every segment at its own
-    local clock time; temperatures in °C, moisture in % on the display basis."""
+def trajectory_plot(segments: Sequence[Segment], runs: Sequence[ModelRun], title: str,
+                    display: DisplaySettings | None = None):
+    """Figs. 5 and 6 as a matplotlib figure (the caller saves or closes it): model against
+    measurements, every channel, every segment at its own local clock time; temperatures in
+    °C, moisture in % on the display basis. ``runs[s]`` row 0 is the model the fit tables
+    score (the inlet moisture fitted, :meth:`~softsensor.calibration.chunked_run.ChunkedRun.
+    model_lines`), drawn solid; a row 1 that differs (the nominal inlet moisture, open loop)
+    is drawn dashed beside it. The lines carry ``gid`` ``measured``, ``model``,
+    ``open_loop``, ``lab`` and ``model_at_lab``."""
     display = display or DisplaySettings()
     basis = display.moisture_basis
     fig, axes = plt.subplots(3, 1, figsize=(11, 8.5), sharex=True)
     for s, (seg, run) in enumerate(zip(segments, runs, strict=True)):
-        Y = run.Y[0]
         t = local_times(seg.window_ends_ns(), display)
         first = s == 0
+        open_loop = run.Y.shape[0] > 1 and not np.array_equal(run.Y[1], run.Y[0],
+                                                                equal_nan=True)
+        series = [(run.Y[0], "-", "tab:red", 1.2, "model", "model (inlet moisture fitted)")]
+        if open_loop:
+            series.append((run.Y[1], "--", "0.45", 0.9, "open_loop",
+                           "model, nominal inlet moisture (open loop)"))
         for c, ax in enumerate(axes[:2]):
-            ax.plot(t, celsius(seg.Y[:, c]), ".", ms=3, color="tab:blue",
+            ax.plot(t, celsius(seg.Y[:, c]), ".", ms=3, color="tab:blue", gid="measured",
                     label="measured (600 s mean)" if first else None)
-            ax.plot(t, celsius(Y[:, c]), "-", color="tab:red", lw=1.2,
-                    label="model" if first else None)
+            for Y, ls, color, lw, gid, label in series:
+                ax.plot(t, celsius(Y[:, c]), ls, color=color, lw=lw, gid=gid,
+                        label=label if first else None)
+        for Y, ls, color, lw, gid, label in series:
+            axes[2].plot(t, moisture_pct(Y[:, 2], basis), ls, color=color, lw=lw, gid=gid,
+                         label=label if first else None)
         lab_t = local_times(seg.lab_time_ns, display)
-        axes[2].plot(t, moisture_pct(Y[:, 2], basis), "-", color="tab:red", lw=1.2,
-                     label="model" if first else None)
         axes[2].plot(lab_t, moisture_pct(seg.lab_value, basis), "s", ms=5, color="tab:green",
-                     label="lab (at sample time)" if first else None)
+                     gid="lab", label="lab (at sample time)" if first else None)
         axes[2].plot(lab_t, moisture_pct(run.lab[0], basis), "x", ms=6, color="tab:red",
-                     label="model at sample time" if first else None)
+                     gid="model_at_lab", label="model at sample time" if first else None)
     units = {"T_dryer_out": "°C", "T_cyclone_out": "°C", "moisture_out": display.moisture_unit}
     for ax, name in zip(axes, OUTPUT_NAMES, strict=True):
         ax.set_ylabel(f"{name} [{units[name]}]")
@@ -191,7 +202,14 @@ def trajectory_figure(segments: Sequence[Segment], runs: Sequence[ModelRun],
     clock_axis(axes[-1], display)
     axes[0].set_title(title)
     axes[-1].set_xlabel(f"local time ({display.time_zone})")
-    return _save(fig, Path(path))
+    return fig
+
+
+def trajectory_figure(segments: Sequence[Segment], runs: Sequence[ModelRun],
+                      path: str | Path, title: str,
+                      display: DisplaySettings | None = None) -> Path:
+    """:func:`trajectory_plot` written to ``path`` (PNG)."""
+    return _save(trajectory_plot(segments, runs, title, display), Path(path))
 
 
 def markdown_table(header: Sequence[str], rows: Sequence[Sequence[object]]) -> str:
@@ -246,4 +264,4 @@ def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, 
 
 
 __all__ = ["clock_axis", "markdown_table", "profile_step_figure", "sensitivity_figure",
-           "study_figure", "trajectory_figure", "write_page"]
+           "study_figure", "trajectory_figure", "trajectory_plot", "write_page"]

@@ -104,8 +104,10 @@ def identifiability_sections(ident: Identifiability, config: PlantConfig,
     ]
 
 
-def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
-    """Figures and tables of a calibration (Figs. 2 to 5)."""
+def calibration_page(result: CalibrationResult, directory: str | Path,
+                     verdict: str | None = None) -> Path:
+    """Figures and tables of a calibration (Figs. 2 to 5) under ``verdict`` (default: the
+    shared calibration verdict of :mod:`softsensor.verdicts`)."""
     d = _dir(directory)
     cfg = result.config
     model = DryerModel(cfg)
@@ -142,7 +144,7 @@ def calibration_page(result: CalibrationResult, directory: str | Path) -> Path:
     figures.profile_step_figure(model, result.theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
                      "![](fig3_profile_steps.png)"))
-    verdict = calibration_result_verdict(result, display_settings(cfg).moisture_basis)
+    verdict = verdict or calibration_result_verdict(result, display_settings(cfg).moisture_basis)
     return figures.write_page(d, "Calibration report", sections, verdict=verdict)
 
 
@@ -166,24 +168,32 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
                               verdict=identifiability_verdict(ident))
 
 
-def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path
+def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path,
+                    default: ValidationResult | None = None, verdict: str | None = None
                     ) -> Path:
+    """Fig. 6 and the validation's tables; ``default``: the config's default parameters on
+    the same data, tabled beside; ``verdict``: the sentence first on the page (default:
+    :func:`~softsensor.verdicts.validation_verdict`)."""
     d = _dir(directory)
     disp, x_ref = display_settings(config), lab_reference(result.segments)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
-                              "Validation: calibrated model (nominal inlet moisture) vs "
-                              "independent data", disp)
+                              "Validation: calibrated model vs independent data", disp)
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
+    w = config.cost.weights()
     sections = [
         ("Fit with the inlet moisture fitted to the temperatures",
-         fit_table(result.fit, config.cost.weights(), disp, x_ref)
+         fit_table(result.fit, w, disp, x_ref)
          + f"\n\nValidation cost / calibration cost: {ratio}"),
-        ("Open loop (nominal inlet moisture)",
-         fit_table(result.evaluation.open_fit, config.cost.weights(), disp, x_ref)),
-        ("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"),
+        ("Open loop (nominal inlet moisture)", fit_table(result.evaluation.open_fit, w, disp,
+                                                         x_ref)),
     ]
+    if default is not None:
+        sections.append(("The config's default parameters on the same data (inlet moisture "
+                         "fitted to the temperatures)", fit_table(default.fit, w, disp, x_ref)))
+    sections.append(("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"))
     title = ", ".join(s.source for s in result.segments)
-    verdict = validation_verdict(result.fit.rmse, result.ratio, x_ref, disp.moisture_basis)
+    verdict = verdict or validation_verdict(result.fit.rmse, result.ratio, x_ref,
+                                            disp.moisture_basis)
     return figures.write_page(d, f"Validation report: {title}", sections, verdict=verdict)
 
 

@@ -33,6 +33,7 @@ from softsensor.calibration.objective import (
     Evaluation,
     ObjectiveSpec,
     evaluate,
+    inlet_fitted_run,
     sensitivity_offsets,
 )
 from softsensor.errors import SoftsensorError
@@ -265,6 +266,22 @@ class ChunkedRun:
     def drop(self, member: int) -> None:
         """Stop simulating ``member`` (pruned)."""
         self.alive[member] = False
+
+    def model_lines(self, member: int, ev: Evaluation) -> list[ModelRun]:
+        """Parameter set ``member``'s outputs on every segment as two rows (a complete run):
+        row 0 with ``ev``'s fitted inlet trajectory, what the cost compares (the measurements
+        minus it are the residuals ``ev`` scores), row 1 with the nominal inlet moisture (open
+        loop). Without an estimated inlet moisture both rows are the open-loop run."""
+        B = self.theta.shape[0]
+        out = []
+        for s, (seg, run) in enumerate(zip(self.segments, self.runs, strict=True)):
+            base = run.member(member)
+            fitted = (base if self.du is None else
+                      inlet_fitted_run(seg, base, run.member(member + B), ev.inlet[s],
+                                       ev.knots[s]))
+            out.append(ModelRun(np.concatenate([fitted.Y, base.Y]),
+                                np.concatenate([fitted.lab, base.lab])))
+        return out
 
     def run(self) -> list[Evaluation]:
         """Run every remaining chunk without pruning; return the full-horizon evaluations."""

@@ -134,11 +134,13 @@ def validation_pieces(days: Sequence[Segment], choices: Sequence[WindowChoice],
 
 
 def choose_windows(days: Sequence[Segment], window_hours: float, fit_hours: float,
-                   min_labs: int) -> tuple[list[WindowChoice], list[Segment] | None]:
-    """The calibration windows and the validation data: one day, its best window and (None)
-    its held-out tail; several days, windows across them and the rest of every day."""
+                   min_labs: int, windows_per_day: int = 1
+                   ) -> tuple[list[WindowChoice], list[Segment] | None]:
+    """The calibration windows and the validation data: one day, its ``windows_per_day``
+    best windows and (None) their held-out tails; several days, windows across them and the
+    rest of every day."""
     if len(days) == 1:
-        return select_windows(days[0], window_hours, 1, min_labs), None
+        return select_windows(days[0], window_hours, windows_per_day, min_labs), None
     choices = select_across(list(days), window_hours, fit_hours, min_labs)
     held = validation_pieces(days, choices)
     return choices, held or None
@@ -159,7 +161,8 @@ def inlet_levels(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
 def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: StudySettings,
                       calibration: CalibrationSettings, *, current_theta: np.ndarray,
                       window_hours: float, fit_hours: float, min_labs: int = 3,
-                      polish: bool = True, identify_result: bool = True, force: bool = False,
+                      windows_per_day: int = 1, polish: bool = True,
+                      identify_result: bool = True, force: bool = False,
                       validation: Sequence[Segment] | None = None,
                       model: DryerModel | None = None,
                       progress: Callable[[str], None] | None = None) -> HistoryResult:
@@ -167,8 +170,8 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     on instead of the held-out hours."""
     say = progress or (lambda phase: None)
     model = model or DryerModel(config)
-    t0 = time.perf_counter()
-    choices, held = choose_windows(days, window_hours, fit_hours, min_labs)
+    t0, c0 = time.perf_counter(), time.process_time()
+    choices, held = choose_windows(days, window_hours, fit_hours, min_labs, windows_per_day)
     if validation:
         held = list(validation)
     result = calibrate([c.segment for c in choices], config, settings, calibration,
@@ -183,16 +186,18 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
     say("model error")
-    t1 = time.perf_counter()
+    t1, c1 = time.perf_counter(), time.process_time()
     levels = inlet_levels(model, days, theta, result)
     me = fit_model_error(model, days, theta, float(np.mean(levels)),
                          float(np.std(levels)) if len(levels) > 1 else 0.0)
     timings["model_error"] = time.perf_counter() - t1
+    timings["model_error_cpu"] = time.process_time() - c1
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
         disc = discrepancy(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
+    timings["history_total_cpu"] = time.process_time() - c0
     return HistoryResult(result, theta, kept, reason, levels, me, disc, list(days), timings)
 
 

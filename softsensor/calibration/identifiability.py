@@ -234,10 +234,13 @@ class ProfileTest:
 def profile_test(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
                  ev: Evaluation, spec: ObjectiveSpec, bounds: np.ndarray, tested: np.ndarray,
                  informed: np.ndarray, within: float = WITHIN,
-                 profile_nfev: int = PROFILE_NFEV) -> ProfileTest:
+                 profile_nfev: int = PROFILE_NFEV,
+                 jac_model: DryerModel | None = None) -> ProfileTest:
     """Move each ``tested`` parameter by ``x (1 +- within)``, re-fit the other ``informed``
     ones by at most ``profile_nfev`` bounded Gauss-Newton steps and measure the objective's
-    rise in units of ``spec.prior_scale``: points of the profile of the objective."""
+    rise in units of ``spec.prior_scale``: points of the profile of the objective.
+    ``jac_model``: a cheaper model for the steps' Jacobians (:class:`~.refine.
+    WeightedResiduals`); every objective compared is ``model``'s."""
     from scipy.optimize import least_squares
 
     from softsensor.calibration.chunked_run import evaluate_parameters
@@ -251,23 +254,30 @@ def profile_test(model: DryerModel, segments: Sequence[Segment], theta: np.ndarr
     up, dn = np.full(n, np.nan), np.full(n, np.nan)
     unit = spec.prior_scale if spec.prior_scale > 0 else 1.0
 
-    def refit(z: np.ndarray, others: np.ndarray) -> float:
-        """The objective with ``others`` re-fitted from ``z`` (a few Gauss-Newton steps)."""
-        if others.size and profile_nfev > 0:
-            active = np.zeros(n, dtype=bool)
-            active[others] = True
-            prob = WeightedResiduals(model, segments, spec, scale, z, active)
-            sol = least_squares(prob.fun, z[active], jac=prob.jac,
-                                bounds=(lo[active], hi[active]), method="trf",
-                                max_nfev=profile_nfev, xtol=1e-4, ftol=1e-4)
-            z = prob.full(np.clip(sol.x, lo[active], hi[active]))
-        return evaluate_parameters(model, segments, np.exp(z), spec)[0].objective
+    def refit(z: np.ndarray, others: np.ndarray, at: Evaluation | None = None) -> float:
+        """The objective with ``others`` re-fitted from ``z`` (a few Gauss-Newton steps);
+        ``at``: the evaluation at ``z`` when known."""
+        if not (others.size and profile_nfev > 0):
+            return (at or evaluate_parameters(model, segments, np.exp(z), spec)[0]).objective
+        active = np.zeros(n, dtype=bool)
+        active[others] = True
+        prob = WeightedResiduals(model, segments, spec, scale, z, active, jac_model)
+        if at is not None:
+            prob.seed(z[active], at)
+        sol = least_squares(prob.fun, z[active], jac=prob.jac,
+                            bounds=(lo[active], hi[active]), method="trf",
+                            max_nfev=profile_nfev, xtol=1e-4, ftol=1e-4)
+        x = np.clip(sol.x, lo[active], hi[active])
+        end = prob.evaluation(x)  # least_squares ends on a point it evaluated
+        if end is None:
+            end = evaluate_parameters(model, segments, np.exp(prob.full(x)), spec)[0]
+        return end.objective
 
     for i in np.flatnonzero(tested):
         others = np.array([j for j in np.flatnonzero(informed) if j != i], dtype=int)
         # the reference is the calibrated point re-fitted the same way, so that an optimum
         # the polish left a little short of does not pass for a rise
-        ref = min(ev.objective, refit(z0.copy(), others))
+        ref = min(ev.objective, refit(z0.copy(), others, ev))
         for sign, step in ((1, np.log1p(within)), (-1, np.log1p(-within))):
             zi = z0[i] + step
             if zi > hi[i] + 1e-12 or zi < lo[i] - 1e-12:
@@ -404,10 +414,12 @@ def analyse(sens: Sequence[Sensitivities], weights: np.ndarray, noise: np.ndarra
 
 
 def identify(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
-             spec: ObjectiveSpec, bounds: np.ndarray, *, profile: bool = True
+             spec: ObjectiveSpec, bounds: np.ndarray, *, profile: bool = True,
+             jac_model: DryerModel | None = None
              ) -> tuple[Identifiability, list[Sensitivities]]:
     """The whole analysis at ``theta``: sensitivities, FIMs, and the profile test of the
-    parameters the FIM calls pinned."""
+    parameters the FIM calls pinned (its steps' Jacobians from ``jac_model`` when given,
+    :func:`profile_test`)."""
     sens, ev = sensitivities(model, segments, theta, spec)
     noise = noise_from_evaluation(ev)
     p_sd = prior_sd(spec, bounds)
@@ -418,7 +430,8 @@ def identify(model: DryerModel, segments: Sequence[Segment], theta: np.ndarray,
     informed = np.array([v.verdict != "not identifiable" for v in local.verdicts])
     if not tested.any():
         return local, sens
-    prof = profile_test(model, segments, theta, ev, spec, bounds, tested, informed)
+    prof = profile_test(model, segments, theta, ev, spec, bounds, tested, informed,
+                        jac_model=jac_model)
     return analyse(sens, spec.weights, noise, p_sd, prof), sens
 
 

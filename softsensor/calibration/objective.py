@@ -165,6 +165,22 @@ def _corrected(seg: Segment, base: ModelRun, sens: ModelRun, b: int, k: int,
     return parts, c_hat, knots, float(0.5 * c_hat @ L @ c_hat)
 
 
+def inlet_fitted_run(seg: Segment, base: ModelRun, sens: ModelRun, c_hat: np.ndarray,
+                     knots_h: np.ndarray) -> ModelRun:
+    """Member 0 of ``base`` on ``seg`` with the inlet trajectory ``c_hat`` (knot values at
+    ``knots_h`` [h]) added through the sensitivities ``(sens - base) / DELTA``: the model's
+    outputs at every window end and lab sample as the cost compares them (measured minus these
+    are the residuals it sees). Without a trajectory, ``base``'s member 0."""
+    if c_hat.size == 0:
+        return base.member(0)
+    t_win, t_lab = _hours_of(seg, seg.n_windows, len(seg.lab_value))
+    d_win = hat_basis(t_win, knots_h) @ c_hat
+    d_lab = hat_basis(t_lab, knots_h) @ c_hat
+    Y = base.Y[0] + (sens.Y[0] - base.Y[0]) / DELTA * d_win[:, None]
+    lab = base.lab[0] + (sens.lab[0] - base.lab[0]) / DELTA * d_lab
+    return ModelRun.single(Y, lab)
+
+
 def _data_term(fit: Fit, spec: ObjectiveSpec, inlet_penalty: float) -> float:
     if not np.isfinite(fit.cost):
         return float("inf")
@@ -301,4 +317,5 @@ __all__ = [
     "prior_scale",
     "residual_vector",
     "sensitivity_offsets",
+    "inlet_fitted_run",
 ]

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import optuna
 
-from softsensor.calibration.chunked_run import evaluate_parameters, simulate_segments
+from softsensor.calibration.chunked_run import ChunkedRun, evaluate_parameters
 from softsensor.calibration.cost import ModelRun, weighted_rmse
 from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
 from softsensor.calibration.disturbance import InletPrior
@@ -254,20 +254,32 @@ class ValidationResult:
                 "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}
 
 
+def validate_many(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
+                  thetas: Sequence[np.ndarray], calibration_costs: Sequence[float | None],
+                  model: DryerModel) -> list[ValidationResult]:
+    """:func:`validate` of several parameter sets through one batched run (the members run
+    on the model's threads; each gets the numbers it gets alone)."""
+    for seg in segments:
+        seg.require_labs(1)
+    vspec = dataclasses.replace(spec, inlet_from_labs=False)
+    run = ChunkedRun(model, segments, np.stack([np.asarray(t, float) for t in thetas]), vspec,
+                     n_chunks=1)
+    evs = run.run()
+    return [ValidationResult(theta=np.asarray(t, float), evaluation=ev, segments=list(segments),
+                             runs=run.model_lines(b, ev), weights=config.cost.weights(),
+                             calibration_cost=cost)
+            for b, (t, ev, cost) in enumerate(zip(thetas, evs, calibration_costs, strict=True))]
+
+
 def validate(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
              theta: np.ndarray | None = None, calibration_cost: float | None = None,
              model: DryerModel | None = None) -> ValidationResult:
     """Score ``theta`` (default: the config's values) on ``segments`` with the inlet
-    trajectory fitted to the temperatures only (module docstring)."""
-    for seg in segments:
-        seg.require_labs(1)
+    trajectory fitted to the temperatures only (module docstring). Its ``runs`` hold the
+    model with that trajectory (row 0, what the scores compare) and open loop (row 1)."""
     model = model or DryerModel(config)
     theta = config.parameter_vector() if theta is None else np.asarray(theta, float)
-    vspec = dataclasses.replace(spec, inlet_from_labs=False)
-    ev = evaluate_parameters(model, segments, theta, vspec)[0]
-    runs = simulate_segments(model, segments, theta)
-    return ValidationResult(theta=theta, evaluation=ev, segments=list(segments), runs=runs,
-                            weights=config.cost.weights(), calibration_cost=calibration_cost)
+    return validate_many(segments, config, spec, [theta], [calibration_cost], model)[0]
 
 
 def at_bounds(theta: np.ndarray, bounds: np.ndarray, margin: float) -> list[str]:
@@ -343,7 +355,8 @@ class CalibrationResult:
         if self.validation is not None and self.current_validation is not None:
             new, old = self.validation, self.current_validation
             parts.append(
-                f"validation on {new.segments[0].hours:.1f} h held out: calibrated "
+                f"validation on {sum(seg.hours for seg in new.segments):.1f} h held out: "
+                f"calibrated "
                 f"{_rmse_text(new.fit.rmse)} (score {new.score:.4g}) against current "
                 f"{_rmse_text(old.fit.rmse)} (score {old.score:.4g})")
         flags = self.at_bounds
@@ -460,18 +473,30 @@ def _validation_section(new: ValidationResult, old: ValidationResult | None
 
 @contextmanager
 def _phase(name: str, timings: dict[str, float], say: Callable[[str], None]) -> Iterator[None]:
-    """Announce a calibration phase and record its wall time in ``timings[name]``."""
+    """Announce a calibration phase and record its wall time in ``timings[name]`` and the
+    CPU time of every thread of the process in ``timings[name + "_cpu"]`` [s]: on a shared
+    machine the wall time depends on the load, the CPU time much less."""
     say(name)
-    t0 = time.perf_counter()
+    w0, c0 = time.perf_counter(), time.process_time()
     yield
-    timings[name] = time.perf_counter() - t0
+    timings[name] = time.perf_counter() - w0
+    timings[f"{name}_cpu"] = time.process_time() - c0
+
+
+def _tpe_best(study: optuna.Study) -> tuple[np.ndarray, dict[str, Any]]:
+    """The study's best parameters and where TPE found them."""
+    best = study.best_trial
+    return theta_of(best.params), {"trial": best.number, "objective": best.value,
+                                   "first_reached": first_trial_reaching(study, best.value)}
 
 
 def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
-            theta: np.ndarray, config: PlantConfig, spec: ObjectiveSpec) -> Refinement:
-    """Refine TPE's best point; an improvement joins the study as a trial (user attribute
-    ``origin = "refine"``), so that the study's best trial is the result."""
-    refinement = refine(model, fit_segs, theta, config.bounds(), spec)
+            theta: np.ndarray, config: PlantConfig, spec: ObjectiveSpec,
+            jac_model: DryerModel) -> Refinement:
+    """Refine TPE's best point (the Jacobians from ``jac_model``, the search's); an
+    improvement joins the study as a trial (user attribute ``origin = "refine"``), so that
+    the study's best trial is the result."""
+    refinement = refine(model, fit_segs, theta, config.bounds(), spec, jac_model=jac_model)
     if refinement.improved:
         study.add_trial(optuna.trial.create_trial(
             params=dict(zip(PARAMETER_NAMES, map(float, refinement.theta), strict=True)),
@@ -485,8 +510,7 @@ def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: Objective
                    model: DryerModel) -> tuple[ValidationResult, ValidationResult, Discrepancy]:
     """The result and the current parameters on the held-out data, and the result's
     discrepancy there (the [discrepancy] the estimator and the diagnosis use)."""
-    val = validate(held, config, spec, theta, fit_cost, model)
-    cur_val = validate(held, config, spec, current, None, model)
+    val, cur_val = validate_many(held, config, spec, [theta, current], [fit_cost, None], model)
     return val, cur_val, discrepancy(val.evaluation, held)
 
 
@@ -525,24 +549,21 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
                       if validation_segments is None
                       else (list(segments), list(validation_segments)))
     current = config.parameter_vector() if current_theta is None else np.asarray(current_theta)
-    spec = objective_spec(model, fit_segs, config, calibration)
-    say("study")
-    study, _created = open_study(settings, config, data_fingerprint(fit_segs, config, spec))
-    report = run_trials(study, search_model(model, calibration), fit_segs, config, settings,
-                        spec)
-    timings["study"] = time.perf_counter() - t0
-    best = study.best_trial
-    tpe_best = {"trial": best.number, "objective": best.value,
-                "first_reached": first_trial_reaching(study, best.value)}
-    theta = theta_of(best.params)
+    fast = search_model(model, calibration)
+    with _phase("study", timings, say):
+        spec = objective_spec(model, fit_segs, config, calibration)
+        study, _ = open_study(settings, config, data_fingerprint(fit_segs, config, spec))
+        report = run_trials(study, fast, fit_segs, config, settings, spec)
+    theta, tpe_best = _tpe_best(study)
     refinement = None
     if polish:
         with _phase("refine", timings, say):
-            refinement = _polish(study, model, fit_segs, theta, config, spec)
+            refinement = _polish(study, model, fit_segs, theta, config, spec, fast)
         if refinement.improved:
             theta = refinement.theta
-    evs = evaluate_parameters(model, fit_segs, np.stack([theta, current]), spec)
-    runs = simulate_segments(model, fit_segs, theta)
+    run = ChunkedRun(model, fit_segs, np.stack([theta, current]), spec, n_chunks=1)
+    evs = run.run()
+    runs = run.model_lines(0, evs[0])
     val = cur_val = disc = None
     if held:
         with _phase("validate", timings, say):
@@ -551,7 +572,8 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     ident = importance = sens = None
     if identify_result:
         with _phase("identify", timings, say):
-            ident, sens = identify(model, fit_segs, theta, spec, config.bounds())
+            ident, sens = identify(model, fit_segs, theta, spec, config.bounds(),
+                                   jac_model=fast)
             importance = parameter_importance(study)
     timings["total"] = time.perf_counter() - t0
     return CalibrationResult(
@@ -563,17 +585,6 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
         trials_here=report.trials, pruned_here=report.pruned)
 
 
-__all__ = [
-    "DEFAULT_WINDOW_HOURS",
-    "CalibrationResult",
-    "DataSelection",
-    "Discrepancy",
-    "ValidationResult",
-    "at_bounds",
-    "calibrate",
-    "discrepancy",
-    "select_segments",
-    "objective_spec",
-    "split_holdout",
-    "validate",
-]
+__all__ = ["DEFAULT_WINDOW_HOURS", "CalibrationResult", "DataSelection", "Discrepancy",
+           "ValidationResult", "at_bounds", "calibrate", "discrepancy", "objective_spec",
+           "select_segments", "split_holdout", "validate", "validate_many"]
