@@ -1,0 +1,98 @@
+"""Hide an effect in days of the independent plant and require the diagnosis to find it
+against the plant's normal learned from its history (issue 22).
+
+The independent plant (:mod:`softsensor.plant.independent`) shares no equation with the
+model, so the calibrated model misses it on every day; a clean day of it must read as normal
+and an effect day must stand out. Here, as a process engineer would hand it over: four clean
+days of one plant (plant seed 11, day seeds 100 to 103) give the model error
+(:func:`~softsensor.calibration.model_error_fit.fit_model_error`, PARAMS.toml's
+``[model_error]``) at the config's parameters, and ``diagnose`` judges fresh days of the same
+plant against it. The seeds are fixed (the default suite is deterministic); the magnitudes
+are in the upper half of each effect's detectable range (:data:`softsensor.plant.effects.
+EFFECTS`), where the benchmark names them on every tuning plant.
+
+What this checks is the part of the capability that holds on every plant measured
+(``benchmarks/open_world.py --parts diagnosis``, README, Diagnosis): a clean day is
+``none`` (no false alarm), an inlet-moisture excursion and a lagging ``T_air_in`` sensor are
+named with a positive held-out gain. Lab delays, fouling and ambient heat loss are named on
+some plants only (README's confusion matrix) and are not required here. On these 16 h
+days the three cases are also named without the history (the config's floors; checked by
+hand, as was a normal ten times too tight): what the history's normal adds shows on the
+benchmark's 48 h days and clean-day false alarms, not here. The randomised version (fresh
+plant and day seeds) runs with ``-m slow``.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+
+import pytest
+
+from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.model_error_fit import fit_model_error
+from softsensor.calibration.params_file import params_document, write_params
+from softsensor.diagnosis.pipeline import diagnose
+from softsensor.model.dryer import DryerModel
+from softsensor.plant.independent import simulate_independent_day
+from softsensor.plantconfig import load_parameters, load_plant_config
+
+#: Record length of every day [h] (the benchmark's are 48 h; 16 h keeps the suite short).
+HOURS = 16.0
+PLANT = 11
+HISTORY_SEEDS = (100, 101, 102, 103)
+#: (cause, magnitude, day seed): magnitudes in the upper half of the detectable range.
+CASES = (("none", None, 201), ("inlet_moisture", 0.2, 201), ("input_lag", 15.0, 202))
+
+
+def _plant_with_history(plant: int, seeds, hours: float, tmp_path):
+    cfg = load_plant_config()
+    days = [simulate_independent_day(cfg, hours, s, plant_seed=plant) for s in seeds]
+    segs = [segment_from_day(d, cfg, source=f"history day {s}")
+            for d, s in zip(days, seeds, strict=True)]
+    me = fit_model_error(DryerModel(cfg), segs, cfg.parameter_vector(),
+                         float(cfg.nominal.moisture_in))
+    values = {n: cfg.parameters[n].value for n in cfg.parameters}
+    path = write_params(tmp_path / "params.toml",
+                        params_document(cfg, values, {}, model_error=me.to_table()))
+    return cfg, load_parameters(path, cfg)
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory):
+    return _plant_with_history(PLANT, HISTORY_SEEDS, HOURS, tmp_path_factory.mktemp("hist"))
+
+
+@pytest.mark.parametrize(("cause", "magnitude", "seed"), CASES, ids=[c[0] for c in CASES])
+def test_hidden_effect_is_named_against_the_plants_normal(plant, cause, magnitude, seed):
+    cfg, with_history = plant
+    effect = None if cause == "none" else cause
+    day = simulate_independent_day(cfg, HOURS, seed, effect, magnitude, plant_seed=PLANT)
+    doc = diagnose(with_history, day, source=f"independent plant {PLANT} day {seed}").to_json()
+    why = f"{cause} {magnitude} seed {seed}: named {doc['cause']} ({doc['structure']})"
+    assert doc["cause"] == cause, why
+    if cause != "none":
+        assert doc["gain"] > 0.05, why
+
+
+@pytest.mark.slow
+def test_randomised_plants_and_days():
+    """Fresh plant and day seeds (printed); the same three cases."""
+    import tempfile
+    from pathlib import Path
+
+    base = os.environ.get("SOFTSENSOR_DIAG_SEED")
+    rng = random.Random(int(base) if base and base.isdigit() else None)
+    plant_seed = rng.randrange(1000, 10**6)
+    history = tuple(rng.randrange(10**6) for _ in HISTORY_SEEDS)
+    print(f"plant seed {plant_seed}, history {history}")
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg, with_history = _plant_with_history(plant_seed, history, HOURS, Path(tmp))
+        named = []
+        for cause, magnitude, _ in CASES:
+            seed = rng.randrange(10**6)
+            day = simulate_independent_day(cfg, HOURS, seed,
+                                           None if cause == "none" else cause, magnitude,
+                                           plant_seed=plant_seed)
+            named.append((cause, seed, diagnose(with_history, day).to_json()["cause"]))
+    assert all(c == n for c, _, n in named), named
