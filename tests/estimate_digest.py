@@ -24,7 +24,6 @@ import argparse
 import contextlib
 import hashlib
 import io
-import json
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -98,16 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         out = Path(tmp) / "estimates.mcap"
         replay_demo(out)
         messages = estimates(out)
-    d = digest(messages)
-    print(d)
-    if args.write:
-        STORED.write_text(json.dumps({"sha256": d, "samples": samples(messages)}, indent=1)
-                          + "\n")
-        print(f"written to {STORED}")
-        return 0
-    stored = json.loads(STORED.read_text())["sha256"] if STORED.exists() else None
-    print("matches the stored digest" if d == stored else f"differs from the stored {stored}")
-    return 0 if d == stored else 1
+    from model_digest import store_or_compare  # this folder, as for the script's own run
+
+    return store_or_compare(digest(messages), samples(messages), STORED, args.write)
 
 
 if __name__ == "__main__":

@@ -37,6 +37,7 @@ import importlib.util
 import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -149,14 +150,20 @@ def main(argv: list[str] | None = None) -> int:
                         "purpose)")
     args = p.parse_args(argv)
     outputs = model_outputs()
-    d = digest(outputs)
+    return store_or_compare(digest(outputs), samples(outputs), STORED, args.write)
+
+
+def store_or_compare(d: str, samples_: Any, stored_path: Path, write: bool) -> int:
+    """Print digest ``d``; store it with ``samples_`` in ``stored_path`` when ``write``, else
+    compare with the stored one (exit status 1 when they differ). Shared with
+    ``tests/estimate_digest.py``."""
     print(d)
-    if args.write:
-        STORED.write_text(json.dumps({"sha256": d, "samples": samples(outputs)}, indent=1)
-                          + "\n")
-        print(f"written to {STORED}")
+    if write:
+        stored_path.write_text(json.dumps({"sha256": d, "samples": samples_}, indent=1)
+                               + "\n")
+        print(f"written to {stored_path}")
         return 0
-    stored = json.loads(STORED.read_text())["sha256"] if STORED.exists() else None
+    stored = json.loads(stored_path.read_text())["sha256"] if stored_path.exists() else None
     print("matches the stored digest" if d == stored else f"differs from the stored {stored}")
     return 0 if d == stored else 1
 
