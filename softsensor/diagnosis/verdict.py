@@ -38,8 +38,8 @@ An extension is *eligible* (:func:`verdict`) when
    the data, explains something else.
 
 4. its fix pays under the paper's cost: the cross-fitted ``gain`` (eq. 4, whole day) is
-   positive (``MIN_GAIN``). Eq. 4 is mostly the lab RMSE, so this costs a cause seen mainly in
-   the temperatures now and then (on the 32 tuning days one input lag and two ambient heat
+   above 5 % (``MIN_GAIN``). Eq. 4 is mostly the lab RMSE, so this costs a cause seen
+   mainly in the temperatures now and then (on the 32 tuning days one input lag and two ambient heat
    losses, whose fits left the labs worse), and it keeps an extension that fits the whitened
    temperatures while it moves the labs away from the data from being named.
 
@@ -82,8 +82,11 @@ WORSE_SHARE = 0.1
 #: bent to a calibration error doubled the temperature RMSE on independent-plant days).
 WORSE_GROWTH = 0.5
 #: The cross-fitted eq. 4 gain an eligible extension must exceed: a named cause's fix lowers
-#: the paper's cost on data it was not fitted on.
-MIN_GAIN = 0.0
+#: the paper's cost by 5 % on data it was not fitted on (less is not worth a plant engineer's
+#: action). Set on the tuning plants (independent plant seeds 11 to 13, 24 days, with their
+#: history's normal): at 0, two days of alternating chip batches were named ambient heat
+#: loss and a lab delay at gains of 0.044 and 0.034; every day named right had 0.057 or more.
+MIN_GAIN = 0.05
 #: A channel whose whitened baseline residuals have a mean square above this ...
 STRUCTURE_MS = 2.0
 #: ... with a chi-square p value below this is clearly structured (more than the

@@ -130,8 +130,10 @@ class ModelError:
         Covariance of the channels' day offsets, row-major ``3 x 3`` in :data:`CHANNELS`
         order [unit x unit] (empty: uncorrelated, from each channel's ``day_sd``). On the
         independent plant the two outlet temperatures' day offsets move together (correlation
-        0.99: one energy balance) and the lab's follows them, so the filter starts the day
-        with correlated offsets and a thermometer's own offset stands out.
+        0.99: one energy balance) and the lab's follows them, so the diagnosis judges a day
+        against correlated day offsets and a thermometer's own offset stands out (the
+        estimator starts uncorrelated, which measured better:
+        :meth:`~softsensor.estimation.discrepancy.ErrorPriors.from_config`).
     T_dryer_out, T_cyclone_out, moisture_out : ChannelError
         Per channel.
     """
