@@ -37,3 +37,17 @@ def test_a_verb_module_that_fails_to_import_is_named(module: str, missing: str, 
     assert len(err) == 1
     assert module in err[0] and missing in err[0]
     assert not (tmp_path / "d.mcap").exists()
+
+
+def test_diagnose_calibrates_with_the_trials_calibrate_uses():
+    """``diagnose --calibrate-on`` runs the same calibration as ``calibrate`` (issue 24 item
+    8: it used 40 trials where calibrate used the paper's 200)."""
+    import argparse
+
+    from softsensor.apps.calibrate import add_calibrate_arguments
+    from softsensor.apps.diagnose import add_diagnose_arguments
+
+    cal, diag = argparse.ArgumentParser(), argparse.ArgumentParser()
+    add_calibrate_arguments(cal)
+    add_diagnose_arguments(diag)
+    assert cal.get_default("trials") == diag.get_default("trials") == 200

@@ -33,6 +33,7 @@ from softsensor.calibration.selection import (
 from softsensor.calibration.settings import (
     COSTS,
     DEFAULT_STUDY_NAME,
+    DEFAULT_TRIALS,
     INLET_MODES,
     CalibrationSettings,
     calibration_settings,
@@ -138,8 +139,9 @@ def _calibration_settings(args: argparse.Namespace, config: PlantConfig
 
 def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("days", nargs="+", metavar="DAY.mcap", help="recorded day(s) to fit")
-    p.add_argument("--trials", type=int, default=200,
-                   help="finished trials the study should hold (default 200, as the paper); "
+    p.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
+                   help=f"finished trials the study should hold (default {DEFAULT_TRIALS}, as "
+                        "the paper); "
                         "an existing study is resumed up to this number")
     p.add_argument("--out", required=True, metavar="PARAMS.toml", help="file to write")
     p.add_argument("--params", default=None, metavar="PARAMS.toml",

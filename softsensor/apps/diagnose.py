@@ -5,8 +5,8 @@
 
 With ``--calibrate-on`` the paper's calibration (:func:`softsensor.calibration.pipeline.
 calibrate`: the Optuna TPE study, then the Gauss-Newton polish) runs on CAL with ``--trials``
-trials (default :data:`DEFAULT_TRIALS`: TPE finds the basin in a few dozen trials and the
-polish does the rest; the paper's 200 trials take minutes more for little gain) on its
+trials (default :data:`~softsensor.calibration.settings.DEFAULT_TRIALS`, 200 as the paper
+and ``calibrate``: the same calibration whichever verb runs it) on its
 ``--window-hours`` window with the most natural variability. With ``--params`` the parameter
 file is used as it is, its ``[discrepancy]`` (what the calibration left on held-out data,
 written by ``softsensor calibrate``) sizing the calibration-error alternative of
@@ -29,13 +29,12 @@ from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
+from softsensor.calibration.settings import DEFAULT_TRIALS
 from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
 from softsensor.verdicts import diagnosis_verdict
 
-#: Optuna trials of the calibration on CAL (before the local polish).
-DEFAULT_TRIALS = 40
 #: Calibration window taken from CAL. [h]
 DEFAULT_CAL_WINDOW_HOURS = 48.0
 

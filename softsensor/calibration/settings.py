@@ -21,6 +21,9 @@ from softsensor.plantconfig import PlantConfig
 
 #: The Optuna study a calibration writes to and resumes from in its storage.
 DEFAULT_STUDY_NAME = "softsensor-calibration"
+#: Trials of a calibration unless asked otherwise, as the paper's study (``calibrate`` and
+#: ``diagnose --calibrate-on`` alike).
+DEFAULT_TRIALS = 200
 
 #: Cost functions the calibration offers (:mod:`softsensor.calibration.objective`).
 COSTS: tuple[str, ...] = ("eq4", "likelihood")
@@ -93,4 +96,5 @@ def calibration_settings(cfg: PlantConfig) -> CalibrationSettings:
                          cfg.source)
 
 
-__all__ = ["COSTS", "INLET_MODES", "CalibrationSettings", "calibration_settings"]
+__all__ = ["COSTS", "DEFAULT_STUDY_NAME", "DEFAULT_TRIALS", "INLET_MODES", "CalibrationSettings",
+           "calibration_settings"]
