@@ -68,6 +68,29 @@ def output_guard_acl(unit: str) -> dict[str, Any]:
     }
 
 
+def _endpoints(mode: str, port: int | None, host: str, listen: Sequence[str] | None,
+               connect: Sequence[str]) -> list[str]:
+    """The listen endpoints of :func:`make_config`'s arguments, checked with the connect
+    ones (:class:`ConfigError` naming the ``bus`` key that is wrong)."""
+    if mode not in MODES:
+        raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
+    if listen is None:
+        if mode == "client" or port is None:
+            listen = []
+        else:
+            if not 0 <= int(port) <= 65535:
+                raise ConfigError(f"bus.port must be in 0..65535, got {port}")
+            listen = [f"tcp/{host}:{int(port)}"]
+    elif mode == "client" and listen:
+        raise ConfigError("bus.listen must be empty in client mode")
+    if mode == "client" and not connect:
+        raise ConfigError("bus.connect must name a router or peer endpoint in client mode")
+    for ep in [*listen, *connect]:
+        if "/" not in ep:
+            raise ConfigError(f"bus endpoint {ep!r} must look like tcp/127.0.0.1:7447")
+    return list(listen)
+
+
 def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT_HOST,
                 listen: Sequence[str] | None = None, connect: Sequence[str] = (),
                 multicast_scouting: bool = False, adminspace: bool = True,
@@ -105,22 +128,7 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         Longest wait for a connect endpoint's handshake (Zenoh's default is 10 s, which a
         port that accepts and never answers costs in full).
     """
-    if mode not in MODES:
-        raise ConfigError(f"bus.mode must be one of {', '.join(MODES)}, got {mode!r}")
-    if listen is None:
-        if mode == "client" or port is None:
-            listen = []
-        else:
-            if not 0 <= int(port) <= 65535:
-                raise ConfigError(f"bus.port must be in 0..65535, got {port}")
-            listen = [f"tcp/{host}:{int(port)}"]
-    elif mode == "client" and listen:
-        raise ConfigError("bus.listen must be empty in client mode")
-    if mode == "client" and not connect:
-        raise ConfigError("bus.connect must name a router or peer endpoint in client mode")
-    for ep in [*listen, *connect]:
-        if "/" not in ep:
-            raise ConfigError(f"bus endpoint {ep!r} must look like tcp/127.0.0.1:7447")
+    listen = _endpoints(mode, port, host, listen, connect)
     cfg = zenoh.Config()
     try:
         cfg.insert_json5("mode", json.dumps(mode))
