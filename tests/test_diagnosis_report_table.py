@@ -122,8 +122,10 @@ def _score(*, p=1e-6, penalised=20.0, worse=(), gain=0.1) -> Score:
 def test_why_not_is_said_in_a_few_words():
     assert why_not_short(_score()) == "eligible"
     assert why_not_short(_score(p=0.5)) == "not significant"
-    assert why_not_short(_score(penalised=3.2)) == "P +3.2 below threshold 10"
+    assert why_not_short(_score(penalised=3.2)) == "P +3.2 < 10"
     assert why_not_short(_score(worse=("moisture_out",))) == "makes moisture_out worse"
-    assert why_not_short(_score(gain=-0.01)) == "no eq. 4 gain"
+    assert why_not_short(_score(gain=-0.01)) == "eq. 4 gain -0.010 <= 0.05"
+    # a positive gain below 5 % is not worth a plant engineer's action (verdict.MIN_GAIN)
+    assert why_not_short(_score(gain=0.03)) == "eq. 4 gain +0.030 <= 0.05"
     assert why_not_short(_score(p=0.5, penalised=-1.0, gain=0.0)) == (
-        "not significant; P -1.0 below threshold 10; no eq. 4 gain")
+        "not significant; P -1.0 < 10; eq. 4 gain +0.000 <= 0.05")

@@ -38,7 +38,7 @@ from softsensor.apps.calibration_figures import (  # noqa: E402
     write_page,
 )
 from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
-from softsensor.diagnosis.verdict import ALPHA, MIN_GAIN, MIN_PENALISED, Score  # noqa: E402
+from softsensor.diagnosis.verdict import MIN_GAIN, MIN_PENALISED, Score  # noqa: E402
 from softsensor.display import (  # noqa: E402
     DisplaySettings,
     celsius,
@@ -180,24 +180,14 @@ EVIDENCE_NOTE = (
     "beyond the slow error the calibration leaves (whitened log-likelihood gain, positive: "
     "better). An extension is eligible when it is significant, its penalised gain P (the "
     f"channels' gains less one per fitted parameter) is at least {MIN_PENALISED:g}, it makes "
-    "no channel worse and it lowers the paper's cost (eq. 4).")
+    f"no channel worse and it lowers the paper's cost (eq. 4) by more than {MIN_GAIN:.0%}.")
 
 
 def why_not_short(sc: Score) -> str:
-    """``eligible``, or why not in a few words (:meth:`Score.why_not
-    <softsensor.diagnosis.verdict.Score.why_not>` says it in full)."""
-    if sc.eligible:
-        return "eligible"
-    reasons = []
-    if not sc.p_value < ALPHA:
-        reasons.append("not significant")
-    if not sc.penalised >= MIN_PENALISED:
-        reasons.append(f"P {sc.penalised:+.1f} below threshold {MIN_PENALISED:g}")
-    if sc.worse:
-        reasons.append("makes " + ", ".join(sc.worse) + " worse")
-    if not sc.gain > MIN_GAIN:
-        reasons.append("no eq. 4 gain")
-    return "; ".join(reasons) or "not eligible"
+    """``eligible``, or why not in a few words (:meth:`Score.failed_checks
+    <softsensor.diagnosis.verdict.Score.failed_checks>`; :meth:`~softsensor.diagnosis.
+    verdict.Score.why_not` says it in full)."""
+    return "; ".join(short for short, _ in sc.failed_checks()) or "eligible"
 
 
 def _cell(text: str) -> str:

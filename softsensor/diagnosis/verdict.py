@@ -136,22 +136,30 @@ class Score:
         return (self.p_value < ALPHA and self.penalised >= MIN_PENALISED
                 and not self.worse and self.gain > MIN_GAIN)
 
+    def failed_checks(self) -> list[tuple[str, str]]:
+        """The eligibility checks this extension fails, each as (a few words, in full)."""
+        out = []
+        if not self.p_value < ALPHA:
+            out.append(("not significant",
+                        f"not significant against the calibration error (likelihood ratio "
+                        f"{self.lr:.1f}, p = {self.p_value:.2g} >= {ALPHA:g})"))
+        if not self.penalised >= MIN_PENALISED:
+            out.append((f"P {self.penalised:+.1f} < {MIN_PENALISED:g}",
+                        f"its penalised log-likelihood gain {self.penalised:+.1f} is below "
+                        f"{MIN_PENALISED:g}"))
+        if self.worse:
+            out.append(("makes " + ", ".join(self.worse) + " worse", "it makes " + ", ".join(
+                f"{c} worse (log-likelihood {self.loglik[c]:+.1f}, RMSE "
+                f"{-self.relative[c]:+.0%})" for c in self.worse)))
+        if not self.gain > MIN_GAIN:
+            out.append((f"eq. 4 gain {self.gain:+.3f} <= {MIN_GAIN:g}",
+                        f"its cross-fitted gain under eq. 4, {self.gain:+.3f}, is not above "
+                        f"{MIN_GAIN:g}"))
+        return out
+
     def why_not(self) -> str | None:
         """Why the extension is not eligible, in words (None when it is)."""
-        reasons = []
-        if not self.p_value < ALPHA:
-            reasons.append(f"not significant against the calibration error (likelihood "
-                           f"ratio {self.lr:.1f}, p = {self.p_value:.2g} >= {ALPHA:g})")
-        if not self.penalised >= MIN_PENALISED:
-            reasons.append(f"its penalised log-likelihood gain {self.penalised:+.1f} is below "
-                           f"{MIN_PENALISED:g}")
-        if self.worse:
-            reasons.append("it makes " + ", ".join(
-                f"{c} worse (log-likelihood {self.loglik[c]:+.1f}, RMSE "
-                f"{-self.relative[c]:+.0%})" for c in self.worse))
-        if not self.gain > MIN_GAIN:
-            reasons.append(f"its cross-fitted gain under eq. 4, {self.gain:+.3f}, is not above "
-                           f"{MIN_GAIN:g}")
+        reasons = [full for _, full in self.failed_checks()]
         return "; ".join(reasons) if reasons else None
 
 
