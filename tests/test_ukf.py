@@ -714,3 +714,31 @@ def test_state_layout_keeps_the_model_states_first():
     sig = est.filter.points.sigma_points(np.zeros(n), np.diag([0.01, 1.0, 0.25, 0.25, 1e-4,
                                                                0.5]) + 0.001)
     assert len(np.unique(sig[:, [X_IN, X_HEAT]], axis=0)) == 5
+
+
+def test_the_learned_discrepancy_is_taken_off_the_measurements(tmp_path):
+    """A history that learned the model reads ``T_dryer_out`` 2 K low everywhere: the plant
+    reading 2 K above the model is then normal. The learned discrepancy comes off the
+    measurement, so the channel's offset state stays near zero and the model temperature
+    published is the measured one; taken as news, the offset state would carry the 2 K."""
+    from softsensor.calibration.params_file import params_document, write_params
+    from softsensor.estimation.model_error import FEATURES, no_model_error
+    from softsensor.plantconfig import load_parameters
+
+    neutral = no_model_error(FEATURES, np.zeros(len(FEATURES)), np.ones(len(FEATURES)))
+    me = dataclasses.replace(neutral, T_dryer_out=dataclasses.replace(
+        neutral.T_dryer_out, intercept=2.0, day_sd=0.3, noise=0.05))
+    values = {n: CFG.parameters[n].value for n in CFG.parameters}
+    cfg = load_parameters(write_params(tmp_path / "p.toml", params_document(
+        CFG, values, {}, model_error=me.to_table())), CFG)
+    wins, truth = synthetic_day(60, seed=15)
+    shifted = [dataclasses.replace(w, means={**w.means,
+                                             "T_dryer_out": w.means["T_dryer_out"] + 2.0})
+               for w in wins]
+    est = UkfEstimator(cfg, dataclasses.replace(EstimatorSettings(), **CALIBRATED),
+                       model=LinearDryer())
+    bodies = run(est, shifted, {})
+    end = bodies[-1]
+    assert abs(end["T_dryer_out_offset"]) < 0.5, end["T_dryer_out_offset"]
+    assert abs(end["moisture_in"] - truth[-1, 0]) < 0.05
+    assert end["T_dryer_out_model"] == pytest.approx(shifted[-1].means["T_dryer_out"], abs=0.5)
