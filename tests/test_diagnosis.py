@@ -32,6 +32,7 @@ from softsensor.diagnosis.verdict import ALPHA, MIN_PENALISED, Score, verdict
 from softsensor.diagnosis.windows import day_windows, delagged_air
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
+from softsensor.model.dryer import parameter_index
 from softsensor.plant.simulator import SimulatedDay, simulate_day
 from softsensor.plantconfig import load_plant_config
 
@@ -204,7 +205,12 @@ def test_each_parametric_fit_recovers_its_own_model(cfg, model, day):
 
     p0 = _problem(cfg, model, day)
     drift = TransferDrift()
-    p = _problem(cfg, model, _replace_outputs(day, p0, p0.predict(theta=drift.theta(p0, 0.3))))
+    # the model itself run with mult_D and mult_h falling by 30 % over the day
+    t_mid = (np.arange(p0.windows.n_windows) + 0.5) / p0.windows.n_windows
+    theta = np.tile(p0.theta, (p0.windows.n_windows, 1))
+    for name in ("mult_D", "mult_h"):
+        theta[:, parameter_index(name)] *= 1.0 - 0.3 * t_mid
+    p = _problem(cfg, model, _replace_outputs(day, p0, p0.predict(theta=theta)))
     # fitted by least squares on whitened residuals: the slow calibration-error states take
     # a little of a drift (a few hundredths)
     assert drift.fit(p).params["loss_by_end"] == pytest.approx(0.3, abs=0.04)

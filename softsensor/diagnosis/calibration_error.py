@@ -38,8 +38,8 @@ samples exist), so
 The filter is the estimator's (:mod:`softsensor.estimation.discrepancy`: the same states,
 their decay and process noise by the same rule, filterpy's ``predict`` and ``update``), run on
 the residuals instead of through the model. With a history (PARAMS.toml's ``[model_error]``)
-the channel states are random walks from the history's day-to-day spread, as the
-estimator's are.
+the states are the history's own structure (:func:`normal_states`): a level per day and a
+wander about it.
 
 The temperature states and the lab state are independent (the lab's own bias state carries
 the moisture part of a heat-input error), so two filters run: one over the windows with the
@@ -173,11 +173,15 @@ _H_NORMAL = np.array([[1.0, 0.0, 1.0, 0.0],
 
 def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> DiscrepancyModel:
     """The plant's normal as the history learned it (:mod:`softsensor.estimation.model_error`):
-    per channel a day level (correlated across the temperatures as their day offsets were,
-    moving by its day spread in a day) plus a first-order wander about it, and the white
-    noise the history left. A slow drift the wander cannot make (fouling) or a thermometer's
-    offset the other does not share then stands out, where a random walk would have taken
-    them in."""
+    per channel a day level (correlated across the temperatures as their day offsets were)
+    plus a first-order wander about it, and the white noise the history left. A slow drift
+    the wander cannot make (fouling) or a thermometer's offset the other does not share then
+    stands out.
+
+    The level stays put within the day, as the history's day offsets did; the estimator lets
+    its offsets walk (``walk``, across the days a daemon runs), and with that walk here the
+    filter took in fouling's drift: the fresh plants' fouling days then read as normal (3 of
+    4 named ``none``), without it their drift shows (seed 4242)."""
     cov = me.day_covariance()
     d, c, m = (me.channel(n) for n in CHANNELS)
     sd_lvl = np.sqrt(np.clip(np.diag(cov)[:2], 1e-12, None))
@@ -188,9 +192,9 @@ def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> Discrep
     source = f"history [model_error] ({me.days} days): day levels and wander"
     T = ErrorPriors(np.r_[sd_lvl, d.wander_sd, c.wander_sd],
                     np.r_[np.inf, np.inf, d.wander_tau_h, c.wander_tau_h] * 3600.0, source,
-                    np.r_[d.walk, c.walk, 0.0, 0.0] / 60.0, corr)
+                    np.zeros(4), corr)
     lab = ErrorPriors(np.r_[max(m.day_sd, 1e-12), m.wander_sd],
-                      np.r_[np.inf, m.wander_tau_h * 3600.0], source, np.r_[m.walk / 60.0, 0.0],
+                      np.r_[np.inf, m.wander_tau_h * 3600.0], source, np.zeros(2),
                       np.eye(2))
     return DiscrepancyModel(T, lab, _H_NORMAL, np.ones((1, 2)), np.asarray(noise, float),
                             window_s, source)

@@ -13,9 +13,10 @@ sensor_bias        ``y_c + b`` on one outlet temperature ``c``, the better of th
 lab_delay          the lab sample times moved by ``delta`` [min] before the model is aligned
                    to them (:mod:`softsensor.estimation.lab_alignment`; grid search, 2 min
                    steps within +-90 min refined to 0.5 min; the temperatures are untouched)
-fouling_drift      ``mult_D`` and ``mult_h`` of every window scaled by ``1 - d t / T`` (``t``
-                   from the start, ``T`` the day's length; per-window ``theta`` (K, 7));
-                   ``d`` [-] is the loss by the end of the day
+fouling_drift      ``mult_D`` and ``mult_h`` falling as ``1 - d t / T`` (``t`` from the start,
+                   ``T`` the day's length), the outputs moved quasi-statically by ``d t / T``
+                   times the model's steady response to that loss; ``d`` [-] is the loss by
+                   the end of the day
 input_lag          the ``T_air_in`` the model sees is the measured one with a first-order
                    sensor lag of time constant ``tau`` [min] undone: over a window,
                    ``mean(x + tau dx/dt) = mean(x) + tau (x_end - x_start) / W``
@@ -280,31 +281,57 @@ class LabTimeShift(Extension):
 
 
 class TransferDrift(Extension):
-    """``fouling_drift``: ``mult_D`` and ``mult_h`` fall linearly, by ``d`` at the day's end."""
+    """``fouling_drift``: ``mult_D`` and ``mult_h`` fall linearly, by ``d`` at the day's end,
+    and the outputs move as the model's steady state says they do.
+
+    The outputs drift by ``d t / T`` times the model's steady-state response to that loss at
+    the day's mean inputs (``S``, per unit loss: a lost transfer leaves the gas hotter and the
+    fibre wetter), over the windows and at the lab sample times. The drift is quasi-static:
+    fouling builds over hours, and the model run with the multipliers falling (the first
+    form) also changed its response to every input move, which the plant's fouling did not:
+    on the independent plant it lowered the raw RMSE of every channel (``T_dryer_out`` 1.0 to
+    0.34 K, the labs 0.0086 to 0.0055 kg/kg at a loss of 0.15) while the window-to-window
+    errors it added cost more than the drift it removed against the plant's normal."""
 
     cause = "fouling_drift"
     bounds = (-1.0, 0.9)
+    #: The loss at which the steady response is taken (a secant, not a derivative: the
+    #: response bends as the transfer falls). [-]
+    probe = 0.2
 
-    def theta(self, problem: Problem, d: float) -> np.ndarray:
-        """Per-window parameters (K, 7): the two tube multipliers times ``1 - d t / T``."""
-        w = problem.windows
-        t_mid = (np.arange(w.n_windows) + 0.5) / w.n_windows
-        factor = np.maximum(1.0 - d * t_mid, 0.02)
-        th = np.tile(problem.theta, (w.n_windows, 1))
-        th[:, _MULT_D] *= factor
-        th[:, _MULT_H] *= factor
-        return th
+    def response(self, problem: Problem) -> np.ndarray:
+        """``S`` (3,): the model's steady output change per unit transfer loss at the day's
+        mean inputs (``T_dryer_out``, ``T_cyclone_out`` [K], ``moisture_out`` [kg/kg])."""
+        u = problem.windows.U.mean(axis=0)
+        lost = np.array(problem.theta, float)
+        lost[_MULT_D] *= 1.0 - self.probe
+        lost[_MULT_H] *= 1.0 - self.probe
+        _, y0 = problem.model.steady_state(u, problem.theta)
+        _, y1 = problem.model.steady_state(u, lost)
+        return (np.asarray(y1, float) - np.asarray(y0, float)) / self.probe
 
     def fit(self, problem: Problem) -> Fitted:
+        w = problem.windows
+        base = problem.baseline
+        S = self.response(problem)
+        length_h = float(w.hours[-1])
+        t_win = (w.hours - 0.5 * w.window_s / 3600.0) / length_h
+        t_lab = w.lab_hours / length_h
+        lab_window = np.searchsorted(w.end_ns, w.lab_time_ns, side="left")
+
         def make(d: float, k_end: int | None) -> Prediction:
-            return problem.predict(theta=self.theta(problem, d), k_end=k_end)
+            k = w.n_windows if k_end is None else int(k_end)
+            Y = base.Y[:k] + d * t_win[:k, None] * S
+            lab = np.where(lab_window < k, base.lab + d * t_lab * S[2], np.nan)
+            return Prediction(Y, lab)
 
         d, chi = _fit_scalar(problem, make, self.bounds, step=0.05, tol=2e-3)
-        pred = make(d, None)
         trend = "lose" if d >= 0 else "gain"
-        return Fitted(self.cause, {"loss_by_end": d}, self.n_params, pred, chi,
+        return Fitted(self.cause, {"loss_by_end": d}, self.n_params, make(d, None), chi,
                       f"tube heat and mass transfer (mult_h, mult_D) {trend} {abs(d):.0%} "
-                      f"linearly over the {problem.windows.hours[-1]:.0f} h record")
+                      f"linearly over the {w.hours[-1]:.0f} h record: the outputs drift by "
+                      f"{d * S[0]:+.2f} K, {d * S[1]:+.2f} K and {d * S[2]:+.4f} kg/kg by "
+                      f"its end")
 
 
 class AirSensorLag(Extension):
