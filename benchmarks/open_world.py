@@ -55,7 +55,7 @@ import sys
 import tempfile
 import time
 import traceback
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -439,8 +439,12 @@ def estimate_day(ctx: Context, m: PlantModel, spec: DaySpec) -> dict[str, Any]:
     return out
 
 
-def estimator_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]:
-    """Part 2 over every test day, and the pooled numbers."""
+def each_test_day(ctx: Context, models: Sequence[PlantModel],
+                  work: Callable[[PlantModel, Any], dict[str, Any]],
+                  line: Callable[[dict[str, Any]], str], part: str) -> list[dict[str, Any]]:
+    """``work(model, spec)`` on every test day of the plan: one record per day with its plant,
+    seed, cause and magnitude, the work's fields or the error (a failing day is recorded, not
+    fatal), its wall time, and a progress line ``line(record)``."""
     days = []
     for spec in ctx.plan.tests:
         m = models[spec.plant]
@@ -450,14 +454,22 @@ def estimator_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]
         try:
             if m.config is None:
                 raise RuntimeError("no config: the plant's calibration failed")
-            rec.update(estimate_day(ctx, m, spec))
+            rec.update(work(m, spec))
         except Exception as exc:  # a failing day is recorded, not fatal
             rec.update(error_record(exc))
         rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
         days.append(rec)
-        say(f"{ctx.kind} estimator plant {spec.plant} {spec.effect} day {spec.seed}: "
-            + (rec.get("error") or " ".join(f"{k} {v:.4f}" for k, v in rec["rmse"].items())
-               + f" cov {rec['coverage95']:.2f} mi {rec['moisture_in_rmse']:.3f}"))
+        say(f"{ctx.kind} {part} plant {spec.plant} {spec.effect} day {spec.seed}: "
+            + (rec.get("error") or line(rec)))
+    return days
+
+
+def estimator_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]:
+    """Part 2 over every test day, and the pooled numbers."""
+    days = each_test_day(
+        ctx, models, lambda m, spec: estimate_day(ctx, m, spec),
+        lambda r: " ".join(f"{k} {v:.4f}" for k, v in r["rmse"].items())
+        + f" cov {r['coverage95']:.2f} mi {r['moisture_in_rmse']:.3f}", "estimator")
     return {"days": days, "summary": estimator_summary(days)}
 
 
@@ -498,31 +510,23 @@ def diagnosis_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]
     """Part 3: every test day diagnosed with its plant's PARAMS.toml."""
     from softsensor.diagnosis.pipeline import diagnose
 
-    days = []
-    for spec in ctx.plan.tests:
-        m = models[spec.plant]
-        rec: dict[str, Any] = {"plant": spec.plant, "seed": spec.seed, "cause": spec.effect,
-                               "magnitude": spec.magnitude}
-        t0 = time.perf_counter()
-        try:
-            if m.config is None:
-                raise RuntimeError("no config: the plant's calibration failed")
-            day = ctx.simulate(spec)
-            rec["channel"] = day.effect.get("channel")
-            doc = diagnose(m.config, day, source=f"{ctx.kind} {spec.seed}").to_json()
-            rec.update(named=doc.get("cause"), named_channel=doc.get("channel"),
-                       gain=doc.get("gain"))
-            rec["right"] = bool(rec["named"] == spec.effect and (
-                spec.effect != "sensor_bias" or rec["named_channel"] == rec["channel"]))
-        except Exception as exc:  # a failing day is recorded, not fatal
-            rec.update(error_record(exc))
-            rec["right"] = False
-        rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
-        days.append(rec)
-        say(f"{ctx.kind} diagnosis plant {spec.plant} {spec.effect}: "
-            + (rec.get("error") or f"named {rec['named']}"
-               + (f" on {rec['named_channel']}" if rec.get("named_channel") else "")
-               + f" gain {rec['gain']}" + (" right" if rec["right"] else " WRONG")))
+    def one(m: PlantModel, spec: Any) -> dict[str, Any]:
+        day = ctx.simulate(spec)
+        channel = day.effect.get("channel")
+        doc = diagnose(m.config, day, source=f"{ctx.kind} {spec.seed}").to_json()
+        named, named_channel = doc.get("cause"), doc.get("channel")
+        right = named == spec.effect and (spec.effect != "sensor_bias"
+                                          or named_channel == channel)
+        return {"channel": channel, "named": named, "named_channel": named_channel,
+                "gain": doc.get("gain"), "right": bool(right)}
+
+    days = each_test_day(
+        ctx, models, one,
+        lambda r: f"named {r['named']}" + (f" on {r['named_channel']}"
+                                           if r.get("named_channel") else "")
+        + f" gain {r['gain']}" + (" right" if r["right"] else " WRONG"), "diagnosis")
+    for d in days:
+        d.setdefault("right", False)  # a failed day is not right
     return {"days": days, "summary": diagnosis_summary(days)}
 
 
