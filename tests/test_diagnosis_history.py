@@ -12,14 +12,20 @@ are in the upper half of each effect's detectable range (:data:`softsensor.plant
 EFFECTS`), where the benchmark names them on every tuning plant.
 
 What this checks is the part of the capability that holds on every plant measured
-(``benchmarks/open_world.py --parts diagnosis``, README, Diagnosis): a clean day is
-``none`` (no false alarm), an inlet-moisture excursion and a lagging ``T_air_in`` sensor are
-named with a positive held-out gain. Lab delays, fouling and ambient heat loss are named on
-some plants only (README's confusion matrix) and are not required here. On these 16 h
-days the three cases are also named without the history (the config's floors; checked by
-hand, as was a normal ten times too tight): what the history's normal adds shows on the
-benchmark's 48 h days and clean-day false alarms, not here. The randomised version (fresh
-plant and day seeds) runs with ``-m slow``.
+(``benchmarks/open_world.py --parts diagnosis``, README, Diagnosis): an inlet-moisture
+excursion and a lagging ``T_air_in`` sensor are named with a positive held-out gain, and
+this clean day is ``none``. It does not show what the history adds: on these 16 h days the
+three cases are also named without it (the config's floors), and the clean days are where
+a short history hurts. Measured on this plant with this history (``_plant_with_history``
+below, then ``diagnose`` on clean day seeds 201 to 206): with the history's
+normal 2 of 6 clean 16 h days are ``none`` (the others ``unexplained`` or
+``ambient_heat_loss``), with the config's floors 5 of 6; on 48 h days with four 48 h history
+days 5 of 6, and on the benchmark's seven 48 h history days every clean day (7 of 7, fresh
+and tuning plants). The normal's day level stays put within the day
+(:func:`~softsensor.diagnosis.calibration_error.normal_states`), which on short records
+reads the wander the history could not size as structure. The randomised version (fresh
+plant and day seeds, 48 h records, ``-m slow``) therefore fails now and then on its clean
+day; that is the capability's true rate, not noise in the test.
 """
 
 from __future__ import annotations
@@ -75,9 +81,13 @@ def test_hidden_effect_is_named_against_the_plants_normal(plant, cause, magnitud
         assert doc["gain"] > 0.05, why
 
 
+#: Record length of the randomised version [h]: the benchmark's.
+SLOW_HOURS = 48.0
+
+
 @pytest.mark.slow
 def test_randomised_plants_and_days():
-    """Fresh plant and day seeds (printed); the same three cases."""
+    """Fresh plant and day seeds (printed); the same three cases on 48 h records."""
     import tempfile
     from pathlib import Path
 
@@ -87,11 +97,11 @@ def test_randomised_plants_and_days():
     history = tuple(rng.randrange(10**6) for _ in HISTORY_SEEDS)
     print(f"plant seed {plant_seed}, history {history}")
     with tempfile.TemporaryDirectory() as tmp:
-        cfg, with_history = _plant_with_history(plant_seed, history, HOURS, Path(tmp))
+        cfg, with_history = _plant_with_history(plant_seed, history, SLOW_HOURS, Path(tmp))
         named = []
         for cause, magnitude, _ in CASES:
             seed = rng.randrange(10**6)
-            day = simulate_independent_day(cfg, HOURS, seed,
+            day = simulate_independent_day(cfg, SLOW_HOURS, seed,
                                            None if cause == "none" else cause, magnitude,
                                            plant_seed=plant_seed)
             named.append((cause, seed, diagnose(with_history, day).to_json()["cause"]))

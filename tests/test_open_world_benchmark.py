@@ -44,6 +44,7 @@ W = 600 * 10**9
 def test_stratified_draws_one_magnitude_per_stratum(ow):
     rng = np.random.default_rng(0)
     mags = sorted(ow.stratified(0.2, 0.6, 4, rng))
+    assert len(mags) == 4
     for i, m in enumerate(mags):
         assert 0.2 + 0.1 * i <= m <= 0.2 + 0.1 * (i + 1)
 
@@ -133,7 +134,8 @@ def test_regression_recovers_a_linear_plant_and_is_exact_with_its_bias(peers):
     ok = np.isfinite(out)
     assert ok.sum() > 100
     # the whisper of ridge shrinks the slopes a little; the bias update takes the rest
-    np.testing.assert_allclose(out[ok], truth[ok], atol=2e-3)
+    # measured: at most 1.2e-4 off (the truth's spread here is 2.8e-3)
+    np.testing.assert_allclose(out[ok], truth[ok], atol=5e-4)
 
 
 def test_time_difference_adds_the_model_change_since_the_sample(peers):

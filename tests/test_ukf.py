@@ -731,14 +731,15 @@ def test_the_learned_discrepancy_is_taken_off_the_measurements(tmp_path):
     values = {n: CFG.parameters[n].value for n in CFG.parameters}
     cfg = load_parameters(write_params(tmp_path / "p.toml", params_document(
         CFG, values, {}, model_error=me.to_table())), CFG)
-    wins, truth = synthetic_day(60, seed=15)
+    wins, _ = synthetic_day(60, seed=15)
     shifted = [dataclasses.replace(w, means={**w.means,
                                              "T_dryer_out": w.means["T_dryer_out"] + 2.0})
                for w in wins]
     est = UkfEstimator(cfg, dataclasses.replace(EstimatorSettings(), **CALIBRATED),
                        model=LinearDryer())
     bodies = run(est, shifted, {})
-    end = bodies[-1]
-    assert abs(end["T_dryer_out_offset"]) < 0.5, end["T_dryer_out_offset"]
-    assert abs(end["moisture_in"] - truth[-1, 0]) < 0.05
-    assert end["T_dryer_out_model"] == pytest.approx(shifted[-1].means["T_dryer_out"], abs=0.5)
+    # measured: -0.02 K with the discrepancy taken off, +1.95 K when it is not (the
+    # mutation in tests/mutation_check.py); the published model temperature and the inlet
+    # moisture come out alike either way (the offset state absorbs the 2 K), so they are not
+    # what this checks
+    assert abs(bodies[-1]["T_dryer_out_offset"]) < 0.2, bodies[-1]["T_dryer_out_offset"]

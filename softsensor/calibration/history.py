@@ -43,6 +43,7 @@ from softsensor.calibration.pipeline import (
     Discrepancy,
     calibrate,
     discrepancy,
+    phase,
 )
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
 from softsensor.calibration.settings import CalibrationSettings
@@ -73,22 +74,11 @@ class HistoryResult:
     inlet_levels: list[float]
     model_error: ModelError
     discrepancy: Discrepancy | None
-    days: list[Segment]
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def params(self) -> dict[str, float]:
         return dict(zip(PARAMETER_NAMES, map(float, self.theta), strict=True))
-
-    def calibrated_config(self) -> PlantConfig:
-        """The config as ``load_parameters`` reads the PARAMS.toml this result writes."""
-        extra = dict(self.calibration.config.extra)
-        extra["model_error"] = self.model_error.to_table()
-        if self.discrepancy is not None:
-            extra["discrepancy"] = {k: float(v) for k, v in self.discrepancy.as_dict().items()
-                                    if isinstance(v, (int, float)) and math.isfinite(v)}
-        cfg = self.calibration.config.with_parameters(self.theta)
-        return dataclasses.replace(cfg, extra=extra)
 
     def summary(self) -> dict[str, Any]:
         me = self.model_error
@@ -185,20 +175,17 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               f"ones ({result.verdict_line()})" if kept else
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
-    say("model error")
-    t1, c1 = time.perf_counter(), time.process_time()
-    levels = inlet_levels(model, days, theta, result)
-    me = fit_model_error(model, days, theta, float(np.mean(levels)),
-                         float(np.std(levels)) if len(levels) > 1 else 0.0)
-    timings["model_error"] = time.perf_counter() - t1
-    timings["model_error_cpu"] = time.process_time() - c1
+    with phase("model_error", timings, say):
+        levels = inlet_levels(model, days, theta, result)
+        me = fit_model_error(model, days, theta, float(np.mean(levels)),
+                             float(np.std(levels)) if len(levels) > 1 else 0.0)
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
         disc = discrepancy(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
-    return HistoryResult(result, theta, kept, reason, levels, me, disc, list(days), timings)
+    return HistoryResult(result, theta, kept, reason, levels, me, disc, timings)
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",

@@ -472,7 +472,7 @@ def _validation_section(new: ValidationResult, old: ValidationResult | None
 
 
 @contextmanager
-def _phase(name: str, timings: dict[str, float], say: Callable[[str], None]) -> Iterator[None]:
+def phase(name: str, timings: dict[str, float], say: Callable[[str], None]) -> Iterator[None]:
     """Announce a calibration phase and record its wall time in ``timings[name]`` and the
     CPU time of every thread of the process in ``timings[name + "_cpu"]`` [s]: on a shared
     machine the wall time depends on the load, the CPU time much less."""
@@ -550,14 +550,14 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
                       else (list(segments), list(validation_segments)))
     current = config.parameter_vector() if current_theta is None else np.asarray(current_theta)
     fast = search_model(model, calibration)
-    with _phase("study", timings, say):
+    with phase("study", timings, say):
         spec = objective_spec(model, fit_segs, config, calibration)
         study, _ = open_study(settings, config, data_fingerprint(fit_segs, config, spec))
         report = run_trials(study, fast, fit_segs, config, settings, spec)
     theta, tpe_best = _tpe_best(study)
     refinement = None
     if polish:
-        with _phase("refine", timings, say):
+        with phase("refine", timings, say):
             refinement = _polish(study, model, fit_segs, theta, config, spec, fast)
         if refinement.improved:
             theta = refinement.theta
@@ -566,12 +566,12 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     runs = run.model_lines(0, evs[0])
     val = cur_val = disc = None
     if held:
-        with _phase("validate", timings, say):
+        with phase("validate", timings, say):
             val, cur_val, disc = _validate_both(held, config, spec, theta, current,
                                                 evs[0].fit.cost, model)
     ident = importance = sens = None
     if identify_result:
-        with _phase("identify", timings, say):
+        with phase("identify", timings, say):
             ident, sens = identify(model, fit_segs, theta, spec, config.bounds(),
                                    jac_model=fast)
             importance = parameter_importance(study)
@@ -586,5 +586,5 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
 
 
 __all__ = ["DEFAULT_WINDOW_HOURS", "CalibrationResult", "DataSelection", "Discrepancy",
-           "ValidationResult", "at_bounds", "calibrate", "discrepancy", "objective_spec",
+           "ValidationResult", "at_bounds", "calibrate", "discrepancy", "objective_spec", "phase",
            "select_segments", "split_holdout", "validate", "validate_many"]

@@ -45,14 +45,15 @@ class EstimatorSettings:
     moisture_in_walk : float
         Random-walk intensity of the inlet moisture. [kg/kg / sqrt(h)]
     moisture_in_tau_h : float
-        Time over which the inlet moisture's estimate returns to the nominal when nothing says
-        otherwise (a mean-reverting walk, stationary standard deviation ``walk sqrt(tau / 2)``):
+        Time over which the inlet moisture's estimate returns to its reference (the nominal,
+        or the history's typical level with a ``[model_error]``) when nothing says otherwise
+        (a mean-reverting walk, stationary standard deviation ``walk sqrt(tau / 2)``):
         evidence the model cannot split between the inlet moisture and its own error does not
         pile up in the inlet moisture for ever. [h]
     moisture_in_adapt : float
         Temperature innovations more than this many standard deviations along what an inlet
         moisture change would do widen its prior (a step; covariance matching, see
-        :meth:`softsensor.estimation.ukf.UkfEstimator._match_covariance`). [-]
+        :func:`softsensor.estimation.ukf_step._match_covariance`). [-]
     moisture_in_min, moisture_in_max : float
         Range the model is evaluated in; sigma points outside it are clipped. [kg/kg]
     moisture_out_bias_adapt : float
@@ -64,7 +65,8 @@ class EstimatorSettings:
     T_offset_std, T_channel_std : float
         Default stationary standard deviations of the outlet temperatures' common offset and
         of each channel's own offset, used when the parameters carry no ``[discrepancy]``
-        from a calibration. [K]
+        from a calibration (with a history's ``[model_error]`` the channels' come from its day
+        spread). [K]
     T_offset_tau_h, T_channel_tau_h : float
         Their default correlation times [h]. The calibration sets the common offset's (the
         model's energy balance drifts with the conditions); a channel's own offset keeps the
@@ -93,8 +95,11 @@ class EstimatorSettings:
     inlet_margin : float
         Width of the soft clip at each end of ``[moisture_in_min, moisture_in_max]``. [kg/kg]
     guard_sigma : float
-        An error state beyond this many of its prior standard deviations, while the
-        innovations are inconsistent, says the model has lost the plant. [-]
+        The heat input's offset beyond this many of its prior standard deviations says the
+        model has lost the plant (the lab-anchored fallback is published); the outlet-moisture
+        bias beyond it, or the two outlet channels' offsets differing by more than it in units
+        of their difference, degrade the health only
+        (:mod:`softsensor.estimation.publication`). [-]
     fallback_drift : float
         How fast the lab-anchored fallback's band widens after the last lab result.
         [kg/kg / sqrt(h)]

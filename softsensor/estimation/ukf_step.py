@@ -270,7 +270,7 @@ def _sigma_outputs(filt: FilterModel, x: np.ndarray, P: np.ndarray, u: np.ndarra
     mean = x[cols]
     probes = [mean + sign * _FD_STEP[i] * (np.arange(len(cols)) == j)
               for j, i in enumerate(MODEL_STATES) for sign in (1.0, -1.0)]
-    refs = np.column_stack([np.full(n, float(filt.inlet.inverse(filt.x_ref))),
+    refs = np.column_stack([np.full(n, float(filt.reference[X_IN])),
                             sigmas[:, X_HEAT]])
     unique, index = np.unique(np.vstack([sigmas[:, cols], probes, refs]), axis=0,
                               return_inverse=True)
