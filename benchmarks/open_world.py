@@ -239,6 +239,7 @@ class Context:
     trials: int
     work: Path
     cache: Path | None
+    cost: str | None = None
 
     def simulate(self, d: DaySpec) -> SimulatedDay:
         """The day ``d`` (from the cache when ``--cache`` holds it)."""
@@ -298,7 +299,8 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         rec["simulate_s"] = round(time.perf_counter() - t0, 1)
         base = ctx.base
         key = _digest([ctx.kind, rec["plant_seed"], rec["history_seeds"], ctx.hours,
-                       ctx.trials, ctx.truth.parameter_vector().tolist(), "v3"])
+                       ctx.trials, ctx.truth.parameter_vector().tolist(), "v3"]
+                      + ([ctx.cost] if ctx.cost else []))
         folder = ctx.cache / "calibration" if ctx.cache else ctx.work
         folder.mkdir(parents=True, exist_ok=True)
         params_path = folder / f"{key}.toml"
@@ -310,7 +312,7 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
             window = DEFAULT_WINDOW_HOURS if len(segs) == 1 else HISTORY_WINDOW_HOURS
             hist = calibrate_history(segs, base, StudySettings(n_trials=ctx.trials, seed=0,
                                                                progress=False),
-                                     calibration_settings(base),
+                                     settings_with_cost(base, ctx.cost),
                                      current_theta=base.parameter_vector(),
                                      window_hours=min(window, ctx.hours),
                                      fit_hours=HISTORY_FIT_HOURS, identify_result=False)
@@ -326,6 +328,12 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         rec.update(error_record(exc))
         rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
         return PlantModel(i, None, None, rec)
+
+
+def settings_with_cost(config: PlantConfig, cost: str | None) -> Any:
+    """The config's ``[calibration]`` settings, with ``cost`` in place of its cost if given."""
+    settings = calibration_settings(config)
+    return dataclasses.replace(settings, cost=cost) if cost else settings
 
 
 def _calibration_summary(hist: Any) -> dict[str, Any]:
@@ -606,6 +614,8 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     help="also run the matched plant (--plant model) as the floor")
     ap.add_argument("--matched-days-per-cause", type=int, default=None,
                     help="matched-plant test days per cause (1)")
+    ap.add_argument("--cost", default=None, choices=("eq4", "likelihood"),
+                    help="the calibration's cost (default: the config's [calibration] cost)")
     ap.add_argument("--out", default=None, metavar="FILE", help="also write the JSON here")
     ap.add_argument("--cache", default=None, metavar="DIR",
                     help="keep simulated days and calibrations here (default: nothing kept)")
@@ -655,7 +665,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                            "seed_source": seed_source,
                            "argv": list(sys.argv[1:] if argv is None else argv),
                            "settings": {k: getattr(args, k) for k in (
-                               "plants", "plant_seeds", "history", "hours", "trials",
+                               "plants", "plant_seeds", "history", "hours", "trials", "cost",
                                "days_per_cause",
                                "parts", "matched", "matched_days_per_cause", "quick")},
                            "targets": TARGETS}
@@ -670,7 +680,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             truth = cfg.with_parameters(SHIFTED) if kind == "model" else cfg
             work = Path(tmp) / kind
             work.mkdir()
-            ctx = Context(kind, cfg, truth, plan, args.hours, args.trials, work, cache)
+            ctx = Context(kind, cfg, truth, plan, args.hours, args.trials, work, cache,
+                          args.cost)
             say(f"{kind} plant: {n} plant(s), {args.history} x {args.hours:g} h history, "
                 f"{len(plan.tests)} test days, {args.trials} trials")
             t0 = time.perf_counter()

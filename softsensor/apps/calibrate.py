@@ -235,6 +235,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
 
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome))
     write_json(summary, args.json)
+    if result.trade_off is not None:
+        print(f"calibrate: {result.trade_off.verdict()}", file=sys.stderr)
     print(f"calibrate: {outcome}", file=sys.stderr)
     return 0
 

@@ -21,6 +21,7 @@ from softsensor.calibration.identifiability import (
     Sensitivities,
 )
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
+from softsensor.calibration.trade_off import TradeOff
 from softsensor.display import DisplaySettings, display_settings, plant_error
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
@@ -57,6 +58,29 @@ def fit_table(fit: Fit, weights: np.ndarray, display: DisplaySettings, x_ref: fl
     rows.append(("**cost J (eq. 4)**", "", "", "", f"**{fit.cost:.4g}**"))
     return figures.markdown_table(("channel", "unit", "samples", "RMSE", "WF x RMSE (SI)"),
                                   rows)
+
+
+def trade_off_table(trade: TradeOff, display: DisplaySettings, x_ref: float) -> str:
+    """The multipliers' front on the held-out data, in plant units, under its verdict: per
+    point both temperatures and the lab moisture, the inlet read from the temperatures and
+    open loop (:mod:`softsensor.calibration.trade_off`)."""
+    def cells(rmse: dict[str, float] | None) -> tuple[str, ...]:
+        if rmse is None:
+            return ("", "", "")
+        return tuple(f"{plant_error(n, rmse[n], x_ref, display)[0]:.3g}"
+                     for n in OUTPUT_NAMES)
+
+    unit = plant_error("moisture_out", 0.0, x_ref, display)[1]
+    rows = [(p.label, *cells(p.fit), *cells(p.held_out), *cells(p.open_loop))
+            for p in trade.points]
+    head = ("point", "fit T_dryer_out °C", "fit T_cyclone_out °C", f"fit lab {unit}",
+            "held-out T_dryer_out", "held-out T_cyclone_out", f"held-out lab {unit}",
+            "open loop T_dryer_out", "open loop T_cyclone_out", f"open loop lab {unit}")
+    return (f"{trade.verdict()[0].upper()}{trade.verdict()[1:]}.\n\n"
+            + figures.markdown_table(head, rows)
+            + "\n\nFit: the study's view (inlet trajectory fitted to temperatures and labs). "
+              "Held out: the inlet moisture read from the temperatures, the labs out of "
+              "sample (what the sensor does). Open loop: the nominal inlet moisture.")
 
 
 def identifiability_table(ident: Identifiability, config: PlantConfig,
@@ -124,6 +148,9 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
                      + "\n\nEq. 4 at the current parameters: "
                      + ("n/a" if cur is None else f"{cur.fit.cost:.4g}")
                      + f"\n\n{result.verdict_line()}"))
+    if result.trade_off is not None:
+        sections.append(("Temperatures against moisture: the multipliers' front",
+                         trade_off_table(result.trade_off, disp, x_ref)))
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
     figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",

@@ -72,6 +72,7 @@ from softsensor.calibration.selection import (
     select_windows,
 )
 from softsensor.calibration.settings import CalibrationSettings
+from softsensor.calibration.trade_off import FrontPoint, TradeOff, scored, study_front
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -316,6 +317,7 @@ class CalibrationResult:
     timings: dict[str, float] = field(default_factory=dict)
     trials_here: int = 0
     pruned_here: int = 0
+    trade_off: TradeOff | None = None
 
     @property
     def fit(self):
@@ -441,6 +443,8 @@ class CalibrationResult:
             out["validation"] = _validation_section(self.validation, self.current_validation)
         if self.discrepancy is not None:
             out["discrepancy"] = self.discrepancy.as_dict()
+        if self.trade_off is not None:
+            out["trade_off"] = self.trade_off.as_dict()
         if self.identifiability is not None:
             ident = self.identifiability
             out["identifiability"] = {
@@ -507,11 +511,31 @@ def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
 
 def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
                    theta: np.ndarray, current: np.ndarray, fit_cost: float,
-                   model: DryerModel) -> tuple[ValidationResult, ValidationResult, Discrepancy]:
-    """The result and the current parameters on the held-out data, and the result's
-    discrepancy there (the [discrepancy] the estimator and the diagnosis use)."""
-    val, cur_val = validate_many(held, config, spec, [theta, current], [fit_cost, None], model)
-    return val, cur_val, discrepancy(val.evaluation, held)
+                   model: DryerModel, front: Sequence[FrontPoint] = ()
+                   ) -> tuple[ValidationResult, ValidationResult, Discrepancy,
+                              list[ValidationResult]]:
+    """The result and the current parameters on the held-out data, the result's
+    discrepancy there (the [discrepancy] the estimator and the diagnosis use), and the
+    ``front`` points' validations, all in one batched run."""
+    thetas = [theta, current, *(p.theta for p in front)]
+    vals = validate_many(held, config, spec, thetas, [fit_cost] + [None] * (len(thetas) - 1),
+                         model)
+    return vals[0], vals[1], discrepancy(vals[0].evaluation, held), vals[2:]
+
+
+def _trade_off(study: optuna.Study, held: Sequence[Segment], config: PlantConfig,
+               spec: ObjectiveSpec, calibration: CalibrationSettings, theta: np.ndarray,
+               current: np.ndarray, evs: Sequence[Evaluation], model: DryerModel
+               ) -> tuple[ValidationResult, ValidationResult, Discrepancy, TradeOff]:
+    """:func:`_validate_both` with the study's front beside (:mod:`.trade_off`)."""
+    front = study_front(study)
+    val, cur_val, disc, front_vals = _validate_both(held, config, spec, theta, current,
+                                                    evs[0].fit.cost, model, front)
+    fixed = [FrontPoint("deployed", theta, dict(evs[0].fit.rmse)),
+             FrontPoint("current", current, dict(evs[1].fit.rmse))]
+    points = scored(fixed + front, [v.evaluation for v in (val, cur_val, *front_vals)])
+    return val, cur_val, disc, TradeOff(points, calibration.temperature_target,
+                                        calibration.moisture_target)
 
 
 def search_model(model: DryerModel, calibration: CalibrationSettings) -> DryerModel:
@@ -564,11 +588,11 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     run = ChunkedRun(model, fit_segs, np.stack([theta, current]), spec, n_chunks=1)
     evs = run.run()
     runs = run.model_lines(0, evs[0])
-    val = cur_val = disc = None
+    val = cur_val = disc = trade = None
     if held:
         with phase("validate", timings, say):
-            val, cur_val, disc = _validate_both(held, config, spec, theta, current,
-                                                evs[0].fit.cost, model)
+            val, cur_val, disc, trade = _trade_off(study, held, config, spec, calibration,
+                                                   theta, current, evs, model)
     ident = importance = sens = None
     if identify_result:
         with phase("identify", timings, say):
@@ -582,7 +606,7 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
         runs=runs, tpe_best=tpe_best, current_theta=current, current_evaluation=evs[1],
         refinement=refinement, identifiability=ident, importance=importance, validation=val,
         current_validation=cur_val, discrepancy=disc, sensitivities=sens, timings=timings,
-        trials_here=report.trials, pruned_here=report.pruned)
+        trials_here=report.trials, pruned_here=report.pruned, trade_off=trade)
 
 
 __all__ = ["DEFAULT_WINDOW_HOURS", "CalibrationResult", "DataSelection", "Discrepancy",

@@ -63,6 +63,11 @@ class CalibrationSettings:
     bound_margin : float
         A parameter within this fraction of a bound (``value <= low (1 + m)`` or
         ``value >= high / (1 + m)``) is flagged as at its bound.
+    temperature_target, moisture_target : float
+        What fitting the dryer means on held-out data: both outlet temperatures' RMSE within
+        ``temperature_target`` [K] and the lab moisture's within ``moisture_target``
+        [kg/kg]; the calibration's front says whether any choice of the multipliers gets
+        there (:mod:`softsensor.calibration.trade_off`).
     search_wall_substeps : int
         Crank-Nicolson substeps of the wall per window in the TPE search; the search's best
         point is then polished, validated and reported with ``solver.wall_substeps``. The wall
@@ -81,6 +86,8 @@ class CalibrationSettings:
     holdout_fraction: float = num(0.25, ge=0, lt=0.9)
     bound_margin: float = num(0.02, gt=0, lt=1)
     search_wall_substeps: int = num(1, ge=0, le=1000)
+    temperature_target: float = num(1.0, gt=0, le=100)
+    moisture_target: float = num(0.006, gt=0, le=1)
 
     def check(self) -> str | None:
         if self.cost not in COSTS:
