@@ -154,3 +154,21 @@ def test_model_error_with_zero_slopes_changes_nothing_in_the_config():
     me = dataclasses.replace(_error(), T_dryer_out=dataclasses.replace(
         _error().T_dryer_out, coef=(0.0,) * F))
     assert not me.T_dryer_out.learned and me.T_cyclone_out.learned
+
+
+def test_the_estimator_starts_at_the_latest_days_inlet_level(tmp_path):
+    """History gives the normal, the latest day the state (issue 28 item 3): the filter's
+    inlet moisture starts at the latest history day's level, not the history's mean."""
+    from softsensor.estimation.discrepancy import X_IN
+    from softsensor.estimation.ukf import UkfEstimator
+
+    def start(me: ModelError) -> float:
+        path = write_params(tmp_path / "p.toml", params_document(
+            CFG, {n: CFG.parameters[n].value for n in CFG.parameters}, {},
+            model_error=me.to_table()))
+        est = UkfEstimator(load_parameters(path, CFG))
+        return float(est.inlet.forward(est._state.x[X_IN]))
+
+    assert start(_error()) == pytest.approx(1.02, abs=1e-9)
+    assert start(dataclasses.replace(_error(), latest_moisture_in=1.15)) == pytest.approx(
+        1.15, abs=1e-9)

@@ -16,7 +16,9 @@ whole-day :class:`~.dataset.Segment` s and
    ``force``): either way there is a parameter set to deploy;
 4. at the deployed parameters, fits every day's inlet-moisture level (the calibration's
    trajectory on the whole day, temperatures and labs) and learns the model's error from all
-   days (:func:`~.model_error_fit.fit_model_error`, validated leave one day out).
+   days (:func:`~.model_error_fit.fit_model_error`, validated leave one day out): the
+   history gives the normal (the error's slopes, spreads and wander), the latest day the
+   state (its inlet level, where the estimator starts).
 
 Everything after the study is one or two simulations of the history, so the time grows
 linearly with the days.
@@ -87,6 +89,7 @@ class HistoryResult:
                 "model_error": {
                     "days": me.days, "hours": me.hours, "moisture_in": me.moisture_in,
                     "moisture_in_day_sd": me.moisture_in_day_sd,
+                    "latest_moisture_in": me.latest_moisture_in,
                     **{c: {"learned": me.channel(c).learned,
                            "rmse_without": me.channel(c).rmse_without,
                            "rmse_held_out": me.channel(c).rmse_held_out,
@@ -177,8 +180,9 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                                          "held-out data worse)"))
     with phase("model_error", timings, say):
         levels = inlet_levels(model, days, theta, result)
+        latest = levels[int(np.argmax([d.start_ns for d in days]))]
         me = fit_model_error(model, days, theta, float(np.mean(levels)),
-                             float(np.std(levels)) if len(levels) > 1 else 0.0)
+                             float(np.std(levels)) if len(levels) > 1 else 0.0, latest)
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation

@@ -300,9 +300,11 @@ def day_covariance(offsets: Sequence[dict[int, tuple[float, float]]]) -> np.ndar
 
 
 def fit_model_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
-                    moisture_in: float, moisture_in_day_sd: float = 0.0) -> ModelError:
+                    moisture_in: float, moisture_in_day_sd: float = 0.0,
+                    latest_moisture_in: float = 0.0) -> ModelError:
     """Learn :class:`ModelError` from whole history ``days`` at parameters ``theta`` (7,)
-    with the model's inlet moisture at ``moisture_in`` [kg/kg] (module docstring).
+    with the model's inlet moisture at ``moisture_in`` [kg/kg] (module docstring);
+    ``latest_moisture_in``: the latest day's level, the estimator's start (0: none).
 
     Raises :class:`~softsensor.errors.IngestError` when a day cannot be simulated or there
     are too few residuals (a lab channel needs more lab results than features, over the days).
@@ -324,6 +326,7 @@ def fit_model_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarra
                       scale=tuple(map(float, scale)), days=len(segs),
                       hours=float(sum(s.hours for s in segs)), moisture_in=float(moisture_in),
                       moisture_in_day_sd=float(moisture_in_day_sd),
+                      latest_moisture_in=float(latest_moisture_in),
                       day_cov=() if cov is None else tuple(map(float, cov.ravel())),
                       **channels)
 

@@ -126,6 +126,10 @@ class ModelError:
         the residuals were taken and where the estimator starts [kg/kg].
     moisture_in_day_sd : float
         Spread of the days' inlet-moisture levels about it [kg/kg].
+    latest_moisture_in : float
+        The latest history day's inlet-moisture level [kg/kg]: the dryer's current state,
+        where the estimator starts (it reverts towards ``moisture_in`` over
+        ``estimator.moisture_in_tau_h``); 0: none given (it starts at ``moisture_in``).
     day_cov : tuple of float
         Covariance of the channels' day offsets, row-major ``3 x 3`` in :data:`CHANNELS`
         order [unit x unit] (empty: uncorrelated, from each channel's ``day_sd``). On the
@@ -148,6 +152,7 @@ class ModelError:
     hours: float = num(0.0, ge=0)
     moisture_in: float = num(1.0, gt=0, lt=5)
     moisture_in_day_sd: float = num(0.0, ge=0, lt=2)
+    latest_moisture_in: float = num(0.0, ge=0, lt=5)
     day_cov: tuple[float, ...] = ()
 
     def check(self) -> str | None:
@@ -166,6 +171,12 @@ class ModelError:
         if self.day_cov and len(self.day_cov) != c * c:
             return f"day_cov must hold {c * c} numbers, got {len(self.day_cov)}"
         return None
+
+    @property
+    def start_moisture_in(self) -> float:
+        """Where the estimator starts its inlet moisture [kg/kg]: the latest day's level,
+        else the history's."""
+        return self.latest_moisture_in or self.moisture_in
 
     def day_covariance(self) -> np.ndarray:
         """Covariance (3, 3) of the channels' day offsets, in :data:`CHANNELS` order (from

@@ -160,7 +160,11 @@ class UkfEstimator(ModelEstimator):
         P0[X_IN, X_IN] = _inlet_sd0(config, s) ** 2
         P0[1:, 1:] = f.priors.covariance()
         self._hold = InputHold(config.nominal_inputs())
-        self._state = FilterState(f.reference.copy(), P0, None, AdaptiveNoise.fresh().to_json())
+        x0 = f.reference.copy()
+        me = model_error_of(config)
+        if me is not None:  # the latest history day's level: the dryer's current state
+            x0[X_IN] = float(f.inlet.inverse(me.start_moisture_in))
+        self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
         self._dirty: int | None = None
         self._gate_streak = 0
