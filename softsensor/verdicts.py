@@ -119,16 +119,74 @@ def calibration_verdict(rmse_new: Mapping[str, float] | None,
     return " ".join(parts)
 
 
-def validation_verdict(rmse: Mapping[str, float], ratio: float | None, x_ref: float,
-                       basis: str = "wet") -> str:
-    """The errors of a model on independent data in plant units (°C, % points on ``basis``
-    at the moisture ``x_ref`` [kg/kg dry]): the one sentence the validation page and the
-    ``validate`` line share."""
+#: How a channel is called in the validation's sentences.
+_CHANNEL_WORDS: dict[str, str] = {"T_dryer_out": "dryer outlet", "T_cyclone_out": "cyclone outlet",
+                                  "moisture_out": "outlet moisture"}
+
+
+def _errors(rmse: Mapping[str, float], x_ref: float, basis: str) -> str:
     pts = moisture_pct_points(rmse["moisture_out"], x_ref, basis)
-    tail = "." if ratio is None else f"; {ratio:.2f} times its cost on the calibration data."
-    return (f"On this independent data the calibrated model's errors (RMSE) are dryer outlet "
-            f"{rmse['T_dryer_out']:.2f} °C, cyclone outlet {rmse['T_cyclone_out']:.2f} °C and "
-            f"outlet moisture {pts:.2f} % points ({basis} basis){tail}")
+    return (f"dryer outlet {rmse['T_dryer_out']:.2f} °C, cyclone outlet "
+            f"{rmse['T_cyclone_out']:.2f} °C and outlet moisture {pts:.2f} % points "
+            f"({basis} basis)")
+
+
+def open_loop_sentence(summary: Mapping[str, Any], x_ref: float, basis: str = "wet") -> str:
+    """The open-loop errors (:func:`softsensor.calibration.open_loop.open_loop_summary`) in
+    plant units (°C, % points on ``basis`` at the moisture ``x_ref`` [kg/kg dry]), with the
+    inlet level they hold: what ``validate`` says first and ``diagnose`` says of the same
+    model on the same day."""
+    normal = ", with the history's normal" if summary.get("normal") else ""
+    return (f"Open loop (inlet moisture held at {summary['inlet_moisture']:.2f} kg/kg, the "
+            f"calibration's level{normal}) the model's errors (RMSE) are "
+            f"{_errors(summary['rmse'], x_ref, basis)}.")
+
+
+def held_out_verdict(summary: Mapping[str, Any]) -> str:
+    """Each channel's open-loop error against the calibration's own held-out error
+    (``summary['verdict']``, :func:`softsensor.calibration.open_loop.channel_verdicts`)."""
+    checks = summary.get("verdict") or {}
+    if summary.get("reference") is None:
+        return ("No verdict: the parameter file holds no held-out error of its calibration "
+                "([model_error] or [fit.validation]).")
+    parts, worse = [], []
+    for name, words in _CHANNEL_WORDS.items():
+        c = checks.get(name) or {}
+        ratio, v = c.get("ratio"), c.get("verdict")
+        if ratio is None:
+            parts.append(f"{words} not known")
+        elif v == "within":
+            parts.append(f"{words} within it ({ratio:.1f} times)")
+        elif v == "spread":
+            parts.append(f"{words} {ratio:.1f} times, within what one day scatters")
+        else:
+            parts.append(f"{words} {ratio:.1f} times worse")
+            worse.append(words)
+    tail = (f": the model does not hold on these data ({', '.join(worse)})." if worse
+            else ".")
+    return "Against the calibration's held-out error: " + "; ".join(parts) + tail
+
+
+def validation_verdict(open_loop: Mapping[str, Any], inlet_read: Mapping[str, float] | None,
+                       x_ref: float, basis: str = "wet") -> str:
+    """What a validation found, in plant units: open loop first
+    (:func:`open_loop_sentence`), its verdict against the calibration's held-out error
+    (:func:`held_out_verdict`), then the errors with the inlet moisture read from the
+    temperatures, labelled, and one sentence when that reading makes the outlet moisture
+    worse than open loop. The ``validate`` line and the validation page say this text."""
+    text = f"{open_loop_sentence(open_loop, x_ref, basis)} {held_out_verdict(open_loop)}"
+    if inlet_read is None:
+        return text
+    text += (f" With the inlet moisture read from the temperatures instead: "
+             f"{_errors(inlet_read, x_ref, basis)}.")
+    m_open, m_read = open_loop["rmse"]["moisture_out"], inlet_read["moisture_out"]
+    if m_read > m_open:
+        a, b = (moisture_pct_points(m, x_ref, basis) for m in (m_open, m_read))
+        text += (f" Reading the inlet moisture from the temperatures makes the outlet "
+                 f"moisture worse than open loop ({a:.2f} -> {b:.2f} % points): the "
+                 f"temperatures carry the model's own error, which this reading takes for "
+                 f"inlet moisture.")
+    return text
 
 
 def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
@@ -181,4 +239,5 @@ def health_words(body: Mapping[str, Any]) -> str:
 
 
 __all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
-           "diagnosis_verdict", "health_words", "validation_verdict"]
+           "diagnosis_verdict", "health_words", "held_out_verdict", "open_loop_sentence",
+           "validation_verdict"]

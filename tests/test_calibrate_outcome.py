@@ -119,12 +119,12 @@ def test_validate_shows_the_defaults_beside_in_the_pages_sentence(days, tmp_path
     from softsensor.apps.calibrate import load_segment
 
     x_ref = lab_reference([load_segment(d2, load_plant_config())])
-    verdict = validation_verdict(doc["rmse"], doc["cost_ratio"], x_ref, "wet")
+    verdict = validation_verdict(doc["open_loop"], doc["inlet_read"]["rmse"], x_ref, "wet")
     assert line.startswith(f"validate: 1 day(s): {verdict} With the config's default "
-                           f"parameters instead: "), line
-    d = doc["default_parameters"]["rmse"]
+                           f"parameters instead (open loop): "), line
+    d = doc["default_parameters"]["open_loop"]["rmse"]
     # the defaults are far from this plant (measured: 6.91 K against the truth's 0.09 K)
-    assert d["T_cyclone_out"] > 10 * doc["rmse"]["T_cyclone_out"]
+    assert d["T_cyclone_out"] > 10 * doc["open_loop"]["rmse"]["T_cyclone_out"]
     pts = moisture_pct_points(d["moisture_out"], x_ref, "wet")
     assert line.endswith(f"dryer outlet {d['T_dryer_out']:.2f} °C, cyclone outlet "
                          f"{d['T_cyclone_out']:.2f} °C and outlet moisture {pts:.2f} % "

@@ -401,30 +401,18 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
     _add_objective_arguments(p)
 
 
-def validation_sentences(result: Any, default: Any, x_ref: float, basis: str) -> str:
-    """The validation in plant units: :func:`~softsensor.verdicts.validation_verdict` of
-    the parameters validated, then the config's default parameters on the same data (the
-    ``validate`` line and the page's verdict say this same text)."""
-    from softsensor.verdicts import validation_verdict
-
-    text = validation_verdict(result.fit.rmse, result.ratio, x_ref, basis)
-    if np.array_equal(result.theta, default.theta):
-        return text + " They are the config's default parameters."
-    d = default.fit.rmse
-    pts = moisture_pct_points(d["moisture_out"], x_ref, basis)
-    return (f"{text} With the config's default parameters instead: dryer outlet "
-            f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C and outlet "
-            f"moisture {pts:.2f} % points.")
-
-
 def validate_main(args: argparse.Namespace) -> int:
-    """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days, with the inlet
-    moisture fitted to their temperatures (and open loop), of ``--params`` and, beside them,
-    of the config's default parameters."""
+    """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days of
+    ``--params``, open loop first (:mod:`softsensor.calibration.open_loop`: the figure
+    ``diagnose`` reports too) with its verdict against the calibration's own held-out error,
+    then with the inlet moisture read from the temperatures, labelled; beside them the
+    config's default parameters on the same data."""
     require_packages("validate", "optuna", "matplotlib")
     from softsensor.apps.calibration_report import lab_reference
+    from softsensor.calibration.open_loop import displayed, open_loop_summary, prepared
     from softsensor.calibration.pipeline import objective_spec, validate_many
     from softsensor.model import DryerModel
+    from softsensor.verdicts import validation_verdict
 
     check_target(args.json)
     base, config = load_config_and_params(args)
@@ -433,27 +421,48 @@ def validate_main(args: argparse.Namespace) -> int:
     if args.cost is None and isinstance(fit.get("cost_kind"), str) \
             and fit["cost_kind"] in COSTS and not args.paper:
         calibration = dataclasses.replace(calibration, cost=fit["cost_kind"])
-    segments = [load_segment(p, config) for p in args.days]
+    raw = [load_segment(p, config) for p in args.days]
     model = DryerModel(config)
-    spec = objective_spec(model, segments, base, calibration)
     # the calibration cost of the parameters the file holds: the current ones when it kept them
     cal_cost = fit.get("cost_at_current" if fit.get("deployed") == "current" else "cost")
-    result, default = validate_many(
-        segments, config, spec, [config.parameter_vector(), base.parameter_vector()],
-        [float(cal_cost) if isinstance(cal_cost, (int, float)) else None, None], model)
-    text = validation_sentences(result, default, lab_reference(segments),
-                                display_settings(base).moisture_basis)
-    doc = {**result.summary(), "summary": text,
-           "default_parameters": {k: v for k, v in default.summary().items()
-                                  if k in ("rmse", "weighted_rmse", "cost", "score",
-                                           "open_loop")}}
+    cal_cost = float(cal_cost) if isinstance(cal_cost, (int, float)) else None
+    runs, spec = {}, None
+    for name, cfg, cost in (("params", config, cal_cost), ("default", base, None)):
+        segs = [prepared(cfg, s) for s in raw]
+        spec = spec or objective_spec(model, segs, base, calibration)
+        read = validate_many(segs, cfg, spec, [cfg.parameter_vector()], [cost], model)[0]
+        runs[name] = (open_loop_summary(cfg, raw, fit if cfg is config else None, model), read)
+    (open_loop, result), (d_open, default) = runs["params"], runs["default"]
+    x_ref, basis = lab_reference(raw), display_settings(base).moisture_basis
+    text = validation_verdict(open_loop, result.fit.rmse, x_ref, basis)
+    if np.array_equal(result.theta, default.theta) and open_loop["rmse"] == d_open["rmse"]:
+        text += " They are the config's default parameters."
+    else:
+        pts = moisture_pct_points(d_open["rmse"]["moisture_out"], x_ref, basis)
+        d = d_open["rmse"]
+        text += (f" With the config's default parameters instead (open loop): dryer outlet "
+                 f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C and "
+                 f"outlet moisture {pts:.2f} % points.")
+    read = result.inlet_read()
+    read["moisture_worse_than_open_loop"] = bool(
+        read["rmse"]["moisture_out"] > open_loop["rmse"]["moisture_out"])
+    doc = {"days": [str(p) for p in args.days], "hours": float(sum(s.hours for s in raw)),
+           "headline": "open_loop", "open_loop": open_loop, "inlet_read": read,
+           "summary": text,
+           "default_parameters": {
+               "open_loop": {k: d_open[k] for k in ("rmse", "weighted_rmse", "cost",
+                                                    "inlet_moisture")},
+               "inlet_read": {k: v for k, v in default.inlet_read().items()
+                              if k in ("rmse", "weighted_rmse", "cost", "score")}}}
     if args.report:
         from softsensor.apps.calibration_report import validation_page
 
-        doc["report"] = str(validation_page(result, config, args.report, default=default,
-                                            verdict=text))
+        shown = dataclasses.replace(result, segments=raw, runs=[
+            displayed(config, s, r) for s, r in zip(raw, result.runs, strict=True)])
+        doc["report"] = str(validation_page(shown, config, args.report, open_loop,
+                                            default=default, verdict=text))
     write_json(doc, args.json)
-    print(f"validate: {len(segments)} day(s): {text}", file=sys.stderr)
+    print(f"validate: {len(raw)} day(s): {text}", file=sys.stderr)
     return 0
 
 

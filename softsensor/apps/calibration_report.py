@@ -9,7 +9,9 @@ the validation page (Fig. 6).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -196,30 +198,42 @@ def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConf
 
 
 def validation_page(result: ValidationResult, config: PlantConfig, directory: str | Path,
-                    default: ValidationResult | None = None, verdict: str | None = None
-                    ) -> Path:
-    """Fig. 6 and the validation's tables; ``default``: the config's default parameters on
-    the same data, tabled beside; ``verdict``: the sentence first on the page (default:
-    :func:`~softsensor.verdicts.validation_verdict`)."""
+                    open_loop: Mapping[str, Any], default: ValidationResult | None = None,
+                    verdict: str | None = None) -> Path:
+    """Fig. 6 and the validation's tables: open loop first (``open_loop``, :func:`~softsensor.
+    calibration.open_loop.open_loop_summary`) with the calibration's held-out error beside,
+    then with the inlet moisture read from the temperatures (``result``); ``default``: the
+    config's default parameters on the same data; ``verdict``: the sentence first on the page
+    (:func:`~softsensor.verdicts.validation_verdict`, which the ``validate`` line says too)."""
     d = _dir(directory)
     disp, x_ref = display_settings(config), lab_reference(result.segments)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",
                               "Validation: calibrated model vs independent data", disp)
     ratio = "n/a" if result.ratio is None else f"{result.ratio:.2f}"
     w = config.cost.weights()
+    ol = Fit(dict(open_loop["rmse"]), dict(open_loop["samples"]), float(open_loop["cost"]))
+    ref = open_loop.get("reference")
+    held = ("The parameter file holds no held-out error of its calibration." if ref is None
+            else f"The calibration's held-out error ({ref['source']}):\n\n"
+            + fit_table(Fit(dict(ref["rmse"]), dict(open_loop["samples"]),
+                            float(sum(wm * ref["rmse"][n]
+                                      for wm, n in zip(w, OUTPUT_NAMES, strict=True)))),
+                        w, disp, x_ref))
+    normal = " and the history's normal" if open_loop.get("normal") else ""
     sections = [
-        ("Fit with the inlet moisture fitted to the temperatures",
+        (f"Open loop (inlet moisture held at the calibration's "
+         f"{open_loop['inlet_moisture']:.3f} kg/kg{normal})",
+         fit_table(ol, w, disp, x_ref) + "\n\n" + held),
+        ("Inlet moisture read from the temperatures",
          fit_table(result.fit, w, disp, x_ref)
          + f"\n\nValidation cost / calibration cost: {ratio}"),
-        ("Open loop (nominal inlet moisture)", fit_table(result.evaluation.open_fit, w, disp,
-                                                         x_ref)),
     ]
     if default is not None:
         sections.append(("The config's default parameters on the same data (inlet moisture "
-                         "fitted to the temperatures)", fit_table(default.fit, w, disp, x_ref)))
+                         "read from the temperatures)", fit_table(default.fit, w, disp, x_ref)))
     sections.append(("Validation trajectories (Fig. 6)", "![](fig6_validation.png)"))
     title = ", ".join(s.source for s in result.segments)
-    verdict = verdict or validation_verdict(result.fit.rmse, result.ratio, x_ref,
+    verdict = verdict or validation_verdict(open_loop, result.fit.rmse, x_ref,
                                             disp.moisture_basis)
     return figures.write_page(d, f"Validation report: {title}", sections, verdict=verdict)
 

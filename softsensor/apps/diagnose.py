@@ -27,13 +27,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
 from softsensor.calibration.settings import DEFAULT_TRIALS
+from softsensor.display import display_settings
 from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import diagnosis_verdict
+from softsensor.verdicts import diagnosis_verdict, open_loop_sentence
 
 #: Calibration window taken from CAL. [h]
 DEFAULT_CAL_WINDOW_HOURS = 48.0
@@ -82,6 +85,7 @@ def _check_paths(args: argparse.Namespace) -> None:
 def diagnose_main(args: argparse.Namespace) -> int:
     """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
     require_packages("diagnose", "optuna", "matplotlib")
+    from softsensor.calibration.open_loop import open_loop_summary
     from softsensor.diagnosis.pipeline import diagnose
     from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
 
@@ -97,13 +101,16 @@ def diagnose_main(args: argparse.Namespace) -> int:
         calibration = {"params_file": str(args.params), "rmse": rmse,
                        "discrepancy": cfg.extra.get("discrepancy")}
     else:
-        cfg, calibration = _calibrate(cfg, args)
+        cfg, calibration, fit = _calibrate(cfg, args)
     t_cal = time.perf_counter() - t0
     day = read_day_inputs(args.day)
     d = diagnose(cfg, day, source=str(args.day),
                  fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION,
                  progress=None if args.quiet else _progress("diagnose"))
     doc = d.to_json()
+    # the open-loop errors on the whole day, by the one function ``validate`` reports them with
+    doc["open_loop"] = open_loop_summary(cfg, [d.problem.windows.segment], fit,
+                                         d.problem.model)
     calibration["seconds"] = round(t_cal, 2)
     doc["calibration"] = calibration
     doc["timings_s"]["calibration"] = round(t_cal, 2)
@@ -112,9 +119,13 @@ def diagnose_main(args: argparse.Namespace) -> int:
 
         doc["report"] = str(write_report(d, args.report, doc))
     write_json(doc, args.json)
+    labs = d.problem.windows.lab_value
+    x_ref = float(np.median(labs)) if labs.size else 0.1
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
-          + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)}", file=sys.stderr)
+          + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)} "
+          + open_loop_sentence(doc["open_loop"], x_ref, display_settings(cfg).moisture_basis),
+          file=sys.stderr)
     return 0
 
 
@@ -129,9 +140,10 @@ def _progress(prefix: str) -> Callable[[str], None]:
     return say
 
 
-def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
-    """Run the calibration pipeline on ``--calibrate-on``; the calibrated config and a
-    summary for the report."""
+def _calibrate(cfg, args: argparse.Namespace
+               ) -> tuple[Any, dict[str, Any], dict[str, Any]]:
+    """Run the calibration pipeline on ``--calibrate-on``; the calibrated config, a summary
+    for the report and the ``[fit]`` section a PARAMS.toml of it would hold."""
     import optuna
 
     from softsensor.apps.calibrate import load_segments
@@ -169,7 +181,7 @@ def _calibrate(cfg, args: argparse.Namespace) -> tuple[Any, dict[str, Any]]:
         "windows": [ch.segment.source for ch in choices],
         "discrepancy": disc,
     }
-    return cal_cfg, summary
+    return cal_cfg, summary, result.fit_section()
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

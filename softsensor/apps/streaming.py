@@ -140,10 +140,12 @@ def _replay(args: argparse.Namespace) -> int:
     if not getattr(args, "verbose", False):
         for name in ("softsensor.service", "softsensor.estimation", "softsensor.ingest"):
             logging.getLogger(name).setLevel(logging.WARNING)
-    summary = replay_to_file(args.day, args.out, cfg, estimator=args.estimator, rate=args.rate,
+    summary = replay_to_file(args.days, args.out, cfg, estimator=args.estimator, rate=args.rate,
                              start=args.start, end=args.end,
                              allow_truncated=args.allow_truncated, settings=settings,
-                             progress=None if args.quiet else _every(5.0))
+                             progress=None if args.quiet else _every(5.0),
+                             checkpoint_in=args.checkpoint_in,
+                             checkpoint_out=args.checkpoint_out)
     print(summary.line(), file=sys.stderr, flush=True)
     problem = summary.problem()
     if problem is not None and problem[0] == "error":
@@ -176,9 +178,11 @@ def _every(seconds: float) -> Callable[[int, int], None]:
 def _add_replay(sub: argparse._SubParsersAction) -> None:
     from softsensor.estimation.settings import ESTIMATOR_KINDS
 
-    p = sub.add_parser("replay", help="replay a recorded day through Zenoh and the estimator "
+    p = sub.add_parser("replay", help="replay recorded days through Zenoh and the estimator "
                                       "into one MCAP file")
-    p.add_argument("day", metavar="DAY.mcap", help="recorded day")
+    p.add_argument("days", nargs="+", metavar="DAY.mcap",
+                   help="recorded day(s), in time order: several run as one stream, the "
+                        "estimator's state carried across them as the daemon does")
     p.add_argument("--params", default=None,
                    help="calibrated parameters (PARAMS.toml; default: the config's values)")
     p.add_argument("--out", required=True, help="MCAP file to write (inputs, estimates, health)")
@@ -191,6 +195,11 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--end", default=None, help="end log time (excluded), ISO-8601 or ns")
     p.add_argument("--allow-truncated", action="store_true",
                    help="replay the intact part of a truncated file")
+    p.add_argument("--checkpoint-in", default=None, metavar="FILE",
+                   help="start the estimator from this checkpoint (the daemon's format)")
+    p.add_argument("--checkpoint-out", default=None, metavar="FILE",
+                   help="leave the estimator's checkpoint here (before the last partial "
+                        "window is flushed): the next day's replay starts from it")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=_replay)
 

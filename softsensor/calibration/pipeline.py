@@ -243,13 +243,12 @@ class ValidationResult:
             return None
         return self.fit.cost / self.calibration_cost
 
-    def summary(self) -> dict[str, Any]:
+    def inlet_read(self) -> dict[str, Any]:
+        """The scores with the inlet trajectory read from the temperatures (``validate``'s
+        JSON ``inlet_read``; its ``open_loop`` is :mod:`.open_loop`'s)."""
         ev = self.evaluation
-        return {"days": [s.source for s in self.segments],
-                "hours": float(sum(s.hours for s in self.segments)),
-                "rmse": dict(ev.fit.rmse), "weighted_rmse": weighted_rmse(ev.fit, self.weights),
+        return {"rmse": dict(ev.fit.rmse), "weighted_rmse": weighted_rmse(ev.fit, self.weights),
                 "cost": ev.fit.cost, "score": ev.data, "samples": dict(ev.fit.n),
-                "open_loop": {"rmse": dict(ev.open_fit.rmse), "cost": ev.open_fit.cost},
                 "inlet_moisture_offset": [float(np.mean(c)) if c.size else 0.0
                                           for c in ev.inlet],
                 "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softsensor.calibration.chunked_run import lab_values_at, simulate_span, window_start_states
-from softsensor.calibration.dataset import LabPoints, Segment
-from softsensor.calibration.model_error_fit import feature_columns
+from softsensor.calibration.dataset import LabPoints
+from softsensor.calibration.open_loop import normal_offsets
 from softsensor.diagnosis.calibration_error import DiscrepancyModel
 from softsensor.diagnosis.windows import MODEL_LAB_STD, DayWindows
 from softsensor.errors import SoftsensorError
@@ -292,18 +292,6 @@ class Problem:
         eq. 4 is used for scores)."""
         r = self.fit_residual_vector(pred)
         return float(r @ r)
-
-
-def normal_offsets(config: PlantConfig, seg: Segment) -> np.ndarray:
-    """What the history says the calibrated model misses at every window's operating point
-    (K, 3) in ``OUTPUT_NAMES`` order (:mod:`softsensor.estimation.model_error`: the learned
-    discrepancy with the mean day offset); zeros without a ``[model_error]``. Every
-    prediction of the diagnosis carries it: a day is judged against the plant's normal."""
-    me = model_error_of(config)
-    if me is None:
-        return np.zeros((seg.n_windows, len(OUTPUT_NAMES)))
-    phi = me.phi_matrix(feature_columns(seg))
-    return np.column_stack([me.offset(c, phi) for c in OUTPUT_NAMES])
 
 
 def noise_levels(res: Residuals, split: Split, lab_noise: float,

@@ -36,8 +36,8 @@ from softsensor.calibration.dataset import (
     trim_stale,
 )
 from softsensor.calibration.model_error_fit import at_inlet_moisture
+from softsensor.calibration.open_loop import inlet_level
 from softsensor.errors import IngestError
-from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.window_inputs import MEASURED_INPUTS
 from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
@@ -146,10 +146,9 @@ def day_windows(day: DayLike, config: PlantConfig, source: str = "day") -> DayWi
         raise IngestError(f"{source}: {len(windows) * W / 3600:.1f} h of usable windows; "
                           f"diagnosis needs at least {MIN_WINDOWS * W / 3600:g} h")
     seg = segment_from_windows(windows, day.labs, config, source)
-    me = model_error_of(config)
-    if me is not None:
-        # the plant's normal is taken at the history's typical inlet moisture
-        seg = at_inlet_moisture(seg, me.moisture_in)
+    # the open-loop model's inlet moisture: with a history, its typical level, where the
+    # plant's normal was taken
+    seg = at_inlet_moisture(seg, inlet_level(config))
     held = {n: sum(1 for w in windows if w.means.get(n) is None) for n in MEASURED_INPUTS}
     return DayWindows(seg, tuple(windows), air_edges(seg), held)
 

@@ -109,6 +109,19 @@ class CheckpointStore:
                 pass
 
 
+def check_fits(doc: dict[str, Any], unit: str, kind: str, where: str, hint: str = "") -> None:
+    """Refuse a checkpoint ``doc`` (:meth:`CheckpointStore.load`) of another unit or
+    estimator kind than the run's, in one line naming ``where`` (a configuration question,
+    not damage: the file stays); ``hint`` is appended, e.g. ``" (use --no-resume)"``."""
+    if doc.get("unit") != unit:
+        raise ConfigError(f"{where}: checkpoint of unit {doc.get('unit')!r}, this run is "
+                          f"{unit!r}{hint}")
+    written = doc["service"].get("estimator_kind")
+    if written != kind:
+        raise ConfigError(f"{where}: written by estimator {written!r}, this run uses "
+                          f"{kind!r}{hint}")
+
+
 def _fsync_dir(folder: Path) -> None:
     try:
         fd = os.open(folder, os.O_RDONLY)
@@ -122,4 +135,4 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-__all__ = ["CheckpointStore"]
+__all__ = ["CheckpointStore", "check_fits"]

@@ -67,7 +67,7 @@ from softsensor.plantconfig import PlantConfig
 from softsensor.recording.recorder import Recorder
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.checkpoint import CheckpointStore
+from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
@@ -364,13 +364,7 @@ class Daemon:
             return service
         # a checkpoint of another unit or estimator is a configuration question, not damage:
         # the operator decides (--no-resume), the file stays
-        if doc.get("unit") != self.unit:
-            raise ConfigError(f"{self.store.path}: checkpoint of unit {doc.get('unit')!r}, "
-                              f"this daemon runs {self.unit!r} (use --no-resume)")
-        kind = doc["service"].get("estimator_kind")
-        if kind != service.kind:
-            raise ConfigError(f"{self.store.path}: written by estimator {kind!r}, this run "
-                              f"uses {service.kind!r} (use --no-resume)")
+        check_fits(doc, self.unit, service.kind, str(self.store.path), " (use --no-resume)")
         try:
             service.restore(doc["service"], where=str(self.store.path))
         except EstimationError as exc:

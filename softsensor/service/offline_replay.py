@@ -14,7 +14,17 @@ left to Zenoh's threads, so after publishing a lab result the replayer waits unt
 pipeline has queued it (a few per day, microseconds each). Replaying the same day twice, or
 replaying what the daemon recorded live, gives the same estimates.
 
-The day is read once (:class:`DayStream`): its first scans give the scan period before the
+Several days (``softsensor replay day1.mcap day2.mcap ...``) go through the same two sessions
+and the same estimator as one stream, as the daemon lives them: the state carries across the
+boundaries, and the hours between two days are a gap in the scans, which the service handles
+as it does live (:mod:`.estimator_service`). The days must follow each other in time
+(:func:`check_order`). ``checkpoint_in`` starts the estimator from a checkpoint in the daemon's
+format (:mod:`.checkpoint`, its SHA-256 checked), ``checkpoint_out`` leaves one, taken after
+the last message and before the end-of-record flush ticks the partly filled last window: the
+state a daemon holds at that moment, so that replaying day 1 with ``checkpoint_out`` and then
+day 2 with ``checkpoint_in`` gives day 2 the estimates one replay of both days gives it.
+
+Each day is read once (:class:`DayStream`): its first scans give the scan period before the
 service is built, the rest streams on from the same read, and the ``/truth/plant`` topic a
 virtual plant wrote is kept aside on the way, for the summary's comparison only (the estimator
 never sees it).
@@ -22,13 +32,14 @@ never sees it).
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import math
 import os
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,13 +52,15 @@ from softsensor.bus.zenoh_bus import (
     open_session,
     wait_for_peers,
 )
-from softsensor.errors import IngestError, SoftsensorError
+from softsensor.errors import ConfigError, EstimationError, IngestError, SoftsensorError
 from softsensor.estimation.windowing import measured_scan_period
 from softsensor.files import atomic_path
+from softsensor.messages import iso_utc
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
+from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
@@ -113,6 +126,7 @@ class ReplaySummary:
     warmup_s: float = 0.0
     rmse: dict[str, float] | None = None
     estimates: list[tuple[int, dict[str, Any]]] = field(default_factory=list, repr=False)
+    parts: list[DayPart] = field(default_factory=list)
 
     @property
     def speedup(self) -> float:
@@ -147,6 +161,30 @@ class ReplaySummary:
         if self.rmse:
             parts = ", ".join(f"{k} {v:.4f}" for k, v in self.rmse.items())
             text += f"; RMSE against /truth/plant (reporting only): {parts} kg/kg"
+        if len(self.parts) > 1:
+            text += "; per day: " + "; ".join(p.line() for p in self.parts)
+        return text
+
+
+@dataclass
+class DayPart:
+    """One day of a several-day replay: its messages, their log-time span, the estimates
+    whose window ends fall in it (up to the next day's first message) and their RMSE against
+    the day's ``/truth/plant``."""
+
+    day: Path
+    n_replayed: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+    ticks: int = 0
+    rmse: dict[str, float] | None = None
+
+    def line(self) -> str:
+        hours = 0.0 if self.first_ns is None or self.last_ns is None \
+            else (self.last_ns - self.first_ns) / 3.6e12
+        text = f"{self.day}: {self.n_replayed} messages over {hours:.1f} h, {self.ticks} ticks"
+        if self.rmse:
+            text += " (RMSE " + ", ".join(f"{k} {v:.4f}" for k, v in self.rmse.items()) + ")"
         return text
 
 
@@ -178,6 +216,7 @@ class DayStream:
                  allow_truncated: bool = False, truth: bool = True, horizon_ns: int = 0,
                  n_period: int = 2000) -> None:
         topics = [TOPIC_SCAN, TOPIC_LAB, *([TOPIC_TRUTH] if truth else [])]
+        self.day = day
         self.end_ns = end_ns
         self.truth: list[tuple[int, float, float]] = []  #: (time, moisture_out, moisture_in)
         self._it = iter_messages(day, topics=topics, allow_truncated=allow_truncated,
@@ -214,6 +253,30 @@ class DayStream:
         self._it.close()
 
 
+def day_span(day: Path, allow_truncated: bool = False) -> tuple[int, int]:
+    """First and last log time [ns] of ``day``'s scans and lab results (IngestError naming
+    the file when it has none)."""
+    first = last = None
+    for _, t, _ in iter_messages(day, topics=[TOPIC_SCAN, TOPIC_LAB],
+                                 allow_truncated=allow_truncated):
+        first = t if first is None else first
+        last = t
+    if first is None or last is None:
+        raise IngestError(f"{day}: no /plant/scan messages")
+    return first, last
+
+
+def check_order(days: list[Path], allow_truncated: bool = False) -> None:
+    """Refuse days that are not in time order, or that overlap, in one line naming both
+    files (a replay is one stream, as the plant lived it)."""
+    spans = [(d, *day_span(d, allow_truncated)) for d in days]
+    for (a, a0, a1), (b, b0, b1) in itertools.pairwise(spans):
+        if b0 <= a1:
+            what = "overlaps" if b1 >= a0 else "comes before"
+            raise IngestError(f"{b} ({iso_utc(b0)} .. {iso_utc(b1)}) {what} {a} ({iso_utc(a0)} "
+                              f".. {iso_utc(a1)}): give the days in time order, without overlap")
+
+
 def truth_rmse(truth: list[tuple[int, float, float]],
                estimates: list[tuple[int, dict[str, Any]]],
                max_age_s: float = 60.0) -> dict[str, float] | None:
@@ -242,37 +305,79 @@ def truth_rmse(truth: list[tuple[int, float, float]],
     return out or None
 
 
-def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg: PlantConfig,
+def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+                   out: str | os.PathLike[str], cfg: PlantConfig,
                    *, estimator: str | None = None, rate: float | str = "max",
                    start: int | str | None = None, end: int | str | None = None,
                    allow_truncated: bool = False, settings: ServiceSettings | None = None,
                    report_truth: bool = True,
-                   progress: Callable[[int, int], None] | None = None) -> ReplaySummary:
-    """Replay ``day`` through Zenoh and the estimator service into ``out`` (module docstring).
+                   progress: Callable[[int, int], None] | None = None,
+                   checkpoint_in: str | os.PathLike[str] | None = None,
+                   checkpoint_out: str | os.PathLike[str] | None = None) -> ReplaySummary:
+    """Replay ``day`` (one recorded day, or several in time order as one stream) through
+    Zenoh and the estimator service into ``out`` (module docstring), starting from the
+    checkpoint ``checkpoint_in`` and leaving one at ``checkpoint_out`` when given.
 
     ``progress(window_end_ns, ticks)`` is called after every estimate (on the estimator's
     thread): a long day shows how far it is.
 
     Raises :class:`~softsensor.errors.IngestError` naming the file for a missing, corrupt or
-    (without ``allow_truncated``) truncated day; ``out`` is then not left behind.
+    (without ``allow_truncated``) truncated day, or days out of order;
+    :class:`~softsensor.errors.ConfigError` for a checkpoint that cannot be used; ``out`` is
+    then not left behind.
     """
-    day, out = Path(day), Path(out)
+    days = ([Path(day)] if isinstance(day, (str, os.PathLike))
+            else [Path(d) for d in day])
+    if not days:
+        raise IngestError("no recorded day to replay")
+    out = Path(out)
     start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
-    _check_paths(day, out)
+    for d in days:
+        _check_paths(d, out)
+    if len(set(d.resolve() for d in days)) < len(days):
+        raise IngestError("a day is given twice: each day is replayed once, in time order")
+    if len(days) > 1:
+        check_order(days, allow_truncated)
+    store_out = None
+    if checkpoint_out is not None:
+        store_out = CheckpointStore(checkpoint_out)
+        if store_out.path.resolve() in {out.resolve(), *(d.resolve() for d in days)}:
+            raise ConfigError(f"--checkpoint-out {checkpoint_out}: must differ from --out and "
+                              f"the days")
+    doc = None
+    if checkpoint_in is not None:
+        doc = CheckpointStore(checkpoint_in).load()
+        if doc is None:
+            raise ConfigError(f"--checkpoint-in {checkpoint_in}: no such file")
     settings = settings or service_settings(cfg)
-    read = DayStream(day, start_ns, end_ns, allow_truncated=allow_truncated, truth=report_truth,
-                     horizon_ns=int(round(cfg.solver.window * 1e9)))
+    horizon = int(round(cfg.solver.window * 1e9))
+
+    def stream(d: Path) -> DayStream:
+        return DayStream(d, start_ns, end_ns, allow_truncated=allow_truncated,
+                         truth=report_truth, horizon_ns=horizon)
+
+    reads = [stream(days[0])]
     try:
-        service = make_service(cfg, settings, estimator, read.scan_period_s)
-        summary = ReplaySummary(day=day, out=out, estimator=service.kind,
+        service = make_service(cfg, settings, estimator, reads[0].scan_period_s)
+        if doc is not None:
+            where = str(checkpoint_in)
+            check_fits(doc, service.unit, service.kind, where)
+            try:
+                service.restore(doc["service"], where=where)
+            except EstimationError as exc:
+                raise ConfigError(str(exc)) from exc
+        before = dataclasses.replace(service.stats)
+        summary = ReplaySummary(day=days[0], out=out, estimator=service.kind,
                                 scan_period_s=service.window.scan_period_s,
                                 min_good=service.window.min_good,
-                                expected_scans=service.window.expected_scans)
+                                expected_scans=service.window.expected_scans,
+                                parts=[DayPart(d) for d in days])
         # compile every kernel a tick calls before the first message goes out: a first tick
         # that compiles holds the estimator thread for tens of seconds, which _wait would call
         # a stall
         summary.warmup_s = warm_up(
-            lambda: make_service(cfg, settings, estimator, read.scan_period_s), cfg).seconds
+            lambda: make_service(cfg, settings, estimator, reads[0].scan_period_s),
+            cfg).seconds
 
         def _keep(o: Output) -> None:
             if o.kind == "estimate":
@@ -280,28 +385,62 @@ def replay_to_file(day: str | os.PathLike[str], out: str | os.PathLike[str], cfg
                 if progress is not None:
                     progress(o.time_ns, len(summary.estimates))
 
+        def messages() -> Iterator[tuple[str, int, dict[str, Any]]]:
+            for i, part in enumerate(summary.parts):
+                if i:
+                    try:
+                        reads.append(stream(part.day))
+                    except IngestError as exc:
+                        log.warning("%s", exc)  # nothing of this day in --start .. --end
+                        continue
+                for m in reads[-1].messages():
+                    part.n_replayed += 1
+                    if part.first_ns is None:
+                        part.first_ns = m[1]
+                    part.last_ns = m[1]
+                    yield m
+
         t0 = time.monotonic()
         # an interrupted replay (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
         with atomic_path(out) as partial:
             recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
             try:
-                stats = _stream(read.messages(), recorder, service, _keep, rate=rate)
+                stats = _stream(messages(), recorder, service, _keep, rate=rate,
+                                checkpoint=store_out)
             finally:
                 recorder.close()
     finally:
-        read.close()
+        for r in reads:
+            r.close()
     summary.wall_s = time.monotonic() - t0
     s = service.stats
     summary.n_replayed = stats.n_published
     summary.n_recorded = recorder.n_written
-    summary.ticks, summary.stale_ticks = s.ticks, s.stale_ticks
-    summary.lab_updates = s.lab_updates
-    summary.labs_accepted, summary.labs_refused = s.labs_accepted, s.labs_refused
+    summary.ticks, summary.stale_ticks = s.ticks - before.ticks, s.stale_ticks - before.stale_ticks
+    summary.lab_updates = s.lab_updates - before.lab_updates
+    summary.labs_accepted = s.labs_accepted - before.labs_accepted
+    summary.labs_refused = s.labs_refused - before.labs_refused
     if stats.first_ns is not None and stats.last_ns is not None:
         summary.span_s = (stats.last_ns - stats.first_ns) / 1e9
+    truth = [x for r in reads for x in r.truth]
     if report_truth:
-        summary.rmse = truth_rmse(read.truth, summary.estimates)
+        summary.rmse = truth_rmse(truth, summary.estimates)
+    _per_day(summary, reads if report_truth else [])
     return summary
+
+
+def _per_day(summary: ReplaySummary, reads: list[DayStream]) -> None:
+    """Each day's estimates (window ends from its first message to the next day's) and, with
+    the days' truth, their RMSE."""
+    parts = [p for p in summary.parts if p.first_ns is not None]
+    truths = {r.day: r.truth for r in reads}
+    for i, part in enumerate(parts):
+        lo = part.first_ns
+        hi = parts[i + 1].first_ns if i + 1 < len(parts) else None
+        mine = [(t, b) for t, b in summary.estimates if t > lo and (hi is None or t <= hi)]
+        part.ticks = len(mine)
+        if part.day in truths:
+            part.rmse = truth_rmse(truths[part.day], mine)
 
 
 def _check_paths(day: Path, out: Path) -> None:
@@ -317,10 +456,11 @@ def _check_paths(day: Path, out: Path) -> None:
 
 def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileRecorder,
             service: EstimatorService, on_output: Callable[[Output], None],
-            rate: float | str) -> ReplayStats:
+            rate: float | str, checkpoint: CheckpointStore | None = None) -> ReplayStats:
     """Two Zenoh sessions on loopback, the plant's publishing ``messages`` at ``rate`` and the
     service's estimating and recording; returns once every message and estimate is
-    recorded."""
+    recorded. ``checkpoint``: where the service state is saved after the last message, before
+    the end-of-record flush (module docstring)."""
     unit = service.unit
     with open_session(port=0) as svc_session:
         (endpoint,) = listening_endpoints(svc_session)[:1] or (None,)
@@ -350,6 +490,11 @@ def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileR
                 n = stats.n_published
                 _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
                       lambda: pipeline.n_in + bus.n_received, "the replayed messages")
+                if checkpoint is not None:
+                    last = stats.last_ns
+                    pipeline.call(lambda: checkpoint.save(
+                        service.checkpoint(), saved_at_ns=service.now_ns or last or 1,
+                        unit=unit))
                 pipeline.flush()
                 _wait(lambda: bus.n_received >= n + pipeline.n_out,
                       lambda: bus.n_received, "the estimates to be recorded")
@@ -360,4 +505,5 @@ def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileR
     return stats
 
 
-__all__ = ["DayStream", "FileRecorder", "ReplaySummary", "replay_to_file", "truth_rmse"]
+__all__ = ["DayPart", "DayStream", "FileRecorder", "ReplaySummary", "check_order", "day_span",
+           "replay_to_file", "truth_rmse"]
