@@ -495,11 +495,13 @@ def _tpe_best(study: optuna.Study) -> tuple[np.ndarray, dict[str, Any]]:
 
 def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
             theta: np.ndarray, config: PlantConfig, spec: ObjectiveSpec,
-            jac_model: DryerModel) -> Refinement:
+            jac_model: DryerModel, calibration: CalibrationSettings) -> Refinement:
     """Refine TPE's best point (the Jacobians from ``jac_model``, the search's); an
     improvement joins the study as a trial (user attribute ``origin = "refine"``), so that
     the study's best trial is the result."""
-    refinement = refine(model, fit_segs, theta, config.bounds(), spec, jac_model=jac_model)
+    refinement = refine(model, fit_segs, theta, config.bounds(), spec, jac_model=jac_model,
+                        passes=calibration.polish_passes,
+                        max_nfev=calibration.polish_evaluations)
     if refinement.improved:
         study.add_trial(optuna.trial.create_trial(
             params=dict(zip(PARAMETER_NAMES, map(float, refinement.theta), strict=True)),
@@ -581,7 +583,8 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
     refinement = None
     if polish:
         with phase("refine", timings, say):
-            refinement = _polish(study, model, fit_segs, theta, config, spec, fast)
+            refinement = _polish(study, model, fit_segs, theta, config, spec, fast,
+                                 calibration)
         if refinement.improved:
             theta = refinement.theta
     run = ChunkedRun(model, fit_segs, np.stack([theta, current]), spec, n_chunks=1)

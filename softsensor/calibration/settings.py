@@ -63,6 +63,12 @@ class CalibrationSettings:
     bound_margin : float
         A parameter within this fraction of a bound (``value <= low (1 + m)`` or
         ``value >= high / (1 + m)``) is flagged as at its bound.
+    polish_passes, polish_evaluations : int
+        The local polish of the study's best point (:func:`~softsensor.calibration.refine.
+        refine`): at most this many re-weighted Gauss-Newton passes of at most this many
+        evaluations each. On the matched plant (3 x 24 h, 60 trials, the likelihood) 2 passes
+        of 6 stopped at an objective 34 above the true parameters' (-270 against -303) and a
+        cyclone outlet 0.85 K off; 4 of 15 reached -309, 0.12 K.
     temperature_target, moisture_target : float
         What fitting the dryer means on held-out data: both outlet temperatures' RMSE within
         ``temperature_target`` [K] and the lab moisture's within ``moisture_target``
@@ -86,6 +92,8 @@ class CalibrationSettings:
     holdout_fraction: float = num(0.25, ge=0, lt=0.9)
     bound_margin: float = num(0.02, gt=0, lt=1)
     search_wall_substeps: int = num(1, ge=0, le=1000)
+    polish_passes: int = num(4, ge=1, le=20)
+    polish_evaluations: int = num(15, ge=1, le=200)
     temperature_target: float = num(1.0, gt=0, le=100)
     moisture_target: float = num(0.006, gt=0, le=1)
 
