@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from softsensor.configfile import build_section, num, read_toml
+from softsensor.configfile import TOML_KEY, build_section, num, read_toml
 from softsensor.errors import ConfigError
 
 #: The paper's Table 1, in this order everywhere (arrays of parameters use it).
@@ -218,6 +218,29 @@ class PlantConfig(PlantSections):
             params[name] = spec
         return _keeping_tables(self, dataclasses.replace(self, parameters=params))
 
+    def with_structure(self, changes: dict[str, Any], source: str | None = None
+                       ) -> PlantConfig:
+        """A copy with the plant sections' keys ``changes`` (dotted, ``"fiber.
+        critical_moisture"``) set: a structural alternative of the model
+        (:mod:`softsensor.calibration.structure`). Each changed section is validated again
+        as the file's is, so a bad value is one line naming ``source`` and the dotted key."""
+        where = source or self.source
+        sections: dict[str, dict[str, Any]] = {}
+        names = {f.name for f in dataclasses.fields(PlantSections)}
+        for dotted, value in changes.items():
+            section, _, key = str(dotted).partition(".")
+            if section not in names or not key:
+                raise ConfigError(f"{where}: structure.{dotted} is not a key of a plant "
+                                  f"section (known sections: {', '.join(sorted(names))})")
+            sections.setdefault(section, {})[key] = value
+        kwargs = {}
+        for section, table in sections.items():
+            old = getattr(self, section)
+            merged = {**{f.metadata.get(TOML_KEY, f.name): getattr(old, f.name)
+                         for f in dataclasses.fields(old)}, **table}
+            kwargs[section] = build_section(type(old), merged, section, where)
+        return _keeping_tables(self, dataclasses.replace(self, **kwargs))
+
 
 T = TypeVar("T")
 
@@ -360,6 +383,20 @@ def discrepancy_of(cfg: PlantConfig) -> DiscrepancyPrior | None:
                        lambda c: _discrepancy(c.extra.get("discrepancy"), c.source))
 
 
+def _dotted_keys(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested TOML table as ``{"section.key": value}``; the ``evidence`` sub-table, which
+    records why a structure was adopted, is not a key."""
+    out: dict[str, Any] = {}
+    for k, v in table.items():
+        if not prefix and k == "evidence":
+            continue
+        if isinstance(v, dict):
+            out.update(_dotted_keys(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
 def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
 
@@ -367,8 +404,10 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     ``[discrepancy]`` table (what the model left on held-out data, checked here:
     :class:`DiscrepancyPrior`) and ``[model_error]`` (what the history says it misses, built by
     :func:`softsensor.estimation.model_error.model_error_of`), when present, are carried in
-    ``extra`` for the estimator and the diagnosis. The tables ``config`` built already stay
-    built.
+    ``extra`` for the estimator and the diagnosis; ``[structure]`` (a structural alternative
+    adopted from history: plant-section keys such as ``fiber.critical_moisture``) replaces
+    those keys of the plant sections (:meth:`PlantConfig.with_structure`). The tables
+    ``config`` built already stay built.
     """
     data = read_toml(path)
     table = data.get("parameters")
@@ -386,6 +425,11 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
             raise ConfigError(f"{path}: parameters.{name}.value must be a number, got {v!r}")
         values[name] = float(v)
     cfg = config.with_parameters(values) if values else config
+    structure = data.get("structure")
+    if structure is not None:
+        if not isinstance(structure, dict):
+            raise ConfigError(f"{path}: [structure] must be a table")
+        cfg = cfg.with_structure(_dotted_keys(structure), str(path))
     extra = dict(cfg.extra)
     built: dict[str, Any] = {}
     disc = data.get("discrepancy")

@@ -175,6 +175,10 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
                    help="skip the local Gauss-Newton polish of the best trial")
     p.add_argument("--no-identify", action="store_true",
                    help="skip the identifiability analysis of the result")
+    p.add_argument("--structure", action=argparse.BooleanOptionalAction, default=None,
+                   help="search the model's structural alternatives on the history and adopt "
+                        "one where the held-out evidence says so (default: on with several "
+                        "days, off with one)")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write an HTML page with the figures to DIR")
     p.add_argument("--json", default=None, metavar="FILE",
@@ -182,6 +186,15 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_objective_arguments(p)
     _add_data_arguments(p)
+
+
+def _structure_library(args: argparse.Namespace, base: PlantConfig) -> list[Any]:
+    """The structural alternatives to search: the default library with several days or
+    ``--structure``, none with one day or ``--no-structure``."""
+    from softsensor.calibration.structure import default_library
+
+    on = len(args.days) > 1 if args.structure is None else args.structure
+    return default_library(base) if on else []
 
 
 def calibrate_main(args: argparse.Namespace) -> int:
@@ -222,7 +235,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              windows_per_day=selection.windows_per_day,
                              polish=not args.no_polish,
                              identify_result=not args.no_identify, force=args.force,
-                             validation=validation, progress=progress)
+                             validation=validation, progress=progress,
+                             structure=_structure_library(args, base))
     result = hist.calibration
     for c in result.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
@@ -233,10 +247,13 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if args.report:
         from softsensor.apps.calibration_report import calibration_page
 
-        summary["report"] = str(calibration_page(result, args.report, verdict=outcome))
+        summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
+                                                 structure=hist.structure))
     write_json(summary, args.json)
     if result.trade_off is not None:
         print(f"calibrate: {result.trade_off.verdict()}", file=sys.stderr)
+    if hist.structure is not None:
+        print(f"calibrate: {hist.structure.line()}", file=sys.stderr)
     print(f"calibrate: {outcome}", file=sys.stderr)
     return 0
 
@@ -295,7 +312,8 @@ def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
     at = [] if hist.kept_current else result.at_bounds
     return params_document(base, hist.params, fit, verdicts, at,
                            None if hist.discrepancy is None else hist.discrepancy.as_dict(),
-                           hist.model_error.to_table())
+                           hist.model_error.to_table(),
+                           None if hist.structure is None else hist.structure.params_table())
 
 
 def _params_comment(calibration: CalibrationSettings, hist: Any) -> str:

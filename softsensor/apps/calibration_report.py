@@ -23,6 +23,7 @@ from softsensor.calibration.identifiability import (
     Sensitivities,
 )
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
+from softsensor.calibration.structure import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
 from softsensor.display import DisplaySettings, display_settings, plant_error
 from softsensor.errors import ConfigError
@@ -130,8 +131,28 @@ def identifiability_sections(ident: Identifiability, config: PlantConfig,
     ]
 
 
+def structure_table(search: StructureSearch, display: DisplaySettings, x_ref: float) -> str:
+    """The structural alternatives tried on the history: what each changes, its held-out
+    errors in plant units, its evidence gain, adopted or why not."""
+    def cells(rmse: dict[str, float]) -> tuple[str, ...]:
+        return tuple(f"{plant_error(n, rmse[n], x_ref, display)[0]:.3g}" for n in OUTPUT_NAMES)
+
+    unit = plant_error("moisture_out", 0.0, x_ref, display)[1]
+    rows = [("paper's form (baseline)", "", *cells(search.baseline_held_out), "0", "")]
+    for c in search.candidates:
+        a = c.alternative
+        changes = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                            for k, v in a.changes.items())
+        rows.append((a.name, f"{changes} ({a.source})", *cells(c.held_out), f"{c.gain:.1f}",
+                     "**adopted**" if c.adopted else c.why_not))
+    return (search.line() + "\n\n" + figures.markdown_table(
+        ("alternative", "keys (source)", "held-out T_dryer_out °C", "held-out T_cyclone_out °C",
+         f"held-out lab {unit}", "evidence gain", "adopted or why not"), rows))
+
+
 def calibration_page(result: CalibrationResult, directory: str | Path,
-                     verdict: str | None = None) -> Path:
+                     verdict: str | None = None,
+                     structure: StructureSearch | None = None) -> Path:
     """Figures and tables of a calibration (Figs. 2 to 5) under ``verdict`` (default: the
     shared calibration verdict of :mod:`softsensor.verdicts`)."""
     d = _dir(directory)
@@ -153,6 +174,9 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
     if result.trade_off is not None:
         sections.append(("Temperatures against moisture: the multipliers' front",
                          trade_off_table(result.trade_off, disp, x_ref)))
+    if structure is not None:
+        sections.append(("The model's structure, chosen by evidence from history",
+                         structure_table(structure, disp, x_ref)))
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
     figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",

@@ -49,6 +49,8 @@ from softsensor.calibration.pipeline import (
 )
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
 from softsensor.calibration.settings import CalibrationSettings
+from softsensor.calibration.structure import Alternative, StructureSearch
+from softsensor.calibration.structure import search as structural_search
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -66,7 +68,7 @@ class HistoryResult:
     ``kept_current`` and ``reason``: whether and why the current ones were kept;
     ``inlet_levels``: each day's fitted inlet moisture [kg/kg]; ``model_error``: learned at
     ``theta``; ``discrepancy``: what ``theta`` leaves on the held-out data (the heat input's
-    prior).
+    prior); ``structure``: the structural search (:mod:`.structure`), when it ran.
     """
 
     calibration: CalibrationResult
@@ -77,6 +79,7 @@ class HistoryResult:
     model_error: ModelError
     discrepancy: Discrepancy | None
     timings: dict[str, float] = field(default_factory=dict)
+    structure: StructureSearch | None = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -96,6 +99,7 @@ class HistoryResult:
                            "day_sd": me.channel(c).day_sd, "walk": me.channel(c).walk,
                            "noise": me.channel(c).noise}
                        for c in ("T_dryer_out", "T_cyclone_out", "moisture_out")}},
+                "structure": None if self.structure is None else self.structure.as_dict(),
                 "timings_s": {k: round(v, 2) for k, v in self.timings.items()}}
 
 
@@ -158,9 +162,11 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                       identify_result: bool = True, force: bool = False,
                       validation: Sequence[Segment] | None = None,
                       model: DryerModel | None = None,
+                      structure: Sequence[Alternative] | None = None,
                       progress: Callable[[str], None] | None = None) -> HistoryResult:
     """Calibrate on the history ``days`` (module docstring); ``validation``: days to validate
-    on instead of the held-out hours."""
+    on instead of the held-out hours; ``structure``: the structural alternatives to search
+    (:mod:`.structure`; None or empty: the paper's form only)."""
     say = progress or (lambda phase: None)
     model = model or DryerModel(config)
     t0, c0 = time.perf_counter(), time.process_time()
@@ -178,6 +184,18 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               f"ones ({result.verdict_line()})" if kept else
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
+    search = None
+    if structure and held and result.validation is not None:
+        with phase("structure", timings, say):
+            search = structural_search(choices, held, config, calibration, theta,
+                                       result.validation.evaluation if not kept else
+                                       result.current_validation.evaluation,
+                                       result.trade_off, structure, seed=settings.seed,
+                                       polish=polish, say=say)
+        if search.adopted is not None:
+            config = config.with_structure(dict(search.adopted.alternative.changes))
+            model, theta, kept = DryerModel(config), search.adopted.theta, False
+            reason = f"calibrated with the structure '{search.adopted.alternative.name}'"
     with phase("model_error", timings, say):
         levels = inlet_levels(model, days, theta, result)
         latest = levels[int(np.argmax([d.start_ns for d in days]))]
@@ -189,7 +207,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
         disc = discrepancy(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
-    return HistoryResult(result, theta, kept, reason, levels, me, disc, timings)
+    return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",

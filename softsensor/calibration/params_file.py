@@ -18,6 +18,9 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [fit.weighted_rmse]        WF_m * RMSE_m, the numbers the paper quotes
     [fit.weights]              the eq. 4 weights used
     [fit.samples]              samples per channel
+    [structure]                a structural alternative adopted from history (plant-section
+    [structure.fiber]          keys such as fiber.bound_fraction, applied on load) and
+    [structure.evidence]       the held-out evidence for it (:mod:`.structure`)
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
                                on its own error, :class:`~.pipeline.Discrepancy`)
     [model_error]              what the history says the model misses, channel by channel
@@ -66,10 +69,12 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
                     fit: Mapping[str, Any], verdicts: Mapping[str, str] | None = None,
                     at_bounds: Sequence[str] = (),
                     discrepancy: Mapping[str, float] | None = None,
-                    model_error: Mapping[str, Any] | None = None) -> dict[str, Any]:
+                    model_error: Mapping[str, Any] | None = None,
+                    structure: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The PARAMS.toml document for parameter ``values``, the ``[fit]`` section, the flags
-    of parameters at a bound, the ``[discrepancy]`` section and the history's
-    ``[model_error]`` (:meth:`~softsensor.estimation.model_error.ModelError.to_table`)."""
+    of parameters at a bound, the ``[discrepancy]`` section, the history's
+    ``[model_error]`` (:meth:`~softsensor.estimation.model_error.ModelError.to_table`) and
+    an adopted ``[structure]`` (:meth:`~.structure.StructureSearch.params_table`)."""
     params: dict[str, Any] = {}
     for name in PARAMETER_NAMES:
         spec = config.parameters[name]
@@ -86,6 +91,8 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
                               if not (isinstance(v, float) and math.isnan(v))}
     if model_error:
         doc["model_error"] = dict(model_error)
+    if structure:
+        doc["structure"] = dict(structure)
     return doc
 
 

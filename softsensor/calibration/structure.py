@@ -1,0 +1,237 @@
+"""Structural alternatives of the model, chosen by evidence from history (issue 29).
+
+Seven multipliers scale rates; they cannot change a shape, such as how steeply the outlet
+moisture answers the inlet air temperature near the end of drying. Where the multipliers'
+front (:mod:`.trade_off`) holds no point that fits both the temperatures and the labs, the
+structure is what differs from the dryer's. Each :class:`Alternative` is a set of keys of the
+plant sections (``fiber.bound_fraction``, ``cyclone.hold_up_time``, ...) with its source: a
+named change of the model's physics that the config already parameterises.
+
+The search (:func:`search`) runs after the paper's form has been calibrated on the history
+windows. For every alternative, the model is built with its keys, the multipliers start
+where the paper's form ended (the study's first trial, its prior centred there) and the
+local polish (:mod:`.refine`) re-fits them on the same windows; the result is scored on the
+same held-out hours (inlet moisture read from the temperatures, labs out of sample) by the
+profile likelihood ``sum_m (N_m / 2) ln MSE_m``, each channel by its own scale. An
+alternative's evidence is the baseline's score less its own, less ``(k / 2) ln N`` for its
+``k`` structural constants (a Bayesian information criterion over the ``N`` held-out
+samples). One is adopted only when that gain is positive and its held-out point (the worse
+temperature, the labs) is not beaten on both by any point of the paper's front: it moves the
+front, not only the balance between the channels. The adopted keys and the table of evidence
+go into PARAMS.toml's ``[structure]`` (:func:`softsensor.plantconfig.load_parameters`
+applies them), so ``validate``, ``replay``, ``run`` and ``diagnose`` use the structure from
+then on.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from softsensor.calibration.dataset import Segment
+from softsensor.calibration.objective import RMSE_FLOOR, Evaluation
+from softsensor.calibration.optimize import StudySettings
+from softsensor.calibration.selection import WindowChoice
+from softsensor.calibration.settings import CalibrationSettings
+from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
+from softsensor.model import DryerModel
+from softsensor.plantconfig import PlantConfig
+from softsensor.signals import OUTPUT_NAMES
+
+
+@dataclass(frozen=True)
+class Alternative:
+    """A structural alternative: plant-section keys and their values (``changes``), how many
+    structural constants it fixes (``k``, the penalty's count), what it changes and its
+    source."""
+
+    name: str
+    changes: Mapping[str, Any]
+    k: int
+    what: str
+    source: str
+
+
+def default_library(config: PlantConfig) -> list[Alternative]:
+    """The alternatives searched by default, around ``config``'s own constants."""
+    f, c = config.fiber, config.cyclone
+    return [
+        Alternative("bound-water rate x0.3", {"fiber.bound_fraction": f.bound_fraction * 0.3},
+                    1, "slower drying below the critical moisture: the outlet moisture answers "
+                       "the heat input more steeply", "Pang 2001; paper eq. 2"),
+        Alternative("bound-water rate x3", {"fiber.bound_fraction": min(f.bound_fraction * 3,
+                                                                         1.0)},
+                    1, "faster drying below the critical moisture: a flatter end of drying",
+                    "Pang 2001; paper eq. 2"),
+        Alternative("critical moisture 1.0", {"fiber.critical_moisture": 1.0}, 1,
+                    "the constant-rate period ends later (lower critical moisture)",
+                    "Fritzell et al. 2009 (spruce MDF fibre, 1.25 kg/kg)"),
+        Alternative("critical moisture 1.5", {"fiber.critical_moisture": 1.5}, 1,
+                    "the constant-rate period ends earlier", "Fritzell et al. 2009"),
+        Alternative("equilibrium approach x0.5",
+                    {"fiber.equilibrium_width": f.equilibrium_width * 0.5}, 1,
+                    "a sharper approach to the equilibrium moisture", "paper eq. 2"),
+        Alternative("equilibrium approach x2",
+                    {"fiber.equilibrium_width": f.equilibrium_width * 2.0}, 1,
+                    "a gentler approach to the equilibrium moisture", "paper eq. 2"),
+        Alternative("cyclone hold-up x3", {"cyclone.hold_up_time": min(c.hold_up_time * 3,
+                                                                        120.0)},
+                    1, "fibre held longer in the cyclones: more of the drying there",
+                    "the paper's 'held up for seconds to tens of seconds'"),
+    ]
+
+
+def held_out_score(ev: Evaluation) -> tuple[float, int]:
+    """Profile negative log-likelihood ``sum_m (N_m / 2) ln MSE_m`` of a validation and its
+    sample count (module docstring)."""
+    total, n_all = 0.0, 0
+    for c, name in enumerate(OUTPUT_NAMES):
+        n = int(ev.fit.n[name])
+        r = float(ev.fit.rmse[name])
+        if n and math.isfinite(r):
+            total += 0.5 * n * math.log(max(r, RMSE_FLOOR[c]) ** 2)
+            n_all += n
+    return (total if n_all else math.inf), n_all
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One alternative calibrated and scored (module docstring)."""
+
+    alternative: Alternative
+    theta: np.ndarray
+    held_out: dict[str, float]
+    open_loop: dict[str, float]
+    score: float
+    gain: float
+    adopted: bool = False
+    why_not: str = ""
+
+    def point(self) -> tuple[float, float]:
+        return (max(self.held_out[c] for c in TEMPERATURES), self.held_out["moisture_out"])
+
+    def row(self) -> dict[str, Any]:
+        a = self.alternative
+        return {"name": a.name, "changes": dict(a.changes), "k": a.k, "what": a.what,
+                "source": a.source, "params": list(map(float, self.theta)),
+                "held_out_rmse": self.held_out, "open_loop_rmse": self.open_loop,
+                "score": self.score, "gain": self.gain, "adopted": self.adopted,
+                "why_not": self.why_not}
+
+
+@dataclass(frozen=True)
+class StructureSearch:
+    """The baseline's held-out score and every candidate; ``adopted`` the chosen one."""
+
+    baseline_score: float
+    baseline_held_out: dict[str, float]
+    candidates: list[Candidate]
+
+    @property
+    def adopted(self) -> Candidate | None:
+        return next((c for c in self.candidates if c.adopted), None)
+
+    def line(self) -> str:
+        """One line for a person."""
+        a = self.adopted
+        if a is None:
+            best = max(self.candidates, key=lambda c: c.gain, default=None)
+            tail = "" if best is None else f" (best: {best.alternative.name}, {best.why_not})"
+            return (f"structure: the paper's form kept; none of {len(self.candidates)} "
+                    f"alternatives earned its place on the held-out data{tail}")
+        t, m = a.point()
+        return (f"structure: adopted '{a.alternative.name}' ({a.alternative.what}): held-out "
+                f"evidence gain {a.gain:.1f}, worse temperature {t:.2f} K, labs {m:.4f} kg/kg")
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"baseline_score": self.baseline_score,
+                "baseline_held_out_rmse": self.baseline_held_out,
+                "adopted": None if self.adopted is None else self.adopted.alternative.name,
+                "candidates": [c.row() for c in self.candidates]}
+
+    def params_table(self) -> dict[str, Any] | None:
+        """PARAMS.toml's ``[structure]``: the adopted keys as nested tables and the evidence
+        (None when the paper's form was kept)."""
+        a = self.adopted
+        if a is None:
+            return None
+        out: dict[str, Any] = {}
+        for dotted, v in a.alternative.changes.items():
+            section, _, key = dotted.partition(".")
+            out.setdefault(section, {})[key] = v
+        out["evidence"] = {"adopted": a.alternative.name, "source": a.alternative.source,
+                           "gain": a.gain, "baseline_score": self.baseline_score,
+                           "candidates": [{k: v for k, v in c.row().items()
+                                           if k in ("name", "gain", "adopted", "why_not",
+                                                    "held_out_rmse")}
+                                          for c in self.candidates]}
+        return out
+
+
+def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
+    """True when a held-out point of the paper's ``front`` is at least as good on both."""
+    if front is None:
+        return False
+    t, m = point
+    return any(p.held_out is not None and p.worst_temperature() <= t
+               and float(p.held_out["moisture_out"]) <= m for p in front.points)
+
+
+def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: PlantConfig,
+           calibration: CalibrationSettings, baseline_theta: np.ndarray,
+           baseline: Evaluation, front: TradeOff | None,
+           library: Sequence[Alternative], *, seed: int = 0, polish: bool = True,
+           say: Callable[[str], None] | None = None) -> StructureSearch:
+    """Calibrate and score every alternative of ``library`` (module docstring) on the
+    windows ``choices`` and the held-out ``held`` pieces, against the paper's form at
+    ``baseline_theta`` (its validation ``baseline``, its ``front``); ``polish`` False: each
+    alternative is only scored at the baseline's multipliers."""
+    from softsensor.calibration.pipeline import calibrate
+
+    say = say or (lambda s: None)
+    base_score, n = held_out_score(baseline)
+    penalty_per_k = 0.5 * math.log(max(n, 2))
+    out = []
+    for alt in library:
+        say(f"structure: {alt.name}")
+        cfg = config.with_structure(dict(alt.changes)).with_parameters(baseline_theta)
+        res = calibrate([c.segment for c in choices], cfg,
+                        StudySettings(n_trials=1, seed=seed, progress=False), calibration,
+                        choices=choices, validation_segments=list(held),
+                        current_theta=baseline_theta, polish=polish, identify_result=False,
+                        model=DryerModel(cfg))
+        ev = res.validation.evaluation
+        score, _ = held_out_score(ev)
+        gain = base_score - score - alt.k * penalty_per_k
+        out.append(Candidate(alt, res.theta, {k: float(v) for k, v in ev.fit.rmse.items()},
+                             {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
+    ranked = sorted(out, key=lambda c: -c.gain)
+    adopted = None
+    for c in ranked:
+        if c.gain > 0 and not _dominated(c.point(), front):
+            adopted = c
+            break
+    final = []
+    for c in out:
+        if c is adopted:
+            final.append(dataclasses.replace(c, adopted=True))
+        elif not c.gain > 0:
+            final.append(dataclasses.replace(
+                c, why_not=f"evidence gain {c.gain:.1f} <= 0 after the penalty "
+                           f"{c.alternative.k * penalty_per_k:.1f}"))
+        elif _dominated(c.point(), front):
+            final.append(dataclasses.replace(
+                c, why_not="a point of the paper's front fits both channels as well"))
+        else:
+            final.append(dataclasses.replace(c, why_not="another alternative gained more"))
+    return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
+                           final)
+
+
+__all__ = ["Alternative", "Candidate", "StructureSearch", "default_library", "held_out_score",
+           "search"]
