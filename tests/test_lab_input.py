@@ -6,6 +6,8 @@ import dataclasses
 import json
 import math
 import os
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -17,6 +19,7 @@ from softsensor.estimation.base import LabResult
 from softsensor.ingest.lab_input import (
     LabFolderWatcher,
     LabInput,
+    PollReport,
     lab_body,
     lab_from_body,
     make_lab_result,
@@ -36,6 +39,15 @@ def _drop(folder: Path, name: str, text: str, mtime: float = OLD) -> Path:
     p.write_text(text)
     os.utime(p, (mtime, mtime))
     return p
+
+
+def _settle(watcher: LabFolderWatcher) -> PollReport:
+    """Two polls ``settle_s`` apart: a file is read only once it kept its size, time and
+    inode over the settle interval (issue 31 item 4); the second poll's report."""
+    t = time.time()
+    first = watcher.poll_once(now=t)
+    assert not first.processed and not first.rejected  # never read at first sight
+    return watcher.poll_once(now=t + watcher.settle_s + 0.1)
 
 
 @pytest.fixture
@@ -216,7 +228,7 @@ def test_good_files_are_processed(inbox, tmp_path: Path) -> None:
     _drop(tmp_path, "a.csv", "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,A1\n")
     _drop(tmp_path, "b.json", json.dumps([{"sample_time_ns": T_NS, "moisture_out": 0.11,
                                            "sample_id": "B1"}]))
-    report = watcher.poll_once()
+    report = _settle(watcher)
     assert [lab.sample_id for lab in got] == ["A1", "B1"]
     assert all(lab.log_time_ns == NOW_NS for lab in got)
     assert sorted(p.name for p in (tmp_path / "processed").iterdir()) == ["a.csv", "b.json"]
@@ -230,7 +242,7 @@ def test_malformed_file_is_rejected_with_reason(inbox, tmp_path: Path) -> None:
     _drop(tmp_path, "bad.json", "{not json")
     _drop(tmp_path, "notes.txt", "hello")
     _drop(tmp_path, "hdr.csv", "when,value\n1,2\n")
-    report = watcher.poll_once()
+    report = _settle(watcher)
     assert got == []
     rej = tmp_path / "rejected"
     assert sorted(p.name for p in rej.iterdir()) == [
@@ -253,7 +265,7 @@ def test_a_partly_bad_file_is_rejected_whole_and_only_rejected(inbox, tmp_path: 
           "2025-06-15T15:06:40Z,0.1,M1\n"
           "2025-06-15T15:06:40Z,nan,M2\n"
           "2025-06-15T15:06:40Z,5,M3\n")
-    report = watcher.poll_once()
+    report = _settle(watcher)
     assert got == [] and not report.processed and not (tmp_path / "processed" / "mix.csv").exists()
     assert sorted(p.name for p in (tmp_path / "rejected").iterdir()) == ["mix.csv",
                                                                          "mix.csv.reason.txt"]
@@ -264,7 +276,7 @@ def test_a_partly_bad_file_is_rejected_whole_and_only_rejected(inbox, tmp_path: 
     # fixed and dropped again, it is taken (M1 was never marked seen)
     _drop(tmp_path, "mix.csv", "sample_time,moisture_out,sample_id\n"
           "2025-06-15T15:06:40Z,0.1,M1\n2025-06-15T15:06:40Z,0.11,M3\n")
-    watcher.poll_once()
+    _settle(watcher)
     assert [lab.sample_id for lab in got] == ["M1", "M3"]
 
 
@@ -272,9 +284,9 @@ def test_duplicates_across_files_and_same_name_again(inbox, tmp_path: Path) -> N
     watcher, got = inbox
     text = "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,D1\n"
     _drop(tmp_path, "d.csv", text)
-    watcher.poll_once()
+    _settle(watcher)
     _drop(tmp_path, "d.csv", text + "2025-06-15T16:06:40Z,0.12,D2\n")
-    report = watcher.poll_once()
+    report = _settle(watcher)
     assert [lab.sample_id for lab in got] == ["D1", "D2"]
     assert report.duplicates == ["D1"]
     assert sorted(p.name for p in (tmp_path / "processed").iterdir()) == ["d.1.csv", "d.csv"]
@@ -285,13 +297,15 @@ def test_file_being_written_waits(inbox, tmp_path: Path) -> None:
     p = _drop(tmp_path, "w.csv", "sample_time,moisture_out,sample_id\n", mtime=time.time())
     _drop(tmp_path, ".hidden.csv", "x")
     _drop(tmp_path, "x.csv.part", "x")
-    report = watcher.poll_once()
+    t = time.time()
+    report = watcher.poll_once(now=t)
     assert report.waiting == [p] and got == []
     with open(p, "a") as f:
         f.write("2025-06-15T15:06:40Z,0.1,W1\n")
     os.utime(p, (OLD, OLD))
-    assert watcher.poll_once().waiting == [p]  # size changed since the last poll
-    watcher.poll_once()
+    assert watcher.poll_once(now=t + 2).waiting == [p]  # size changed since the last poll
+    assert watcher.poll_once(now=t + 2.5).waiting == [p]  # not yet stable for settle_s
+    watcher.poll_once(now=t + 3.1)
     assert [lab.sample_id for lab in got] == ["W1"]
     assert (tmp_path / ".hidden.csv").exists() and (tmp_path / "x.csv.part").exists()
 
@@ -338,3 +352,49 @@ def test_naive_times_in_lab_files_are_on_the_plant_clock(tmp_path):
     assert local[0].sample_time_ns == t_utc10 - 3600 * 10**9
     assert local[1].sample_time_ns == utc[1].sample_time_ns == t_utc10
     assert utc[0].sample_time_ns == t_utc10
+
+
+_PAUSING_WRITER = """
+import sys, time
+path, pause = sys.argv[1], float(sys.argv[2])
+rows = ["sample_time,moisture_out,sample_id", "2025-06-15T14:06:40Z,0.100,P1",
+        "2025-06-15T14:36:40Z,0.110,P2", "2025-06-15T15:06:40Z,0.120,P3"]
+with open(path, "w") as f:  # a LIMS export written row by row, kept open throughout
+    f.write(rows[0] + "\\n" + rows[1] + "\\n")
+    f.flush()
+    print("paused", flush=True)
+    time.sleep(pause)  # at a row boundary, longer than the settle interval
+    for row in rows[2:]:
+        f.write(row + "\\n")
+        f.flush()
+        time.sleep(0.05)
+print("done", flush=True)
+"""
+
+
+def test_a_lab_file_written_with_a_pause_loses_no_row(tmp_path: Path) -> None:
+    """Issue 31 item 4: a LIMS export written row by row with a pause of more than 1 s was
+    read at the pause: the first row applied, the file moved to processed/ while still open,
+    and the rows written after it never applied, never in .seen-ids, never logged. Now the
+    file taken is watched, read again when it changed, and every row is applied once."""
+    got: list[LabResult] = []
+    watcher = LabFolderWatcher(tmp_path, LabInput(got.append, clock=lambda: NOW_NS),
+                               poll_s=0.1, settle_s=0.5)
+    writer = subprocess.Popen([sys.executable, "-c", _PAUSING_WRITER, str(tmp_path / "p.csv"),
+                               "2.0"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert writer.stdout.readline().strip() == "paused"
+        with watcher:
+            deadline = time.monotonic() + 15
+            while len(got) < 3 and time.monotonic() < deadline:
+                time.sleep(0.1)
+            assert writer.stdout.readline().strip() == "done"
+            time.sleep(1.0)  # and nothing twice
+    finally:
+        writer.kill()
+        writer.wait(10)
+        writer.stdout.close()
+    assert [lab.sample_id for lab in got] == ["P1", "P2", "P3"], got
+    assert [lab.moisture_out for lab in got] == [0.100, 0.110, 0.120]
+    assert (tmp_path / "processed" / "p.csv").read_text().count("\n") == 4
+    assert (tmp_path / ".seen-ids").read_text().split() == ['"P1"', '"P2"', '"P3"']

@@ -85,11 +85,18 @@ class ModelEstimator:
         self._labs = LabBook()
 
     def _screen_lab(self, lab: LabResult) -> str | None:
-        """The reason ``lab`` is refused (a duplicate ``sample_id``), or ``None`` after
-        remembering its id; needs the estimator's ``_labs`` (:class:`~.lab_history.LabBook`).
-        Its values need no check: a :class:`LabResult` holds the lab-result contract of
-        :mod:`softsensor.messages`; what the estimator adds is the history's age and its
-        statistical gate."""
+        """The reason ``lab`` is refused (outside the plant lab's envelope, or a duplicate
+        ``sample_id``), or ``None`` after remembering its id; needs the estimator's ``_labs``
+        (:class:`~.lab_history.LabBook`). A :class:`LabResult` holds the lab-result contract
+        of :mod:`softsensor.messages` (any dryer); the envelope is this plant's
+        (``estimator.lab_envelope_min/max``), and what the estimator adds beyond it is the
+        history's age and its statistical gate."""
+        s = self.settings
+        if not s.lab_envelope_min <= lab.moisture_out <= s.lab_envelope_max:
+            # not remembered: the corrected result may come under the same sample id
+            return (f"lab {lab.sample_id!r}: moisture_out {lab.moisture_out:g} kg/kg is outside "
+                    f"the plant lab's envelope {s.lab_envelope_min:g}..{s.lab_envelope_max:g} "
+                    f"kg/kg (estimator.lab_envelope_min/max); refused")
         if self._labs.is_duplicate(lab):
             return f"lab {lab.sample_id!r}: duplicate sample_id, ignored"
         self._labs.remember(lab)

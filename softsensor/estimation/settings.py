@@ -120,9 +120,17 @@ class EstimatorSettings:
         Range the published outlet moisture is held in (``clipped`` says when it was); lab
         results are held to the one lab-result contract of :mod:`softsensor.messages`
         (``MOISTURE_RANGE``), not to this. [kg/kg]
+    lab_envelope_min, lab_envelope_max : float
+        The plant lab's operating envelope: a result outside it is refused and counted
+        whatever came before (a typo such as 0.999 kg/kg lies inside the 0..2 contract but no
+        outlet of this dryer is that wet); its ``sample_id`` is not remembered, so the
+        corrected result may follow under the same id. [kg/kg dry basis]
     lab_gate : float
         A lab result further than this many standard deviations of its innovation from the
-        estimate at its sample time is rejected as an outlier. [-]
+        estimate at its sample time is rejected as an outlier; the second in a row on the
+        same side is taken only when it agrees with what the temperatures say (within
+        ``lab_gate`` standard deviations once the model's plausible outlet-moisture bias,
+        the bias state's prior spread, is added). [-]
     history_hours : float
         Estimator history kept to apply late lab results; older samples are skipped. [h]
     consistency_ticks : int
@@ -167,6 +175,8 @@ class EstimatorSettings:
     moisture_out_jitter_std: float = num(0.004, ge=0, lt=1)
     moisture_out_min: float = num(0.0, ge=0, lt=5)
     moisture_out_max: float = num(0.6, gt=0, le=5)
+    lab_envelope_min: float = num(0.02, ge=0, lt=2)
+    lab_envelope_max: float = num(0.40, gt=0, le=2)
     lab_gate: float = num(6.0, gt=0)
     history_hours: float = num(8.0, gt=0, le=240)
     consistency_ticks: int = num(12, ge=1, le=10000)
@@ -179,10 +189,10 @@ class EstimatorSettings:
 
     #: Keys that judged lab results here: the lab-result contract judges them once, for all.
     MOVED_KEYS: ClassVar[Mapping[str, str]] = {
-        "lab_min": "lab results are held to the one contract (softsensor.messages, 0..2 kg/kg); "
-                   "the published estimate's range is estimator.moisture_out_min",
-        "lab_max": "lab results are held to the one contract (softsensor.messages, 0..2 kg/kg); "
-                   "the published estimate's range is estimator.moisture_out_max"}
+        "lab_min": "the plant lab's envelope is estimator.lab_envelope_min; the published "
+                   "estimate's range is estimator.moisture_out_min",
+        "lab_max": "the plant lab's envelope is estimator.lab_envelope_max; the published "
+                   "estimate's range is estimator.moisture_out_max"}
 
     def check(self) -> str | None:
         """Cross-field rules (called by ``build_section``); the message names the key."""
@@ -194,6 +204,9 @@ class EstimatorSettings:
         if self.moisture_out_max <= self.moisture_out_min:
             return (f"moisture_out_max must be > moisture_out_min ({self.moisture_out_min:g}), "
                     f"got {self.moisture_out_max:g}")
+        if self.lab_envelope_max <= self.lab_envelope_min:
+            return (f"lab_envelope_max must be > lab_envelope_min ({self.lab_envelope_min:g}), "
+                    f"got {self.lab_envelope_max:g}")
         if 2.5 * self.inlet_margin > self.moisture_in_max - self.moisture_in_min:
             return (f"inlet_margin must be below 0.4 of the inlet range, got "
                     f"{self.inlet_margin:g}")

@@ -167,7 +167,11 @@ class UkfEstimator(ModelEstimator):
         self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
         self._history: list[TickRecord] = []
         self._dirty: int | None = None
+        #: refused outliers in a row, signed by their side (+ above the estimate, - below)
         self._gate_streak = 0
+        #: the last outlier taken as the second of a streak, until a result confirms or
+        #: contradicts it: sample_id, side, and the estimate (mean, sd) it was judged against
+        self._taken: dict[str, Any] | None = None
 
     @property
     def inlet(self) -> InletTransform:
@@ -188,11 +192,7 @@ class UkfEstimator(ModelEstimator):
             raise EstimationError(f"window ending at {window.end_ns} ns is not after the last "
                                   f"tick ({self._history[-1].window.end_ns} ns)")
         lab_updated = self._dirty is not None
-        notes: list[str] = []
-        if self._dirty is not None:
-            self._refilter(self._dirty)
-            notes = [n for r in self._history[self._dirty:] for n in r.body["notes"]]
-            self._dirty = None
+        notes = self._apply_late_labs()
         labs = []
         last_body = self._history[-1].body if self._history else {}
         for lab in self._labs.take_due(window.end_ns):
@@ -202,6 +202,9 @@ class UkfEstimator(ModelEstimator):
                             window.end_ns)
             elif not self._screen(lab, last_body):
                 labs.append(lab)
+        if self._dirty is not None:  # a result here withdrew a taken outlier: at once
+            lab_updated = True
+            notes += self._apply_late_labs()
         u, held = self._hold.inputs(window)
         rec = TickRecord(window, u, held, self._state, labs)
         self._state = self._run(rec, len(self._history))
@@ -212,7 +215,23 @@ class UkfEstimator(ModelEstimator):
         body = dict(rec.body)
         body["lab_updated"] = bool(lab_updated or labs)
         body["notes"] = notes + rec.body["notes"]
+        if abs(self._gate_streak) >= 2:  # the labs and the sensor disagree: never silently
+            side = "above" if self._gate_streak > 0 else "below"
+            body["detail"] = (f"{abs(self._gate_streak)} lab results in a row refused {side} "
+                              f"the estimate (the lab or the model is off); "
+                              f"{body.get('detail', '')}")
+            if body.get("status") == "ok":
+                body["status"] = "degraded"
         return body
+
+    def _apply_late_labs(self) -> list[str]:
+        """Re-filter from the earliest tick a late (or withdrawn) lab changed; its notes."""
+        if self._dirty is None:
+            return []
+        self._refilter(self._dirty)
+        notes = [n for r in self._history[self._dirty:] for n in r.body["notes"]]
+        self._dirty = None
+        return notes
 
     def add_lab(self, lab: LabResult) -> str | None:
         """Validate ``lab`` and attach it to the tick of its sample time (module docstring).
@@ -250,7 +269,7 @@ class UkfEstimator(ModelEstimator):
         return {"kind": self.kind, "version": _CHECKPOINT_VERSION,
                 "state": self._state.to_json(), "hold": self._hold.last.tolist(),
                 "labs": self._labs.to_json(), "dirty": self._dirty,
-                "gate_streak": self._gate_streak,
+                "gate_streak": self._gate_streak, "taken_outlier": self._taken,
                 "history": [r.to_json() for r in self._history]}
 
     def restore(self, snapshot: dict[str, Any]) -> None:
@@ -263,6 +282,11 @@ class UkfEstimator(ModelEstimator):
             hold = np.array(snapshot["hold"], float)
             dirty = snapshot["dirty"]
             streak = int(snapshot["gate_streak"])
+            taken = snapshot.get("taken_outlier")  # absent in checkpoints before issue 31
+            if taken is not None:
+                taken = {"sample_id": str(taken["sample_id"]), "side": int(taken["side"]),
+                         "value": float(taken["value"]), "mean": float(taken["mean"]),
+                         "sd": float(taken["sd"])}
             AdaptiveNoise.from_json(state.adapt)
         except (KeyError, TypeError, ValueError) as exc:
             raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
@@ -276,37 +300,98 @@ class UkfEstimator(ModelEstimator):
         self._state, self._history, self._labs = state, history, labs
         self._hold = InputHold(hold)
         self._dirty = None if dirty is None else int(dirty)
-        self._gate_streak = streak
+        self._gate_streak, self._taken = streak, taken
 
     # ------------------------------------------------------------------ lab screening
     def _screen(self, lab: LabResult, body: dict[str, Any]) -> str | None:
-        """Outlier screen of ``lab`` against the estimate ``body``: the reason to refuse it,
-        or None. A lone outlier is refused; the second in a row on the same side is taken."""
-        gate, side = self._gate(lab, body)
-        if gate and side != self._gate_streak:
-            self._gate_streak = side
-            log.warning(gate)
-            return gate
-        if gate:
-            log.warning("%s, but so was the previous result, on the same side: accepted (the "
-                        "model is off, not the lab)", gate.split("; rejected")[0])
-        self._gate_streak = 0
-        return None
+        """Outlier screen of ``lab`` against the estimate ``body`` at its sample time: the
+        reason to refuse it, or None (then the caller attaches it).
 
-    def _gate(self, lab: LabResult, body: dict[str, Any]) -> tuple[str | None, int]:
+        A lone outlier is refused. The second in a row on the same side is taken only when
+        it agrees with what the temperatures say: the temperatures fix the inlet moisture and
+        with it the model's outlet moisture, from which the plant may differ by the model's
+        outlet-moisture error, whose spread the bias state's prior holds (the history's, or
+        ``moisture_out_bias_std``); a result within ``lab_gate`` of that widened band is
+        possible, one beyond it (a copied typo) is refused however often it comes, unless the
+        temperatures contradict the model themselves (the estimate at its tick is
+        ``degraded``: inconsistent innovations, a lost model, a suspect sensor), when the
+        labs lead as before. A later
+        result that contradicts a taken outlier (on the other side of the estimate now, and
+        nearer the estimate the taken one was judged against than to it) withdraws it: the
+        history is filtered again without it at the next tick, and this result is taken.
+        """
+        gate, side, z_wide = self._gate(lab, body)
+        taken = self._taken
+        mean = body.get("moisture_out")
+        if (taken is not None and mean is not None
+                and (lab.moisture_out - mean) * taken["side"] < 0
+                and abs(lab.moisture_out - taken["mean"]) < abs(lab.moisture_out
+                                                                 - taken["value"])
+                and self._withdraw(taken["sample_id"])):
+            log.warning("lab %r contradicts the outlier %r taken before (it sides with the "
+                        "estimate that one was judged against): that one is withdrawn and "
+                        "this result taken", lab.sample_id, taken["sample_id"])
+            self._gate_streak, self._taken = 0, None
+            return None
+        if gate is None:
+            self._gate_streak = 0
+            if mean is not None:
+                self._taken = None  # a result in line with the estimate: nothing to undo
+            return None
+        head = gate.split("; rejected")[0]
+        # a model the temperatures themselves contradict (degraded: inconsistent
+        # innovations, lost, a suspect sensor) vouches for no estimate: the labs lead
+        allowed = z_wide <= self.settings.lab_gate or body.get("status") == "degraded"
+        if side * self._gate_streak > 0 and allowed:
+            log.warning("%s, but so was the previous result, on the same side, and the "
+                        "temperatures allow it (%.1f sigma with the model's bias spread, "
+                        "estimate %s): accepted (the model is off, not the lab)", head, z_wide,
+                        body.get("status"))
+            self._gate_streak = 0
+            self._taken = {"sample_id": lab.sample_id, "side": side,
+                           "value": float(lab.moisture_out),
+                           "mean": float(body["moisture_out"]),
+                           "sd": float(body["moisture_out_std"])}
+            return None
+        if side * self._gate_streak > 0:
+            gate = (f"{head}, the previous result too, but the temperatures do not allow it "
+                    f"({z_wide:.1f} sigma with the model's bias spread); rejected as an "
+                    f"outlier")
+        self._gate_streak = side * (abs(self._gate_streak) + 1) if \
+            side * self._gate_streak > 0 else side
+        log.warning(gate)
+        return gate
+
+    def _withdraw(self, sample_id: str) -> bool:
+        """Take the lab ``sample_id`` out of the history (re-filtered from its tick at the
+        next tick); False when it has left the history."""
+        for j, rec in enumerate(self._history):
+            for lab in rec.labs:
+                if lab.sample_id == sample_id:
+                    rec.labs.remove(lab)
+                    self._dirty = j if self._dirty is None else min(self._dirty, j)
+                    return True
+        return False
+
+    def _gate(self, lab: LabResult, body: dict[str, Any]) -> tuple[str | None, int, float]:
         """Outlier test of ``lab`` against the estimate ``body`` of its tick: the reason to
-        refuse it (None when it passes) and the side it fell on (+1 above, -1 below, 0)."""
+        refuse it (None when it passes), the side it fell on (+1 above, -1 below, 0), and its
+        distance in standard deviations once the model's bias spread is added (what the
+        temperatures allow, :meth:`_screen`)."""
         mean, std = body.get("moisture_out"), body.get("moisture_out_std")
         if mean is None or std is None or body.get("fallback"):
-            return None, 0
+            return None, 0, 0.0
         s = self.settings
-        z = (lab.moisture_out - mean) / math.sqrt(std**2 + s.lab_std**2)
+        d = lab.moisture_out - mean
+        z = d / math.sqrt(std**2 + s.lab_std**2)
+        z_wide = abs(d) / math.sqrt(std**2 + s.lab_std**2
+                                    + self.priors.sd("moisture_out_bias") ** 2)
         if abs(z) > s.lab_gate:
             return (f"lab {lab.sample_id!r}: moisture_out {lab.moisture_out:g} kg/kg is "
                     f"{abs(z):.1f} sigma from the estimate {mean:.4f} at its sample time "
                     f"(estimator.lab_gate = {s.lab_gate:g}); rejected as an outlier"), \
-                (1 if z > 0 else -1)
-        return None, 0
+                (1 if z > 0 else -1), z_wide
+        return None, 0, z_wide
 
     # ------------------------------------------------------------------ the history
     def _refilter(self, j: int) -> None:

@@ -25,7 +25,13 @@ tick are respected here rather than met downstream, where a result beyond them w
 after being marked seen: a file whose new results exceed what the rate allows now waits in the
 folder for a later poll, and one holding more than :data:`BURST` new results (more than the
 folder ever hands on at once) is rejected whole.
-Files still being written (changed within ``settle_s``) wait for the next poll.
+A file is read only once it is complete: its size, modification time and inode unchanged
+over ``settle_s`` of the watcher's own polls (a file first seen is never read at once, however
+old its time: a LIMS export paused mid-file for more than ``settle_s`` was taken at the pause),
+and unchanged by the reading. A writer can pause for longer than any settle interval, so a file
+taken is watched in ``processed/`` for ``watch_s`` more: when it changes there (a writer that
+kept it open wrote on) it is read again once settled, and its new results are applied (issue
+31 item 4: the rows after a pause were lost, never in ``.seen-ids``, never logged).
 
 The folder is a boundary: anyone who can write to it is untrusted. A file is opened with
 ``O_NOFOLLOW`` (a symbolic link is moved to ``rejected/`` without its target being read), must
@@ -364,6 +370,50 @@ class _Budget:
             self.tokens -= n
 
 
+#: Files taken that are watched in ``processed/`` for changes at most (the newest).
+WATCHED_FILES = 256
+
+
+def _stat_signature(path: Path) -> tuple[int, int, int] | None:
+    """Size, modification time [ns] and inode of ``path`` (not followed), None if gone."""
+    try:
+        st = path.lstat()
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
+@dataclass
+class _Sighting:
+    """A file's signature and the poll time [s, epoch] since when it has had it."""
+
+    signature: tuple[int, int, int]
+    since: float
+
+
+@dataclass
+class _Taken:
+    """A file taken: its signature when read, when taken [s, monotonic], and the sightings
+    of its changes since."""
+
+    signature: tuple[int, int, int]
+    at: float
+    sightings: dict[str, _Sighting] = field(default_factory=dict)
+
+
+def _steady(sightings: dict[str, _Sighting], key: str, path: Path, now: float,
+            settle_s: float) -> bool:
+    """Whether ``path`` kept its signature over ``settle_s`` of polls (tracked in
+    ``sightings[key]``) and was modified at least ``settle_s`` before ``now``."""
+    sig = _stat_signature(path)
+    if sig is None:
+        return False
+    seen = sightings.get(key)
+    if seen is None or seen.signature != sig:
+        seen = sightings[key] = _Sighting(sig, now)
+    return now - seen.since >= settle_s and now - sig[1] / 1e9 >= settle_s
+
+
 class LabFolderWatcher:
     """Polls ``folder`` for lab files and feeds their entries to a :class:`LabInput`.
 
@@ -376,8 +426,12 @@ class LabFolderWatcher:
     poll_s : float
         Poll period of :meth:`run` / :meth:`start` [s].
     settle_s : float
-        A file modified less than this long ago, or whose size changed since the last poll,
-        is left for the next poll (it may still be being written) [s].
+        A file is read once its size, modification time and inode have stayed the same over
+        this long of the watcher's polls and it was modified at least this long ago (module
+        docstring) [s].
+    watch_s : float
+        How long a file taken is watched in ``processed/`` for changes, read again when it
+        changed [s].
     zone : tzinfo or str, optional
         The plant's clock, for ISO times without an offset (UTC when None).
     lab_map : LabMap
@@ -390,7 +444,7 @@ class LabFolderWatcher:
     def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
                  poll_s: float = 2.0, settle_s: float = 1.0,
                  zone: tzinfo | str | None = None, lab_map: LabMap = DEFAULT_LAB_MAP,
-                 rate_per_s: float | None = None) -> None:
+                 rate_per_s: float | None = None, watch_s: float = 600.0) -> None:
         self.folder = Path(folder)
         self.zone = zone  # the clock of ISO times without an offset (the plant's)
         self.lab_map = lab_map
@@ -405,7 +459,9 @@ class LabFolderWatcher:
         self.lab_input = lab_input
         self.poll_s = poll_s
         self.settle_s = settle_s
-        self._sizes: dict[str, int] = {}
+        self.watch_s = watch_s
+        self._sightings: dict[str, _Sighting] = {}  # files in the folder, by name
+        self._taken: dict[Path, _Taken] = {}  # files in processed/ still watched
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.seen_ids_file = self.folder / ".seen-ids"
@@ -461,13 +517,9 @@ class LabFolderWatcher:
                 and not p.name.endswith((".tmp", ".part", ".partial", ".swp"))]
 
     def _settled(self, path: Path, now: float) -> bool:
-        try:
-            st = path.lstat()
-        except FileNotFoundError:
-            return False
-        previous = self._sizes.get(path.name)
-        self._sizes[path.name] = st.st_size
-        return now - st.st_mtime >= self.settle_s and previous in (None, st.st_size)
+        """True once ``path`` has kept its :func:`_signature` over ``settle_s`` of polls and
+        was modified at least ``settle_s`` ago."""
+        return _steady(self._sightings, path.name, path, now, self.settle_s)
 
     def _reject(self, path: Path, reasons: list[str], report: PollReport) -> None:
         reasons = [one_line(r, REASON_CHARS) for r in reasons]
@@ -483,6 +535,7 @@ class LabFolderWatcher:
     def _handle(self, path: Path, report: PollReport) -> bool:
         """Take one settled file whole or not at all; False when it waits for the rate."""
         now_ns = self.lab_input.clock()
+        before = _stat_signature(path)
         try:
             parsed = parse_lab_file(path, log_time_ns=now_ns, zone=self.zone,
                                     lab_map=self.lab_map)
@@ -492,6 +545,9 @@ class LabFolderWatcher:
         except Exception as exc:  # noqa: BLE001 - untrusted input: never retried forever
             self._reject(path, [f"{path.name}: unusable file ({type(exc).__name__}); nothing "
                                 "of the file was applied"], report)
+            return True
+        if _stat_signature(path) != before:  # written to while being read: not complete
+            report.waiting.append(path)
             return True
         fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)]
         if len(fresh) > BURST:
@@ -516,20 +572,69 @@ class LabFolderWatcher:
         dest = _unique(self.processed_dir / path.name)
         shutil.move(str(path), dest)
         report.processed.append(dest)
+        self._watch(dest, before)
         return True
+
+    # -- files taken, watched for changes
+
+    def _watch(self, dest: Path, signature: tuple[int, int, int] | None) -> None:
+        """Watch ``dest`` (taken with ``signature``) for :attr:`watch_s`; the newest
+        :data:`WATCHED_FILES` at most."""
+        if signature is None:
+            return
+        self._taken[dest] = _Taken(signature, time.monotonic())
+        while len(self._taken) > WATCHED_FILES:
+            del self._taken[next(iter(self._taken))]
+
+    def _recheck_taken(self, now: float, report: PollReport) -> None:
+        """Read again the files taken that changed since (once settled); new results on."""
+        for dest, taken in list(self._taken.items()):
+            sig = _stat_signature(dest)
+            if sig is None or time.monotonic() - taken.at > self.watch_s:
+                del self._taken[dest]
+                continue
+            if sig == taken.signature:
+                continue
+            if not _steady(taken.sightings, "", dest, now, self.settle_s):
+                continue  # still being written: read it when it is complete
+            try:
+                parsed = parse_lab_file(dest, log_time_ns=self.lab_input.clock(),
+                                        zone=self.zone, lab_map=self.lab_map)
+            except Exception as exc:  # noqa: BLE001 - untrusted input: said once, not retried
+                msg = (f"{dest.name}: changed after it was taken and is now unusable "
+                       f"({one_line(str(exc), REASON_CHARS)}); the results taken before stay")
+                report.reasons.append(msg)
+                log.error("lab file %s", msg)
+                del self._taken[dest]
+                continue
+            if _stat_signature(dest) != sig:
+                continue  # written to while being read
+            fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)]
+            if len(fresh) > self.budget.available():
+                continue  # read again at a later poll
+            self.budget.take(len(fresh))
+            for lab in fresh:
+                if self.lab_input.submit(lab) is None:
+                    report.accepted.append(lab)
+                    self._remember(lab.sample_id)
+            log.warning("lab file %s changed after it was taken (a writer still had it "
+                        "open): read again, %d new results", one_line(dest.name, 100),
+                        len(fresh))
+            taken.signature = sig
 
     def poll_once(self, now: float | None = None) -> PollReport:
         """Handle every settled file in the folder once; ``now`` [s, epoch] for tests."""
         now = time.time() if now is None else now
         report = PollReport()
+        self._recheck_taken(now, report)
         candidates = self._candidates()
         present = {p.name for p in candidates}
-        self._sizes = {k: v for k, v in self._sizes.items() if k in present}
+        self._sightings = {k: v for k, v in self._sightings.items() if k in present}
         for path in candidates:
             if not self._settled(path, now):
                 report.waiting.append(path)
                 continue
-            self._sizes.pop(path.name, None)
+            self._sightings.pop(path.name, None)
             try:
                 if not self._handle(path, report):
                     report.waiting.extend(candidates[candidates.index(path) + 1:])

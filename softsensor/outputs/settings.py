@@ -89,9 +89,13 @@ class WebSettings:
     history_h: float = 48.0  # hours of estimates and lab results the page shows
     refresh_s: float = 30.0  # the browser reloads the page this often [s, wall]
     diagnosis: str | None = None  # REPORT.json of `softsensor diagnose --json` to show
-    workers: int = num(8, ge=1, le=64)  # threads answering requests
-    backlog: int = num(32, ge=0, le=1024)  # accepted connections waiting; more are closed
-    timeout_s: float = num(10.0, gt=0, le=300)  # a client idle this long is dropped [s]
+    workers: int = num(8, ge=1, le=64)  # threads drawing answers (/healthz needs none)
+    # connections open at once: workers + backlog; a new one closes the oldest still sending
+    # its header, or is closed when all are being answered
+    backlog: int = num(32, ge=0, le=1024)
+    # deadline for a request's whole header from its connection (trickling bytes does not
+    # extend it), and for the client to take the answer [s]
+    timeout_s: float = num(10.0, gt=0, le=300)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:

@@ -20,9 +20,11 @@ the plant's local clock). ``GET /api/latest.json`` gives the latest estimate and
 bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers 200 while
 estimates arrive and 503 when none came for three windows (a container's health check).
 
-The server answers from a fixed pool of threads (:class:`BoundedHTTPServer`): a thousand slow
-clients hold at most ``workers + backlog`` connections and no more threads than workers (each
-connection may idle ``timeout_s``); the rest are closed at once. The history is fed from the
+The server (:class:`~softsensor.outputs.deadline_http.DeadlineHTTPServer`) reads every
+request's header on one loop thread with a deadline of ``timeout_s`` for the whole header, keeps
+at most ``workers + backlog`` connections (a new one closes the oldest still sending its header)
+and draws pages on ``workers`` threads; ``/healthz`` is answered on the loop thread, so it never
+waits behind a slow client or a page being drawn. The history is fed from the
 daemon's estimator thread (:meth:`LivePage.add_estimate`, :meth:`add_lab`, :meth:`set_health`)
 and read by the server's threads under one lock; it is bounded by ``history_h``. Every string
 that reaches the page is escaped.
@@ -30,19 +32,15 @@ that reaches the page is escaped.
 
 from __future__ import annotations
 
-import contextlib
 import html
 import json
 import logging
 import math
 import os
-import socket
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping
-from concurrent.futures import ThreadPoolExecutor
-from http.server import BaseHTTPRequestHandler, HTTPServer
 from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
@@ -56,6 +54,7 @@ from softsensor.display import (
 )
 from softsensor.errors import ConfigError
 from softsensor.jsonable import dumps
+from softsensor.outputs.deadline_http import DeadlineHTTPServer, Response
 from softsensor.outputs.settings import WebSettings
 from softsensor.outputs.web_charts import Chart, Series, legend, svg
 from softsensor.verdicts import diagnosis_verdict, health_words
@@ -78,51 +77,6 @@ RANGES_H: dict[str, float] = {"2h": 2.0, "8h": 8.0, "48h": 48.0}
 MIN_SPAN_H = 1.0
 
 
-class BoundedHTTPServer(HTTPServer):
-    """An HTTP server answering from ``workers`` threads; at most ``backlog`` more accepted
-    connections wait, further ones are closed at once (counted in :attr:`refused`)."""
-
-    request_queue_size = 128  # the kernel's queue before accept: a burst is taken and sorted
-
-    def __init__(self, address: tuple[str, int], handler: type, *, workers: int = 8,
-                 backlog: int = 32) -> None:
-        super().__init__(address, handler)
-        self._pool = ThreadPoolExecutor(workers, thread_name_prefix="web")
-        self._slots = threading.BoundedSemaphore(workers + backlog)
-        self._open: set[socket.socket] = set()
-        self._lock = threading.Lock()
-        self.refused = 0
-
-    def process_request(self, request: Any, client_address: Any) -> None:
-        if not self._slots.acquire(blocking=False):
-            self.refused += 1
-            self.shutdown_request(request)
-            return
-        with self._lock:
-            self._open.add(request)
-        self._pool.submit(self._serve, request, client_address)
-
-    def _serve(self, request: Any, client_address: Any) -> None:
-        try:
-            self.finish_request(request, client_address)
-        except Exception as exc:  # noqa: BLE001 - a client that went away: one debug line
-            log.debug("web client %s: %s", client_address[0], type(exc).__name__)
-        finally:
-            self.shutdown_request(request)
-            with self._lock:
-                self._open.discard(request)
-            self._slots.release()
-
-    def server_close(self) -> None:
-        super().server_close()
-        self._pool.shutdown(wait=False, cancel_futures=True)
-        with self._lock:
-            waiting, self._open = list(self._open), set()
-        for request in waiting:  # queued, never served: close them now
-            with contextlib.suppress(OSError):
-                request.close()
-
-
 class LivePage:
     """The page's history and its HTTP server (module docstring)."""
 
@@ -137,7 +91,7 @@ class LivePage:
         self._health_at: int | None = None
         self._diagnosis: str | None = None
         self._last_arrival: float | None = None
-        self._server: BoundedHTTPServer | None = None
+        self._server: DeadlineHTTPServer | None = None
         self.port = settings.port
         self.time_scale = 1.0  #: plant seconds per wall second (accelerated demos)
         self._report_cache: tuple[int, str] | None = None
@@ -215,69 +169,47 @@ class LivePage:
                            now_ns=self.clock(), range_key=range_key)
 
     # -- serving ---------------------------------------------------------------------------
-    def _handler(self) -> type:
-        page = self
-
-        class Handler(BaseHTTPRequestHandler):
-            timeout = page.settings.timeout_s  # a client idle this long is dropped
-
-            def do_GET(self) -> None:  # noqa: N802 - the stdlib's name
-                self._answer(body=True)
-
-            def do_HEAD(self) -> None:  # noqa: N802
-                self._answer(body=False)
-
-            def _answer(self, body: bool) -> None:
-                url = urlsplit(self.path)
-                if url.path == "/":
-                    choice = parse_qs(url.query).get("range", [None])[0]
-                    self._send(200, "text/html; charset=utf-8", page.page(choice), body)
-                elif url.path == "/api/latest.json":
-                    self._send(200, "application/json", page.latest_json(), body)
-                elif url.path == "/healthz":
-                    ok = page.healthy()
-                    self._send(200 if ok else 503, "text/plain", "ok\n" if ok else "stale\n",
-                               body)
-                else:
-                    self._send(404, "text/plain", "not found\n", body)
-
-            def _send(self, code: int, kind: str, text: str, body: bool) -> None:
-                data = text.encode("utf-8")
-                self.send_response(code)
-                self.send_header("Content-Type", kind)
-                self.send_header("Content-Length", str(len(data)))
-                self.send_header("Cache-Control", "no-store")
-                self.end_headers()
-                if body:
-                    self.wfile.write(data)
-
-            def log_message(self, *_args: Any) -> None:  # the daemon logs, not the stdlib
-                pass
-
-        return Handler
+    def answer(self, target: str) -> Response:
+        """The answer to a GET of ``target`` (path and query)."""
+        url = urlsplit(target)
+        if url.path == "/":
+            choice = parse_qs(url.query).get("range", [None])[0]
+            return Response(200, "text/html; charset=utf-8", self.page(choice))
+        if url.path == "/api/latest.json":
+            return Response(200, "application/json", self.latest_json())
+        if url.path == "/healthz":  # on the server's loop thread: no lock, no wait
+            ok = self.healthy()
+            return Response(200 if ok else 503, "text/plain", "ok\n" if ok else "stale\n")
+        return Response(404, "text/plain", "not found\n")
 
     def start(self) -> None:
         s = self.settings
+        server = DeadlineHTTPServer(s.host, s.port, self.answer, inline=("/healthz",),
+                                    workers=s.workers, max_connections=s.workers + s.backlog,
+                                    header_timeout_s=s.timeout_s)
         try:
-            self._server = BoundedHTTPServer((s.host, s.port), self._handler(),
-                                             workers=s.workers, backlog=s.backlog)
+            server.start()
         except OSError as exc:
             raise ConfigError(f"outputs.web: cannot listen on {s.host}:{s.port}: "
                               f"{exc.strerror or exc}") from exc
-        self.port = self._server.server_address[1]
-        threading.Thread(target=self._server.serve_forever, name="web-page",
-                         daemon=True).start()
+        self._server = server
+        self.port = server.port
 
     @property
     def refused(self) -> int:
-        """Connections closed unanswered because every worker and waiting slot was taken."""
+        """Connections closed unanswered because every slot was taken (the oldest one still
+        sending its header gave way)."""
         return 0 if self._server is None else self._server.refused
+
+    @property
+    def expired(self) -> int:
+        """Connections closed because their header missed its deadline."""
+        return 0 if self._server is None else self._server.expired
 
     def stop(self) -> None:
         server, self._server = self._server, None
         if server is not None:
-            server.shutdown()
-            server.server_close()
+            server.stop()
 
 
 # -- the page ----------------------------------------------------------------------------------
@@ -433,4 +365,4 @@ def render_page(est: list, labs: list, health: Mapping[str, Any], diagnosis: str
         "s. Data: <a href='/api/latest.json'>/api/latest.json</a></p></body></html>")
 
 
-__all__ = ["BoundedHTTPServer", "LivePage", "RANGES_H", "age", "render_page", "span"]
+__all__ = ["LivePage", "RANGES_H", "age", "render_page", "span"]

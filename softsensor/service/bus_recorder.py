@@ -5,6 +5,14 @@
 under its MCAP topic (``plant/<unit>/scan`` -> ``/plant/scan``, ...) with ``time_ns`` as the
 log time. ``python -m softsensor.service.bus_recorder --dir D --connect tcp/127.0.0.1:7447``
 runs one until SIGTERM or SIGINT, then closes its files cleanly.
+
+In the daemon the recorder keeps to the estimator's input limits (issue 31 item 1: a peer's
+60 kB scans, 1,171 of 1,294 dropped by the rate limiter, were all recorded, 35 MB in 10 s): it
+subscribes to the outputs only, and the inputs reach it from the pipeline once admitted
+(:meth:`BusRecorder.record`); what the limits drop is recorded as counts in health
+(``inputs_dropped``), not as bodies. And however the peers share those limits, each topic
+grows a day file by at most ``max_topic_bytes_per_day``: beyond it messages of that topic are
+counted (:attr:`BusRecorder.capped`), not recorded, until the next day.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import zenoh
 
 from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
 from softsensor.errors import SoftsensorError
+from softsensor.jsonable import dumps
 from softsensor.log_throttle import Throttle
 from softsensor.recording.recorder import RECORDER_CHUNK_SIZE, Recorder
 from softsensor.service.time_gate import TimeGate
@@ -37,12 +46,22 @@ class BusRecorder:
     calls :meth:`Recorder.tick` every ``tick_s`` seconds so idle chunks are written too.
     :meth:`close` undeclares the subscribers and stops the thread; it does not close the
     recorder or the session.
+
+    ``kinds`` are subscribed to; others may be handed to :meth:`record` (the daemon's admitted
+    inputs). ``max_topic_bytes_per_day`` bounds each topic's JSON bytes per UTC day of the day
+    file (None: no bound).
     """
 
     def __init__(self, session: zenoh.Session, recorder: Recorder, *, unit: str = "dryer1",
                  kinds: Iterable[str] = KINDS, tick_s: float = 1.0,
-                 gate: Callable[[int], str | None] | None = None) -> None:
+                 gate: Callable[[int], str | None] | None = None,
+                 max_topic_bytes_per_day: int | None = None) -> None:
         self.recorder = recorder
+        self.max_topic_bytes_per_day = max_topic_bytes_per_day
+        self.capped: dict[str, int] = {}  #: messages not recorded today, per topic (the cap)
+        self._day = -1
+        self._day_bytes: dict[str, int] = {}
+        self._count_lock = threading.Lock()  # Zenoh's threads and the pipeline's record
         # messages stamped impossibly (before 2000; far from the daemon's clock when it has
         # one) are not recorded: a day file named by a peer's bad clock, or a chunk broken by
         # a negative time, would lose what is real
@@ -53,6 +72,34 @@ class BusRecorder:
         self._ticker = threading.Thread(target=self._tick_loop, args=(tick_s,),
                                         name="recorder-tick", daemon=True)
         self._ticker.start()
+
+    def record(self, message: BusMessage) -> None:
+        """Record ``message`` as if it had come on the bus (the pipeline's admitted inputs)."""
+        self._on_message(message)
+
+    def _within_cap(self, topic: str, file_ns: int, body: dict) -> bool:
+        """Count ``body`` against ``topic``'s bytes of the day of ``file_ns``; False when the
+        day's cap is spent (the message is then counted in :attr:`capped`)."""
+        cap = self.max_topic_bytes_per_day
+        if cap is None:
+            return True
+        size = len(dumps(body))
+        with self._count_lock:
+            day = file_ns // (86_400 * 10**9)
+            if day != self._day:
+                self._day, self._day_bytes, self.capped = day, {}, {}
+            used = self._day_bytes.get(topic, 0)
+            if used + size > cap:
+                first = topic not in self.capped
+                self.capped[topic] = self.capped.get(topic, 0) + 1
+            else:
+                self._day_bytes[topic] = used + size
+                return True
+        if first:
+            log.warning("%s: %d bytes recorded today, the day's cap "
+                        "(service.record_topic_bytes_per_day): the rest of the day is counted, "
+                        "not recorded", topic, used)
+        return False
 
     def _on_message(self, message: BusMessage) -> None:
         body = dict(message.body)
@@ -67,10 +114,13 @@ class BusRecorder:
         # the day file is the daemon clock's day (when it has a clock): a peer's time, even
         # one the gate lets through (minutes ahead at midnight), never opens a file
         clock = getattr(self.gate, "clock", None)
+        file_ns = t if clock is None else clock()
+        if not self._within_cap(message.topic, file_ns, body):
+            return
         if clock is None:
             self.recorder.write(message.topic, t, body)
         else:
-            self.recorder.write(message.topic, t, body, file_time_ns=clock())
+            self.recorder.write(message.topic, t, body, file_time_ns=file_ns)
 
     def _tick_loop(self, tick_s: float) -> None:
         throttle = Throttle()
@@ -86,7 +136,7 @@ class BusRecorder:
 
     def close(self) -> None:
         """Stop recording (idempotent)."""
-        self.subscription.close()
+        self.subscription.close()  # (what the pipeline hands on after this is still written)
         self._stop.set()
         self._ticker.join(timeout=5.0)
 

@@ -39,7 +39,6 @@ from typing import Any
 import zenoh
 
 from softsensor.bus.zenoh_bus import (
-    KINDS,
     Publisher,
     free_port,
     listening_endpoints,
@@ -72,7 +71,7 @@ from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
-from softsensor.service.pipeline import INPUT_KINDS, InputLimits, ServicePipeline
+from softsensor.service.pipeline import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import ServiceSettings, bus_options, resolve_unit
 from softsensor.service.time_gate import TimeGate
@@ -205,6 +204,7 @@ class Daemon:
         self.poller: ModbusPoller | None = None
         self.lab_input: LabInput | None = None
         self.recorder: Recorder | None = None
+        self.bus_recorder: BusRecorder | None = None
         self.clock: ScaledClock | None = None
         self.info: DaemonInfo | None = None
         self.display = display_settings(config)
@@ -384,7 +384,10 @@ class Daemon:
                                  reserve_bytes=s.record_reserve_bytes)
         self._recording_said = "ok"
         stack.callback(self.recorder.close)
-        bus_rec = BusRecorder(session, self.recorder, unit=self.unit, kinds=KINDS, gate=gate)
+        # the outputs from the bus; the inputs from the pipeline once its limits admit them
+        self.bus_recorder = bus_rec = BusRecorder(
+            session, self.recorder, unit=self.unit, kinds=OUTPUT_KINDS, gate=gate,
+            max_topic_bytes_per_day=s.record_topic_bytes_per_day)
         stack.callback(bus_rec.close)
 
     def _lab_input(self, stack: contextlib.AsyncExitStack, publisher: Publisher,
@@ -501,7 +504,9 @@ class Daemon:
         pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
                                    checkpoint_every=s.checkpoint_every,
                                    on_output=self._on_output, limits=limits,
-                                   decorate=self._decorate)
+                                   decorate=self._decorate,
+                                   on_admitted=None if self.bus_recorder is None
+                                   else self.bus_recorder.record)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,
@@ -510,8 +515,15 @@ class Daemon:
 
     def _recording(self) -> str | None:
         """The recorder's state for health: ``ok``, why it is paused, or None (not recording)."""
-        r = self.recorder
-        return None if r is None else (r.failure or "ok")
+        r, b = self.recorder, self.bus_recorder
+        if r is None:
+            return None
+        if r.failure:
+            return r.failure
+        if b is not None and b.capped:  # names only: a count would change it every message
+            return (f"the day's cap (service.record_topic_bytes_per_day) reached for "
+                    f"{', '.join(sorted(b.capped))}")
+        return "ok"
 
     def _decorate(self, out: Output) -> None:
         """Health says when recording is paused (estimates go on without it)."""
@@ -519,6 +531,10 @@ class Daemon:
             return
         state = self._recording()
         out.body["recording"] = state
+        if self.pipeline is not None:  # what the limits dropped, recorded as counts
+            out.body["inputs_dropped"] = dict(self.pipeline.dropped)
+        if self.bus_recorder is not None and self.bus_recorder.capped:
+            out.body["recording_capped"] = dict(self.bus_recorder.capped)
         if state not in (None, "ok") and "recording:" not in str(out.body.get("detail")):
             out.body["detail"] = f"{out.body.get('detail')}; recording: {state}"
 

@@ -108,6 +108,9 @@ class ServicePipeline:
     decorate : callable, optional
         Called with every :class:`Output` before it is published (the daemon adds what the
         service cannot know to health: the recorder's state).
+    on_admitted : callable, optional
+        Called (on a Zenoh thread) with every input message the limits admitted: the
+        daemon's recorder, so it records what the estimator takes and nothing it refused.
     """
 
     def __init__(self, session: zenoh.Session, service: EstimatorService, *,
@@ -115,8 +118,10 @@ class ServicePipeline:
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
                  limits: InputLimits | None = None,
-                 decorate: Callable[[Output], None] | None = None) -> None:
+                 decorate: Callable[[Output], None] | None = None,
+                 on_admitted: Callable[[BusMessage], None] | None = None) -> None:
         self.service = service
+        self.on_admitted = on_admitted
         self.decorate = decorate
         self.unit = unit
         self.checkpoints = checkpoints
@@ -167,6 +172,8 @@ class ServicePipeline:
         if full:
             self._drop("queue_full")
             return
+        if self.on_admitted is not None:
+            self.on_admitted(message)  # before the worker can make an output of it
         self._q.put(message)
 
     def _drop(self, reason: str) -> None:

@@ -73,6 +73,11 @@ class ServiceSettings:
         Recording pauses (files finished, messages kept in memory, health says ``recording:
         disk full``) when less than this is free in ``data_dir``, and resumes once twice as
         much is [bytes].
+    record_topic_bytes_per_day : int
+        Most JSON bytes one topic adds to a day file; beyond, its messages are counted in
+        health (``recording``), not recorded, until the next day. The inputs are recorded as
+        the estimator admits them (``max_message_bytes``, ``max_scan_rate_hz``,
+        ``max_lab_rate_per_h``), whoever sends them [bytes].
     checkpoint : str
         Estimator checkpoint file (JSON, replaced atomically).
     checkpoint_every : int
@@ -136,6 +141,8 @@ class ServiceSettings:
     chunk_size: int = num(16 * 1024, ge=1024, le=64 * 1024 * 1024)
     flush_interval_s: float = num(30.0, gt=0, le=3600)
     record_reserve_bytes: int = num(16 * 1024 * 1024, ge=0, le=2**40)
+    # a day of 10 s scans is about 4 MB of JSON: 64 MB leaves room for a faster PLC
+    record_topic_bytes_per_day: int = num(64 * 1024 * 1024, ge=1024, le=2**40)
     checkpoint: str = "state/checkpoint.json"
     checkpoint_every: int = num(1, ge=1, le=10_000)
     lab_dir: str | None = "lab-drop"
