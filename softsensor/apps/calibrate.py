@@ -103,7 +103,7 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
 def _add_objective_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--cost", choices=COSTS, default=None,
                    help="eq4 (the paper's weighted RMSE sum) or likelihood (each channel by "
-                        "its own noise); default: [calibration] cost, else eq4")
+                        "its own noise); default: [calibration] cost, else likelihood")
     p.add_argument("--inlet", choices=INLET_MODES, default=None,
                    help="the unmeasured inlet moisture: estimated (a slow trajectory fitted "
                         "per day, default) or nominal (the paper's)")

@@ -38,9 +38,20 @@ class CalibrationSettings:
     Attributes
     ----------
     cost : str
-        ``"eq4"``: the paper's weighted sum of RMSEs (eq. 4, weights from ``[cost]``);
-        ``"likelihood"``: the Gaussian likelihood with each channel's noise estimated from the
-        data (under eq. 4 a 3 K temperature error costs less than 0.002 kg/kg of moisture).
+        ``"likelihood"`` (default): the Gaussian likelihood with each channel's noise
+        estimated from the data; ``"eq4"``: the paper's weighted sum of RMSEs (eq. 4, weights
+        from ``[cost]``), whose number is reported beside either way. Under eq. 4 a 3 K
+        temperature error costs less than 0.002 kg/kg of moisture, and with the inlet
+        trajectory fitted to the labs it buys lab moisture below the lab's noise with the
+        temperatures: on the matched plant (3 x 24 h, 60 trials) eq. 4 scored its result
+        0.0139 on the calibration windows against 0.0293 at the true parameters (labs 0.0005
+        against the noise's 0.0047 kg/kg, the dryer outlet 0.99 K against 0.08 K), so no
+        search could have found the truth; held out, 1.81 times the truth's eq. 4. The
+        likelihood weighs each channel by its own noise; with the stronger polish its result
+        scored below the truth's likelihood on the windows and 1.08 times the truth's eq. 4
+        held out. On an independent plant (seed 5151, 7 x 48 h, 200 trials) its held-out
+        RMSE was 0.25/0.34 K and 0.0075 kg/kg against eq. 4's 1.30/1.00 K and 0.0080, the
+        sensor's pooled RMSE the same (0.0115 against 0.0114 kg/kg).
     prior : bool
         Fit the maximum a posteriori: a Gaussian prior on ``ln(theta)`` centred on the
         config's values (the Table 1 ranges are bounds, not knowledge). False: the paper's
@@ -82,7 +93,7 @@ class CalibrationSettings:
         (``benchmarks/calibrate.py``). 0: ``solver.wall_substeps``.
     """
 
-    cost: str = "eq4"
+    cost: str = "likelihood"
     prior: bool = True
     prior_sigma: float = num(1.0, gt=0, le=20)
     inlet: str = "estimated"
