@@ -16,12 +16,11 @@ import importlib
 import logging
 import math
 import sys
+import traceback
 from collections.abc import Callable, Sequence
 
 from softsensor import __version__
 from softsensor.errors import SoftsensorError, one_line
-
-log = logging.getLogger("softsensor")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -57,10 +56,15 @@ def _import_verbs(module: str) -> Callable[[argparse._SubParsersAction], None]:
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="softsensor", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"softsensor {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="debug logging, and the traceback of an unexpected error")
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
     for module in VERB_MODULES:
         _import_verbs(module)(sub)
+    for verb in sub.choices.values():
+        # after the verb too (softsensor run -v): the default stays the one before it
+        verb.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                          help="debug logging, and the traceback of an unexpected error")
     return parser
 
 
@@ -122,7 +126,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("softsensor: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - a bug: one line, the traceback with -v
-        log.debug("unexpected error", exc_info=True)
+        if args.verbose:
+            # printed, not logged: a verb may have put its own one-line formatter on the
+            # handlers (run's key=value lines), which would keep only the exception's name
+            traceback.print_exc(file=sys.stderr)
         first = str(exc).splitlines()[0][:300] if str(exc) else ""
         print(one_line(f"softsensor {args.verb}: unexpected {type(exc).__name__}: {first} "
                        f"(this is a bug; --verbose shows where)"), file=sys.stderr)

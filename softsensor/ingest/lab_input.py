@@ -385,13 +385,18 @@ class LabFolderWatcher:
     rate_per_s : float, optional
         Lab results per wall second the estimator takes (:func:`folder_rate`); files beyond
         it wait. None: no limit.
+    on_reject : callable, optional
+        Called with the first reason line of every file rejected (the daemon counts it and
+        says it in health: a LIMS whose every file is refused must not look like a quiet lab).
     """
 
     def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
                  poll_s: float = 2.0, settle_s: float = 1.0,
                  zone: tzinfo | str | None = None, lab_map: LabMap = DEFAULT_LAB_MAP,
-                 rate_per_s: float | None = None) -> None:
+                 rate_per_s: float | None = None,
+                 on_reject: Callable[[str], None] | None = None) -> None:
         self.folder = Path(folder)
+        self.on_reject = on_reject
         self.zone = zone  # the clock of ISO times without an offset (the plant's)
         self.lab_map = lab_map
         self.budget = _Budget(rate_per_s)
@@ -479,6 +484,11 @@ class LabFolderWatcher:
         report.reasons.extend(reasons)
         for r in reasons:
             log.warning("lab file rejected: %s", r)
+        if self.on_reject is not None:
+            try:
+                self.on_reject(reasons[0])
+            except Exception:  # noqa: BLE001 - the file is handled; the news must not undo it
+                log.exception("telling a rejected lab file failed")
 
     def _handle(self, path: Path, report: PollReport) -> bool:
         """Take one settled file whole or not at all; False when it waits for the rate."""

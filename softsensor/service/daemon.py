@@ -301,9 +301,10 @@ class Daemon:
             publisher = Publisher(session, self.unit, clock=clock.now_ns)
             publisher.declare(INPUT_KINDS)
             stack.callback(publisher.close)
+            # the outputs first: a port in use stops the daemon before it polls the PLC
+            served = await self._start_outputs(stack)
             self._lab_input(stack, publisher, clock)
             poll_task = self._start_poller(stack, publisher, clock)
-            served = await self._start_outputs(stack)
             m = self.tagmap.modbus
             endpoints = listening_endpoints(session) if s.zenoh_adminspace else listen
             self.info = DaemonInfo(self.unit, service.kind, endpoints,
@@ -417,8 +418,15 @@ class Daemon:
                                        lab_map=self.lab_map,
                                        rate_per_s=folder_rate(
                                            s.max_lab_rate_per_h, self._window_s(),
-                                           s.time_scale)).start()
+                                           s.time_scale),
+                                       on_reject=self._lab_file_rejected).start()
             stack.callback(watcher.close)
+
+    def _lab_file_rejected(self, reason: str) -> None:
+        """A file the lab folder rejected: counted and told in health like a refused result
+        (the estimator thread's counters, in order with the bus messages)."""
+        if self.pipeline is not None and self.clock is not None:
+            self.pipeline.lab_file_refused(reason, self.clock.now_ns())
 
     def _window_s(self) -> float:
         """The estimator's window [s, plant time]."""
@@ -472,7 +480,10 @@ class Daemon:
                                        lambda: stats().stale_ticks),
             "softsensor_scans": ("scans received", lambda: stats().scans),
             "softsensor_labs_accepted": ("lab results accepted", lambda: stats().labs_accepted),
-            "softsensor_labs_refused": ("lab results refused", lambda: stats().labs_refused),
+            "softsensor_labs_refused": ("lab results and lab files refused",
+                                        lambda: stats().labs_refused),
+            "softsensor_lab_files_refused": ("lab files refused whole by the lab folder",
+                                             lambda: stats().lab_files_refused),
             "softsensor_poller_reads": ("PLC polls", lambda: poll().scans),
             "softsensor_poller_read_failures": ("PLC reads that failed",
                                                 lambda: poll().read_failures),
@@ -586,7 +597,9 @@ class Daemon:
         event(log, "status", plc_connected=self.poller.connected, polls=p.scans,
               read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
               stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
-              labs_refused=st.labs_refused, checkpoints=self.store.n_saved,
+              labs_refused=st.labs_refused, lab_files_refused=st.lab_files_refused,
+              last_lab_refusal=self.pipeline.service.last_lab_refusal,
+              checkpoints=self.store.n_saved,
               recorded=None if self.recorder is None else self.recorder.n_written,
               recording=self._recording())
 

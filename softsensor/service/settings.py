@@ -119,6 +119,11 @@ class ServiceSettings:
         the daemon, which holds at most that much per link).
     max_queue : int
         Input messages waiting for the estimator thread; more are dropped and counted.
+    max_lab_silence_h : float
+        Health turns ``degraded`` when no lab result was accepted for this long (since the
+        last accepted one, or since the first scan) [h, plant time]; 0: never. A lab sends a
+        few results a day: 12 h without one that the estimator took means the estimate runs
+        uncorrected (a wrong ``[lab]`` table, a LIMS that stopped, every file refused).
     max_scan_rate_hz, max_lab_rate_per_h : float
         Rate limits per input kind (all scans, all lab results, whoever publishes them)
         [per plant second, per plant hour]; above them messages are dropped and counted (a
@@ -163,6 +168,7 @@ class ServiceSettings:
     max_queue: int = num(10_000, ge=10, le=10_000_000)
     max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
     max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
+    max_lab_silence_h: float = num(12.0, ge=0, le=24 * 365)
 
     #: One rule, one key: the estimator's kind and a window's good share are set where the
     #: estimator and the windowing read them (these keys once set them a second time).
