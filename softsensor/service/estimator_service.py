@@ -347,6 +347,10 @@ class EstimatorService:
             detail = "not physical: " + ", ".join(problems) + "; " + detail
         if window.refused:
             body["inputs_refused"] = dict(window.refused)
+            # why, per signal (the first value refused and the limits): what a replay that
+            # estimated nothing must say, rather than guess at the scan period
+            body["inputs_refused_why"] = {name: window.reasons[name] for name in window.refused
+                                          if name in window.reasons}
             detail += "; implausible inputs refused: " + ", ".join(
                 f"{name} {n}" for name, n in sorted(window.refused.items()))
         body.update(status=status, detail=detail)
