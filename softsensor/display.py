@@ -32,6 +32,8 @@ from softsensor.plantconfig import PlantConfig, section_of
 MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
 #: 0 °C in kelvin [K].
 C0 = 273.15
+#: A mass flow of 1 kg/s in t/h (what a plant's flow meters and operators read).
+T_H_PER_KG_S = 3.6
 
 
 @dataclass(frozen=True)
@@ -129,5 +131,5 @@ def local_clock(time_ns: int, settings: DisplaySettings) -> str:
     return local_times(np.array([time_ns]), settings)[0].isoformat(timespec="seconds")
 
 
-__all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
+__all__ = ["C0", "MOISTURE_BASES", "T_H_PER_KG_S", "DisplaySettings", "celsius", "display_settings",
            "local_clock", "local_times", "moisture_pct", "moisture_pct_points", "plant_error"]

@@ -3,6 +3,7 @@ real dryer, each checked with the real client where there is one."""
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import logging
@@ -289,3 +290,222 @@ def test_the_lab_preview_shows_values_as_read_and_converted_and_a_suspect_header
     assert main([*args, "--out", str(tmp_path / "day.mcap")]) == 0
     err = capsys.readouterr().err
     assert "warning: " in err and "set lab.basis = \"wet\"" in err
+
+
+# --- item 6: the command line ---
+
+
+def _verbs() -> dict[str, argparse.ArgumentParser]:
+    from softsensor.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(sub.choices)
+
+
+def _readme_exit_codes() -> dict[str, set[int]]:
+    """Per verb, the exit statuses the README's table gives (a '-' cell: none)."""
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    table = text.split("| verb | 0 | 1 | 2 | 130 |")[1].split("\n\n")[0]
+    out: dict[str, set[int]] = {}
+    for row in table.strip().splitlines()[1:]:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        codes = {code for code, cell in zip((0, 1, 2, 130), cells[1:], strict=True)
+                 if cell != "-"}
+        for verb in re.findall(r"`([a-z-]+)`", cells[0]):
+            out[verb] = codes
+    return out
+
+
+def test_every_verb_describes_itself_lists_its_exit_codes_and_helps_every_option(capsys):
+    """10 of 12 verbs had no description in --help, none listed its exit codes, four options
+    had no help, --params showed as PARAMS.toml and PARAMS, and --fit-fraction named an
+    internal constant."""
+    from softsensor.cli import EXIT_CODES, main
+
+    readme = _readme_exit_codes()
+    verbs = _verbs()
+    assert set(verbs) == set(readme) == set(EXIT_CODES)
+    metavars: dict[str, set[str]] = {}
+    for name, verb in verbs.items():
+        assert verb.description and verb.description[0].isupper(), name
+        assert set(EXIT_CODES[name]) == readme[name], name
+        for action in verb._actions:
+            if isinstance(action, argparse._HelpAction):
+                continue
+            assert action.help and "DEFAULT_" not in action.help, (name, action.dest)
+            for flag in action.option_strings:
+                if action.nargs != 0:
+                    metavars.setdefault(flag, set()).add(str(action.metavar or action.dest))
+        with pytest.raises(SystemExit) as done:
+            main([name, "--help"])
+        assert done.value.code == 0
+        shown = capsys.readouterr().out
+        assert "exit status:" in shown, name
+        for code in EXIT_CODES[name]:
+            assert re.search(rf"^  {code}\s+\S", shown, re.M), (name, code)
+    for flag in ("--params", "--config"):
+        assert len(metavars[flag]) == 1, (flag, metavars[flag])
+    assert metavars["--params"] == {"PARAMS.toml"}
+
+
+def test_long_verbs_take_quiet_and_design_speaks_plant_units():
+    verbs = _verbs()
+    for name in ("calibrate", "diagnose", "replay", "design", "plant-server"):
+        assert any("--quiet" in a.option_strings for a in verbs[name]._actions), name
+    design = {a.dest: a.help for a in verbs["design"]._actions}
+    assert "[°C]" in design["T_sp_band"] and "[t/h]" in design["m_air_band"]
+    assert "[t/h per min]" in design["m_air_rate"]
+
+
+def test_a_missing_offline_package_exits_1_as_the_readme_says(tmp_path, capsys, monkeypatch):
+    import importlib.util
+
+    from softsensor.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "optuna" else real(name, *a))
+    assert main(["validate", str(tmp_path / "day.mcap"), "--params",
+                 str(tmp_path / "p.toml")]) == 1
+    err = capsys.readouterr().err
+    assert err == ("softsensor: validate needs the package optuna, which this install leaves "
+                   "out: pip install 'softsensor[offline]'\n")
+
+
+def test_health_imports_only_its_own_verbs():
+    """``softsensor health`` took 2.9 to 5.8 s here against a daemon that answered at once:
+    building the parser imported every verb module, the calibration's SciPy among them. A
+    command line naming its verb imports that verb's module alone."""
+    code = ("import sys, time; from softsensor.cli import build_parser, _verb_of; "
+            "t = time.perf_counter(); p = build_parser(_verb_of(['health'])); "
+            "print(time.perf_counter() - t, 'scipy.stats' in sys.modules, "
+            "'softsensor.apps.calibrate' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    seconds, scipy, calibrate = r.stdout.split()
+    assert (scipy, calibrate) == ("False", "False"), r.stdout
+    assert float(seconds) < 2.0
+
+
+# --- item 5: the demo's start is readable ---
+
+
+def test_the_opcua_server_starts_without_forty_warning_lines(caplog):
+    """asyncua said about 40 WARNING lines at every start (optional attributes of the analog
+    items, and that NoSecurity has no signing), burying the daemon's first line. They are
+    dropped; the server's own line says what the security note meant, and an asyncua client
+    still reads the items."""
+    from test_outputs_opcua import _read
+
+    from softsensor.outputs.opcua_server import EstimateOpcUaServer
+    from softsensor.outputs.settings import OpcUaSettings
+
+    async def main():
+        server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=_free()),
+                                     DisplaySettings(), "dryer1")
+        await server.start()
+        try:
+            return await _read(server.endpoint, ["health"])
+        finally:
+            await server.stop()
+
+    caplog.set_level(logging.INFO)
+    got = asyncio.run(asyncio.wait_for(main(), 60))
+    assert got["health"][0] is not None
+    noise = [r for r in caplog.records if r.name.startswith(("asyncua.common", "asyncua.server"))
+             and r.levelno >= logging.WARNING]
+    assert noise == [], [r.getMessage()[:100] for r in noise[:3]]
+    assert any("anonymous, no encryption" in r.getMessage() for r in caplog.records)
+
+
+def _free() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_plant_server_says_what_it_does_while_it_simulates(capsys, monkeypatch):
+    """``plant-server`` said nothing for 20 to 40 s while it simulated: it now says what it
+    simulates, that it still does every HEARTBEAT_S, and how long it took; --quiet keeps only
+    the serving line."""
+    from softsensor.apps import virtual_plant
+    from softsensor.cli import main
+
+    monkeypatch.setattr(virtual_plant, "HEARTBEAT_S", 0.02)
+    argv = ["plant-server", "--port", "0", "--hours", "0.5", "--once", "--speed", "1e5"]
+    assert main(argv) == 0
+    out = capsys.readouterr()
+    lines = out.err.splitlines()
+    assert lines[0] == ("plant-server: simulating 0.5 h of plant independent (plant seed 0), "
+                        "seed 0; serving starts when it is done"), lines
+    assert any(line.startswith("plant-server: still simulating (") for line in lines), lines
+    assert re.search(r"^plant-server: simulated 181 scans and \d+ lab results in [\d.]+ s$",
+                     out.err, re.M), out.err
+    assert "plant-server: serving " in out.out
+    assert main([*argv, "--quiet"]) == 0
+    out = capsys.readouterr()
+    assert "simulat" not in out.err and "plant-server: serving " in out.out
+
+
+# --- item 8: a Spanish or German spreadsheet export (';' and ',') ---
+
+
+def _european(tmp_path: Path) -> Path:
+    """The shipped example written as a Spanish Excel saves it: ';' between fields, ','
+    as the decimal mark."""
+    out = tmp_path / "export-es.csv"
+    lines = []
+    for line in (EXAMPLE / "historian-example.csv").read_text().splitlines():
+        cells = [re.sub(r"^(-?\d+)\.(\d+)$", r"\1,\2", c) for c in line.split(",")]
+        lines.append(";".join(cells))
+    out.write_text("\n".join(lines) + "\n")
+    return out
+
+
+def test_a_semicolon_export_with_decimal_commas_names_delimiter_and_decimal(tmp_path, capsys):
+    from softsensor.cli import main
+
+    export = _european(tmp_path)
+    text = (EXAMPLE / "historian-map.toml").read_text()
+    cases = [(text, r"the header is one column holding ';': set source\.delimiter = ';', "
+                    r"and source\.decimal = ','"),
+             (text.replace("[source]\n", "[source]\ndelimiter = \";\"\n"),
+              r"row 1: TI-4711\.PV value '209,85' is written with a decimal comma: set "
+              r"source\.decimal = ','")]
+    for map_text, pattern in cases:
+        (tmp_path / "map.toml").write_text(map_text)
+        assert main(["import", "--map", str(tmp_path / "map.toml"), "--scans", str(export),
+                     "--preview"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and re.search(pattern, err), err
+        assert "bad_values" not in err and "skip_rows" not in err, err
+    (tmp_path / "map.toml").write_text(
+        text.replace("[source]\n", "[source]\ndelimiter = \";\"\ndecimal = \",\"\n"))
+    assert main(["import", "--map", str(tmp_path / "map.toml"), "--scans", str(export),
+                 "--out", str(tmp_path / "day.mcap")]) == 0
+
+
+def test_the_lab_folder_reads_its_lab_tables_delimiter_and_names_it(tmp_path):
+    """The daemon's lab folder split every CSV at ',' whatever [lab] delimiter said; a ';'
+    file is read with delimiter ';', and without it refused naming lab.delimiter."""
+    from softsensor.ingest.historian_map import LabMap
+    from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
+
+    got: list = []
+    body = ("sample_time;moisture;sample_id\n2026-01-05T08:00:00Z;9,957;L1\n")
+    for delimiter in (";", ","):
+        folder = tmp_path / f"lab{delimiter == ';'}"
+        folder.mkdir()
+        (folder / "lims.csv").write_text(body)
+        lab = LabMap(sample_time_column="sample_time", moisture_column="moisture", unit="%",
+                     basis="wet", sample_id_column="sample_id", delimiter=delimiter,
+                     decimal=",")
+        clock = lambda: 1_767_603_600 * 10**9  # noqa: E731 - 2026-01-05T09:00Z
+        w = LabFolderWatcher(folder, LabInput(got.append, clock=clock), lab_map=lab,
+                             settle_s=0.0)
+        report = w.poll_once(now=2e9)
+        if delimiter == ";":
+            assert [r.sample_id for r in report.accepted] == ["L1"], report.reasons
+            assert got[0].moisture_out == pytest.approx(0.09957 / (1 - 0.09957))
+        else:
+            assert "set lab.delimiter = ';'" in report.reasons[0], report.reasons

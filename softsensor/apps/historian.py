@@ -81,7 +81,7 @@ def _read_labs(hmap, path: Path) -> LabTable:
 
     lab = hmap.lab
     assert lab is not None
-    frame = read_table(path, delimiter=lab.delimiter, skip_rows=lab.skip_rows)
+    frame = read_table(path, delimiter=lab.delimiter, skip_rows=lab.skip_rows, table="lab")
     return convert_labs(frame, lab, hmap.source.time_zone, str(path))
 
 

@@ -120,7 +120,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", default="auto", choices=("auto", "required"),
                    help="auto (default): a checkpoint that fails its checks is moved aside "
                         "and the daemon starts afresh; required: stop with an error instead")
-    p.add_argument("--log-format", default=None, choices=LOG_FORMATS)
+    p.add_argument("--log-format", default=None, choices=LOG_FORMATS,
+                   help="kv: key=value lines (default); json: one JSON object a line "
+                        "(service.log_format)")
     p.set_defaults(func=_run)
 
 
@@ -181,7 +183,8 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.add_argument("day", metavar="DAY.mcap", help="recorded day")
     p.add_argument("--params", default=None,
                    help="calibrated parameters (PARAMS.toml; default: the config's values)")
-    p.add_argument("--out", required=True, help="MCAP file to write (inputs, estimates, health)")
+    p.add_argument("--out", required=True, metavar="EST.mcap",
+                   help="MCAP file to write (inputs, estimates, health)")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
     p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS,
                    help="estimator (default: the config's estimator.kind, ukf)")

@@ -60,6 +60,7 @@ import pandas as pd
 
 from softsensor.errors import IngestError, one_line
 from softsensor.files import atomic_path
+from softsensor.ingest.cells import delimiter_hint
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
 from softsensor.ingest.lims import convert_labs
 from softsensor.messages import (
@@ -103,9 +104,10 @@ def _zone_name(zone: tzinfo | str | None) -> str:
     return zone if isinstance(zone, str) else getattr(zone, "key", None) or str(zone)
 
 
-def _csv_frame(text: str, where: str) -> pd.DataFrame:
-    """A CSV lab file as text cells; blank lines skipped."""
-    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
+def _csv_frame(text: str, where: str, delimiter: str = ",") -> pd.DataFrame:
+    """A CSV lab file as text cells (fields split at the ``[lab]`` table's ``delimiter``);
+    blank lines skipped."""
+    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), delimiter=delimiter)
     rows: list[list[str]] = []
     try:
         for row in reader:
@@ -115,7 +117,8 @@ def _csv_frame(text: str, where: str) -> pd.DataFrame:
                                       "have")
                 if rows and len(row) != len(rows[0]):
                     raise IngestError(f"{where} line {reader.line_num}: {len(row)} fields, "
-                                      f"the header has {len(rows[0])}")
+                                      f"the header has {len(rows[0])}"
+                                      f"{delimiter_hint(rows[0], 'lab')}")
                 rows.append(row)
     except csv.Error as exc:
         raise IngestError(f"{where} line {reader.line_num}: not CSV") from exc
@@ -168,7 +171,8 @@ def parse_lab_text(text: str, suffix: str, *, log_time_ns: int | None = None,
     """The results of a lab file's text (``.csv`` or ``.json``), laid out by ``lab_map``,
     logged at ``log_time_ns`` (default now); :class:`IngestError` naming the row (and no
     content) if any entry is unusable."""
-    frame = _csv_frame(text, where) if suffix == ".csv" else _json_frame(text, where)
+    frame = (_csv_frame(text, where, lab_map.delimiter) if suffix == ".csv"
+             else _json_frame(text, where))
     cols = set(frame.columns)
     if lab_map is DEFAULT_LAB_MAP and "sample_time" not in cols and "sample_time_ns" in cols:
         frame = frame.rename(columns={"sample_time_ns": "sample_time"})

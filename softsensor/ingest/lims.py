@@ -111,7 +111,7 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
     raw, bad = numbers(column(frame, lab.moisture_column, f"{where_key}.moisture_column",
                               where, echo),
                        lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export",
-                       thousands=lab.thousands, echo=echo)
+                       thousands=lab.thousands, echo=echo, table=where_key)
     dry = moisture_dry_basis(raw, lab.unit, lab.basis)
     ids = (text_cells(column(frame, lab.sample_id_column, f"{where_key}.sample_id_column",
                              where, echo))
