@@ -509,3 +509,61 @@ def test_the_lab_folder_reads_its_lab_tables_delimiter_and_names_it(tmp_path):
             assert got[0].moisture_out == pytest.approx(0.09957 / (1 - 0.09957))
         else:
             assert "set lab.delimiter = ';'" in report.reasons[0], report.reasons
+
+
+def test_the_daemon_follows_the_virtual_plcs_clock(tmp_path):
+    """The demo's two clocks: started after plant-server (the natural order), a daemon whose
+    clock started at the day's first scan ran behind the plant by the delay times the speed,
+    and refused every lab file as sampled after it arrived. The virtual PLC serves its plant
+    clock (mbpoll reads it), and ``--clock-start plc`` starts the daemon's clock there."""
+    from softsensor.ingest.tagmap import load_tagmap
+    from softsensor.plant.plc_feed import PlantFeed
+    from softsensor.plant.plc_server import PlcServer
+    from softsensor.plant.simulator import simulate_day
+    from softsensor.service.daemon import Daemon
+    from softsensor.service.settings import service_settings
+
+    scale = 240.0
+    day = simulate_day(load_plant_config(), 2.0, 5)
+    cfg = load_plant_config()
+    settings = service_settings(cfg).with_overrides(
+        data_dir=str(tmp_path / "rec"), checkpoint=str(tmp_path / "ckpt.json"),
+        lab_dir=str(tmp_path / "lab"), zenoh_listen=["tcp/127.0.0.1:0"], time_scale=scale,
+        clock_start="plc", record=False)
+    got: dict = {}
+
+    async def main() -> None:
+        feed = PlantFeed(day, loop=True)
+        tm = load_tagmap()
+        plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / scale,
+                        clock=lambda: feed.plant_time_ns)
+        await plc.start()
+        try:
+            await asyncio.sleep(2.0)  # the plant runs on: 480 plant seconds
+            r = await asyncio.to_thread(subprocess.run, [
+                "mbpoll", "-m", "tcp", "-a", "1", "-0", "-r", "20", "-c", "1", "-t", "3:int",
+                "-B", "-1", "-p", str(plc.port), "127.0.0.1"],
+                capture_output=True, text=True, timeout=30)
+            got["mbpoll"] = (r.stdout, feed.plant_time_ns)
+            daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+            stop = asyncio.Event()
+            task = asyncio.create_task(daemon.run(stop))
+            deadline = asyncio.get_running_loop().time() + 90
+            while daemon.info is None:
+                assert asyncio.get_running_loop().time() < deadline and not task.done()
+                await asyncio.sleep(0.05)
+            await asyncio.sleep(1.0)
+            got["clocks"] = (daemon.clock.now_ns(), feed.plant_time_ns)
+            stop.set()
+            await asyncio.wait_for(task, 30)
+        finally:
+            await plc.stop()
+
+    asyncio.run(asyncio.wait_for(main(), 150))
+    text, plant_ns = got["mbpoll"]
+    served = int(re.search(r"\[20\]:\s+(-?\d+)", text).group(1))
+    assert abs(served * 10**9 - plant_ns) <= 60 * 10**9, text  # one read, a scan apart
+    assert plant_ns - int(day.scans.index[0]) > 300 * 10**9  # the plant ran on before
+    daemon_ns, plant_ns = got["clocks"]
+    # one clock: apart by the PLC's whole seconds and a few scans, not by the start delay
+    assert abs(daemon_ns - plant_ns) < 60 * 10**9, (daemon_ns - plant_ns) / 1e9

@@ -113,8 +113,10 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="estimator (default: the config's estimator.kind, ukf)")
     p.add_argument("--time-scale", type=float, default=None,
                    help="clock speed-up for accelerated demos (match plant-server --speed)")
-    p.add_argument("--clock-start", default=None,
-                   help="start of the scaled clock, ISO-8601 or ns (default now)")
+    p.add_argument("--clock-start", default=None, metavar="TIME|plc",
+                   help="start of the scaled clock, ISO-8601 or ns (default now); plc: the "
+                        "PLC's clock (the tag map's [clock] registers, which plant-server "
+                        "serves), so a demo's plant and daemon share one clock")
     p.add_argument("--no-record", action="store_true", help="do not record MCAP files")
     p.add_argument("--no-resume", action="store_true", help="ignore the checkpoint")
     p.add_argument("--resume", default="auto", choices=("auto", "required"),

@@ -110,7 +110,7 @@ async def _serve(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     server = PlcServer(tagmap, feed.next_values, host=args.host, port=args.port,
-                       period_s=period)
+                       period_s=period, clock=lambda: feed.plant_time_ns)
     await server.start()
     print(f"plant-server: serving {tagmap.source} on {args.host}:{server.port}, "
           f"one scan every {period:g} s ({args.speed:g}x real time), {plant}", flush=True)

@@ -74,7 +74,13 @@ def _time_problem(sample: int, avail: int, lab: LabMap, where_key: str, arrived:
     problem = sample_time_problem(sample, avail)
     if problem is None:
         return None
-    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS else "time_zone" if arrived
+    if arrived and sample >= EARLIEST_SAMPLE_NS:
+        # the arrival is the daemon's clock: name it first (a demo's daemon started after
+        # plant-server ran behind the plant's clock; the time zone was a red herring)
+        return (f"{lab.sample_time_column} {problem} (at {iso_utc(avail)} by the daemon's "
+                f"clock: is that clock the plant's? against plant-server start the daemon with "
+                f"--clock-start plc; else is {where_key}.time_zone right?)")
+    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS
            else "available_column" if lab.available_column is not None else "delay_min")
     return f"{lab.sample_time_column} {problem} (is {where_key}.{key} right?)"
 

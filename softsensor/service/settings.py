@@ -44,6 +44,8 @@ UNIT_RULE = "must be 1 to 64 letters, digits, '_' or '-' (it names keys and file
 LOG_FORMATS: tuple[str, ...] = ("kv", "json")
 #: Zenoh's link limit in multiples of ``max_message_bytes`` (see :func:`bus_options`).
 LINK_LIMIT_FACTOR = 4
+#: ``clock_start`` value: start at the PLC's clock (the tag map's ``[clock]`` registers).
+PLC_CLOCK = "plc"
 #: Where a daemon's clock may start [ns since the epoch]: 2000-01-01 to 2200-01-01.
 CLOCK_START_RANGE: tuple[int, int] = (946_684_800 * 10**9, 7_258_118_400 * 10**9)
 
@@ -91,7 +93,9 @@ class ServiceSettings:
         Speed of the daemon's clock relative to the wall clock [-].
     clock_start : str or None
         Start of the scaled clock, ISO-8601 or ns since the epoch (default: now); a restart
-        continues from the checkpoint's time when that is later.
+        continues from the checkpoint's time when that is later. ``"plc"``: the PLC's own
+        clock, read at start from the tag map's ``[clock]`` registers (the virtual PLC serves
+        its plant's there), so a demo's plant and daemon share one clock.
     tick_delay_s : float
         A window is ticked once a scan this much past its end has arrived, so a lab result
         logged before the window's end is always applied first, live and in replay [s].
@@ -195,7 +199,7 @@ class ServiceSettings:
             return "zenoh_user and zenoh_password_file go together (both or neither)"
         if self.log_format not in LOG_FORMATS:
             return f"log_format must be one of {', '.join(LOG_FORMATS)}, got {self.log_format!r}"
-        if self.clock_start is not None:
+        if self.clock_start is not None and self.clock_start != PLC_CLOCK:
             from softsensor.errors import ConfigError
             from softsensor.service.day_replay import parse_time
             try:
