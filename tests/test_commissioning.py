@@ -567,3 +567,67 @@ def test_the_daemon_follows_the_virtual_plcs_clock(tmp_path):
     daemon_ns, plant_ns = got["clocks"]
     # one clock: apart by the PLC's whole seconds and a few scans, not by the start delay
     assert abs(daemon_ns - plant_ns) < 60 * 10**9, (daemon_ns - plant_ns) / 1e9
+
+
+# --- item 7 (part): Prometheus names, and the band clipped at bone dry ---
+
+
+def test_prometheus_names_a_ratio_and_a_timestamp_keeps_the_old_and_clips_the_band():
+    """kg/kg is a ``_ratio``, the window end a ``_timestamp_seconds``, the dryer a ``dryer``
+    label; the old names and the ``unit`` label are still served (deprecated) so existing
+    dashboards keep working; a start-up band wider than the estimate stops at 0 % (it ran
+    the axis to -10 % wb)."""
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from softsensor.outputs.metrics import DaemonMetrics
+    from softsensor.outputs.settings import MetricsSettings
+
+    m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill"),
+                      {"softsensor_ticks": ("ticks", lambda: 3)}, unit="dryer2")
+    m.start()
+    try:
+        m.publish({"moisture_out": 0.03, "moisture_out_std": 0.03, "moisture_in": 1.0,
+                   "moisture_in_std": 0.02, "status": "ok"}, 1_767_607_800 * 10**9)
+        text = urllib.request.urlopen(f"http://127.0.0.1:{m.port}/metrics",
+                                      timeout=5).read().decode()
+    finally:
+        m.stop()
+    samples = {}
+    for fam in text_string_to_metric_families(text):
+        for s in fam.samples:
+            labels = dict(s.labels)
+            assert labels.pop("dryer") == labels.pop("unit") == "dryer2", s
+            assert labels.pop("site") == "mill", s
+            samples[s.name + str(sorted(labels.items()))] = (s.value, fam.documentation)
+    assert samples["softsensor_moisture_out_ratio[]"][0] == pytest.approx(0.03)
+    value, doc = samples["softsensor_moisture_out_kg_per_kg[]"]
+    assert value == pytest.approx(0.03) and doc.startswith("deprecated: use")
+    assert samples["softsensor_window_end_timestamp_seconds[]"][0] == 1_767_607_800
+    assert samples["softsensor_window_end_seconds[]"][0] == 1_767_607_800
+    assert samples["softsensor_ticks_total[]"][0] == 3
+    assert samples["softsensor_moisture_out_band_wet_basis_percent[('bound', 'low')]"][0] == 0.0
+
+
+def test_the_pages_outlet_axis_stops_at_zero_for_a_wide_start_up_band(tmp_path):
+    """Headless Chromium reads the page of a start-up (an outlet moisture of 0.03 kg/kg with
+    a standard deviation as large): the band and the axis stop at 0 %, not below."""
+    from softsensor.outputs.settings import WebSettings
+    from softsensor.outputs.web import LivePage
+
+    t0 = 1_767_571_200 * 10**9
+    page = LivePage(WebSettings(enabled=True, port=0), DisplaySettings(moisture_basis="wet"),
+                    clock=lambda: t0 + 13 * 600 * 10**9)
+    for k in range(12):
+        page.add_estimate(t0 + (k + 1) * 600 * 10**9, {
+            "moisture_out": 0.03, "moisture_out_std": 0.03 - 0.002 * k, "moisture_in": 1.0,
+            "moisture_in_std": 0.05, "status": "ok", "T_dryer_out_model": 348.0,
+            "T_dryer_out_measured": 348.2, "T_cyclone_out_model": 345.0,
+            "T_cyclone_out_measured": 345.1})
+    page.start()
+    try:
+        dom = _dom(f"http://127.0.0.1:{page.port}/")
+    finally:
+        page.stop()
+    outlet = re.search(r"<svg[^>]*id=\"outlet\".*?</svg>", dom, re.S).group(0)
+    ticks = [float(v) for v in re.findall(r"class=\"tick-y\"[^>]*>([^<]+)<", outlet)]
+    assert ticks and min(ticks) >= 0.0, ticks

@@ -52,6 +52,7 @@ import numpy as np
 from softsensor.display import (
     DisplaySettings,
     local_clock,
+    moisture_band,
     moisture_pct,
     moisture_pct_points,
 )
@@ -384,9 +385,11 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
     outlet = Chart("outlet", unit, t0, t1, target=float(moisture_pct(display.moisture_target,
                                                                      basis)),
                    limits=(float(moisture_pct(display.moisture_low, basis)),
-                           float(moisture_pct(display.moisture_high, basis))))
+                           float(moisture_pct(display.moisture_high, basis))), floor=0.0)
+    mo_low, mo_high = moisture_band(mo, mo_sd)  # clipped at bone dry, not below 0 %
+    mi_low, mi_high = moisture_band(mi, mi_sd)
     outlet.series += [
-        Series("band", t, pct(mo - 1.96 * mo_sd), BAND, "band", pct(mo + 1.96 * mo_sd)),
+        Series("band", t, pct(mo_low), BAND, "band", pct(mo_high)),
         Series("moisture_out", t, pct(mo), LINE),
         Series("lab", t_lab, pct(v_lab), LAB, "points")]
     temps = Chart("temperatures", "°C", t0, t1)
@@ -396,9 +399,9 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
                    dashed=dashed, width=2.0),
             Series(f"{name}_model", t, _series(est, f"{name}_model") - 273.15, MODEL,
                    dashed=dashed, width=2.0)]
-    inlet = Chart("inlet", unit, t0, t1)
+    inlet = Chart("inlet", unit, t0, t1, floor=0.0)
     inlet.series += [
-        Series("band", t, pct(mi - 1.96 * mi_sd), BAND, "band", pct(mi + 1.96 * mi_sd)),
+        Series("band", t, pct(mi_low), BAND, "band", pct(mi_high)),
         Series("moisture_in", t, pct(mi), INLET)]
     return ("<h2>Outlet moisture</h2>" + svg(outlet, display)
             + legend([("estimate", LINE), ("95 % band", BAND), ("lab result at its sample "
