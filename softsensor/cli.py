@@ -93,9 +93,21 @@ METAVARS: dict[str, str] = {"--params": "PARAMS.toml", "--config": "PLANT.toml",
                             "--data-dir": "DIR", "--checkpoint": "FILE"}
 
 
+class _Formatter(argparse.HelpFormatter):
+    """argparse's own layout, except the exit statuses, laid out already (:func:`_epilog`)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith(_EPILOG_HEAD):
+            return text
+        return super()._fill_text(text, width, indent)
+
+
+_EPILOG_HEAD = "exit status:"
+
+
 def _epilog(verb: str) -> str:
     """The exit statuses of ``verb``, wrapped to 79 columns under their codes."""
-    lines = ["exit status:"]
+    lines = [_EPILOG_HEAD]
     for code, text in EXIT_CODES.get(verb, {}).items():
         lines += textwrap.wrap(text, 79, initial_indent=f"  {code:<4} ",
                                subsequent_indent=" " * 7)
@@ -109,7 +121,7 @@ def _shared_help(sub: argparse._SubParsersAction) -> None:
         if not verb.description and choice.help:
             verb.description = choice.help[0].upper() + choice.help[1:] + "."
         verb.epilog = _epilog(choice.dest)
-        verb.formatter_class = argparse.RawDescriptionHelpFormatter
+        verb.formatter_class = _Formatter
         for action in verb._actions:
             for flag in action.option_strings:
                 if flag in METAVARS and action.metavar is None:
