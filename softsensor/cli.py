@@ -3,10 +3,15 @@
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
 ``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``,
 ``design``.
-Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a module that
-fails to import stops the command with one line naming it (exit status 1) rather than hiding
-its verbs. This module only parses arguments and turns every
-:class:`~softsensor.errors.SoftsensorError` into one line on stderr and exit status 2.
+Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a command line
+naming its verb imports that verb's module alone (:data:`VERB_MODULE`), any other (``--help``)
+all of them. A module that fails to import stops the command with one line naming it (exit
+status 1) rather than hiding its verbs. This module only parses arguments and turns every
+:class:`~softsensor.errors.SoftsensorError` into one line on stderr and exit status 2 (1 for a
+package of an extra that is not installed). What every verb's ``--help`` shares is set here,
+in one place: its description (the verb's one-line help where the module gives none), its
+exit statuses (:data:`EXIT_CODES`, the README's table), ``-v``/``--verbose`` after the verb
+too, and one metavar per shared option (:data:`METAVARS`).
 """
 
 from __future__ import annotations
@@ -16,12 +21,12 @@ import importlib
 import logging
 import math
 import sys
+import textwrap
+import traceback
 from collections.abc import Callable, Sequence
 
 from softsensor import __version__
-from softsensor.errors import SoftsensorError, one_line
-
-log = logging.getLogger("softsensor")
+from softsensor.errors import MissingPackageError, SoftsensorError, one_line
 
 
 class _Parser(argparse.ArgumentParser):
@@ -35,11 +40,95 @@ class _Parser(argparse.ArgumentParser):
 VERB_MODULES: tuple[str, ...] = (
     "softsensor.apps.virtual_plant",  # simulate, plant-server
     "softsensor.apps.calibrate",      # calibrate, identify, validate
-    "softsensor.apps.streaming",      # run, replay
+    "softsensor.apps.streaming",      # run, replay, health
     "softsensor.apps.diagnose",       # diagnose
     "softsensor.apps.historian",      # import, export
     "softsensor.apps.design",         # design
 )
+#: The module of each verb (a test holds it against what the modules register): a command
+#: line naming its verb imports that module alone, so ``softsensor health`` (a container's
+#: HEALTHCHECK every few seconds) does not pay seconds of importing the calibration's SciPy.
+VERB_MODULE: dict[str, str] = {
+    "simulate": VERB_MODULES[0], "plant-server": VERB_MODULES[0],
+    "calibrate": VERB_MODULES[1], "identify": VERB_MODULES[1], "validate": VERB_MODULES[1],
+    "run": VERB_MODULES[2], "replay": VERB_MODULES[2], "health": VERB_MODULES[2],
+    "diagnose": VERB_MODULES[3], "import": VERB_MODULES[4], "export": VERB_MODULES[4],
+    "design": VERB_MODULES[5]}
+
+
+#: What each verb's exit statuses mean (the README's "Exit codes" table, which a test holds
+#: this against); shown at the end of the verb's ``--help``.
+_BAD_INPUT = ("bad input: a missing or unreadable file, a corrupt MCAP, an unknown signal or "
+              "effect, a malformed config or option")
+_BUG = ("a bug (one line; -v shows the traceback), a module that cannot be imported, or a "
+        "package of the offline extra that is not installed")
+EXIT_CODES: dict[str, dict[int, str]] = {
+    **{verb: {0: "done", 1: _BUG, 2: _BAD_INPUT, 130: "interrupted (Ctrl-C)"}
+       for verb in ("simulate", "import", "export", "identify", "validate", "diagnose",
+                    "design")},
+    "calibrate": {0: "wrote --out: the calibrated parameters, or the current ones kept with "
+                     "the model error learned when the calibrated predict the held-out data "
+                     "worse; the last line says which and to deploy it",
+                  1: _BUG, 2: _BAD_INPUT + "; a day too short or without the lab results a "
+                                           "window needs",
+                  130: "interrupted (Ctrl-C)"},
+    "replay": {0: "done (a warning on stderr when most windows were stale)", 1: _BUG,
+               2: _BAD_INPUT + "; nothing estimated from data (every window stale, the line "
+                               "says why)",
+               130: "interrupted, Ctrl-C or SIGTERM (the partial --out removed)"},
+    "run": {0: "stopped by SIGTERM or SIGINT", 1: _BUG,
+            2: _BAD_INPUT + "; a port that cannot be used (one line naming the [outputs.*] "
+                            "table); a checkpoint refused with --resume required"},
+    "plant-server": {0: "stopped by SIGTERM or SIGINT, or --once served its day", 1: _BUG,
+                     2: _BAD_INPUT + "; a port that cannot be used (checked before the day "
+                                     "is simulated)"},
+    "health": {0: "the daemon answered and its estimator is not stalled (its status, ok or "
+                  "degraded, in the line)",
+               1: "no answer, refused, or the estimator stalled (the container's HEALTHCHECK)",
+               2: _BAD_INPUT, 130: "interrupted (Ctrl-C)"},
+}
+#: One metavar per option that several verbs share (a file's kind in its name).
+METAVARS: dict[str, str] = {"--params": "PARAMS.toml", "--config": "PLANT.toml",
+                            "--tagmap": "TAGMAP.toml", "--lab-dir": "DIR",
+                            "--data-dir": "DIR", "--checkpoint": "FILE"}
+
+
+class _Formatter(argparse.HelpFormatter):
+    """argparse's own layout, except the exit statuses, laid out already (:func:`_epilog`)."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if text.startswith(_EPILOG_HEAD):
+            return text
+        return super()._fill_text(text, width, indent)
+
+
+_EPILOG_HEAD = "exit status:"
+
+
+def _epilog(verb: str) -> str:
+    """The exit statuses of ``verb``, wrapped to 79 columns under their codes."""
+    lines = [_EPILOG_HEAD]
+    for code, text in EXIT_CODES.get(verb, {}).items():
+        lines += textwrap.wrap(text, 79, initial_indent=f"  {code:<4} ",
+                               subsequent_indent=" " * 7)
+    return "\n".join(lines)
+
+
+def _shared_help(sub: argparse._SubParsersAction) -> None:
+    """What every verb's ``--help`` shares (module docstring)."""
+    for choice in sub._choices_actions:
+        verb = sub.choices[choice.dest]
+        if not verb.description and choice.help:
+            verb.description = choice.help[0].upper() + choice.help[1:] + "."
+        verb.epilog = _epilog(choice.dest)
+        verb.formatter_class = _Formatter
+        for action in verb._actions:
+            for flag in action.option_strings:
+                if flag in METAVARS and action.metavar is None:
+                    action.metavar = METAVARS[flag]
+        # after the verb too (softsensor run -v): the default stays the one before it
+        verb.add_argument("-v", "--verbose", action="store_true", default=argparse.SUPPRESS,
+                          help="debug logging, and the traceback of an unexpected error")
 
 
 class VerbImportError(Exception):
@@ -54,13 +143,24 @@ def _import_verbs(module: str) -> Callable[[argparse._SubParsersAction], None]:
         raise VerbImportError(f"cannot load the verbs of {module}: {exc}") from exc
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _verb_of(argv: Sequence[str]) -> str | None:
+    """The verb a command line names (the first word not an option), if it is a known one."""
+    for word in argv:
+        if not word.startswith("-"):
+            return word if word in VERB_MODULE else None
+    return None
+
+
+def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
+    """The ``softsensor`` parser: every verb, or only the verbs of ``verb``'s module."""
     parser = _Parser(prog="softsensor", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"softsensor {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument("-v", "--verbose", action="store_true",
+                        help="debug logging, and the traceback of an unexpected error")
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
-    for module in VERB_MODULES:
+    for module in (VERB_MODULES if verb is None else (VERB_MODULE[verb],)):
         _import_verbs(module)(sub)
+    _shared_help(sub)
     return parser
 
 
@@ -96,7 +196,7 @@ def setup_logging(verbose: bool = False) -> None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     try:
-        parser = build_parser()
+        parser = build_parser(_verb_of(sys.argv[1:] if argv is None else argv))
     except VerbImportError as exc:
         print(f"softsensor: {exc}", file=sys.stderr)
         return 1
@@ -108,6 +208,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     setup_logging(args.verbose)
     try:
         return int(args.func(args) or 0)
+    except MissingPackageError as exc:  # the install, not the input: as a broken one
+        print(one_line(f"softsensor: {exc}"), file=sys.stderr)
+        return 1
     except SoftsensorError as exc:
         print(one_line(f"softsensor: {exc}"), file=sys.stderr)
         return 2
@@ -122,7 +225,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("softsensor: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:  # noqa: BLE001 - a bug: one line, the traceback with -v
-        log.debug("unexpected error", exc_info=True)
+        if args.verbose:
+            # printed, not logged: a verb may have put its own one-line formatter on the
+            # handlers (run's key=value lines), which would keep only the exception's name
+            traceback.print_exc(file=sys.stderr)
         first = str(exc).splitlines()[0][:300] if str(exc) else ""
         print(one_line(f"softsensor {args.verb}: unexpected {type(exc).__name__}: {first} "
                        f"(this is a bug; --verbose shows where)"), file=sys.stderr)

@@ -22,6 +22,7 @@ and figures, verdicts, ``import`` and ``export`` summaries, ``export --local-tim
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 from zoneinfo import ZoneInfo, ZoneInfoNotFoundError
 
 import numpy as np
@@ -32,6 +33,20 @@ from softsensor.plantconfig import PlantConfig, section_of
 MOISTURE_BASES: tuple[str, ...] = ("wet", "dry")
 #: 0 °C in kelvin [K].
 C0 = 273.15
+def moisture_band(x: Any, sd: Any, z: float = 1.96) -> tuple[Any, Any]:
+    """The band ``x -+ z sd`` of a dry-basis moisture [kg/kg], its low end clipped at 0: no
+    fibre is drier than bone dry (the start-up band ran the page's axis to -10 % wb). Numbers
+    or numpy arrays; NaN stays NaN."""
+    low = np.asarray(x, dtype=float) - z * np.asarray(sd, dtype=float)
+    high = np.asarray(x, dtype=float) + z * np.asarray(sd, dtype=float)
+    low = np.where(low < 0.0, 0.0, low)
+    if np.ndim(low) == 0:
+        return float(low), float(high)
+    return low, high
+
+
+#: A mass flow of 1 kg/s in t/h (what a plant's flow meters and operators read).
+T_H_PER_KG_S = 3.6
 
 
 @dataclass(frozen=True)
@@ -129,5 +144,6 @@ def local_clock(time_ns: int, settings: DisplaySettings) -> str:
     return local_times(np.array([time_ns]), settings)[0].isoformat(timespec="seconds")
 
 
-__all__ = ["C0", "MOISTURE_BASES", "DisplaySettings", "celsius", "display_settings",
-           "local_clock", "local_times", "moisture_pct", "moisture_pct_points", "plant_error"]
+__all__ = ["C0", "MOISTURE_BASES", "T_H_PER_KG_S", "DisplaySettings", "celsius",
+           "display_settings", "local_clock", "local_times", "moisture_band", "moisture_pct",
+           "moisture_pct_points", "plant_error"]

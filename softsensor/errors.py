@@ -9,6 +9,8 @@ any ``SoftsensorError`` into ``softsensor: <message>`` on stderr and a non-zero 
     +-- IngestError      a recorded day, a Modbus read or a lab result cannot be used
     +-- SolverError      the model could not be solved (the solver's message is kept)
     +-- EstimationError  the estimator cannot continue (e.g. covariance lost definiteness)
+    +-- MissingPackageError  a package of an extra is not installed (exit status 1, like a
+                             broken install, not 2: the input is fine)
 """
 
 
@@ -32,6 +34,10 @@ class EstimationError(SoftsensorError):
     """The estimator cannot continue."""
 
 
+class MissingPackageError(SoftsensorError):
+    """A package this use needs is not installed (the ``offline`` extra)."""
+
+
 #: The extra of pyproject.toml that holds what only the offline studies use: Optuna
 #: (calibration), Matplotlib (report figures), PyArrow (Parquet tables), about 250 MB that
 #: the daemon's install and container image leave out.
@@ -39,14 +45,16 @@ OFFLINE_EXTRA = "offline"
 
 
 def require_packages(purpose: str, *modules: str) -> None:
-    """Raise :class:`ConfigError` naming the first of ``modules`` that is not installed and
-    the command that installs it (``purpose`` says what needs it: a verb, a file format)."""
+    """Raise :class:`MissingPackageError` naming the first of ``modules`` that is not
+    installed and the command that installs it (``purpose`` says what needs it: a verb, a
+    file format)."""
     import importlib.util  # here, so that importing the error classes stays free
 
     for module in modules:
         if importlib.util.find_spec(module) is None:
-            raise ConfigError(f"{purpose} needs the package {module}, which this install "
-                              f"leaves out: pip install 'softsensor[{OFFLINE_EXTRA}]'")
+            raise MissingPackageError(f"{purpose} needs the package {module}, which this "
+                                      f"install leaves out: pip install "
+                                      f"'softsensor[{OFFLINE_EXTRA}]'")
 
 
 def one_line(message: str, max_chars: int | None = None) -> str:

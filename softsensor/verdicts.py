@@ -220,6 +220,8 @@ _HEALTH_REASONS: tuple[tuple[str, str], ...] = (
     ("estimator failed", "the estimator failed on the last window"),
     ("innovation", "the outlet temperatures disagree with the model more than usual"),
     ("nis", "the outlet temperatures disagree with the model more than usual"),
+    ("no lab result accepted", "no lab result was taken for hours: the estimate runs "
+                               "uncorrected (see the last lab refusal)"),
 )
 
 

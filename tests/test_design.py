@@ -104,22 +104,29 @@ def test_model_loop_tracks_a_set_point_step(cfg):
 def test_verb_writes_its_files(tmp_path, capsys):
     out = tmp_path / "d"
     rc = main(["design", "--out", str(out), "--hours", "1.5", "--budget", "2", "--random", "1",
-               "--lab-minutes", "20", "--T-sp-band", "347", "349.5"])
+               "--lab-minutes", "20", "--T-sp-band", "73.85", "76.35", "--quiet"])
     assert rc == 0
     for name in ("schedule.csv", "schedule.json", "prediction.csv", "design.png",
                  "design.svg", "design.json"):
         assert (out / name).is_file() and (out / name).stat().st_size > 0
     rows = json.loads((out / "schedule.json").read_text())["schedule"]
-    assert len(rows) == 91 and all(347 <= r["T_sp_K"] <= 349.5 for r in rows)
+    assert len(rows) == 91 and all(347 <= r["T_sp_K"] <= 349.5 + 1e-9 for r in rows)
+    # the operator's units beside SI (issue 30: design spoke K and kg/s only)
+    assert all(r["T_sp_degC"] == pytest.approx(r["T_sp_K"] - 273.15, abs=0.01)
+               and r["m_air_t_h"] == pytest.approx(3.6 * r["m_air_kg_s"], abs=0.01)
+               for r in rows)
+    assert capsys.readouterr().err.count("\n") == 1  # --quiet: the last line only
     doc = json.loads((out / "design.json").read_text())
     assert "logdet_ratio_weighted_fim" in doc["gain"]
     header = (out / "schedule.csv").read_text().splitlines()[0]
-    assert header == "time_s,time_utc,T_sp_K,m_air_kg_s"
+    assert header == "time_s,time_utc,T_sp_K,m_air_kg_s,T_sp_degC,m_air_t_h"
 
 
 @pytest.mark.parametrize("extra, words", [
-    (["--T-sp-band", "350", "346"], "T_sp band"),
-    (["--T-sp-band", "350", "352"], "outside its band"),
+    (["--T-sp-band", "77", "73"], "--T-sp-band must be LOW < HIGH [°C], got 77 73"),
+    (["--T-sp-band", "77", "79"], "the operating point's 74.85 °C lies outside its band"),
+    (["--m-air-band", "300", "310"], "--m-air-band 300 310 [t/h]: the operating point's 295.2 "
+                                     "t/h lies outside"),
     (["--max-moisture-excursion", "-1"], "moisture excursion"),
     (["--T-sp-rate", "0"], "T_sp rate"),
 ])

@@ -1,7 +1,8 @@
 """The Grafana dashboard in ``docs/grafana/softsensor.json`` (issue 24, item 6) reads the
 daemon's metrics: every metric its queries name is one the daemon's ``/metrics`` exports
 (scraped over HTTP and parsed by prometheus_client), every query selects the dashboard's
-``site`` and ``unit``, and the variables are read from a metric that exists."""
+``site`` and ``dryer`` (the unit name; issue 30: the label ``unit`` meant a unit of measure
+to anyone reading metrics), and the variables are read from a metric that exists."""
 
 from __future__ import annotations
 
@@ -49,7 +50,7 @@ def _queries(doc: dict) -> list[str]:
     return exprs
 
 
-def test_every_query_names_an_exported_metric_and_selects_site_and_unit():
+def test_every_query_names_an_exported_metric_and_selects_site_and_dryer():
     doc = json.loads(DASHBOARD.read_text(encoding="utf-8"))
     exported = _exported()
     queries = _queries(doc)
@@ -64,9 +65,9 @@ def test_every_query_names_an_exported_metric_and_selects_site_and_unit():
         assert name in used, name
     for p in doc["panels"]:
         for t in p["targets"]:
-            assert 'site="$site"' in t["expr"] and 'unit="$unit"' in t["expr"], t["expr"]
+            assert 'site="$site"' in t["expr"] and 'dryer="$dryer"' in t["expr"], t["expr"]
             assert t["datasource"]["uid"] == "${DS_PROMETHEUS}"
     ids = [p["id"] for p in doc["panels"]]
     assert len(ids) == len(set(ids))
     names = {v["name"] for v in doc["templating"]["list"]}
-    assert {"DS_PROMETHEUS", "site", "unit"} <= names
+    assert {"DS_PROMETHEUS", "site", "dryer"} <= names

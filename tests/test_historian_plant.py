@@ -102,6 +102,13 @@ def test_every_signal_is_checked_against_its_physical_range(tmp_path, capsys, si
     mp, ex = _files(tmp_path, nulled)
     rc, _out, err = run(capsys, "--map", str(mp), "--scans", str(ex), "--out",
                         str(tmp_path / "day.mcap"))
+    if signal == "m_fiber":
+        # the values left inside the physical range (t/h read as kg/s: 18.5 kg/s) are still
+        # outside what the estimator accepts: the envelope (issue 30) refuses them, naming t/h
+        err = _one_line_error(rc, err)
+        assert "outside the operating envelope 2..10 kg/s" in err and \
+            "set signals.m_fiber.unit = 't/h'" in err, err
+        return
     assert rc == 0 and f"{signal} {n_bad}," in err, err
 
 

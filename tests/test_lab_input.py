@@ -112,8 +112,12 @@ def test_one_lab_result_contract_for_every_path() -> None:
     with pytest.raises(IngestError, match="outside the plausible range 0..2"):
         dataclasses.replace(lab, moisture_out=2.01)
     late = "sample_time,moisture_out,sample_id\n2025-06-15T15:07:40Z,0.1,F1\n"
+    # the arrival is the daemon's clock: the hint names that clock first (issue 30)
     with pytest.raises(IngestError, match=r"f.csv row 1: sample_time lies 1.0 min after the "
-                                          r"result arrived \(is lab.time_zone right\?\)"):
+                                          r"result arrived \(at 2025-06-15T15:06:40Z by the "
+                                          r"daemon's clock: is that clock the plant's\? against "
+                                          r"plant-server start the daemon with --clock-start "
+                                          r"plc; else is lab.time_zone right\?\)"):
         parse_lab_csv(late, log_time_ns=T_NS, where="f.csv")
 
 

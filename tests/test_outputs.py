@@ -132,14 +132,15 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_mbpoll_and_refuses_wr
 
 
 def _scrape(port: int, unit: str = "dryer1", site: str = "plant") -> dict[str, float]:
-    """Every sample by name and labels; each must carry the ``unit`` and ``site`` labels
-    (left out of the key)."""
+    """Every sample by name and labels; each must carry the ``dryer`` and ``site`` labels,
+    and ``unit`` (deprecated) equal to ``dryer`` (left out of the key)."""
     text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5).read().decode()
     out = {}
     for fam in text_string_to_metric_families(text):
         for s in fam.samples:
             labels = dict(s.labels)
-            assert (labels.pop("unit", None), labels.pop("site", None)) == (unit, site), s
+            assert (labels.pop("dryer", None), labels.pop("site", None),
+                    labels.pop("unit", None)) == (unit, site, unit), s
             key = s.name + ("" if not labels else str(sorted(labels.items())))
             out[key] = s.value
     return out

@@ -143,8 +143,11 @@ def test_malformed_scans_and_labs_are_counted_not_fatal() -> None:
     svc = EstimatorService(FakeEstimator())
     assert svc.on_scan(T0 + 10 * S, dict(GOOD, T_bogus=1.0)) == []
     assert svc.stats.bad_scans == 1 and svc.stats.scans == 0
-    assert svc.on_lab({"moisture_out": 0.1, "sample_id": "X"}, T0) == []
-    assert svc.on_lab(lab("Y", 10, value=math.inf), T0 + 20 * S) == []
+    # a refused lab result is told in health at once, not at the next tick
+    (h,) = svc.on_lab({"moisture_out": 0.1, "sample_id": "X"}, T0)
+    assert h.kind == "health" and "sample_time_ns" in h.body["last_lab_refusal"]
+    (h,) = svc.on_lab(lab("Y", 10, value=math.inf), T0 + 20 * S)
+    assert h.body["labs_refused"] == 2 and h.body["last_lab_refusal_ns"] == T0 + 20 * S
     assert svc.stats.labs_refused == 2
     svc.on_scan(T0 + 20 * S, GOOD)
     health = svc._health(T0 + 20 * S).body
@@ -193,6 +196,49 @@ def test_silence_turns_health_stale_and_closes_gap_windows() -> None:
     stale = [o.body for o in out if o.kind == "estimate"]
     assert all(b["stale"] for b in stale) and [b["n_scans"] for b in stale] == [5, 0]
     assert svc.advance(T0 + 1900 * S) == []
+
+
+def test_refused_lab_files_count_and_lab_silence_degrades_health() -> None:
+    """Issue 30 item 1: a lab file the folder refused reaches the counters and the health body
+    at once, and health turns degraded once no lab result was accepted for
+    ``max_lab_silence_s`` (from the first scan, then from the last accepted one), naming the
+    last refusal; an accepted result makes it ok again, and a checkpoint keeps the lab clock."""
+    svc = EstimatorService(FakeEstimator(), tick_delay_s=0.0, max_lab_silence_s=3600.0)
+    feed(svc, (("scan", t, b) for t, b in scans(10, 1200)))
+    (h,) = svc.lab_file_refused("lims.csv row 2: column 'Moisture' holds no number", T0 + 1205 * S)
+    assert h.kind == "health" and h.time_ns == T0 + 1205 * S
+    assert h.body["labs_refused"] == 1 and h.body["lab_files_refused"] == 1
+    assert h.body["last_lab_refusal"] == ("lab file refused: lims.csv row 2: column 'Moisture' "
+                                          "holds no number")
+    assert h.body["status"] == "ok" and h.body["lab_status"] == "ok"  # not silent for long yet
+    out = feed(svc, (("scan", t, b) for t, b in scans(1210, 3610)))
+    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"  # 3600 s: not yet
+    (h,) = svc.on_scan(T0 + 3620 * S, GOOD)  # said when it happens, not at the next tick
+    assert h.body["status"] == "degraded" and h.body["lab_status"] == "degraded"
+    out = feed(svc, (("scan", t, b) for t, b in scans(3630, 4210)))
+    est, h = out[-2:]
+    assert est.kind == "estimate" and est.body["status"] == "ok"  # the estimator's verdict
+    assert h.body["status"] == "degraded" and h.body["lab_status"] == "degraded"
+    assert "no lab result accepted for 1.2 h since the first scan (service.max_lab_silence_h " \
+           "1)" in h.body["detail"]
+    assert "last lab refusal: lab file refused: lims.csv row 2" in h.body["detail"]
+    # a checkpoint carries the lab clock and the last refusal
+    again = EstimatorService(FakeEstimator(), tick_delay_s=0.0, max_lab_silence_s=3600.0)
+    again.restore(json.loads(json.dumps(svc.checkpoint())))
+    assert h.body["detail"] in again._health(T0 + 4200 * S).body["detail"]
+    # an accepted result: ok again, and the silence counts from it
+    out = feed(again, [("lab", T0 + 4300 * S, lab("A", 4000)),
+                       *(("scan", t, b) for t, b in scans(4210, 4810))])
+    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"
+    assert again.stats.labs_accepted == 1
+    out = feed(again, (("scan", t, b) for t, b in scans(4820, 8500)))
+    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "degraded"
+    assert "since the last one" in out[-1].body["detail"]
+    # off (None): never degraded for want of labs
+    quiet = EstimatorService(FakeEstimator(), tick_delay_s=0.0)
+    out = feed(quiet, (("scan", t, b) for t, b in scans(10, 8000)))
+    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"
+    assert {o.body["lab_status"] for o in out if o.kind == "health"} == {"ok"}
 
 
 # --- checkpoints ----------------------------------------------------------------------------

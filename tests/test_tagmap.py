@@ -113,7 +113,7 @@ def test_minimal_tagmap_takes_defaults(tmp_path):
     ("port = 502", "port = 502\nreconnect_delay_max_s = 0.1",
      "modbus.reconnect_delay_max_s must be >= reconnect_delay_s (1), got 0.1"),
     ("port = 502", "port = 70000", "modbus.port must be <= 65535, got 70000"),
-    ("[modbus]", "[modbuss]", "modbuss is not a known section (known: modbus, tags)"),
+    ("[modbus]", "[modbuss]", "modbuss is not a known section (known: modbus, tags, clock)"),
     ("unit_id = 1", 'unit_id = 1\nword_order = "middle"',
      "tags.T_air_in.word_order must be one of big, little, got 'middle'"),
     ("unit_id = 1", "unit_id = 256", "tags.T_air_in.unit_id must be <= 255, got 256"),

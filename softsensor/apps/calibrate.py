@@ -333,7 +333,8 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
                    help="parameters to analyse at (default: the config's values)")
     p.add_argument("--storage", default=None, metavar="URL",
                    help="the calibration study, for parameter importance (Fig. 4)")
-    p.add_argument("--study-name", default=DEFAULT_STUDY_NAME)
+    p.add_argument("--study-name", default=DEFAULT_STUDY_NAME,
+                   help=f"study in --storage (default {DEFAULT_STUDY_NAME})")
     p.add_argument("--importance", default="ped-anova", choices=("ped-anova", "fanova"),
                    help="importance evaluator (fanova, the paper's, needs scikit-learn)")
     p.add_argument("--json", default=None, metavar="FILE",

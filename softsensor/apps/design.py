@@ -42,6 +42,7 @@ from softsensor.calibration.design import (
 from softsensor.calibration.identifiability import prior_sd
 from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.settings import CalibrationSettings, calibration_settings
+from softsensor.display import C0, T_H_PER_KG_S
 from softsensor.errors import ConfigError, require_packages
 from softsensor.ingest.tables import write_table
 from softsensor.model import DryerModel
@@ -256,8 +257,10 @@ def schedule_rows(schedule: Schedule, start_ns: int, step_s: float = 60.0
     t = np.arange(0.0, schedule.t[-1] + 1e-9, step_s)
     T = np.interp(t, schedule.t, schedule.T_sp)
     m = np.interp(t, schedule.t, schedule.m_air)
+    # SI for programs, and what the operator types into the DCS: °C and t/h
     return [{"time_s": float(ti), "time_utc": iso_utc(start_ns + int(ti * 1e9)),
-             "T_sp_K": round(float(a), 3), "m_air_kg_s": round(float(b), 4)}
+             "T_sp_K": round(float(a), 3), "m_air_kg_s": round(float(b), 4),
+             "T_sp_degC": round(float(a) - C0, 2), "m_air_t_h": round(float(b) * T_H_PER_KG_S, 2)}
             for ti, a, b in zip(t, T, m, strict=True)]
 
 
@@ -272,7 +275,8 @@ def prediction_rows(pred: Prediction) -> list[dict[str, Any]]:
 
 def design_figure(result: DesignResult, limits: DesignLimits, directory: Path) -> list[Path]:
     """Schedule and predicted outputs, designed and natural, with the limits drawn (PNG and
-    SVG). Hours from the start; temperatures in K, flow kg/s, moisture kg/kg (SI)."""
+    SVG). Hours from the start; in plant units, as the options: temperatures in °C, the air
+    flow in t/h, moisture in kg/kg (dry basis)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -281,11 +285,14 @@ def design_figure(result: DesignResult, limits: DesignLimits, directory: Path) -
     best, nat = result.best, result.natural
     h = best.schedule.t / 3600.0
     fig, axes = plt.subplots(5, 1, figsize=(11, 11), sharex=True)
-    series = [("T_sp [K]", best.schedule.T_sp, nat.schedule.T_sp, limits.T_sp_band),
-              ("m_air [kg/s]", best.schedule.m_air, nat.schedule.m_air, limits.m_air_band),
-              ("T_dryer_out [K]", best.prediction.Y[:, 0], nat.prediction.Y[:, 0], None),
-              ("T_air_in [K]", best.prediction.U[:, I_T_AIR], nat.prediction.U[:, I_T_AIR],
-               None),
+    series = [("T_sp [°C]", best.schedule.T_sp - C0, nat.schedule.T_sp - C0,
+               tuple(v - C0 for v in limits.T_sp_band)),
+              ("m_air [t/h]", best.schedule.m_air * T_H_PER_KG_S, nat.schedule.m_air * T_H_PER_KG_S,
+               tuple(v * T_H_PER_KG_S for v in limits.m_air_band)),
+              ("T_dryer_out [°C]", best.prediction.Y[:, 0] - C0,
+               nat.prediction.Y[:, 0] - C0, None),
+              ("T_air_in [°C]", best.prediction.U[:, I_T_AIR] - C0,
+               nat.prediction.U[:, I_T_AIR] - C0, None),
               ("moisture_out [kg/kg]", best.prediction.Y[:, 2], nat.prediction.Y[:, 2],
                (result.baseline - limits.moisture_excursion,
                 result.baseline + limits.moisture_excursion))]
@@ -343,13 +350,15 @@ def add_design_arguments(p: argparse.ArgumentParser) -> None:
                         "first --hours the natural reference (default: the config's nominal)")
     p.add_argument("--hours", type=float, default=6.0, help="designed period [h] (default 6)")
     p.add_argument("--T-sp-band", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-                   help="set-point band [K] (default: operating point +-2 K)")
+                   help="set-point band [°C] (default: operating point +-2 °C)")
     p.add_argument("--T-sp-rate", type=float, default=0.5,
-                   help="largest set-point rate [K/min] (default 0.5)")
+                   help="largest set-point rate [°C/min] (default 0.5)")
     p.add_argument("--m-air-band", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
-                   help="air-flow band [kg/s] (default: operating point +-5 %%)")
-    p.add_argument("--m-air-rate", type=float, default=2.0,
-                   help="largest air-flow rate [kg/s per min] (default 2)")
+                   help="air-flow band [t/h] (default: operating point +-5 %%)")
+    p.add_argument("--m-air-rate", type=float, default=7.2,
+                   help="largest air-flow rate [t/h per min] (default 7.2, i.e. 2 kg/s)")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (the last line stays)")
     p.add_argument("--max-moisture-excursion", type=float, default=0.01,
                    help="bound on the predicted outlet moisture's distance from the operating "
                         "point's [kg/kg] (default 0.01)")
@@ -375,12 +384,25 @@ def add_design_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def limits_from_args(args: argparse.Namespace, op: OperatingPoint) -> DesignLimits:
-    """The limits of the command line, defaults around the operating point."""
+    """The limits of the command line (°C and t/h, as the plant speaks), in SI; defaults
+    around the operating point. A band is checked in the units it was given in."""
     m0 = float(op.u[I_M_AIR])
-    T_band = tuple(args.T_sp_band) if args.T_sp_band else (op.T_sp - 2.0, op.T_sp + 2.0)
-    m_band = tuple(args.m_air_band) if args.m_air_band else (0.95 * m0, 1.05 * m0)
+    for flag, band, at, unit in (("--T-sp-band", args.T_sp_band, op.T_sp - C0, "°C"),
+                                 ("--m-air-band", args.m_air_band, m0 * T_H_PER_KG_S, "t/h")):
+        if band is None:
+            continue
+        lo, hi = band
+        if not lo < hi:
+            raise ConfigError(f"{flag} must be LOW < HIGH [{unit}], got {lo:g} {hi:g}")
+        if not lo <= at <= hi:
+            raise ConfigError(f"{flag} {lo:g} {hi:g} [{unit}]: the operating point's "
+                              f"{at:.4g} {unit} lies outside its band")
+    T_band = (tuple(v + C0 for v in args.T_sp_band) if args.T_sp_band
+              else (op.T_sp - 2.0, op.T_sp + 2.0))
+    m_band = (tuple(v / T_H_PER_KG_S for v in args.m_air_band) if args.m_air_band
+              else (0.95 * m0, 1.05 * m0))
     limits = DesignLimits(T_sp_band=T_band, m_air_band=m_band, T_sp_rate=args.T_sp_rate,
-                          m_air_rate=args.m_air_rate,
+                          m_air_rate=args.m_air_rate / T_H_PER_KG_S,
                           moisture_excursion=args.max_moisture_excursion, hours=args.hours,
                           move_minutes=args.move_minutes, lab_minutes=args.lab_minutes)
     msg = limits.check(op.T_sp, m0)
@@ -418,10 +440,13 @@ def design_main(args: argparse.Namespace) -> int:
     calibration = calibration_settings(base)
     noise = channel_noise(args.params)
     problem = build_problem(base, config, op, limits, calibration, noise, args.criterion, names)
-    say("design", f"operating point: {op.source}; {limits.n_moves} moves of "
-                  f"{limits.move_minutes:g} min per knob, budget {args.budget}")
+    quiet = args.quiet or not sys.stderr
+    if not quiet:
+        say("design", f"operating point: {op.source} (T_sp {op.T_sp - C0:.1f} °C, m_air "
+                      f"{float(op.u[I_M_AIR]) * T_H_PER_KG_S:.0f} t/h); {limits.n_moves} moves of "
+                      f"{limits.move_minutes:g} min per knob, budget {args.budget}")
     result = optimise(problem, seed=args.seed, n_random=args.random, budget=args.budget,
-                      say=None if not sys.stderr else (lambda s: say("design", s)))
+                      say=None if quiet else (lambda s: say("design", s)))
     natural = result.natural.info
     if op.natural is not None:  # the same hours of the recorded day, as they were
         natural = information(problem.model, [op.natural], problem.theta, problem.spec,
@@ -470,6 +495,8 @@ def run_rounds(args: argparse.Namespace, base: PlantConfig, config: PlantConfig,
                         assessor(base, calibration), config.parameter_vector(), args.rounds)
     out = []
     for r in rounds:
+        if args.quiet:
+            continue
         say("design", f"round {r.index + 1}: s.e. " + ", ".join(
             f"{n} {100 * s:.0f} %" for n, s in zip(PARAMETER_NAMES, r.se, strict=True)))
         out.append({"round": r.index + 1, "criterion": r.criterion,

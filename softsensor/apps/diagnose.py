@@ -63,8 +63,8 @@ def add_diagnose_arguments(p: argparse.ArgumentParser) -> None:
                    help="also write the parameters calibrated on CAL here")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.add_argument("--fit-fraction", type=float, default=None,
-                   help="share of DAY in the first part of the split (default 0.6, "
-                        "problem.DEFAULT_FIT_FRACTION)")
+                   help="share of DAY, from its start, that the extension is fitted on; "
+                        "the rest is held out to measure the gain (0.3 to 0.8, default 0.6)")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
 
 

@@ -4,8 +4,12 @@ in, estimate tables out.
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map
 (:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`
-and :mod:`softsensor.ingest.lims`. ``--preview`` prints what the map makes of the export and
-writes nothing. It prints one summary line, its times on the map's clock.
+and :mod:`softsensor.ingest.lims`. Each signal is also held against the operating envelope
+the estimator will apply (the plausibility limits of the plant config, ``--config``;
+:mod:`softsensor.ingest.envelope`): a signal mostly outside it is refused in one line naming
+the likely right unit. ``--preview`` prints what the map makes of the export (and the LIMS
+file: each result as read and as converted) and writes nothing. It prints one summary line,
+its times on the map's clock.
 """
 
 from __future__ import annotations
@@ -19,7 +23,8 @@ import numpy as np
 
 from softsensor.apps.export import add_export_command
 from softsensor.apps.output import writing
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, IngestError
+from softsensor.ingest.envelope import EnvelopeCheck, check_envelope, envelope_problem
 from softsensor.ingest.historian import ScanTable
 from softsensor.ingest.lims import LabTable
 from softsensor.messages import iso_utc, lab_body
@@ -76,7 +81,7 @@ def _read_labs(hmap, path: Path) -> LabTable:
 
     lab = hmap.lab
     assert lab is not None
-    frame = read_table(path, delimiter=lab.delimiter, skip_rows=lab.skip_rows)
+    frame = read_table(path, delimiter=lab.delimiter, skip_rows=lab.skip_rows, table="lab")
     return convert_labs(frame, lab, hmap.source.time_zone, str(path))
 
 
@@ -86,11 +91,46 @@ def _aligned(rows: list[tuple[str, ...]]) -> list[str]:
             for r in rows]
 
 
-def preview_text(hmap, scans: ScanTable, path: Path, rows: int) -> str:
+def _envelope(cfg_path: str | None, scans: ScanTable, hmap) -> dict[str, EnvelopeCheck]:
+    """Every mapped signal held against the estimator's plausibility limits of the plant
+    config (``--config``; the built-in one without)."""
+    from softsensor.estimation.plausibility import plausibility_from_config
+    from softsensor.plantconfig import load_plant_config
+
+    limits = plausibility_from_config(load_plant_config(cfg_path)).limits
+    return check_envelope(scans.values, scans.raw, hmap.signals, limits)
+
+
+def _lab_preview(hmap, labs: LabTable, path: Path, rows: int) -> list[str]:
+    """The first lab results as the LIMS file wrote them and as converted (dry basis), and
+    what looks wrong with the ``[lab]`` unit or basis."""
+    from softsensor.ingest.envelope import lab_unit_hints
+
+    lab = hmap.lab
+    out = [f"lab results of {path}: {len(labs.results)} from {labs.rows_read} rows, "
+           f"{lab.moisture_column!r} read as {lab.unit} on a {lab.basis} basis:"]
+    table = [("sample_id", "sample time", f"as read [{lab.unit} {lab.basis}]",
+              "moisture_out [kg/kg dry]", "[% wet]")]
+    zone = lab.time_zone or hmap.source.time_zone
+    for r, raw in list(zip(labs.results, labs.raw, strict=True))[:rows]:
+        x = r.moisture_out
+        table.append((r.sample_id, _clock(r.sample_time_ns, zone), f"{raw:g}", f"{x:.4f}",
+                      f"{100 * x / (1 + x):.2f}"))
+    out += _aligned(table)
+    out += [f"SUSPECT lab unit: {h}" for h in lab_unit_hints(lab, np.asarray(labs.raw))]
+    return out
+
+
+def preview_text(hmap, scans: ScanTable, path: Path, rows: int,
+                 envelope: dict[str, EnvelopeCheck] | None = None) -> str:
     """What ``import --preview`` prints: each signal's source, unit and range in the export's
-    unit and in SI, the values outside the physical ranges, then the first scans (SI)."""
+    unit and in SI, its physical range and the estimator's envelope with the share outside
+    it, the values outside the physical ranges, the signals the import would refuse (with
+    the likely right unit), then the first scans (SI)."""
     from softsensor.ingest.units import PHYSICAL_RANGE
     from softsensor.signals import SCAN_SIGNALS
+
+    envelope = envelope or {}
 
     zone = hmap.source.time_zone
     period, _ = scans.period_s()
@@ -98,7 +138,7 @@ def preview_text(hmap, scans: ScanTable, path: Path, rows: int) -> str:
            f"{_clock(int(scans.times_ns[0]), zone)} .. {_clock(int(scans.times_ns[-1]), zone)}"
            + ("" if math.isnan(period) else f", period {period:g} s")]
     head = ("signal", "from", "unit", "min", "max", "SI unit", "SI min", "SI max",
-            "physical range", "bad", "missing")
+            "physical range", "envelope", "outside", "bad", "missing")
     table = [head]
 
     def rng(v) -> tuple[str, str]:
@@ -110,14 +150,21 @@ def preview_text(hmap, scans: ScanTable, path: Path, rows: int) -> str:
         lo, hi = PHYSICAL_RANGE[name]
         if sm is None:
             table.append((name, "(not in the map)", "", "", "", si_unit, "", "",
-                          f"{lo:g}..{hi:g}", "", str(len(scans))))
+                          f"{lo:g}..{hi:g}", "", "", "", str(len(scans))))
             continue
         unit = sm.unit + ("" if sm.quantity == "humidity_ratio" else f" ({sm.quantity})")
+        env = envelope.get(name)
+        env_txt = "" if env is None else f"{env.limits.low:g}..{env.limits.high:g}"
+        out_txt = "" if env is None or not env.n_good else f"{env.share_outside:.0%}"
         table.append((name, sm.column or sm.tag or f"constant {sm.constant:g}", unit,
                       *rng(scans.raw[name]), si_unit, *rng(scans.values[name]),
-                      f"{lo:g}..{hi:g}", str(scans.bad[name]), str(scans.missing[name])))
+                      f"{lo:g}..{hi:g}", env_txt, out_txt, str(scans.bad[name]),
+                      str(scans.missing[name])))
     out += _aligned(table)
     out += [f"OUTSIDE: {p}" for p in scans.out_of_range]
+    out += [f"SUSPECT unit, the import refuses it: "
+            f"{envelope_problem(c, hmap.signals[c.name], str(path))}"
+            for c in envelope.values() if c.refused]
     names = list(SCAN_SIGNALS)
     out.append(f"first {min(rows, len(scans))} scans (SI units, time UTC):")
     first = [("time_utc", *names)]
@@ -141,13 +188,28 @@ def _import(args: argparse.Namespace) -> int:
         raise ConfigError("import: give --out DAY.mcap (or --preview to look first)")
     scans_path = Path(args.scans)
     scans = _read_scans(hmap, scans_path, strict=args.preview is None)
+    envelope = _envelope(args.config, scans, hmap)
     labs = _read_labs(hmap, Path(args.lab)) if args.lab else None
     if args.preview is not None:
-        print(preview_text(hmap, scans, scans_path, args.preview), flush=True)
+        text = preview_text(hmap, scans, scans_path, args.preview, envelope)
+        if labs is not None:
+            text += "\n" + "\n".join(_lab_preview(hmap, labs, Path(args.lab), args.preview))
+        print(text, flush=True)
         lab_txt = "" if labs is None else f", {len(labs.results)} lab results"
         print(f"import --preview: {len(scans)} scans{lab_txt} read; nothing written",
               file=sys.stderr)
         return 0
+    refused = [c for c in envelope.values() if c.refused]
+    if refused:
+        more = (f" [{len(refused) - 1} more signals outside the envelope: softsensor import "
+                f"--preview lists them]" if len(refused) > 1 else "")
+        raise IngestError(envelope_problem(refused[0], hmap.signals[refused[0].name],
+                                           str(scans_path)) + more)
+    if labs is not None:
+        from softsensor.ingest.envelope import lab_unit_hints
+
+        for hint in lab_unit_hints(hmap.lab, np.asarray(labs.raw)):
+            print(f"warning: {args.lab}: {hint}", file=sys.stderr)
     write_imported_day(args.out, scans, labs)
     zone = hmap.source.time_zone
     period, regular = scans.period_s()
@@ -178,6 +240,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lab", default=None, metavar="LIMS",
                    help="LIMS file, .csv or .parquet (needs the map's [lab] section)")
     p.add_argument("--out", default=None, metavar="DAY.mcap", help="MCAP file to write")
+    p.add_argument("--config", default=None, metavar="PLANT.toml",
+                   help="plant config whose [plausibility] limits (the estimator's operating "
+                        "envelope) each signal is held against (default: built-in dryer1)")
     p.add_argument("--preview", type=int, nargs="?", const=5, default=None, metavar="ROWS",
                    help="print each signal's source, unit and range and the first ROWS (5) "
                         "converted scans, and write nothing")

@@ -113,14 +113,18 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
                    help="estimator (default: the config's estimator.kind, ukf)")
     p.add_argument("--time-scale", type=float, default=None,
                    help="clock speed-up for accelerated demos (match plant-server --speed)")
-    p.add_argument("--clock-start", default=None,
-                   help="start of the scaled clock, ISO-8601 or ns (default now)")
+    p.add_argument("--clock-start", default=None, metavar="TIME|plc",
+                   help="start of the scaled clock, ISO-8601 or ns (default now); plc: the "
+                        "PLC's clock (the tag map's [clock] registers, which plant-server "
+                        "serves), so a demo's plant and daemon share one clock")
     p.add_argument("--no-record", action="store_true", help="do not record MCAP files")
     p.add_argument("--no-resume", action="store_true", help="ignore the checkpoint")
     p.add_argument("--resume", default="auto", choices=("auto", "required"),
                    help="auto (default): a checkpoint that fails its checks is moved aside "
                         "and the daemon starts afresh; required: stop with an error instead")
-    p.add_argument("--log-format", default=None, choices=LOG_FORMATS)
+    p.add_argument("--log-format", default=None, choices=LOG_FORMATS,
+                   help="kv: key=value lines (default); json: one JSON object a line "
+                        "(service.log_format)")
     p.set_defaults(func=_run)
 
 
@@ -185,7 +189,8 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
                         "estimator's state carried across them as the daemon does")
     p.add_argument("--params", default=None,
                    help="calibrated parameters (PARAMS.toml; default: the config's values)")
-    p.add_argument("--out", required=True, help="MCAP file to write (inputs, estimates, health)")
+    p.add_argument("--out", required=True, metavar="EST.mcap",
+                   help="MCAP file to write (inputs, estimates, health)")
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
     p.add_argument("--estimator", default=None, choices=ESTIMATOR_KINDS,
                    help="estimator (default: the config's estimator.kind, ukf)")

@@ -14,6 +14,7 @@ import asyncio
 import logging
 import signal
 import sys
+import time
 from pathlib import Path
 
 from softsensor.apps.loading import load_config_and_params
@@ -59,6 +60,28 @@ def simulate_plant(cfg: PlantConfig, args: argparse.Namespace) -> SimulatedDay:
                                     plant_seed=args.plant_seed)
 
 
+#: Wall seconds between the lines saying the plant is still being simulated.
+HEARTBEAT_S = 10.0
+
+
+async def _simulated(cfg: PlantConfig, args: argparse.Namespace, plant: str) -> SimulatedDay:
+    """The day to serve, simulated on a worker thread while a line every
+    :data:`HEARTBEAT_S` says so (it takes tens of seconds: commissioning the plant, compiling
+    its kernels, then the day; silence looked like a hang)."""
+    say = (lambda _text: None) if args.quiet else (
+        lambda text: print(f"plant-server: {text}", file=sys.stderr, flush=True))
+    say(f"simulating {args.hours:g} h of {plant}, seed {args.seed}"
+        f"{'' if args.effect is None else f', effect {args.effect}'}; serving starts when "
+        "it is done")
+    work = asyncio.ensure_future(asyncio.to_thread(simulate_plant, cfg, args))
+    t0 = time.monotonic()
+    while True:
+        done, _ = await asyncio.wait({work}, timeout=HEARTBEAT_S)
+        if done:
+            return work.result()
+        say(f"still simulating ({time.monotonic() - t0:.0f} s so far)")
+
+
 async def _serve(args: argparse.Namespace) -> int:
     from softsensor.ingest.tagmap import load_tagmap
     from softsensor.plant.plc_feed import PlantFeed
@@ -73,7 +96,13 @@ async def _serve(args: argparse.Namespace) -> int:
             and not Path(args.lab_dir).is_dir():
         raise ConfigError(f"--lab-dir {args.lab_dir}: exists and is not a folder")
     check_port(args.host, args.port)
-    day = simulate_plant(cfg, args)
+    plant = (f"plant independent (plant seed {args.plant_seed})"
+             if args.plant == "independent" else "plant model")
+    t0 = time.monotonic()
+    day = await _simulated(cfg, args, plant)
+    if not args.quiet:
+        print(f"plant-server: simulated {len(day.scans)} scans and {len(day.labs)} lab results "
+              f"in {time.monotonic() - t0:.1f} s", file=sys.stderr, flush=True)
     feed = PlantFeed(day, lab_dir=args.lab_dir, loop=not args.once)
     period = virtual_plant_settings(cfg).scan_period / args.speed
     stop = asyncio.Event()
@@ -81,10 +110,8 @@ async def _serve(args: argparse.Namespace) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     server = PlcServer(tagmap, feed.next_values, host=args.host, port=args.port,
-                       period_s=period)
+                       period_s=period, clock=lambda: feed.plant_time_ns)
     await server.start()
-    plant = (f"plant independent (plant seed {args.plant_seed})"
-             if args.plant == "independent" else "plant model")
     print(f"plant-server: serving {tagmap.source} on {args.host}:{server.port}, "
           f"one scan every {period:g} s ({args.speed:g}x real time), {plant}", flush=True)
     try:
@@ -130,7 +157,7 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
                    help="size of the effect (units and ranges: softsensor.plant.effects)")
     add_plant_options(p)
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
-    p.add_argument("--out", required=True, help="MCAP file to write")
+    p.add_argument("--out", required=True, metavar="DAY.mcap", help="MCAP file to write")
     p.set_defaults(func=_simulate)
 
 
@@ -144,12 +171,17 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
     add_plant_options(p)
     p.add_argument("--hours", type=float, default=48.0, help="length of the simulated day")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--effect", default=None, help=f"one of {', '.join(EFFECTS)}")
-    p.add_argument("--magnitude", type=float, default=None)
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of every random stream of the served day (default 0)")
+    p.add_argument("--effect", default=None, metavar="CAUSE",
+                   help=f"hide one effect in the day: {', '.join(EFFECTS)}")
+    p.add_argument("--magnitude", type=float, default=None,
+                   help="size of the effect (units and ranges: softsensor.plant.effects)")
     p.add_argument("--speed", type=float, default=1.0,
                    help="time acceleration: 1 = real time, 60 = one plant minute per second")
     p.add_argument("--lab-dir", default=None,
                    help="drop lab results as JSON files into this folder when they are due")
     p.add_argument("--once", action="store_true", help="stop at the end of the day")
+    p.add_argument("--quiet", action="store_true",
+                   help="no progress lines on stderr (the serving line on stdout stays)")
     p.set_defaults(func=_plant_server)

@@ -12,6 +12,11 @@ daemon's lab folder). Pure: pandas Series in, numpy arrays out, one
 * Values: numbers (with the map's decimal mark and thousands separator); empty cells are
   missing; the bad-quality strings (``Bad Value``, ``I/O Timeout``, ``Shutdown``, ...) are bad.
   Any other text is refused, so a wrong column is not read as nulls.
+* The shape of a European spreadsheet export (``;`` between fields, ``,`` as the decimal mark)
+  is recognised wherever it breaks the map's defaults: a header that is one column holding
+  ``;`` (:func:`delimiter_hint`), a number written ``209,85`` read with ``decimal = "."``;
+  the refusal names ``<table>.delimiter`` and ``<table>.decimal`` instead of pointing to the
+  bad-value strings or the rows to skip.
 
 ``echo=False`` (a file from an untrusted folder) keeps every message free of the file's
 content: it names the row and the column the map gave, never a cell or a header.
@@ -40,6 +45,23 @@ FUTURE_SLACK_NS = 86_400 * 10**9
 
 _OFFSET = re.compile(r"(?:Z|[+-]\d\d:?\d\d)$", re.IGNORECASE)
 _NUMERIC = re.compile(r"^[+-]?\d+(?:\.\d*)?(?:[eE][+-]?\d+)?$")
+#: A number with a decimal comma, thousands grouped by '.' or not ("209,85", "1.811,92").
+_DECIMAL_COMMA = re.compile(r"^[+-]?(?:\d{1,3}(?:\.\d{3})+|\d+),\d+$")
+#: Field separators of spreadsheet exports other than the comma.
+_OTHER_DELIMITERS: tuple[str, ...] = (";", "\t", "|")
+
+
+def delimiter_hint(columns: Any, table: str) -> str:
+    """A hint (with a leading space) when the header read is one column holding another
+    field separator: the ``<table>.delimiter`` (and ``.decimal``) to set; else ``""``."""
+    names = [str(c) for c in columns]
+    if len(names) != 1:
+        return ""
+    for d in _OTHER_DELIMITERS:
+        if d in names[0]:
+            return (f" (the header is one column holding {d!r}: set {table}.delimiter = "
+                    f"{d!r}, and {table}.decimal = ',' if its numbers are written 209,85)")
+    return ""
 
 
 @dataclass(frozen=True)
@@ -75,7 +97,8 @@ def column(frame: pd.DataFrame, name: str, key: str, where: str, echo: bool = Tr
         if echo:
             cols = " (columns: " + ", ".join(map(str, frame.columns[:12])) + (
                 ", ...)" if frame.shape[1] > 12 else ")")
-        raise IngestError(f"{where}: column {name!r} of {key} is not in the file{cols}")
+        hint = delimiter_hint(frame.columns, key.split(".")[0])
+        raise IngestError(f"{where}: column {name!r} of {key} is not in the file{cols}{hint}")
     return frame[name]
 
 
@@ -201,9 +224,10 @@ def timestamps_ns(series: pd.Series, spec: TimeSpec, where: str) -> np.ndarray:
 
 
 def numbers(series: pd.Series, name: str, bad_strings: frozenset[str], decimal: str,
-            where: str, bad_key: str, *, thousands: str | None = None, echo: bool = True
-            ) -> tuple[np.ndarray, np.ndarray]:
-    """Numbers of a value column and a mask of its bad cells (NaN where missing or bad)."""
+            where: str, bad_key: str, *, thousands: str | None = None, echo: bool = True,
+            table: str = "source") -> tuple[np.ndarray, np.ndarray]:
+    """Numbers of a value column and a mask of its bad cells (NaN where missing or bad);
+    ``table``: the map's table of the CSV settings, for the decimal-comma hint."""
     if pd.api.types.is_numeric_dtype(series.dtype) and not pd.api.types.is_bool_dtype(series):
         vals = series.to_numpy(dtype=float)
         bad = np.isinf(vals)
@@ -218,6 +242,13 @@ def numbers(series: pd.Series, name: str, bad_strings: frozenset[str], decimal: 
     bad = np.zeros(len(text), dtype=bool)
     for i in np.flatnonzero(nonnum):
         cell = text.iloc[i]
+        if decimal != "," and _DECIMAL_COMMA.match(cell):
+            grouped = "." in cell
+            raise IngestError(
+                f"{where} row {i + 1}: {name} value{shown(cell, echo)} is written with a "
+                f"decimal comma: set {table}.decimal = ','"
+                + (f" and {table}.thousands = '.'" if grouped else "")
+                + f" (a ';'-separated export also needs {table}.delimiter = ';')")
         if cell.lower() not in bad_strings:
             raise IngestError(f"{where} row {i + 1}: {name} value{shown(cell, echo)} is neither "
                               f"a number nor a known bad-quality string (add it to {bad_key})")

@@ -150,7 +150,7 @@ def _hint_units_row(exc: IngestError, hmap: HistorianMap) -> IngestError:
     """A failure on the first row of an export without ``skip_rows``: most often the units
     row PI and IP.21 write under the header."""
     text = str(exc)
-    if hmap.source.skip_rows == 0 and " row 1:" in text:
+    if hmap.source.skip_rows == 0 and " row 1:" in text and "decimal comma" not in text:
         return IngestError(f"{text} (a units row under the header? set source.skip_rows = 1)")
     return exc
 

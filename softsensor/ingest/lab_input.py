@@ -66,6 +66,7 @@ import pandas as pd
 
 from softsensor.errors import IngestError, one_line
 from softsensor.files import atomic_path
+from softsensor.ingest.cells import delimiter_hint
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
 from softsensor.ingest.lims import convert_labs
 from softsensor.messages import (
@@ -109,9 +110,10 @@ def _zone_name(zone: tzinfo | str | None) -> str:
     return zone if isinstance(zone, str) else getattr(zone, "key", None) or str(zone)
 
 
-def _csv_frame(text: str, where: str) -> pd.DataFrame:
-    """A CSV lab file as text cells; blank lines skipped."""
-    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")))
+def _csv_frame(text: str, where: str, delimiter: str = ",") -> pd.DataFrame:
+    """A CSV lab file as text cells (fields split at the ``[lab]`` table's ``delimiter``);
+    blank lines skipped."""
+    reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), delimiter=delimiter)
     rows: list[list[str]] = []
     try:
         for row in reader:
@@ -121,7 +123,8 @@ def _csv_frame(text: str, where: str) -> pd.DataFrame:
                                       "have")
                 if rows and len(row) != len(rows[0]):
                     raise IngestError(f"{where} line {reader.line_num}: {len(row)} fields, "
-                                      f"the header has {len(rows[0])}")
+                                      f"the header has {len(rows[0])}"
+                                      f"{delimiter_hint(rows[0], 'lab')}")
                 rows.append(row)
     except csv.Error as exc:
         raise IngestError(f"{where} line {reader.line_num}: not CSV") from exc
@@ -174,7 +177,8 @@ def parse_lab_text(text: str, suffix: str, *, log_time_ns: int | None = None,
     """The results of a lab file's text (``.csv`` or ``.json``), laid out by ``lab_map``,
     logged at ``log_time_ns`` (default now); :class:`IngestError` naming the row (and no
     content) if any entry is unusable."""
-    frame = _csv_frame(text, where) if suffix == ".csv" else _json_frame(text, where)
+    frame = (_csv_frame(text, where, lab_map.delimiter) if suffix == ".csv"
+             else _json_frame(text, where))
     cols = set(frame.columns)
     if lab_map is DEFAULT_LAB_MAP and "sample_time" not in cols and "sample_time_ns" in cols:
         frame = frame.rename(columns={"sample_time_ns": "sample_time"})
@@ -439,13 +443,18 @@ class LabFolderWatcher:
     rate_per_s : float, optional
         Lab results per wall second the estimator takes (:func:`folder_rate`); files beyond
         it wait. None: no limit.
+    on_reject : callable, optional
+        Called with the first reason line of every file rejected (the daemon counts it and
+        says it in health: a LIMS whose every file is refused must not look like a quiet lab).
     """
 
     def __init__(self, folder: str | os.PathLike[str], lab_input: LabInput, *,
                  poll_s: float = 2.0, settle_s: float = 1.0,
                  zone: tzinfo | str | None = None, lab_map: LabMap = DEFAULT_LAB_MAP,
-                 rate_per_s: float | None = None, watch_s: float = 600.0) -> None:
+                 rate_per_s: float | None = None, watch_s: float = 600.0,
+                 on_reject: Callable[[str], None] | None = None) -> None:
         self.folder = Path(folder)
+        self.on_reject = on_reject
         self.zone = zone  # the clock of ISO times without an offset (the plant's)
         self.lab_map = lab_map
         self.budget = _Budget(rate_per_s)
@@ -531,6 +540,11 @@ class LabFolderWatcher:
         report.reasons.extend(reasons)
         for r in reasons:
             log.warning("lab file rejected: %s", r)
+        if self.on_reject is not None:
+            try:
+                self.on_reject(reasons[0])
+            except Exception:  # noqa: BLE001 - the file is handled; the news must not undo it
+                log.exception("telling a rejected lab file failed")
 
     def _handle(self, path: Path, report: PollReport) -> bool:
         """Take one settled file whole or not at all; False when it waits for the rate."""

@@ -17,7 +17,7 @@ the whole file and quotes nothing of it (anyone may drop a file there, a link to
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -43,6 +43,9 @@ class LabTable:
     results: list[LabResult]
     rows_read: int
     bad: int  #: rows whose moisture was empty or a bad-quality string
+    #: each result's moisture as the file wrote it (in the map's unit and basis), in the
+    #: order of ``results``: what ``import --preview`` shows beside the converted value
+    raw: list[float] = field(default_factory=list)
 
 
 def _moisture_problem(raw: float, dry: float, lab: LabMap, where_key: str, echo: bool
@@ -71,7 +74,13 @@ def _time_problem(sample: int, avail: int, lab: LabMap, where_key: str, arrived:
     problem = sample_time_problem(sample, avail)
     if problem is None:
         return None
-    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS else "time_zone" if arrived
+    if arrived and sample >= EARLIEST_SAMPLE_NS:
+        # the arrival is the daemon's clock: name it first (a demo's daemon started after
+        # plant-server ran behind the plant's clock; the time zone was a red herring)
+        return (f"{lab.sample_time_column} {problem} (at {iso_utc(avail)} by the daemon's "
+                f"clock: is that clock the plant's? against plant-server start the daemon with "
+                f"--clock-start plc; else is {where_key}.time_zone right?)")
+    key = ("time_unit" if sample < EARLIEST_SAMPLE_NS
            else "available_column" if lab.available_column is not None else "delay_min")
     return f"{lab.sample_time_column} {problem} (is {where_key}.{key} right?)"
 
@@ -108,12 +117,12 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
     raw, bad = numbers(column(frame, lab.moisture_column, f"{where_key}.moisture_column",
                               where, echo),
                        lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export",
-                       thousands=lab.thousands, echo=echo)
+                       thousands=lab.thousands, echo=echo, table=where_key)
     dry = moisture_dry_basis(raw, lab.unit, lab.basis)
     ids = (text_cells(column(frame, lab.sample_id_column, f"{where_key}.sample_id_column",
                              where, echo))
            if lab.sample_id_column else None)
-    results: list[LabResult] = []
+    results: list[tuple[LabResult, float]] = []
     n_bad = int(np.isnan(raw).sum())  # empty or bad-quality cells: no result, skipped
     for i in range(len(frame)):
         if np.isnan(raw[i]):
@@ -128,14 +137,16 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
         if ids is not None and not sid:
             raise IngestError(f"{at}: {lab.sample_id_column} is empty")
         try:
-            results.append(make_lab_result(int(sample[i]), float(dry[i]), sid,
-                                           log_time_ns=int(avail[i]), where=at))
+            results.append((make_lab_result(int(sample[i]), float(dry[i]), sid,
+                                            log_time_ns=int(avail[i]), where=at),
+                            float(raw[i])))
         except IngestError as exc:
             if echo:
                 raise
             raise IngestError(f"{at}: not a usable lab result") from exc
-    results.sort(key=lambda r: (r.log_time_ns, r.sample_time_ns))
-    return LabTable(results=results, rows_read=len(frame), bad=n_bad)
+    results.sort(key=lambda r: (r[0].log_time_ns, r[0].sample_time_ns))
+    return LabTable(results=[r for r, _ in results], rows_read=len(frame), bad=n_bad,
+                    raw=[v for _, v in results])
 
 
 __all__ = ["LabTable", "convert_labs"]

@@ -201,6 +201,33 @@ class ModbusPoller:
             raise _ReadFailed(f"read_failed: asked {req.count} registers, got {len(regs)}")
         return regs
 
+    async def read_clock(self, timeout_s: float) -> int:
+        """The PLC's clock (the tag map's ``[clock]`` registers) [ns since the epoch]; tried
+        until ``timeout_s`` [wall s] has passed (a PLC still starting), then
+        :class:`IngestError` saying why. Read through :meth:`_read`, like every value."""
+        c = self.tagmap.clock
+        if c is None:
+            raise IngestError(f"{self.tagmap.source}: has no [clock] table, so the PLC's "
+                              "clock cannot be read (service.clock_start = \"plc\")")
+        req = ReadRequest(c.unit_id, c.table, c.address, c.count, ())
+        deadline = time.monotonic() + timeout_s
+        why = "no attempt"
+        while True:
+            if await self._ensure_connected(time.monotonic()):
+                try:
+                    hi, lo = await self._read(req)
+                    return (hi << 16 | lo) * 10**9
+                except _ReadFailed as f:
+                    why = f.reason
+            else:
+                why = self._disconnected
+            if time.monotonic() >= deadline:
+                raise IngestError(f"the PLC's clock ({c.table} registers {c.address}-"
+                                  f"{c.address + 1} of unit {c.unit_id}) not read within "
+                                  f"{timeout_s:g} s: {why}")
+            self._next_connect = -math.inf
+            await asyncio.sleep(1.0)
+
     async def _read_all(self) -> tuple[dict[str, list[int]], dict[str, str]]:
         """Registers per signal, and reasons for the signals that could not be read."""
         words: dict[str, list[int]] = {}

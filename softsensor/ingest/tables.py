@@ -13,11 +13,13 @@ footer gives its rows, columns and uncompressed size (a 170 kB file can hold 3 m
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import pandas as pd
 
 from softsensor.errors import IngestError, require_packages
+from softsensor.ingest.cells import delimiter_hint
 
 CSV_SUFFIXES: tuple[str, ...] = (".csv", ".txt", ".tsv")
 #: Most rows read from a table unless the caller allows more (a map's ``source.max_rows``).
@@ -79,10 +81,11 @@ def _parquet_bounds(p: Path, max_rows: int) -> None:
 
 
 def read_table(path: str | Path, *, delimiter: str = ",", skip_rows: int = 0,
-               max_rows: int = MAX_ROWS) -> pd.DataFrame:
+               max_rows: int = MAX_ROWS, table: str = "source") -> pd.DataFrame:
     """A CSV (cells as text) or Parquet file as a DataFrame with a 0-based row index, its
     first ``skip_rows`` rows under the header left out (a units row), at most ``max_rows``
-    rows (more: IngestError before the data is read)."""
+    rows (more: IngestError before the data is read). ``table``: the map's table of these
+    settings, named in the hint for a wrong delimiter."""
     p = Path(path)
     kind = table_kind(p)
     if not p.is_file():
@@ -98,7 +101,12 @@ def read_table(path: str | Path, *, delimiter: str = ",", skip_rows: int = 0,
             frame = pd.read_parquet(p).iloc[skip_rows:]
     except (ValueError, OSError, UnicodeDecodeError, pd.errors.ParserError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise IngestError(f"{p}: cannot read as {kind}: {first}") from exc
+        hint = ""
+        if kind == "csv" and isinstance(exc, pd.errors.ParserError):
+            with contextlib.suppress(OSError, UnicodeDecodeError):
+                with p.open(encoding="utf-8-sig") as f:
+                    hint = delimiter_hint([f.readline().rstrip("\r\n")], table)
+        raise IngestError(f"{p}: cannot read as {kind}: {first}{hint}") from exc
     if len(frame) > max_rows:  # the file grew since it was measured
         raise IngestError(f"{p}: more than {max_rows} rows")
     frame.columns = [str(c).strip() for c in frame.columns]

@@ -40,7 +40,7 @@ import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from softsensor.configfile import build_section, choice, num, read_toml
 from softsensor.errors import ConfigError
@@ -137,12 +137,26 @@ class TagSpec:
 
 
 @dataclass(frozen=True)
+class ClockSpec:
+    """Section ``[clock]`` (optional): where the PLC serves its clock, two registers holding
+    uint32 seconds since the Unix epoch (UTC), high word first. The virtual PLC serves its
+    plant's clock there; ``softsensor run --clock-start plc`` starts the daemon's clock from
+    it, so an accelerated demo has one clock, not two."""
+
+    unit_id: int = num(ge=0, le=255)  #: Modbus unit id
+    table: str = choice(TABLES)  #: ``holding`` or ``input``
+    address: int = num(ge=0, le=65534)  #: first of the two registers, 0-based PDU address
+    count: ClassVar[int] = 2
+
+
+@dataclass(frozen=True)
 class TagMap:
     """A validated tag map: settings plus tags sorted by (unit id, table, address)."""
 
     modbus: ModbusSettings
     tags: tuple[TagSpec, ...]
     source: str = "<tagmap>"
+    clock: ClockSpec | None = None  #: where the PLC serves its clock, if it does
 
     @property
     def signals(self) -> tuple[str, ...]:
@@ -205,8 +219,9 @@ def parse_tagmap(data: Mapping[str, Any], source: str = "<tagmap>") -> TagMap:
     ``source`` (usually the file name) starts every error message.
     """
     for key in data:
-        if key not in ("modbus", "tags"):
-            raise ConfigError(f"{source}: {key} is not a known section (known: modbus, tags)")
+        if key not in ("modbus", "tags", "clock"):
+            raise ConfigError(f"{source}: {key} is not a known section (known: modbus, tags, "
+                              f"clock)")
     for key in ("modbus", "tags"):
         if key not in data:
             raise ConfigError(f"{source}: {key} is missing")
@@ -221,7 +236,15 @@ def parse_tagmap(data: Mapping[str, Any], source: str = "<tagmap>") -> TagMap:
             raise ConfigError(
                 f"{source}: tags.{b.signal}.address {b.address} overlaps tags.{a.signal} "
                 f"(unit {a.unit_id} {a.table} registers {a.address}..{a.address + a.count - 1})")
-    return TagMap(modbus=settings, tags=tuple(tags), source=source)
+    clock = None
+    if "clock" in data:
+        clock = build_section(ClockSpec, data["clock"], "clock", source)
+        for t in tags:
+            if (t.unit_id, t.table) == (clock.unit_id, clock.table) \
+                    and clock.address < t.address + t.count and t.address < clock.address + 2:
+                raise ConfigError(f"{source}: clock.address {clock.address} overlaps "
+                                  f"tags.{t.signal}")
+    return TagMap(modbus=settings, tags=tuple(tags), source=source, clock=clock)
 
 
 def load_tagmap(path: str | Path = DEFAULT_TAGMAP) -> TagMap:

@@ -6,14 +6,21 @@ the numbers are the ones the daemon's status line prints. A registry of its own 
 process-global one) keeps tests and several daemons in one process apart. Served by
 ``prometheus_client``'s own HTTP server on loopback unless configured.
 
-Every sample carries the labels ``unit`` (the dryer, ``dryer1``) and ``site`` (the table's
-``site``), so one Prometheus scrapes several dryers and sites and a dashboard chooses among
-them (``docs/grafana/softsensor.json``). Metric names follow Prometheus' conventions: base
-units in the name, ``_total`` for counters, ``_seconds`` for durations, ``_celsius`` for
-temperatures. Moisture is given twice: in kg/kg on a dry basis (SI, like every interface the
-program offers to other programs) and in % on a wet basis (what a plant's lab and operators
-read), with the 95 % band and the ``[display]`` target and acceptable band, so a dashboard
-plots them without arithmetic.
+Every sample carries the labels ``dryer`` (the unit name, ``dryer1``) and ``site`` (the
+table's ``site``), so one Prometheus scrapes several dryers and sites and a dashboard chooses
+among them (``docs/grafana/softsensor.json``); and, with the same value as ``dryer``, the
+label ``unit`` it was called before (deprecated: in metrics "unit" means a unit of measure,
+so queries written with it keep working while they move to ``dryer``). Metric names follow
+Prometheus' conventions: base units in the name, ``_total`` for counters, ``_seconds`` for
+durations, ``_timestamp_seconds`` for times, ``_ratio`` for a dimensionless ratio (kg of water
+per kg of dry fibre), ``_celsius`` for temperatures. The two renamed (``_kg_per_kg`` to
+``_ratio``, ``softsensor_window_end_seconds`` to ``softsensor_window_end_timestamp_seconds``)
+are also served under their old names, marked deprecated in their help, for the dashboards and
+alerts that use them. Moisture is given twice: as a dry-basis ratio (SI, like every interface
+the program offers to other programs) and in % on a wet basis (what a plant's lab and
+operators read), with the 95 % band (its low end clipped at bone dry,
+:func:`~softsensor.display.moisture_band`) and the ``[display]`` target and acceptable band,
+so a dashboard plots them without arithmetic.
 """
 
 from __future__ import annotations
@@ -25,14 +32,14 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_server
 from prometheus_client.core import CounterMetricFamily
 
-from softsensor.display import DisplaySettings, moisture_pct
+from softsensor.display import DisplaySettings, moisture_band, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.settings import MetricsSettings
 
 HEALTH_STATES: tuple[str, ...] = ("ok", "degraded", "stale")
 _ESTIMATES = ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std")
-#: The labels of every metric.
-LABELS: tuple[str, ...] = ("unit", "site")
+#: The labels of every metric (``unit``: deprecated, the same value as ``dryer``).
+LABELS: tuple[str, ...] = ("dryer", "site", "unit")
 #: Outlet temperatures: (channel, source) -> key of the estimate body.
 _TEMPERATURES = {(c, s): f"{c}_{s}" for c in ("T_dryer_out", "T_cyclone_out")
                  for s in ("measured", "model")}
@@ -43,7 +50,7 @@ class _Counters:
     exposed as counters, not gauges)."""
 
     def __init__(self, counters: Mapping[str, tuple[str, Callable[[], float]]],
-                 labels: tuple[str, str]) -> None:
+                 labels: tuple[str, ...]) -> None:
         self.counters, self.labels = dict(counters), labels
 
     def collect(self):
@@ -72,14 +79,18 @@ class DaemonMetrics:
         self.settings = settings
         self.display = display or DisplaySettings()
         self.registry = CollectorRegistry()
-        self.labels = {"unit": unit, "site": settings.site}
+        self.labels = {"dryer": unit, "site": settings.site, "unit": unit}
         r, lab = self.registry, list(LABELS)
 
         def gauge(name: str, doc: str, extra: tuple[str, ...] = ()) -> Gauge:
             return Gauge(name, doc, [*lab, *extra], registry=r)
 
-        self.estimate = {k: gauge(f"softsensor_{k}_kg_per_kg",
-                                  f"latest {k} estimate [kg/kg dry basis]") for k in _ESTIMATES}
+        self.estimate = {k: gauge(f"softsensor_{k}_ratio",
+                                  f"latest {k} estimate [kg water / kg dry fibre]")
+                         for k in _ESTIMATES}
+        self.deprecated = {k: gauge(f"softsensor_{k}_kg_per_kg",
+                                    f"deprecated: use softsensor_{k}_ratio (the same value)")
+                           for k in _ESTIMATES}
         self.wet = {k: gauge(f"softsensor_{k}_wet_basis_percent",
                              f"latest {k} estimate [% wet basis]")
                     for k in ("moisture_out", "moisture_in")}
@@ -91,15 +102,17 @@ class DaemonMetrics:
         self.temperature = gauge("softsensor_outlet_temperature_celsius",
                                  "outlet temperature, window mean of the measurement or the "
                                  "model's [°C]", ("channel", "source"))
-        self.window_end = gauge("softsensor_window_end_seconds",
+        self.window_end = gauge("softsensor_window_end_timestamp_seconds",
                                 "end of the latest estimated window [s since the epoch]")
+        self.window_end_old = gauge("softsensor_window_end_seconds",
+                                    "deprecated: use softsensor_window_end_timestamp_seconds")
         self.health = gauge("softsensor_health", "1 for the current health status",
                             ("status",))
         self.tick = Histogram("softsensor_tick_duration_seconds",
                               "wall time the estimator took for one tick [s]", lab,
                               buckets=(0.01, 0.05, 0.1, 0.5, 1, 5, 30, 60, 300, 600, 1200),
                               registry=r)
-        for g in (*self.estimate.values(), *self.wet.values()):
+        for g in (*self.estimate.values(), *self.deprecated.values(), *self.wet.values()):
             g.labels(**self.labels).set(math.nan)
         for bound in ("low", "high"):
             self.band.labels(**self.labels, bound=bound).set(math.nan)
@@ -110,7 +123,7 @@ class DaemonMetrics:
         for channel, source in _TEMPERATURES:
             self.temperature.labels(**self.labels, channel=channel, source=source).set(math.nan)
         self.set_health("stale")
-        r.register(_Counters(counters or {}, (unit, settings.site)))
+        r.register(_Counters(counters or {}, (unit, settings.site, unit)))
         self._server: Any = None
         self.port = settings.port
 
@@ -130,15 +143,18 @@ class DaemonMetrics:
         lab = self.labels
         for k, g in self.estimate.items():
             g.labels(**lab).set(_num(body.get(k)))
+            self.deprecated[k].labels(**lab).set(_num(body.get(k)))
         for k, g in self.wet.items():
             g.labels(**lab).set(float(moisture_pct(_num(body.get(k)))))
-        x, sd = _num(body.get("moisture_out")), _num(body.get("moisture_out_std"))
-        self.band.labels(**lab, bound="low").set(float(moisture_pct(x - 1.96 * sd)))
-        self.band.labels(**lab, bound="high").set(float(moisture_pct(x + 1.96 * sd)))
+        low, high = moisture_band(_num(body.get("moisture_out")),
+                                  _num(body.get("moisture_out_std")))
+        self.band.labels(**lab, bound="low").set(float(moisture_pct(low)))
+        self.band.labels(**lab, bound="high").set(float(moisture_pct(high)))
         for (channel, source), key in _TEMPERATURES.items():
             self.temperature.labels(**lab, channel=channel, source=source).set(
                 _num(body.get(key)) - 273.15)
         self.window_end.labels(**lab).set(time_ns / 1e9)
+        self.window_end_old.labels(**lab).set(time_ns / 1e9)
         self.set_health(str(body.get("status")))
         if duration_s is not None:
             self.tick.labels(**lab).observe(duration_s)

@@ -23,6 +23,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import socket
 import struct
 from collections.abc import Mapping
 from typing import Any
@@ -103,6 +104,21 @@ def only_input_registers(pdu: ModbusPDU) -> ModbusPDU:
                              transaction=pdu.transaction_id)
 
 
+def _bind_problem(host: str, port: int, exc: BaseException) -> str:
+    """Why ``host:port`` cannot be listened on, as the system says it ("Address already in
+    use"): tried with a plain socket, since pymodbus hides the reason."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    try:
+        for family, kind, proto, _name, address in socket.getaddrinfo(
+                host, port, type=socket.SOCK_STREAM):
+            with socket.socket(family, kind, proto) as probe:
+                probe.bind(address)
+    except OSError as err:
+        return err.strerror or str(err)
+    return str(exc)
+
+
 class EstimateModbusServer:
     """The register server (module docstring); :meth:`publish` may be called from any
     thread once :meth:`start` has run in the daemon's event loop."""
@@ -145,9 +161,12 @@ class EstimateModbusServer:
                                  trace_pdu=self._trace)
         try:
             await server.serve_forever(background=True)
-        except OSError as exc:
+        except (OSError, RuntimeError) as exc:
+            # pymodbus says only "Could not start listen" (a RuntimeError) for a busy port
+            with contextlib.suppress(Exception):
+                await server.shutdown()
             raise ConfigError(f"outputs.modbus: cannot listen on {s.host}:{s.port}: "
-                              f"{exc.strerror or exc}") from exc
+                              f"{_bind_problem(s.host, s.port, exc)}") from exc
         self._server, self._loop = server, asyncio.get_running_loop()
         sockets = getattr(server.transport, "sockets", None)
         if sockets:

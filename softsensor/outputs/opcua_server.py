@@ -40,6 +40,23 @@ from softsensor.outputs.settings import OpcUaSettings
 
 log = logging.getLogger(__name__)
 
+
+class _StartNoise(logging.Filter):
+    """Drops what asyncua says at WARNING while this server starts and that no operator can
+    act on (about 40 lines, which buried the daemon's first line): an ``AnalogItemType``'s
+    optional attributes it does not copy, and that a NoSecurity endpoint has no signing or
+    encryption (said once, in the server's own start line, with what to do about it)."""
+
+    NOISE = ("Instantiate: while copying attributes", "No signing policy available",
+             "No encrypting policy available")
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith(self.NOISE)
+
+
+for _name in ("asyncua.common.copy_node_util", "asyncua.server.server"):
+    logging.getLogger(_name).addFilter(_StartNoise())
+
 NAMESPACE = "urn:softsensor"
 _UNECE = "http://www.opcfoundation.org/UA/units/un/cefact"
 #: name -> (variant type, unit shown, UNECE common code or None, EURange or None, description)
@@ -191,7 +208,8 @@ class EstimateOpcUaServer:
                               f"{self.settings.port}: "
                               f"{getattr(exc, 'strerror', None) or exc}") from exc
         self._server, self._loop = server, asyncio.get_running_loop()
-        log.info("estimate served on %s", self.endpoint)
+        log.info("estimate served on %s (anonymous, no encryption: keep it on loopback or "
+                 "behind the site's OPC UA gateway)", self.endpoint)
 
     async def _write(self, values: Mapping[str, Any], status: str,
                      when: datetime | None) -> None:

@@ -7,7 +7,8 @@ plant networks are closed), drawn on the server as inline SVG and reloaded by th
 * the health in plain words (:func:`softsensor.verdicts.health_words`), the technical detail
   beside it in small type;
 * the outlet and inlet moisture now, with their 95 % band, the target and acceptable band of
-  the ``[display]`` table, the last lab result, and the age of each value;
+  the ``[display]`` table, the last lab result, and the age of each value; the last lab
+  result or lab file refused, with why and when (the health's ``last_lab_refusal``);
 * trends of the outlet moisture (95 % band, lab results at their sample times, the target line
   and the acceptable band), the outlet temperatures measured beside the model's, and the inlet
   moisture; the time axis spans the data, or the range chosen with ``?range=2h|8h|48h`` (links
@@ -49,6 +50,7 @@ import numpy as np
 from softsensor.display import (
     DisplaySettings,
     local_clock,
+    moisture_band,
     moisture_pct,
     moisture_pct_points,
 )
@@ -285,6 +287,22 @@ def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> 
             f"<p id='last-lab'>Last lab result: {lab}</p>")
 
 
+def _refusal_block(health: Mapping[str, Any], display: DisplaySettings, now_ns: int) -> str:
+    """The last lab result or file refused, why and when: a LIMS setting that is wrong must
+    show where the operator looks, not only in the log and ``rejected/``."""
+    reason = health.get("last_lab_refusal")
+    if not reason:
+        return ""
+    at = health.get("last_lab_refusal_ns")
+    when = ("" if not isinstance(at, int) else
+            f", {html.escape(local_clock(at, display))} <span class='age'>"
+            f"{age(now_ns, at)}</span>")
+    n = health.get("labs_refused")
+    count = f" ({int(n)} refused so far)" if isinstance(n, int) else ""
+    return (f"<p id='last-lab-refusal' class='refusal'>Last lab refusal{when}{count}: "
+            f"{html.escape(str(reason))}</p>")
+
+
 def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -> str:
     basis, unit = display.moisture_basis, display.moisture_unit
     t = np.array([x for x, _b in est], dtype=np.int64)
@@ -299,9 +317,11 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
     outlet = Chart("outlet", unit, t0, t1, target=float(moisture_pct(display.moisture_target,
                                                                      basis)),
                    limits=(float(moisture_pct(display.moisture_low, basis)),
-                           float(moisture_pct(display.moisture_high, basis))))
+                           float(moisture_pct(display.moisture_high, basis))), floor=0.0)
+    mo_low, mo_high = moisture_band(mo, mo_sd)  # clipped at bone dry, not below 0 %
+    mi_low, mi_high = moisture_band(mi, mi_sd)
     outlet.series += [
-        Series("band", t, pct(mo - 1.96 * mo_sd), BAND, "band", pct(mo + 1.96 * mo_sd)),
+        Series("band", t, pct(mo_low), BAND, "band", pct(mo_high)),
         Series("moisture_out", t, pct(mo), LINE),
         Series("lab", t_lab, pct(v_lab), LAB, "points")]
     temps = Chart("temperatures", "°C", t0, t1)
@@ -311,9 +331,9 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
                    dashed=dashed, width=2.0),
             Series(f"{name}_model", t, _series(est, f"{name}_model") - 273.15, MODEL,
                    dashed=dashed, width=2.0)]
-    inlet = Chart("inlet", unit, t0, t1)
+    inlet = Chart("inlet", unit, t0, t1, floor=0.0)
     inlet.series += [
-        Series("band", t, pct(mi - 1.96 * mi_sd), BAND, "band", pct(mi + 1.96 * mi_sd)),
+        Series("band", t, pct(mi_low), BAND, "band", pct(mi_high)),
         Series("moisture_in", t, pct(mi), INLET)]
     return ("<h2>Outlet moisture</h2>" + svg(outlet, display)
             + legend([("estimate", LINE), ("95 % band", BAND), ("lab result at its sample "
@@ -349,7 +369,7 @@ def render_page(est: list, labs: list, health: Mapping[str, Any], diagnosis: str
         ".health{display:inline-block;padding:.2em .6em;color:white;border-radius:4px}"
         ".detail,.age{color:#777;font-size:.85em} h2{font-size:1.1em;margin:.8em 0 .2em}"
         ".range{margin-right:.8em} .chosen{font-weight:bold;text-decoration:none;color:#222}"
-        ".legend{font-size:.85em;margin:0 0 .5em}"
+        ".legend{font-size:.85em;margin:0 0 .5em} .refusal{color:#b35806}"
         "</style></head><body>"
         f"<h1>softsensor {html.escape(unit)}: fibre moisture</h1>"
         f"<p id='health'><span class='health' style='background:{colour}'>"
@@ -357,6 +377,7 @@ def render_page(est: list, labs: list, health: Mapping[str, Any], diagnosis: str
         f"{html.escape(health_words(health))}</span><br><span class='detail'>Detail: "
         f"{html.escape(str(health.get('detail', '')))}</span></p>"
         + _now_block(est, labs, display, now_ns)
+        + _refusal_block(health, display, now_ns)
         + f"<p id='ranges'>Show: {links}</p>"
         + _charts(est, labs, display, t0, t1)
         + diag

@@ -77,6 +77,8 @@ class Chart:
     series: list[Series] = field(default_factory=list)
     target: float | None = None
     limits: tuple[float, float] | None = None
+    #: the physical floor of the values (0 % moisture): the axis' padding stops there
+    floor: float | None = None
 
 
 #: Colour of the acceptable band and of the target line.
@@ -121,7 +123,8 @@ def _value_range(c: Chart) -> tuple[float, float]:
         return 0.0, 1.0
     lo, hi = float(values.min()), float(values.max())
     pad = max(0.05 * (hi - lo), 1e-6)
-    return lo - pad, hi + pad
+    low = lo - pad if c.floor is None or lo < c.floor else max(lo - pad, c.floor)
+    return low, hi + pad
 
 
 def _tick_label(t: int, display: DisplaySettings) -> str:

@@ -12,6 +12,12 @@ Like a real PLC's process image it is read-only from the network: every write re
 counted in :attr:`PlcServer.write_requests`, observed through pymodbus' ``trace_pdu`` hook,
 which sees every request PDU the server decodes. Tests use it to prove the poller never writes.
 
+With a ``clock`` (the plant's time of the values served) and a ``[clock]`` table in the tag
+map, the two registers there hold that time as uint32 seconds since the epoch, high word
+first, updated with the values: a daemon started with ``--clock-start plc`` starts its clock
+there, so the lab files the virtual plant drops (stamped on the plant's clock) and the scans the
+daemon stamps agree (two clocks made every lab of a demo arrive "before it was sampled").
+
 Fault injection for tests: :meth:`PlcServer.set_raw` stores raw words (NaN, frozen values),
 :meth:`PlcServer.inject_fault` makes reads that touch a signal's registers answer exception 4
 (device failure). ``stop()`` closes the listener and all connections; ``start()`` again binds
@@ -63,12 +69,17 @@ class PlcServer:
         Address to bind; ``port=0`` lets the OS choose (see :attr:`port` after ``start``).
     period_s
         Update period [s]; default the tag map's poll period.
+    clock
+        The plant's time of the values served [ns since the epoch], served at the tag map's
+        ``[clock]`` registers (module docstring); None: no clock.
     """
 
     def __init__(self, tagmap: TagMap, next_values: ValueSource, *, host: str = "127.0.0.1",
-                 port: int = 0, period_s: float | None = None):
+                 port: int = 0, period_s: float | None = None,
+                 clock: Callable[[], int] | None = None):
         self.tagmap = tagmap
         self.next_values = next_values
+        self.clock = clock
         self.host = host
         self.port = port
         self.period_s = tagmap.modbus.poll_period_s if period_s is None else period_s
@@ -85,13 +96,17 @@ class PlcServer:
 
     def _devices(self) -> list[SimDevice]:
         devices = []
-        for unit in sorted({t.unit_id for t in self.tagmap.tags}):
+        spans = [(t.unit_id, t.table, t.address, t.count) for t in self.tagmap.tags]
+        c = self.tagmap.clock
+        if c is not None and self.clock is not None:
+            spans.append((c.unit_id, c.table, c.address, c.count))
+        for unit in sorted({s[0] for s in spans}):
             blocks: dict[str, list[SimData]] = {}
             for table in TABLES:
-                tags = [t for t in self.tagmap.tags if (t.unit_id, t.table) == (unit, table)]
+                tags = [s for s in spans if s[:2] == (unit, table)]
                 if tags:
-                    start = min(t.address for t in tags)
-                    end = max(t.address + t.count for t in tags)
+                    start = min(s[2] for s in tags)
+                    end = max(s[2] + s[3] for s in tags)
                     blocks[table] = [SimData(address=start, count=end - start, values=0,
                                              datatype=DataType.REGISTERS)]
                 else:  # pymodbus needs a non-empty block; one register nobody reads
@@ -214,6 +229,11 @@ class PlcServer:
                 continue
             await self._store(tag, words)
             self.last_values[sig] = float(si)
+        c = self.tagmap.clock
+        if c is not None and self.clock is not None and self._server is not None:
+            s = max(0, min(int(self.clock()) // 10**9, 2**32 - 1))
+            await self._server.async_setValues(c.unit_id, TABLES[c.table], c.address,
+                                               [s >> 16, s & 0xFFFF])
         self.updates += 1
 
     async def set_raw(self, signal: str, registers: Sequence[int]) -> None:

@@ -47,7 +47,9 @@ def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None =
     return EstimatorService(make_estimator(kind, cfg), window,
                             unit=resolve_unit(settings, cfg),
                             tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
-                            max_gap_windows=max_gap, ranges=ranges)
+                            max_gap_windows=max_gap, ranges=ranges,
+                            max_lab_silence_s=(settings.max_lab_silence_h * 3600.0
+                                               if settings.max_lab_silence_h > 0 else None))
 
 
 __all__ = ["make_service", "service_window"]

@@ -22,7 +22,11 @@ Time: the daemon's clock is a :class:`ScaledClock`. At ``time_scale = 1`` it is 
 clock. At ``N > 1`` it runs N times faster from ``clock_start`` (default now; after a restart
 not before the checkpoint's time), the poller polls N times as often and its frozen-value and
 back-off timers run on the same scaled clock, so a daemon follows ``softsensor plant-server
---speed N`` window for window.
+--speed N`` window for window. With ``clock_start = "plc"`` (``--clock-start plc``) the clock
+starts at the PLC's own clock (the tag map's ``[clock]`` registers, which the virtual PLC
+serves from its plant), read once at start and carried forward by the time since: the
+demo's plant and daemon then share one clock, and the lab files the plant drops (stamped on
+its clock) are not "sampled after they arrived" because the daemon started later.
 """
 
 from __future__ import annotations
@@ -57,7 +61,7 @@ from softsensor.ingest.historian_map import plant_lab_map
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
-from softsensor.messages import lab_body
+from softsensor.messages import iso_utc, lab_body
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.modbus_server import EstimateModbusServer
 from softsensor.outputs.settings import output_settings
@@ -73,7 +77,12 @@ from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
 from softsensor.service.pipeline import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.scan_publisher import ScanPublisher
-from softsensor.service.settings import ServiceSettings, bus_options, resolve_unit
+from softsensor.service.settings import (
+    PLC_CLOCK,
+    ServiceSettings,
+    bus_options,
+    resolve_unit,
+)
 from softsensor.service.time_gate import TimeGate
 from softsensor.service.warmup import warm_up
 from softsensor.service.watchdog import HealthQueryable, Watchdog
@@ -85,6 +94,10 @@ HOUSEKEEPING_S = 0.1
 #: Longest wait at shutdown for the estimator thread's last checkpoint [s]; a thread stuck
 #: longer is left behind (it is a daemon thread) so SIGTERM is honoured within seconds.
 SHUTDOWN_WAIT_S = 10.0
+
+
+async def _no_sink(*_scan: Any) -> None:
+    """The clock read at start hands no scans on."""
 
 
 class ScaledClock:
@@ -116,6 +129,8 @@ class ScaledClock:
         return (self._mono() - self._m0) * self.scale
 
 
+#: Longest wait for the PLC's clock at start (``clock_start = "plc"``) [s, wall].
+PLC_CLOCK_WAIT_S = 30.0
 #: A checkpoint's time further than this past the clock start is not trusted [ns].
 MAX_RESUME_JUMP_NS = 30 * 86_400 * 10**9
 
@@ -218,9 +233,15 @@ class Daemon:
         self.health: HealthQueryable | None = None
         self.resumed = False  #: the service continues from the checkpoint
         self._recording_said: str | None = None  #: recorder state health last said
+        #: the PLC's clock [ns] and the monotonic time it was read (``clock_start = "plc"``)
+        self._plc_clock: tuple[int, float] | None = None
 
     def _clock(self, saved_at_ns: int | None) -> ScaledClock:
         s = self.settings
+        if self._plc_clock is not None:  # the PLC's clock, carried forward since it was read
+            plc_ns, read_at = self._plc_clock
+            start = plc_ns + int(round((time.monotonic() - read_at) * s.time_scale * 1e9))
+            return ScaledClock(s.time_scale, start)
         start = parse_time(s.clock_start, "service.clock_start")
         if s.time_scale != 1.0:
             start = time.time_ns() if start is None else start
@@ -273,6 +294,8 @@ class Daemon:
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
+        if s.clock_start == PLC_CLOCK:
+            self._plc_clock = await self._read_plc_clock()
         doc = self._not_from_the_future(self._load_checkpoint())
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
         service = self._service(doc, scan_period_s)
@@ -301,9 +324,10 @@ class Daemon:
             publisher = Publisher(session, self.unit, clock=clock.now_ns)
             publisher.declare(INPUT_KINDS)
             stack.callback(publisher.close)
+            # the outputs first: a port in use stops the daemon before it polls the PLC
+            served = await self._start_outputs(stack)
             self._lab_input(stack, publisher, clock)
             poll_task = self._start_poller(stack, publisher, clock)
-            served = await self._start_outputs(stack)
             m = self.tagmap.modbus
             endpoints = listening_endpoints(session) if s.zenoh_adminspace else listen
             self.info = DaemonInfo(self.unit, service.kind, endpoints,
@@ -319,6 +343,18 @@ class Daemon:
             await self._housekeeping(stop, poll_task)
         event(log, "stopped", ticks=service.stats.ticks, stale_ticks=service.stats.stale_ticks,
               scans=service.stats.scans, checkpoints=self.store.n_saved)
+
+    async def _read_plc_clock(self) -> tuple[int, float]:
+        """The PLC's clock [ns] and when it was read [monotonic s] (module docstring)."""
+        poller = ModbusPoller(self.tagmap, _no_sink)
+        try:
+            ns = await poller.read_clock(PLC_CLOCK_WAIT_S)
+        except IngestError as exc:
+            raise ConfigError(f"service.clock_start = \"plc\": {exc}") from exc
+        finally:
+            poller.close()
+        event(log, "plc_clock", plc_time=iso_utc(ns), time_scale=self.settings.time_scale)
+        return ns, time.monotonic()
 
     def _load_checkpoint(self) -> dict | None:
         """The checkpoint to resume from: None without one, with ``resume`` off, or when it
@@ -414,8 +450,15 @@ class Daemon:
                                        lab_map=self.lab_map,
                                        rate_per_s=folder_rate(
                                            s.max_lab_rate_per_h, self._window_s(),
-                                           s.time_scale)).start()
+                                           s.time_scale),
+                                       on_reject=self._lab_file_rejected).start()
             stack.callback(watcher.close)
+
+    def _lab_file_rejected(self, reason: str) -> None:
+        """A file the lab folder rejected: counted and told in health like a refused result
+        (the estimator thread's counters, in order with the bus messages)."""
+        if self.pipeline is not None and self.clock is not None:
+            self.pipeline.lab_file_refused(reason, self.clock.now_ns())
 
     def _window_s(self) -> float:
         """The estimator's window [s, plant time]."""
@@ -469,7 +512,10 @@ class Daemon:
                                        lambda: stats().stale_ticks),
             "softsensor_scans": ("scans received", lambda: stats().scans),
             "softsensor_labs_accepted": ("lab results accepted", lambda: stats().labs_accepted),
-            "softsensor_labs_refused": ("lab results refused", lambda: stats().labs_refused),
+            "softsensor_labs_refused": ("lab results and lab files refused",
+                                        lambda: stats().labs_refused),
+            "softsensor_lab_files_refused": ("lab files refused whole by the lab folder",
+                                             lambda: stats().lab_files_refused),
             "softsensor_poller_reads": ("PLC polls", lambda: poll().scans),
             "softsensor_poller_read_failures": ("PLC reads that failed",
                                                 lambda: poll().read_failures),
@@ -596,7 +642,9 @@ class Daemon:
         event(log, "status", plc_connected=self.poller.connected, polls=p.scans,
               read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
               stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
-              labs_refused=st.labs_refused, checkpoints=self.store.n_saved,
+              labs_refused=st.labs_refused, lab_files_refused=st.lab_files_refused,
+              last_lab_refusal=self.pipeline.service.last_lab_refusal,
+              checkpoints=self.store.n_saved,
               recorded=None if self.recorder is None else self.recorder.n_written,
               recording=self._recording())
 

@@ -27,11 +27,18 @@ inside the accumulator); an estimate body is judged before it goes out: one with
 outside its physical range (:func:`~softsensor.estimation.plausibility.estimate_problems`) is
 never ``ok``; it is published ``degraded`` with the reason first in its ``detail``.
 
-Health (CONTRACT section 2) is emitted at every tick and whenever the input state changes
-between ticks. Its ``status`` is the worse of the last tick's status (the estimator's verdict:
-``ok``, ``degraded`` when its innovations are inconsistent or the model failed, ``stale`` for
-a window with too few good scans) and the input status (``degraded`` while a model input has
-no good value in the latest scan, ``stale`` when no scan came for ``gap_after_s``).
+Health (CONTRACT section 2) is emitted at every tick, whenever the input state changes
+between ticks, and at once when a lab result or a lab file is refused. Its ``status`` is the
+worst of the last tick's status (the estimator's verdict: ``ok``, ``degraded`` when its
+innovations are inconsistent or the model failed, ``stale`` for a window with too few good
+scans), the input status (``degraded`` while a model input has no good value in the latest scan,
+``stale`` when no scan came for ``gap_after_s``) and the lab status (``degraded`` when no lab
+result was accepted for ``max_lab_silence_s`` of plant time, counted from the last accepted one
+or from the first scan: an estimate nobody corrects drifts, and a LIMS that sends only files the
+daemon refuses must not look like a quiet lab). A refused lab result (the contract, a flood, the
+estimator's screen) and a refused lab file (:meth:`lab_file_refused`, from the daemon's lab
+folder) are counted alike in ``labs_refused`` (files also in ``lab_files_refused``), and the
+latest reason is ``last_lab_refusal`` (its time ``last_lab_refusal_ns``).
 """
 
 from __future__ import annotations
@@ -89,7 +96,8 @@ class ServiceStats:
     lab_updates: int = 0
     labs_received: int = 0
     labs_accepted: int = 0
-    labs_refused: int = 0
+    labs_refused: int = 0  #: lab results and lab files refused
+    lab_files_refused: int = 0  #: of which whole files refused by the daemon's lab folder
     refused_time: int = 0  #: scans and labs stamped too far from the daemon's clock
     skipped_windows: int = 0  #: gap windows not ticked (a gap longer than max_gap_windows)
     unphysical_ticks: int = 0  #: estimates with a value outside its physical range
@@ -119,13 +127,19 @@ class EstimatorService:
         "stale since" state in health, so one scan stamped far ahead costs bounded work.
     ranges : EstimateRanges, optional
         Physical range of each estimate field; an estimate outside is never ``ok``.
+    max_lab_silence_s : float, optional
+        Health is ``degraded`` once no lab result was accepted for this long [plant s];
+        None: never (module docstring).
     """
 
     def __init__(self, estimator: Estimator, window: WindowSettings | None = None, *,
                  unit: str = "dryer1", tick_delay_s: float = 10.0,
                  gap_after_s: float = 60.0, max_gap_windows: int = 36,
-                 ranges: EstimateRanges | None = None) -> None:
+                 ranges: EstimateRanges | None = None,
+                 max_lab_silence_s: float | None = None) -> None:
         self.estimator = estimator
+        self.max_lab_silence_ns = (None if max_lab_silence_s is None
+                                   else int(round(max_lab_silence_s * NS)))
         self.ranges = ranges or EstimateRanges()
         self.kind = estimator_kind(estimator)
         self.window = window or WindowSettings()
@@ -147,6 +161,9 @@ class EstimatorService:
         self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
+        self._last_refusal_ns: int | None = None
+        #: the last accepted lab result's tick, or the first scan: where lab silence counts from
+        self._lab_since: int | None = None
         self._stale_since: int | None = None  # start of the last gap cut short
         self._skipped_seen = 0  # gap windows of self._acc already counted in the stats
         #: refuses message times far from the service clock (the daemon sets a
@@ -201,6 +218,8 @@ class EstimatorService:
         self.stats.scans += 1
         self._last_scan = t if self._last_scan is None else max(self._last_scan, t)
         self._now = t if self._now is None else max(self._now, t)
+        if self._lab_since is None:
+            self._lab_since = t
         self._queue(closed)
         self._set_input(*self._input_of(body))
         out = self._drain(self._now - self.tick_delay_ns)
@@ -215,16 +234,28 @@ class EstimatorService:
         try:
             lab = lab_from_body(dict(body), t, where=f"plant/{self.unit}/lab")
         except IngestError as exc:
-            self._refuse(str(exc))
-            return []
+            return self._refused(str(exc), t)
         if len(self._labs) >= self.max_pending_labs:
             # a lab sends a few results a day; thousands waiting for one tick are a flood
             # (each would cost the filter an update) and would starve the estimator thread
-            self._refuse(f"lab result {lab.sample_id!r} refused: {len(self._labs)} results "
-                         f"already wait for the next tick (at most {self.max_pending_labs})")
-            return []
+            return self._refused(f"lab result {lab.sample_id!r} refused: {len(self._labs)} "
+                                 f"results already wait for the next tick (at most "
+                                 f"{self.max_pending_labs})", t)
         bisect.insort(self._labs, lab, key=lambda r: (r.due_ns, r.sample_id))
         return []
+
+    def lab_file_refused(self, reason: str, time_ns: int | None) -> list[Output]:
+        """A lab file the daemon's folder refused whole (``reason``: its one line), at
+        ``time_ns`` [ns, the daemon's clock]: counted and told in health at once."""
+        self.stats.lab_files_refused += 1
+        return self._refused(f"lab file refused: {reason}", time_ns)
+
+    def _refused(self, reason: str, time_ns: int | None) -> list[Output]:
+        """Count and remember a refusal; the health body that says so (none before the
+        service has a time: nothing was heard yet)."""
+        t = time_ns if time_ns is not None else self._now
+        self._refuse(reason, t)
+        return [] if t is None else [self._health(int(t))]
 
     def advance(self, now_ns: int) -> list[Output]:
         """Let time pass to ``now_ns`` [ns] without scans (live only; see module docstring)."""
@@ -282,10 +313,11 @@ class EstimatorService:
                 reason = f"lab {lab.sample_id!r}: {exc}"
             if reason is None:
                 self.stats.labs_accepted += 1
+                self._lab_since = window.end_ns
                 log.info("lab %s accepted: moisture_out %.4f kg/kg sampled at %d ns",
                          lab.sample_id, lab.moisture_out, lab.sample_time_ns)
             else:
-                self._refuse(reason)
+                self._refuse(reason, window.end_ns)
         self._ticked_end = window.end_ns
         try:
             # the body as JSON carries it (NaN as null), once, before anything judges it
@@ -315,6 +347,10 @@ class EstimatorService:
             detail = "not physical: " + ", ".join(problems) + "; " + detail
         if window.refused:
             body["inputs_refused"] = dict(window.refused)
+            # why, per signal (the first value refused and the limits): what a replay that
+            # estimated nothing must say, rather than guess at the scan period
+            body["inputs_refused_why"] = {name: window.reasons[name] for name in window.refused
+                                          if name in window.reasons}
             detail += "; implausible inputs refused: " + ", ".join(
                 f"{name} {n}" for name, n in sorted(window.refused.items()))
         body.update(status=status, detail=detail)
@@ -327,10 +363,11 @@ class EstimatorService:
         body.setdefault("window_end_ns", window.end_ns)
         return [Output("estimate", body, window.end_ns), self._health(window.end_ns)]
 
-    def _refuse(self, reason: str) -> None:
+    def _refuse(self, reason: str, time_ns: int | None) -> None:
         reason = outside_text(reason)  # a sample id or a value from outside, cut short
         self.stats.labs_refused += 1
         self._last_refusal = reason
+        self._last_refusal_ns = time_ns
         n = self.stats.labs_refused
         if n <= 10 or n % 1000 == 0:  # a flood must not become a flood of log lines
             log.warning("lab refused: %s (%d refused so far)", reason, n)
@@ -353,9 +390,27 @@ class EstimatorService:
         self._input_status = (status, detail)
         self._input_key = (status, key)
 
+    def _lab_status(self, now_ns: int | None) -> tuple[str, str]:
+        """``degraded`` when no lab result was accepted for ``max_lab_silence_s`` by
+        ``now_ns`` (module docstring), with the hours and the last refusal; else ``ok``."""
+        if self.max_lab_silence_ns is None or self._lab_since is None or now_ns is None:
+            return "ok", ""
+        silent = now_ns - self._lab_since
+        if silent <= self.max_lab_silence_ns:
+            return "ok", ""
+        since = "the first scan" if self.stats.labs_accepted == 0 else "the last one"
+        detail = (f"lab: no lab result accepted for {silent / 3600 / NS:.1f} h since {since} "
+                  f"(service.max_lab_silence_h {self.max_lab_silence_ns / 3600 / NS:g}): the "
+                  f"estimate is uncorrected")
+        if self._last_refusal is not None:
+            detail += f"; last lab refusal: {self._last_refusal}"
+        return "degraded", detail
+
     def _state_key(self) -> tuple[str, tuple[str, ...]]:
         tick = self._tick_status[0] if self._tick_status else "stale"
-        return _worst(tick, self._input_key[0]), (tick, *self._input_key[1])
+        lab = self._lab_status(self._now)[0]
+        return (_worst(_worst(tick, self._input_key[0]), lab),
+                (tick, lab, *self._input_key[1]))
 
     def _with_health_change(self, out: list[Output], time_ns: int) -> list[Output]:
         """Append a health body when the state changed since the last one published."""
@@ -370,20 +425,26 @@ class EstimatorService:
         tick_status, tick_detail = self._tick_status or ("stale", "waiting for the first "
                                                                   "complete window")
         in_status, in_detail = self._input_status
-        status = _worst(tick_status, in_status)
+        lab_status, lab_detail = self._lab_status(max(int(time_ns), self._now or 0))
+        status = _worst(_worst(tick_status, in_status), lab_status)
         if status == "ok":
             detail = tick_detail
         else:
             parts = [tick_detail] if tick_status != "ok" else []
             if in_status != "ok":
                 parts.append(f"input: {in_detail}")
+            if lab_status != "ok":
+                parts.append(lab_detail)
             detail = "; ".join(parts)
         self._published = self._state_key()
         body: dict[str, Any] = {
             "status": status, "detail": detail, "tick_status": tick_status,
-            "input_status": in_status, "estimator": self.kind, "unit": self.unit,
-            "window_end_ns": self._ticked_end, "last_scan_ns": self._last_scan,
-            "labs_waiting": len(self._labs), "last_lab_refusal": self._last_refusal,
+            "input_status": in_status, "lab_status": lab_status, "estimator": self.kind,
+            "unit": self.unit, "window_end_ns": self._ticked_end,
+            "last_scan_ns": self._last_scan, "labs_waiting": len(self._labs),
+            "last_lab_refusal": self._last_refusal,
+            "last_lab_refusal_ns": self._last_refusal_ns,
+            "last_lab_accepted_ns": self._lab_since if self.stats.labs_accepted else None,
             "stale_since_ns": self._stale_since,
             **dataclasses.asdict(self.stats),
         }
@@ -402,6 +463,8 @@ class EstimatorService:
             "labs": [lab_to_json(r) for r in self._labs],
             "tick_status": list(self._tick_status) if self._tick_status else None,
             "stats": dataclasses.asdict(self.stats),
+            "lab_since_ns": self._lab_since, "last_lab_refusal": self._last_refusal,
+            "last_lab_refusal_ns": self._last_refusal_ns,
         }
 
     def restore(self, snapshot: Mapping[str, Any], where: str = "checkpoint") -> None:
@@ -433,6 +496,13 @@ class EstimatorService:
             tick = snapshot["tick_status"]
             self._tick_status = None if tick is None else (str(tick[0]), str(tick[1]))
             self.stats = ServiceStats(**{k: int(v) for k, v in snapshot["stats"].items()})
+            # (absent from the checkpoints of earlier daemons: the lab clock starts again)
+            since = snapshot.get("lab_since_ns")
+            self._lab_since = None if since is None else int(since)
+            refusal = snapshot.get("last_lab_refusal")
+            self._last_refusal = None if refusal is None else str(refusal)
+            refused_at = snapshot.get("last_lab_refusal_ns")
+            self._last_refusal_ns = None if refused_at is None else int(refused_at)
             # the open window, fed again to an accumulator whose judge remembers what it did
             # at the window's start: its scans are judged (and refused) as they were live
             self._acc = WindowAccumulator(self.window, start_ns=self._closed_end,
@@ -457,6 +527,11 @@ class EstimatorService:
     def ticked_end_ns(self) -> int | None:
         """End of the last window ticked [ns]."""
         return self._ticked_end
+
+    @property
+    def last_lab_refusal(self) -> str | None:
+        """Why the latest lab result or lab file was refused (None: none was)."""
+        return self._last_refusal
 
     @property
     def late_scans(self) -> int:

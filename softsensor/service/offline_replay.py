@@ -125,6 +125,10 @@ class ReplaySummary:
     wall_s: float = 0.0
     warmup_s: float = 0.0
     rmse: dict[str, float] | None = None
+    #: values per signal the plausibility limits refused, over the whole day
+    inputs_refused: dict[str, int] = field(default_factory=dict)
+    #: per signal, the first window's reason (the first value refused and the limits)
+    inputs_refused_why: dict[str, str] = field(default_factory=dict)
     estimates: list[tuple[int, dict[str, Any]]] = field(default_factory=list, repr=False)
     parts: list[DayPart] = field(default_factory=list)
 
@@ -141,13 +145,31 @@ class ReplaySummary:
         share = self.stale_ticks / self.ticks
         if share < 0.5:
             return None
-        why = (f"{self.stale_ticks} of {self.ticks} windows stale: a window needs "
-               f"{self.min_good} good scans of every model input out of the "
-               f"{self.expected_scans} expected at the scan period {self.scan_period_s:g} s "
-               f"(set solver.scan_period if that is not the day's)")
+        refused = self._refused_inputs()
+        if refused:
+            why = f"{self.stale_ticks} of {self.ticks} windows stale: {refused}"
+        else:
+            why = (f"{self.stale_ticks} of {self.ticks} windows stale: a window needs "
+                   f"{self.min_good} good scans of every model input out of the "
+                   f"{self.expected_scans} expected at the scan period {self.scan_period_s:g} "
+                   f"s (set solver.scan_period if that is not the day's)")
         if self.stale_ticks == self.ticks:
             return "error", f"{self.day}: nothing estimated from data, {why}"
         return "warning", f"{self.day}: {why}"
+
+    def _refused_inputs(self) -> str | None:
+        """The inputs the plausibility limits refused in more than half the scans of the day
+        expected (what made its windows stale), with why; None when none was."""
+        n_scans = self.ticks * self.expected_scans
+        many = {k: n for k, n in self.inputs_refused.items() if n > 0.5 * n_scans}
+        if not many:
+            return None
+        parts = "; ".join(f"{k}: {n} values refused ({self.inputs_refused_why.get(k, '')})"
+                          for k, n in sorted(many.items(), key=lambda kv: -kv[1]))
+        first = max(many, key=many.__getitem__)
+        return (f"the plausibility limits refused the inputs: {parts} (is the unit of {first} "
+                f"right? softsensor import --preview holds an export against the limits; if "
+                f"the plant runs there, set [plausibility.{first}] in the plant config)")
 
     def line(self) -> str:
         """The one-paragraph summary the verb prints."""
@@ -420,6 +442,11 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
     summary.lab_updates = s.lab_updates - before.lab_updates
     summary.labs_accepted = s.labs_accepted - before.labs_accepted
     summary.labs_refused = s.labs_refused - before.labs_refused
+    for _t, body in summary.estimates:
+        for name, n in (body.get("inputs_refused") or {}).items():
+            summary.inputs_refused[name] = summary.inputs_refused.get(name, 0) + int(n)
+        for name, why in (body.get("inputs_refused_why") or {}).items():
+            summary.inputs_refused_why.setdefault(name, str(why))
     if stats.first_ns is not None and stats.last_ns is not None:
         summary.span_s = (stats.last_ns - stats.first_ns) / 1e9
     truth = [x for r in reads for x in r.truth]

@@ -301,6 +301,20 @@ class ServicePipeline:
 
         self._q.put(_Call(run))
 
+    def lab_file_refused(self, reason: str, time_ns: int) -> None:
+        """Queue the news of a lab file refused by the daemon's folder (``reason``, at
+        ``time_ns`` [ns]): counted by the service and told in health, in order with the
+        messages. Nobody waits on this call (the folder's thread must not)."""
+        def run() -> None:
+            try:
+                self._publish(self.service.lab_file_refused(reason, time_ns))
+            except Exception:  # noqa: BLE001 - as for a message: counted, logged
+                self.n_errors += 1
+                self._throttle.log(log, "lab file", logging.ERROR,
+                                   "telling a refused lab file failed", exc_info=True)
+
+        self._q.put(_Call(run))
+
     def sync(self, timeout: float = 60.0) -> None:
         """Wait until every message queued so far has been processed."""
         self.call(lambda: None, timeout)

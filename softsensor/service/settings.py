@@ -44,6 +44,8 @@ UNIT_RULE = "must be 1 to 64 letters, digits, '_' or '-' (it names keys and file
 LOG_FORMATS: tuple[str, ...] = ("kv", "json")
 #: Zenoh's link limit in multiples of ``max_message_bytes`` (see :func:`bus_options`).
 LINK_LIMIT_FACTOR = 4
+#: ``clock_start`` value: start at the PLC's clock (the tag map's ``[clock]`` registers).
+PLC_CLOCK = "plc"
 #: Where a daemon's clock may start [ns since the epoch]: 2000-01-01 to 2200-01-01.
 CLOCK_START_RANGE: tuple[int, int] = (946_684_800 * 10**9, 7_258_118_400 * 10**9)
 
@@ -96,7 +98,9 @@ class ServiceSettings:
         Speed of the daemon's clock relative to the wall clock [-].
     clock_start : str or None
         Start of the scaled clock, ISO-8601 or ns since the epoch (default: now); a restart
-        continues from the checkpoint's time when that is later.
+        continues from the checkpoint's time when that is later. ``"plc"``: the PLC's own
+        clock, read at start from the tag map's ``[clock]`` registers (the virtual PLC serves
+        its plant's there), so a demo's plant and daemon share one clock.
     tick_delay_s : float
         A window is ticked once a scan this much past its end has arrived, so a lab result
         logged before the window's end is always applied first, live and in replay [s].
@@ -124,6 +128,11 @@ class ServiceSettings:
         the daemon, which holds at most that much per link).
     max_queue : int
         Input messages waiting for the estimator thread; more are dropped and counted.
+    max_lab_silence_h : float
+        Health turns ``degraded`` when no lab result was accepted for this long (since the
+        last accepted one, or since the first scan) [h, plant time]; 0: never. A lab sends a
+        few results a day: 12 h without one that the estimator took means the estimate runs
+        uncorrected (a wrong ``[lab]`` table, a LIMS that stopped, every file refused).
     max_scan_rate_hz, max_lab_rate_per_h : float
         Rate limits per input kind (all scans, all lab results, whoever publishes them)
         [per plant second, per plant hour]; above them messages are dropped and counted (a
@@ -170,6 +179,7 @@ class ServiceSettings:
     max_queue: int = num(10_000, ge=10, le=10_000_000)
     max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
     max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
+    max_lab_silence_h: float = num(12.0, ge=0, le=24 * 365)
 
     #: One rule, one key: the estimator's kind and a window's good share are set where the
     #: estimator and the windowing read them (these keys once set them a second time).
@@ -196,7 +206,7 @@ class ServiceSettings:
             return "zenoh_user and zenoh_password_file go together (both or neither)"
         if self.log_format not in LOG_FORMATS:
             return f"log_format must be one of {', '.join(LOG_FORMATS)}, got {self.log_format!r}"
-        if self.clock_start is not None:
+        if self.clock_start is not None and self.clock_start != PLC_CLOCK:
             from softsensor.errors import ConfigError
             from softsensor.service.day_replay import parse_time
             try:
