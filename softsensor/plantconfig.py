@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from softsensor.configfile import build_section, num, read_toml
+from softsensor.configfile import build_section, choice, num, read_toml
 from softsensor.errors import ConfigError
 
 #: The paper's Table 1, in this order everywhere (arrays of parameters use it).
@@ -70,6 +70,12 @@ class Cyclone:
     hold_up_time: float = num(8.0, gt=0, le=120)  # s, fibre residence in the cyclones
 
 
+#: The drying-rate laws the model compiles (``fiber.drying_law``; the model's law index is the
+#: position here): the paper's double sigmoid (the default), Keey's characteristic drying
+#: curve, Chen's reaction engineering approach (:mod:`softsensor.model.wood`).
+DRYING_LAWS: tuple[str, ...] = ("double_sigmoid", "cdc", "rea")
+
+
 @dataclass(frozen=True)
 class Fiber:
     dry_density: float = num(gt=0)            # kg/m3
@@ -81,6 +87,14 @@ class Fiber:
     critical_width: float = num(gt=0)         # kg/kg
     bound_fraction: float = num(gt=0, le=1)
     equilibrium_width: float = num(gt=0)      # kg/kg
+    # the drying-rate law (a structural choice, softsensor.model.structure) and the shape
+    # parameters of the alternatives; each law reads only its own
+    drying_law: str = choice(DRYING_LAWS, "double_sigmoid")
+    # (bounds: an exponent below 1 gives the rate an infinite slope at X_eq, where the cell
+    # Newton fails; measured on the nominal point and three corners of the operating range)
+    cdc_exponent: float = num(1.0, ge=1.0, le=5.0)   # Keey's n, falling-rate exponent
+    rea_b: float = num(5.0, ge=0.5, le=100.0)        # Chen's b [(kg/kg)^-c]
+    rea_c: float = num(1.0, ge=1.0, le=3.0)          # Chen's c
 
 
 @dataclass(frozen=True)

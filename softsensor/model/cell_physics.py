@@ -98,17 +98,21 @@ from softsensor.model.geometry import (
     A_SH_CELL,
     ALPHA_B,
     BETA_AMB,
+    CDC_N,
     D_CYC,
     D_FIB,
     D_MEAN,
     D_OUT,
     D_P,
+    DRY_LAW,
     DX,
     EMISS,
     H_IN_CYC,
     N_C,
     R_WALL_IN,
     R_WALL_OUT,
+    REA_B,
+    REA_C,
     RHO_FIB,
     S_SPEC,
     T_AMB_REF,
@@ -228,6 +232,31 @@ def inflow_coefficients(kind, Ta, Y, X, m_a, theta, geo):
 
 
 @register_jitable
+def drying_law(X, Tf, Ta, phi, x_eq, geo):
+    """The drying-rate law of the plant (``geo[DRY_LAW]``, ``fiber.drying_law``): the rate
+    factor ``alpha`` [-] and the humidity ratio at the fibre surface ``Y_s`` [kg/kg] that the
+    driving force ``ln((1 + Y_s) / (1 + Y))`` of eqs. 2 and 3 uses.
+
+    The paper's double sigmoid and Keey's characteristic drying curve scale the rate (``alpha``
+    from :func:`wood.drying_reduction` or :func:`wood.cdc_reduction`) with a saturated
+    surface; Chen's reaction engineering approach keeps ``alpha = 1`` and lowers the surface
+    vapour to ``psi p_sat(T_f)`` (:func:`wood.rea_surface_factor`, capped as
+    :func:`humid_air.y_sat` caps ``p_sat``). ``X``, ``T_f``, ``T_a``, ``phi`` (the air's
+    relative humidity) and ``x_eq`` are the cell's rate state.
+    """
+    Pa = geo[P]
+    law = int(geo[DRY_LAW])
+    if law == wd.LAW_DOUBLE_SIGMOID:
+        return (wd.drying_reduction(X, x_eq, geo[X_CR], geo[W_CR], geo[ALPHA_B], geo[W_EQ]),
+                ha.y_sat(Tf, Pa))
+    if law == wd.LAW_CDC:
+        return wd.cdc_reduction(X, x_eq, geo[X_CR], geo[CDC_N]), ha.y_sat(Tf, Pa)
+    psi = wd.rea_surface_factor(X, x_eq, phi, Ta, Tf, geo[REA_B], geo[REA_C])
+    p_s = min(psi * ha.p_sat(Tf), ha.P_SAT_CAP * Pa)
+    return 1.0, ha.humidity_ratio(p_s, Pa)
+
+
+@register_jitable
 def cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo):
     """Evaporation ``R`` [kg/s] and air-to-fibre heat ``Q_af`` [W] of one cell.
 
@@ -240,11 +269,11 @@ def cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo):
     rho_da = rho / (1.0 + Y)
     phi = ha.relative_humidity(Ta, Y, Pa)
     x_eq = wd.equilibrium_moisture(Ta, phi)
-    alpha = wd.drying_reduction(X, x_eq, geo[X_CR], geo[W_CR], geo[ALPHA_B], geo[W_EQ])
+    alpha, y_s = drying_law(X, Tf, Ta, phi, x_eq, geo)
     # high-flux (Stefan) driving force ln((1 + Y_s) / (1 + Y)) = ln((1 - w) / (1 - w_s)) in
     # vapour mass fractions w = Y / (1 + Y); over-dried fibre (alpha < 0) takes vapour up at a
     # rate set by its distance from equilibrium, whatever the sign of the humidity difference
-    drive = np.log((1.0 + ha.y_sat(Tf, Pa)) / (1.0 + Y))
+    drive = np.log((1.0 + y_s) / (1.0 + Y))
     if alpha < 0.0:
         drive = abs(drive)
     mu, k = ha.viscosity_conductivity(Ta, Y)
