@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -231,6 +231,45 @@ class PlantConfig(PlantSections):
                 raise ConfigError(f"{self.source}: parameters.{name}.{problem}")
             params[name] = spec
         return _keeping_tables(self, dataclasses.replace(self, parameters=params))
+
+    def with_keys(self, values: Mapping[str, Any]) -> PlantConfig:
+        """A copy with plant keys changed, named as in the TOML file: ``"fiber.drying_law"``,
+        ``"cyclone.hold_up_time"``, ``"parameters.mult_D.low"``.
+
+        Each changed section is rebuilt and checked as on load (bounds, choices, cross-field
+        rules), so a bad value is one :class:`ConfigError` line naming the dotted key; this is
+        how a structural alternative (:func:`softsensor.model.structure.structure_space`)
+        becomes a config. The tables already built stay built.
+        """
+        sections: dict[str, dict[str, Any]] = {}
+        specs: dict[str, dict[str, Any]] = {}
+        names = {f.name for f in dataclasses.fields(PlantSections)}
+        for key, value in values.items():
+            parts = key.split(".")
+            if len(parts) == 2 and parts[0] in names:
+                sections.setdefault(parts[0], {})[parts[1]] = value
+            elif len(parts) == 3 and parts[0] == "parameters":
+                if parts[1] not in PARAMETER_NAMES:
+                    raise ConfigError(f"{self.source}: {key}: {parts[1]} is not one of the "
+                                      f"paper's Table 1 parameters")
+                specs.setdefault(parts[1], {})[parts[2]] = value
+            else:
+                raise ConfigError(f"{self.source}: {key} is not a plant key (section.key of "
+                                  f"{', '.join(sorted(names))}, or parameters.<name>.<field>)")
+        changes: dict[str, Any] = {}
+        for name, table in sections.items():
+            current = getattr(self, name)
+            old = {f.name: getattr(current, f.name) for f in dataclasses.fields(current)
+                   if getattr(current, f.name) is not None}
+            changes[name] = build_section(type(current), {**old, **table}, name, self.source)
+        if specs:
+            params = dict(self.parameters)
+            for name, table in specs.items():
+                old = dataclasses.asdict(params[name])
+                params[name] = build_section(ParameterSpec, {**old, **table},
+                                             f"parameters.{name}", self.source)
+            changes["parameters"] = params
+        return _keeping_tables(self, dataclasses.replace(self, **changes))
 
 
 T = TypeVar("T")
