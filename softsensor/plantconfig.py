@@ -115,6 +115,10 @@ class HotGas:
 class Environment:
     pressure: float = num(gt=5e4, lt=2e5)      # Pa
     wind_speed: float = num(ge=0, lt=50)       # m/s
+    # outside heat loss grows by this per K of ambient below 283.15 K (a structural choice of
+    # the heat-loss law, softsensor.model.structure; the diagnosis's ambient_heat_loss
+    # extension adds its own on top, model aux BETA_AMB)
+    ambient_loss_slope: float = num(0.0, ge=-0.1, le=0.6)  # 1/K
 
 
 @dataclass(frozen=True)

@@ -157,3 +157,17 @@ def test_alternative_config_sets_the_law_its_keys_and_its_commissioning(base):
     assert cfg.parameters["mult_D"].low == 1e-4
     # the other sections and the input config are untouched
     assert cfg.tube == base.tube and base.fiber.drying_law == "double_sigmoid"
+
+
+def test_ambient_loss_slope_key_is_the_ambient_extension_made_a_plant_constant(base):
+    # the config's slope and the diagnosis's aux add up: either alone gives the same bits,
+    # and it moves the outlets on a cold day (0.3/K at 265 K: the walls lose 6.4 x more)
+    plain = DryerModel(base, threads=1)
+    sloped = DryerModel(base.with_keys({"environment.ambient_loss_slope": 0.3}), threads=1)
+    u = plain.nominal_inputs(T_amb=265.0)
+    aux = np.array([0.3])
+    _, y_aux = plain.steady_state(u, plain.theta0, aux)
+    _, y_key = sloped.steady_state(u, plain.theta0)
+    _, y_none = plain.steady_state(u, plain.theta0)
+    assert np.array_equal(y_aux, y_key)
+    assert y_none[1] - y_key[1] > 1.0  # K colder cyclone outlet

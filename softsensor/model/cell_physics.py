@@ -23,7 +23,9 @@ Rates (paper eqs. 1 to 3), with the high-flux driving force ``F = ln((1 + Y_s(T_
                      inner conduction (tube) or the shell's inner coefficient (cyclone)
   wall to ambient    ``Q_out = UA_out (T_w - T_amb)``: ``mult_p h_out pi D_out dx``
                      (Churchill-Bernstein plus natural convection and radiation) in series
-                     with the wall's outer conduction (tube)
+                     with the wall's outer conduction (tube), ``h_out`` scaled by
+                     ``1 + beta (283.15 K - T_amb)`` with ``beta`` the config's
+                     ``environment.ambient_loss_slope`` (0) plus the diagnosis's extension
   wall conduction    ``mult_k k_w A_cross (T_w,i-1 - 2 T_w,i + T_w,i+1) / dx`` along the tube
                      (adiabatic ends), and ``mult_k`` on the conduction through it (below)
 
@@ -97,6 +99,7 @@ from softsensor.model.geometry import (
     A_FLOW,
     A_SH_CELL,
     ALPHA_B,
+    AMB_SLOPE,
     BETA_AMB,
     CDC_N,
     D_CYC,
@@ -322,7 +325,8 @@ def outside_conductance_film(T_w, u, theta, aux, geo, kind, k, nu, Pr):
     """:func:`outside_conductance` with the ambient film properties of :func:`ambient_film`
     given."""
     T_amb = u[U_TAMB]
-    amb = max(1.0 + aux[BETA_AMB] * (T_AMB_REF - T_amb), 0.0)
+    # the config's slope plus the diagnosis extension's (0 + 0: the paper's law, bit for bit)
+    amb = max(1.0 + (aux[BETA_AMB] + geo[AMB_SLOPE]) * (T_AMB_REF - T_amb), 0.0)
     if kind == 0:
         h = tr.outside_coefficient(T_w, T_amb, geo[D_OUT], geo[WIND], geo[EMISS], k, nu, Pr)
         return series(theta[K_P] * amb * h * np.pi * geo[D_OUT] * geo[DX],

@@ -127,6 +127,17 @@ _SPACE: tuple[Alternative, ...] = (
         source="the paper's section 2.2 (fibre separated and held up for seconds; eq. 3's "
                "lumped cyclone read with the fibre surface a_s m_f tau_hold)",
         default=True),
+    Alternative(
+        name="heat_loss.ambient", family="heat_loss",
+        sets={},
+        free=(KeyRange("environment.wind_speed", 2.0, 0.0, 10.0, False, "m/s"),
+              KeyRange("environment.ambient_loss_slope", 0.0, -0.1, 0.6, False, "1/K")),
+        source="outside coefficient: Churchill & Bernstein (1977) forced convection across "
+               "the tube in the configured wind, Churchill & Chu (1975) natural convection "
+               "and grey-body radiation (transfer.outside_coefficient); the ambient slope "
+               "is the diagnosis's ambient_heat_loss law (1 + beta (283.15 K - T_amb)) "
+               "made a plant constant",
+        default=True),
 )
 
 
