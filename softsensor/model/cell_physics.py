@@ -58,6 +58,11 @@ Choices where the paper is garbled or silent:
   (``tube.deposit_thickness``/``deposit_conductivity``, 1.5 mm at 0.12 W/(m K)) and to the
   outer surface. Over Table 1's range it moves the outlet temperatures by 1.3 K; read as axial
   conduction only, by less than 0.01 K.
+* The drying-rate law is the plant's ``fiber.drying_law`` (:func:`drying_law`): the paper's
+  double sigmoid ``alpha(X)`` (default), Keey's characteristic drying curve (another
+  ``alpha(X)``), or Chen's reaction engineering approach (``alpha = 1`` and a surface vapour
+  below saturation in ``F``); the same in the tube's eq. 2 and in the cyclone's eq. 2 form
+  (:mod:`softsensor.model.structure` lists the alternatives).
 * Over-dried fibre: the drying reduction ``alpha(X)`` is negative below ``X_eq``
   (:func:`wood.drying_reduction`), and the vapour is then taken up at a rate set by
   ``|F|``.
