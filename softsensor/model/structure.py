@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 from softsensor.errors import ConfigError
@@ -84,6 +85,11 @@ class Alternative:
     source: str
     parameters: Mapping[str, tuple[float, float, float]] = field(default_factory=dict)
     default: bool = False
+
+    def __post_init__(self) -> None:
+        # the library is shared data: its mappings read-only, as the dataclass is frozen
+        object.__setattr__(self, "sets", MappingProxyType(dict(self.sets)))
+        object.__setattr__(self, "parameters", MappingProxyType(dict(self.parameters)))
 
 
 #: Bounds of the drying multipliers of a commissioned alternative law (module notes).
