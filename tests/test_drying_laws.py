@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 
 from softsensor.configfile import read_toml
-from softsensor.errors import ConfigError
+from softsensor.errors import ConfigError, SolverError
 from softsensor.model import DryerModel
 from softsensor.model import wood as wd
-from softsensor.model.structure import alternative_config, structure_space
+from softsensor.model.structure import alternative_config, commission, structure_space
 from softsensor.plantconfig import (
     DRYING_LAWS,
     default_config_path,
@@ -171,3 +171,23 @@ def test_ambient_loss_slope_key_is_the_ambient_extension_made_a_plant_constant(b
     _, y_none = plain.steady_state(u, plain.theta0)
     assert np.array_equal(y_aux, y_key)
     assert y_none[1] - y_key[1] > 1.0  # K colder cyclone outlet
+
+
+def test_commission_scales_the_rates_to_the_configured_outlet_and_keeps_the_library_true(base):
+    paper = DryerModel(base, threads=1)
+    target = paper.steady_state(paper.nominal_inputs(), paper.theta0)[1][2]
+    for law in ("cdc", "rea"):
+        alt = LAWS[law]
+        cfg = commission(base, alt)
+        # the library's stored commissioning is what commission finds (4 significant digits)
+        for name, (value, _, _) in alt.parameters.items():
+            assert cfg.parameters[name].value == pytest.approx(value, rel=1e-3), (law, name)
+    # a free key that moves the rate's level: n = 2 needs 12 times the scale of n = 1
+    cfg = commission(base, LAWS["cdc"], {"fiber.cdc_exponent": 2.0})
+    m = DryerModel(cfg, threads=1)
+    assert m.steady_state(m.nominal_inputs(), m.theta0)[1][2] == pytest.approx(target, abs=1e-6)
+    assert cfg.parameters["mult_D"].value == pytest.approx(0.145, rel=0.01)
+    assert cfg.parameters["mult_C"].value / cfg.parameters["mult_D"].value == pytest.approx(
+        0.25, rel=1e-3)
+    with pytest.raises(SolverError, match=r"no scale of mult_D and mult_C within their bounds"):
+        commission(base, LAWS["cdc"], {"fiber.cdc_exponent": 5.0})

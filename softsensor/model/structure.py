@@ -7,7 +7,8 @@ in, dispatched per plant inside the kernels, no Python branching per cell):
 :func:`structure_space` lists them as data, one :class:`Alternative` each, for a structural
 search to calibrate and judge; :func:`alternative_config` turns one (with values for its free
 keys) into a checked :class:`~softsensor.plantconfig.PlantConfig` through
-:meth:`~softsensor.plantconfig.PlantConfig.with_keys`.
+:meth:`~softsensor.plantconfig.PlantConfig.with_keys`, and :func:`commission` scales its rate
+multipliers to the configured model's nominal outlet moisture.
 
 Alternatives of one ``family`` exclude each other (one drying law); alternatives of different
 families combine (a drying law with a cyclone hold-up). The paper's form is each family's
@@ -34,8 +35,12 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
-from softsensor.errors import ConfigError
-from softsensor.plantconfig import PlantConfig
+import numpy as np
+from scipy.optimize import brentq
+
+from softsensor.errors import ConfigError, SolverError
+from softsensor.model.dryer import DryerModel
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
 
 @dataclass(frozen=True)
@@ -112,8 +117,8 @@ _SPACE: tuple[Alternative, ...] = (
         name="drying_law.cdc", family="drying_law",
         sets={"fiber.drying_law": "cdc"},
         free=(KeyRange("fiber.cdc_exponent", 1.0, 1.0, 3.0, False, "-"), _CRITICAL),
-        parameters={"mult_D": (0.0120, _RATE_LOW, _RATE_HIGH),
-                    "mult_C": (0.0030, _RATE_LOW, _RATE_HIGH)},
+        parameters={"mult_D": (0.01203, _RATE_LOW, _RATE_HIGH),
+                    "mult_C": (0.003008, _RATE_LOW, _RATE_HIGH)},
         source="Keey (1992), Drying of Loose and Particulate Materials, Hemisphere: the "
                "characteristic drying curve f = ((X - X_eq) / (X_cr - X_eq))^n"),
     Alternative(
@@ -121,8 +126,8 @@ _SPACE: tuple[Alternative, ...] = (
         sets={"fiber.drying_law": "rea"},
         free=(KeyRange("fiber.rea_b", 5.0, 0.5, 100.0, True, "(kg/kg)^-c"),
               KeyRange("fiber.rea_c", 1.0, 1.0, 3.0, False, "-")),
-        parameters={"mult_D": (0.00591, _RATE_LOW, _RATE_HIGH),
-                    "mult_C": (0.00148, _RATE_LOW, _RATE_HIGH)},
+        parameters={"mult_D": (0.005913, _RATE_LOW, _RATE_HIGH),
+                    "mult_C": (0.001481, _RATE_LOW, _RATE_HIGH)},
         source="Chen & Xie (1997), Food Res. Int. 30:429; Chen (2008), Drying Technol. "
                "26:627: the reaction engineering approach, dE_v / dE_v,inf = "
                "exp(-b (X - X_eq)^c)"),
@@ -174,3 +179,46 @@ def alternative_config(cfg: PlantConfig, alternative: Alternative,
         keys[f"parameters.{name}.low"] = low
         keys[f"parameters.{name}.high"] = high
     return cfg.with_keys(keys)
+
+
+def commission(cfg: PlantConfig, alternative: Alternative,
+               values: Mapping[str, float] | None = None,
+               target: float | None = None) -> PlantConfig:
+    """:func:`alternative_config` with ``mult_D`` and ``mult_C`` scaled together (their ratio
+    as commissioned) so that the steady ``moisture_out`` at ``cfg``'s nominal point equals
+    ``target`` (default: ``cfg``'s own, the model as configured): the start a search needs
+    when the free keys move the rate's level (module notes; ``cdc_exponent`` 2 needs 12 times
+    the commissioned scale). An alternative without commissioned parameters is returned as
+    :func:`alternative_config` gives it.
+
+    Raises
+    ------
+    softsensor.errors.SolverError
+        When no scale within the alternative's bounds reaches ``target``.
+    """
+    out = alternative_config(cfg, alternative, values)
+    if "mult_D" not in alternative.parameters:
+        return out
+    if target is None:
+        ref = DryerModel(cfg, threads=1)
+        target = float(ref.steady_state(ref.nominal_inputs(), ref.theta0)[1][2])
+    model = DryerModel(out, threads=1)
+    u = model.nominal_inputs()
+    names = [n for n in ("mult_D", "mult_C") if n in alternative.parameters]
+    start = {n: alternative.parameters[n][0] for n in names}
+    low = max(alternative.parameters[n][1] / start[n] for n in names)
+    high = min(alternative.parameters[n][2] / start[n] for n in names)
+
+    def miss(log_k: float) -> float:
+        theta = model.theta0.copy()
+        for n in names:
+            theta[PARAMETER_NAMES.index(n)] = start[n] * np.exp(log_k)
+        return float(model.steady_state(u, theta)[1][2]) - target
+
+    lo, hi = np.log(low), np.log(high)
+    if miss(lo) * miss(hi) > 0.0:
+        raise SolverError(f"{alternative.name} with {dict(values or {})}: no scale of "
+                          f"{' and '.join(names)} within their bounds reaches moisture_out "
+                          f"{target:.4f} kg/kg at the nominal point")
+    k = float(np.exp(brentq(miss, lo, hi, xtol=1e-8)))
+    return out.with_parameters({n: start[n] * k for n in names})
