@@ -26,9 +26,16 @@ wall-clock and on CPU seconds, since on a shared machine the wall clock includes
 waiting for a core (the load average is recorded). Targets: ``benchmarks/targets.json``
 (``model``); the JSON ends with whether each is met.
 
+With ``--laws`` it also times (c) with each drying-rate law of the structural library
+(:func:`softsensor.model.structure.structure_space`, each commissioned as listed there) on
+the same inputs, interleaved so that the machine's load falls on all alike, and reports each
+law's median CPU seconds and its ratio to the paper's law (target: at most 1.2);
+``--laws-only`` skips (a) and (b).
+
 Usage::
 
-    python benchmarks/model.py [--uncompiled-hours 48] [--seed 0] [--rtol 1e-4] [--out FILE]
+    python benchmarks/model.py [--uncompiled-hours 48] [--seed 0] [--rtol 1e-4] [--laws]
+                               [--laws-only] [--out FILE]
 """
 
 from __future__ import annotations
@@ -164,6 +171,30 @@ def _time_fast(model: DryerModel, U: np.ndarray, repeats: int) -> tuple[float, f
             runs[-1][2])
 
 
+def law_timings(U: np.ndarray, repeats: int = 7) -> dict:
+    """Median CPU and wall seconds of ``simulate(U)`` per drying law (module notes), the runs
+    of the laws interleaved, and each law's CPU ratio to the paper's."""
+    from softsensor.model.structure import alternative_config, structure_space
+
+    base = load_plant_config()
+    laws = {a.sets["fiber.drying_law"]: DryerModel(alternative_config(base, a), threads=1)
+            for a in structure_space() if a.family == "drying_law"}
+    runs: dict[str, list[tuple[float, float]]] = {law: [] for law in laws}
+    for m in laws.values():
+        m.simulate(U[:2])  # compiled and warm
+    for _ in range(repeats):
+        for law, m in laws.items():
+            w, c, _ = _timed(lambda m=m: m.simulate(U))
+            runs[law].append((w, c))
+    out = {law: {"cpu_seconds": float(np.median([r[1] for r in rs])),
+                 "seconds": float(np.median([r[0] for r in rs])), "repeats": repeats}
+           for law, rs in runs.items()}
+    paper = out["double_sigmoid"]["cpu_seconds"]
+    for law in out:
+        out[law]["cpu_ratio_to_paper"] = out[law]["cpu_seconds"] / paper
+    return out
+
+
 def _ratios(a: float, b: float, c: float) -> dict[str, float]:
     return {"a_over_c": a / c, "b_over_c": b / c, "a_over_b": a / b}
 
@@ -256,12 +287,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rtol", type=float, default=1e-4,
                     help="BDF relative tolerance of the method of lines (1e-4 already meets "
                          "the output targets with margin)")
+    ap.add_argument("--laws", action="store_true",
+                    help="also time the fast model with each drying-rate law")
+    ap.add_argument("--laws-only", action="store_true",
+                    help="only time the fast model with each drying-rate law (skip the peers)")
     ap.add_argument("--out", help="also write the JSON to this file")
     args = ap.parse_args(argv)
     if not 600.0 / 3600.0 <= args.uncompiled_hours <= HOURS_FULL:
         ap.error(f"--uncompiled-hours must be in [1/6, {HOURS_FULL:g}], got "
                  f"{args.uncompiled_hours}")
-    result = run(args.uncompiled_hours, args.seed, args.rtol)
+    if args.laws_only:
+        result = {"benchmark": "softsensor model: the fast model per drying law",
+                  "load_average_at_start": [round(v, 2) for v in os.getloadavg()]}
+    else:
+        result = run(args.uncompiled_hours, args.seed, args.rtol)
+    if args.laws or args.laws_only:
+        U = closed_loop_inputs(DryerModel(load_plant_config(), threads=1), HOURS_FULL,
+                               args.seed)
+        laws = law_timings(U)
+        result["drying_laws"] = laws
+        result["drying_laws_within_1_2x"] = all(v["cpu_ratio_to_paper"] <= 1.2
+                                                for v in laws.values())
+        result["load_average_at_end"] = [round(v, 2) for v in os.getloadavg()]
     text = json.dumps(result, indent=2)
     print(text)
     if args.out:

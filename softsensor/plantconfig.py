@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from softsensor.configfile import TOML_KEY, build_section, num, read_toml
+from softsensor.configfile import build_section, choice, num, read_toml
 from softsensor.errors import ConfigError
 
 #: The paper's Table 1, in this order everywhere (arrays of parameters use it).
@@ -70,6 +70,12 @@ class Cyclone:
     hold_up_time: float = num(8.0, gt=0, le=120)  # s, fibre residence in the cyclones
 
 
+#: The drying-rate laws the model compiles (``fiber.drying_law``; the model's law index is the
+#: position here): the paper's double sigmoid (the default), Keey's characteristic drying
+#: curve, Chen's reaction engineering approach (:mod:`softsensor.model.wood`).
+DRYING_LAWS: tuple[str, ...] = ("double_sigmoid", "cdc", "rea")
+
+
 @dataclass(frozen=True)
 class Fiber:
     dry_density: float = num(gt=0)            # kg/m3
@@ -81,6 +87,14 @@ class Fiber:
     critical_width: float = num(gt=0)         # kg/kg
     bound_fraction: float = num(gt=0, le=1)
     equilibrium_width: float = num(gt=0)      # kg/kg
+    # the drying-rate law (a structural choice, softsensor.model.structure) and the shape
+    # parameters of the alternatives; each law reads only its own
+    drying_law: str = choice(DRYING_LAWS, "double_sigmoid")
+    # (bounds: an exponent below 1 gives the rate an infinite slope at X_eq, where the cell
+    # Newton fails; measured on the nominal point and three corners of the operating range)
+    cdc_exponent: float = num(1.0, ge=1.0, le=5.0)   # Keey's n, falling-rate exponent
+    rea_b: float = num(5.0, ge=0.5, le=100.0)        # Chen's b [(kg/kg)^-c]
+    rea_c: float = num(1.0, ge=1.0, le=3.0)          # Chen's c
 
 
 @dataclass(frozen=True)
@@ -101,6 +115,10 @@ class HotGas:
 class Environment:
     pressure: float = num(gt=5e4, lt=2e5)      # Pa
     wind_speed: float = num(ge=0, lt=50)       # m/s
+    # outside heat loss grows by this per K of ambient below 283.15 K (a structural choice of
+    # the heat-loss law, softsensor.model.structure; the diagnosis's ambient_heat_loss
+    # extension adds its own on top, model aux BETA_AMB)
+    ambient_loss_slope: float = num(0.0, ge=-0.1, le=0.6)  # 1/K
 
 
 @dataclass(frozen=True)
@@ -218,28 +236,44 @@ class PlantConfig(PlantSections):
             params[name] = spec
         return _keeping_tables(self, dataclasses.replace(self, parameters=params))
 
-    def with_structure(self, changes: dict[str, Any], source: str | None = None
-                       ) -> PlantConfig:
-        """A copy with the plant sections' keys ``changes`` (dotted, ``"fiber.
-        critical_moisture"``) set: a structural alternative of the model
-        (:mod:`softsensor.calibration.structure`). Each changed section is validated again
-        as the file's is, so a bad value is one line naming ``source`` and the dotted key."""
-        where = source or self.source
+    def with_keys(self, values: Mapping[str, Any]) -> PlantConfig:
+        """A copy with plant keys changed, named as in the TOML file: ``"fiber.drying_law"``,
+        ``"cyclone.hold_up_time"``, ``"parameters.mult_D.low"``.
+
+        Each changed section is rebuilt and checked as on load (bounds, choices, cross-field
+        rules), so a bad value is one :class:`ConfigError` line naming the dotted key; this is
+        how a structural alternative (:func:`softsensor.model.structure.structure_space`)
+        becomes a config. The tables already built stay built.
+        """
         sections: dict[str, dict[str, Any]] = {}
+        specs: dict[str, dict[str, Any]] = {}
         names = {f.name for f in dataclasses.fields(PlantSections)}
-        for dotted, value in changes.items():
-            section, _, key = str(dotted).partition(".")
-            if section not in names or not key:
-                raise ConfigError(f"{where}: structure.{dotted} is not a key of a plant "
-                                  f"section (known sections: {', '.join(sorted(names))})")
-            sections.setdefault(section, {})[key] = value
-        kwargs = {}
-        for section, table in sections.items():
-            old = getattr(self, section)
-            merged = {**{f.metadata.get(TOML_KEY, f.name): getattr(old, f.name)
-                         for f in dataclasses.fields(old)}, **table}
-            kwargs[section] = build_section(type(old), merged, section, where)
-        return _keeping_tables(self, dataclasses.replace(self, **kwargs))
+        for key, value in values.items():
+            parts = key.split(".")
+            if len(parts) == 2 and parts[0] in names:
+                sections.setdefault(parts[0], {})[parts[1]] = value
+            elif len(parts) == 3 and parts[0] == "parameters":
+                if parts[1] not in PARAMETER_NAMES:
+                    raise ConfigError(f"{self.source}: {key}: {parts[1]} is not one of the "
+                                      f"paper's Table 1 parameters")
+                specs.setdefault(parts[1], {})[parts[2]] = value
+            else:
+                raise ConfigError(f"{self.source}: {key} is not a plant key (section.key of "
+                                  f"{', '.join(sorted(names))}, or parameters.<name>.<field>)")
+        changes: dict[str, Any] = {}
+        for name, table in sections.items():
+            current = getattr(self, name)
+            old = {f.name: getattr(current, f.name) for f in dataclasses.fields(current)
+                   if getattr(current, f.name) is not None}
+            changes[name] = build_section(type(current), {**old, **table}, name, self.source)
+        if specs:
+            params = dict(self.parameters)
+            for name, table in specs.items():
+                old = dataclasses.asdict(params[name])
+                params[name] = build_section(ParameterSpec, {**old, **table},
+                                             f"parameters.{name}", self.source)
+            changes["parameters"] = params
+        return _keeping_tables(self, dataclasses.replace(self, **changes))
 
 
 T = TypeVar("T")
@@ -406,7 +440,7 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     :func:`softsensor.estimation.model_error.model_error_of`), when present, are carried in
     ``extra`` for the estimator and the diagnosis; ``[structure]`` (a structural alternative
     adopted from history: plant-section keys such as ``fiber.critical_moisture``) replaces
-    those keys of the plant sections (:meth:`PlantConfig.with_structure`). The tables
+    those keys of the plant sections (:meth:`PlantConfig.with_keys`). The tables
     ``config`` built already stay built.
     """
     data = read_toml(path)
@@ -429,7 +463,7 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     if structure is not None:
         if not isinstance(structure, dict):
             raise ConfigError(f"{path}: [structure] must be a table")
-        cfg = cfg.with_structure(_dotted_keys(structure), str(path))
+        cfg = cfg.with_keys(_dotted_keys(structure))
     extra = dict(cfg.extra)
     built: dict[str, Any] = {}
     disc = data.get("discrepancy")

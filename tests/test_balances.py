@@ -22,6 +22,8 @@ from softsensor.model import wood as wd
 #: steady heat loss against the heat it takes from the air.
 CLOSURE = 1e-15
 WALL_CLOSURE = 1e-13
+#: The same for the alternative drying laws (test_balances_close_with_each_drying_law).
+LAW_WALL_CLOSURE = 2e-6
 
 POINTS = {
     "nominal": {},
@@ -130,3 +132,34 @@ def test_humid_air_condenses_on_cold_wet_fibre(model):
     R_cond, *_ = cell_physics.cell_rates(0, 1.0, Tf, 1.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
     R_evap, *_ = cell_physics.cell_rates(0, 1.0, Tf, 0.5 * wet, Ta, 1.0, 80.0, 6.0, theta, geo)
     assert R_cond < 0.0 < R_evap
+
+
+@pytest.fixture(scope="module")
+def law_models(config):
+    """A model per alternative drying law, commissioned as the structural library says."""
+    from softsensor.model.structure import alternative_config, structure_space
+
+    return {a.sets["fiber.drying_law"]: DryerModel(alternative_config(config, a))
+            for a in structure_space()
+            if a.family == "drying_law" and not a.default}
+
+
+@pytest.mark.parametrize("law", ["cdc", "rea"])
+@pytest.mark.parametrize("point", sorted(POINTS))
+def test_balances_close_with_each_drying_law(law_models, law, point):
+    # the laws change the rate R, which enters the fibre and the air alike: water and energy
+    # close as for the paper's law (measured: as tight). The wall's steady loss against the
+    # heat it takes closes less tightly where a law brings the fibre to its equilibrium
+    # moisture in the tube with the air above 110 C (cdc, hot_low_production: 6.0e-7;
+    # rea, cold_winter: 2.6e-13; every other case below 1e-13): the equilibrium moisture's
+    # temperature clamp (wood.equilibrium_moisture) is a kink in the cell residual there, and
+    # the steady wall iteration stops at a profile a cell's Newton left off its root (with the
+    # clamp moved to 125 C, as an experiment, 2.4e-10)
+    m = law_models[law]
+    u = m.nominal_inputs(**POINTS[point])
+    b = _budget(m, u, m.theta0)
+    assert b["water_out"] == pytest.approx(b["water_in"], rel=CLOSURE, abs=0)
+    assert b["energy_in"] - b["energy_out"] == pytest.approx(
+        b["wall_in"], rel=0, abs=CLOSURE * b["energy_in"])
+    assert b["to_ambient"] == pytest.approx(b["wall_in"], rel=LAW_WALL_CLOSURE, abs=0)
+    assert b["evaporated"] > 0.3 * u[cell_physics.U_MFIB]

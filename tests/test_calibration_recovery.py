@@ -111,7 +111,7 @@ def _recover(tmp_path, capsys, hours: float, trials: int, seed: int, report: boo
 
     # validation on an independent day
     assert cli_main(["validate", str(val), "--params", str(params), "--json", "-"]) == 0
-    v = json.loads(capsys.readouterr().out)
+    v = json.loads(capsys.readouterr().out)["inlet_read"]
     # the validation fits the inlet moisture to the temperatures only (no labs), so its cost
     # is compared with the true parameters' cost on the same day, scored the same way
     vseg = load_segment(val, config)

@@ -193,7 +193,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                        result.trade_off, structure, seed=settings.seed,
                                        polish=polish, say=say)
         if search.adopted is not None:
-            config = config.with_structure(dict(search.adopted.alternative.changes))
+            config = config.with_keys(dict(search.adopted.alternative.changes))
             model, theta, kept = DryerModel(config), search.adopted.theta, False
             reason = f"calibrated with the structure '{search.adopted.alternative.name}'"
     with phase("model_error", timings, say):

@@ -208,7 +208,7 @@ def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: Pla
     out = []
     for alt in library:
         say(f"structure: {alt.name}")
-        cfg = config.with_structure(dict(alt.changes)).with_parameters(baseline_theta)
+        cfg = config.with_keys(dict(alt.changes)).with_parameters(baseline_theta)
         res = calibrate([c.segment for c in choices], cfg,
                         StudySettings(n_trials=1, seed=seed, progress=False), light,
                         choices=choices, validation_segments=list(held),

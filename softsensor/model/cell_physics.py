@@ -23,7 +23,9 @@ Rates (paper eqs. 1 to 3), with the high-flux driving force ``F = ln((1 + Y_s(T_
                      inner conduction (tube) or the shell's inner coefficient (cyclone)
   wall to ambient    ``Q_out = UA_out (T_w - T_amb)``: ``mult_p h_out pi D_out dx``
                      (Churchill-Bernstein plus natural convection and radiation) in series
-                     with the wall's outer conduction (tube)
+                     with the wall's outer conduction (tube), ``h_out`` scaled by
+                     ``1 + beta (283.15 K - T_amb)`` with ``beta`` the config's
+                     ``environment.ambient_loss_slope`` (0) plus the diagnosis's extension
   wall conduction    ``mult_k k_w A_cross (T_w,i-1 - 2 T_w,i + T_w,i+1) / dx`` along the tube
                      (adiabatic ends), and ``mult_k`` on the conduction through it (below)
 
@@ -56,6 +58,11 @@ Choices where the paper is garbled or silent:
   (``tube.deposit_thickness``/``deposit_conductivity``, 1.5 mm at 0.12 W/(m K)) and to the
   outer surface. Over Table 1's range it moves the outlet temperatures by 1.3 K; read as axial
   conduction only, by less than 0.01 K.
+* The drying-rate law is the plant's ``fiber.drying_law`` (:func:`drying_law`): the paper's
+  double sigmoid ``alpha(X)`` (default), Keey's characteristic drying curve (another
+  ``alpha(X)``), or Chen's reaction engineering approach (``alpha = 1`` and a surface vapour
+  below saturation in ``F``); the same in the tube's eq. 2 and in the cyclone's eq. 2 form
+  (:mod:`softsensor.model.structure` lists the alternatives).
 * Over-dried fibre: the drying reduction ``alpha(X)`` is negative below ``X_eq``
   (:func:`wood.drying_reduction`), and the vapour is then taken up at a rate set by
   ``|F|``.
@@ -97,18 +104,23 @@ from softsensor.model.geometry import (
     A_FLOW,
     A_SH_CELL,
     ALPHA_B,
+    AMB_SLOPE,
     BETA_AMB,
+    CDC_N,
     D_CYC,
     D_FIB,
     D_MEAN,
     D_OUT,
     D_P,
+    DRY_LAW,
     DX,
     EMISS,
     H_IN_CYC,
     N_C,
     R_WALL_IN,
     R_WALL_OUT,
+    REA_B,
+    REA_C,
     RHO_FIB,
     S_SPEC,
     T_AMB_REF,
@@ -228,6 +240,31 @@ def inflow_coefficients(kind, Ta, Y, X, m_a, theta, geo):
 
 
 @register_jitable
+def drying_law(X, Tf, Ta, phi, x_eq, geo):
+    """The drying-rate law of the plant (``geo[DRY_LAW]``, ``fiber.drying_law``): the rate
+    factor ``alpha`` [-] and the humidity ratio at the fibre surface ``Y_s`` [kg/kg] that the
+    driving force ``ln((1 + Y_s) / (1 + Y))`` of eqs. 2 and 3 uses.
+
+    The paper's double sigmoid and Keey's characteristic drying curve scale the rate (``alpha``
+    from :func:`wood.drying_reduction` or :func:`wood.cdc_reduction`) with a saturated
+    surface; Chen's reaction engineering approach keeps ``alpha = 1`` and lowers the surface
+    vapour to ``psi p_sat(T_f)`` (:func:`wood.rea_surface_factor`, capped as
+    :func:`humid_air.y_sat` caps ``p_sat``). ``X``, ``T_f``, ``T_a``, ``phi`` (the air's
+    relative humidity) and ``x_eq`` are the cell's rate state.
+    """
+    Pa = geo[P]
+    law = int(geo[DRY_LAW])
+    if law == wd.LAW_DOUBLE_SIGMOID:
+        return (wd.drying_reduction(X, x_eq, geo[X_CR], geo[W_CR], geo[ALPHA_B], geo[W_EQ]),
+                ha.y_sat(Tf, Pa))
+    if law == wd.LAW_CDC:
+        return wd.cdc_reduction(X, x_eq, geo[X_CR], geo[CDC_N]), ha.y_sat(Tf, Pa)
+    psi = wd.rea_surface_factor(X, x_eq, phi, Ta, Tf, geo[REA_B], geo[REA_C])
+    p_s = min(psi * ha.p_sat(Tf), ha.P_SAT_CAP * Pa)
+    return 1.0, ha.humidity_ratio(p_s, Pa)
+
+
+@register_jitable
 def cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo):
     """Evaporation ``R`` [kg/s] and air-to-fibre heat ``Q_af`` [W] of one cell.
 
@@ -240,11 +277,11 @@ def cell_rates(kind, X, Tf, Y, Ta, v_s, m_a, m_f, theta, geo):
     rho_da = rho / (1.0 + Y)
     phi = ha.relative_humidity(Ta, Y, Pa)
     x_eq = wd.equilibrium_moisture(Ta, phi)
-    alpha = wd.drying_reduction(X, x_eq, geo[X_CR], geo[W_CR], geo[ALPHA_B], geo[W_EQ])
+    alpha, y_s = drying_law(X, Tf, Ta, phi, x_eq, geo)
     # high-flux (Stefan) driving force ln((1 + Y_s) / (1 + Y)) = ln((1 - w) / (1 - w_s)) in
     # vapour mass fractions w = Y / (1 + Y); over-dried fibre (alpha < 0) takes vapour up at a
     # rate set by its distance from equilibrium, whatever the sign of the humidity difference
-    drive = np.log((1.0 + ha.y_sat(Tf, Pa)) / (1.0 + Y))
+    drive = np.log((1.0 + y_s) / (1.0 + Y))
     if alpha < 0.0:
         drive = abs(drive)
     mu, k = ha.viscosity_conductivity(Ta, Y)
@@ -293,7 +330,8 @@ def outside_conductance_film(T_w, u, theta, aux, geo, kind, k, nu, Pr):
     """:func:`outside_conductance` with the ambient film properties of :func:`ambient_film`
     given."""
     T_amb = u[U_TAMB]
-    amb = max(1.0 + aux[BETA_AMB] * (T_AMB_REF - T_amb), 0.0)
+    # the config's slope plus the diagnosis extension's (0 + 0: the paper's law, bit for bit)
+    amb = max(1.0 + (aux[BETA_AMB] + geo[AMB_SLOPE]) * (T_AMB_REF - T_amb), 0.0)
     if kind == 0:
         h = tr.outside_coefficient(T_w, T_amb, geo[D_OUT], geo[WIND], geo[EMISS], k, nu, Pr)
         return series(theta[K_P] * amb * h * np.pi * geo[D_OUT] * geo[DX],

@@ -12,17 +12,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import DRYING_LAWS, PlantConfig
 
 # Indices into the packed geometry array ``geo`` (float64), shared with the kernels.
 P, DX, D, D_OUT, A_FLOW, C_W_CELL, G_COND, S_SPEC, D_FIB, D_P, RHO_FIB = range(11)
 X_FSP, X_CR, W_CR, ALPHA_B, W_EQ, T_HOT, Y_HOT, WIND, EMISS = range(11, 20)
 V_C_CELL, A_SH_CELL, C_SH_CELL, H_IN_CYC, D_CYC, N_D, N_C = range(20, 27)
 TAU_HOLD, R_WALL_IN, R_WALL_OUT, D_MEAN = range(27, 31)
-N_GEO = 31
+# the drying-rate law (index into plantconfig.DRYING_LAWS) and its shape parameters
+DRY_LAW, CDC_N, REA_B, REA_C = range(31, 35)
+# the heat-loss law's ambient slope [1/K] (config), added to the aux's BETA_AMB
+AMB_SLOPE = 35
+N_GEO = 36
 
 #: Indices into the auxiliary (model-extension) array: ``BETA_AMB`` [1/K] makes the outside
-#: heat-loss coefficients grow by ``1 + BETA_AMB (T_AMB_REF - T_amb)`` (diagnosis extension).
+#: heat-loss coefficients grow by ``1 + BETA_AMB (T_AMB_REF - T_amb)`` (diagnosis extension;
+#: the config's ``environment.ambient_loss_slope``, ``geo[AMB_SLOPE]``, adds to it).
 BETA_AMB = 0
 N_AUX = 1
 T_AMB_REF = 283.15
@@ -92,4 +97,9 @@ def geometry(cfg: PlantConfig, n_d: int | None = None) -> Geometry:
                     + 0.5 * t.wall_thickness / t.wall_conductivity)
     g[R_WALL_OUT] = 0.5 * t.wall_thickness / t.wall_conductivity
     g[D_MEAN] = t.diameter + t.wall_thickness
+    g[DRY_LAW] = DRYING_LAWS.index(f.drying_law)
+    g[CDC_N] = f.cdc_exponent
+    g[REA_B] = f.rea_b
+    g[REA_C] = f.rea_c
+    g[AMB_SLOPE] = cfg.environment.ambient_loss_slope
     return Geometry(n_d=n_d, n_c=c.n_cells, packed=g)

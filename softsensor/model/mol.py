@@ -16,7 +16,9 @@ The right-hand side, :func:`derivatives`, is compiled by numba like the fast mod
 of the two (``benchmarks/model.py``) measures the reformulation, not the compiler. Its cell
 rates are the compiled model's own (:func:`cell_physics.cell_rates`,
 :func:`cell_physics.inflow_coefficients`, :func:`cell_physics.outside_conductance`,
-:func:`cell_physics.inlet_air`), so at steady state both reach the same algebraic equations
+:func:`cell_physics.inlet_air`), the drying-rate law of ``fiber.drying_law`` included
+(:func:`cell_physics.drying_law`, dispatched on the law index in ``geo``), so at steady state
+both reach the same algebraic equations
 (the :mod:`~softsensor.model.cell_physics` module docstring lists them); what differs is only
 the time integration: here every state is dynamic, there the fibre and air sit at their
 quasi-steady profile and the wall is stepped by Crank-Nicolson.

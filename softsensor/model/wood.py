@@ -27,6 +27,20 @@ Choices where the paper is silent
   et al. 2009), and a tanh ramp that passes through 0 at the equilibrium moisture ``X_eq`` of
   the surrounding air. The ramp is signed: fibre drier than equilibrium re-adsorbs vapour
   (``alpha < 0``), as over-dried fibre does in humid air.
+
+Drying-rate laws (``fiber.drying_law``)
+---------------------------------------
+The shape of the falling-rate period is where published drying physics differs, and no rate
+multiplier can turn one shape into another. Three laws are compiled in, chosen per plant by
+the law index packed in ``geo`` (:mod:`softsensor.model.geometry`) and dispatched inside
+:func:`softsensor.model.cell_physics.drying_law` (the names:
+:data:`softsensor.plantconfig.DRYING_LAWS`):
+
+* ``double_sigmoid`` (:data:`LAW_DOUBLE_SIGMOID`, the default): the paper's ``alpha(X)``,
+  :func:`drying_reduction`;
+* ``cdc`` (:data:`LAW_CDC`): Keey's characteristic drying curve, :func:`cdc_reduction`;
+* ``rea`` (:data:`LAW_REA`): Chen's reaction engineering approach, which lowers the vapour
+  at the fibre surface instead of scaling the rate, :func:`rea_surface_factor`.
 """
 
 from __future__ import annotations
@@ -35,6 +49,11 @@ import numpy as np
 from numba.extending import register_jitable
 
 from softsensor.model.humid_air import C_W, T0
+from softsensor.plantconfig import DRYING_LAWS
+
+#: Drying-rate law indices (``geo[DRY_LAW]``): positions in the one list of law names.
+LAW_DOUBLE_SIGMOID, LAW_CDC, LAW_REA = (
+    DRYING_LAWS.index(n) for n in ("double_sigmoid", "cdc", "rea"))
 
 # Wood Handbook (2010) eq. 4-19 coefficients, kJ/(kg K) with M in percent, converted to J.
 _B1, _B2, _B3 = -0.06191e3, 2.36e-4 * 1e3, -1.33e-4 * 1e3
@@ -128,3 +147,42 @@ def drying_reduction(X, X_eq, X_cr, w_cr, alpha_b, w_eq):
     s = 1.0 / (1.0 + np.exp(-(X - X_cr) / w_cr))
     ramp = np.tanh((X - X_eq) / w_eq)
     return (alpha_b + (1.0 - alpha_b) * s) * ramp
+
+
+@register_jitable
+def cdc_reduction(X, X_eq, X_cr, n):
+    """Keey's characteristic drying curve: the rate relative to the constant-rate period [-].
+
+    ``f = 1`` above the critical moisture ``X_cr``, ``f = Phi^n`` below it with the
+    characteristic moisture ``Phi = (X - X_eq) / (X_cr - X_eq)`` (Keey, *Drying of Loose and
+    Particulate Materials*, Hemisphere 1992, ch. 2; ``n = 1`` is the linear falling rate).
+    Signed like :func:`drying_reduction`: ``-|Phi|^n`` below ``X_eq`` (re-adsorption).
+    ``Phi`` is clipped to ``[-1, 1]`` so that air whose equilibrium moisture approaches
+    ``X_cr`` (cold, nearly saturated) cannot give a factor beyond the constant rate's.
+    """
+    if X >= X_cr:
+        return 1.0
+    phi = (X - X_eq) / max(X_cr - X_eq, 1e-6)
+    phi = min(max(phi, -1.0), 1.0)
+    if phi >= 0.0:
+        return phi**n
+    return -((-phi) ** n)
+
+
+@register_jitable
+def rea_surface_factor(X, X_eq, phi_air, T_air, T_f, b, c):
+    """Chen's reaction engineering approach: the fibre surface's vapour pressure relative to
+    saturation at the fibre temperature, ``psi = p_v,s / p_sat(T_f)`` [-].
+
+    The surface vapour is ``p_sat(T_f) exp(-dE_v / (R T_f))`` with the apparent activation
+    energy ``dE_v = dE_v,inf exp(-b (X - X_eq)^c)`` and its equilibrium value
+    ``dE_v,inf = -R T_air ln(phi_air)`` (Chen & Xie 1997, Food Res. Int. 30:429; Chen 2008,
+    Drying Technol. 26:627), so ``psi = phi_air ^ (exp(-b (X - X_eq)^c) T_air / T_f)``: 1
+    (a wet surface) far above ``X_eq``, the air's own relative humidity at equilibrium. The
+    distance ``X - X_eq`` is taken as 0 below equilibrium (the law's ``(X - X_eq)^c`` is not
+    real there); the driving force's sign then carries re-adsorption. ``phi_air`` is clipped
+    to ``[0, 1]`` (supersaturated air condenses on a wet surface, ``psi = 1``).
+    """
+    d = max(X - X_eq, 0.0)
+    ratio = np.exp(-b * d**c) * T_air / T_f
+    return min(max(phi_air, 0.0), 1.0) ** ratio
