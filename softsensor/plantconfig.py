@@ -458,12 +458,13 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise ConfigError(f"{path}: parameters.{name}.value must be a number, got {v!r}")
         values[name] = float(v)
-    cfg = config.with_parameters(values) if values else config
+    cfg = config
     structure = data.get("structure")
-    if structure is not None:
+    if structure is not None:  # first: it may widen the bounds the values must keep within
         if not isinstance(structure, dict):
             raise ConfigError(f"{path}: [structure] must be a table")
         cfg = cfg.with_keys(_dotted_keys(structure))
+    cfg = cfg.with_parameters(values) if values else cfg
     extra = dict(cfg.extra)
     built: dict[str, Any] = {}
     disc = data.get("discrepancy")

@@ -310,7 +310,9 @@ def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
            "calibrated_values": result.params,
            "inlet_levels": hist.inlet_levels}
     at = [] if hist.kept_current else result.at_bounds
-    return params_document(base, hist.params, fit, verdicts, at,
+    adopted = None if hist.structure is None else hist.structure.adopted
+    deployed = base if adopted is None else base.with_keys(adopted.keys)
+    return params_document(deployed, hist.params, fit, verdicts, at,
                            None if hist.discrepancy is None else hist.discrepancy.as_dict(),
                            hist.model_error.to_table(),
                            None if hist.structure is None else hist.structure.params_table())

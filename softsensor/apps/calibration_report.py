@@ -140,9 +140,9 @@ def structure_table(search: StructureSearch, display: DisplaySettings, x_ref: fl
     unit = plant_error("moisture_out", 0.0, x_ref, display)[1]
     rows = [("paper's form (baseline)", "", *cells(search.baseline_held_out), "0", "")]
     for c in search.candidates:
-        a = c.alternative
+        a = c.candidate
         changes = ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
-                            for k, v in a.changes.items())
+                            for k, v in c.keys.items() if not k.startswith("parameters."))
         rows.append((a.name, f"{changes} ({a.source})", *cells(c.held_out), f"{c.gain:.1f}",
                      "**adopted**" if c.adopted else c.why_not))
     return (search.line() + "\n\n" + figures.markdown_table(

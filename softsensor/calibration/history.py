@@ -49,7 +49,7 @@ from softsensor.calibration.pipeline import (
 )
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
 from softsensor.calibration.settings import CalibrationSettings
-from softsensor.calibration.structure import Alternative, StructureSearch
+from softsensor.calibration.structure import Candidate, StructureSearch
 from softsensor.calibration.structure import search as structural_search
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
@@ -162,7 +162,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                       identify_result: bool = True, force: bool = False,
                       validation: Sequence[Segment] | None = None,
                       model: DryerModel | None = None,
-                      structure: Sequence[Alternative] | None = None,
+                      structure: Sequence[Candidate] | None = None,
                       progress: Callable[[str], None] | None = None) -> HistoryResult:
     """Calibrate on the history ``days`` (module docstring); ``validation``: days to validate
     on instead of the held-out hours; ``structure``: the structural alternatives to search
@@ -193,9 +193,9 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                        result.trade_off, structure, seed=settings.seed,
                                        polish=polish, say=say)
         if search.adopted is not None:
-            config = config.with_keys(dict(search.adopted.alternative.changes))
+            config = config.with_keys(search.adopted.keys)
             model, theta, kept = DryerModel(config), search.adopted.theta, False
-            reason = f"calibrated with the structure '{search.adopted.alternative.name}'"
+            reason = f"calibrated with the structure '{search.adopted.candidate.name}'"
     with phase("model_error", timings, say):
         levels = inlet_levels(model, days, theta, result)
         latest = levels[int(np.argmax([d.start_ns for d in days]))]

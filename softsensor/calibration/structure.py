@@ -39,7 +39,10 @@ from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
+from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
+from softsensor.model.structure import Alternative as ModelAlternative
+from softsensor.model.structure import commission, structure_space
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
 
@@ -49,44 +52,71 @@ ALTERNATIVE_POLISH = (2, 8)
 
 
 @dataclass(frozen=True)
-class Alternative:
-    """A structural alternative: plant-section keys and their values (``changes``), how many
-    structural constants it fixes (``k``, the penalty's count), what it changes and its
-    source."""
+class Candidate:
+    """A structural alternative to try: one of the model's library
+    (:func:`softsensor.model.structure.structure_space`) with values for its free keys.
+    ``k`` counts the structural constants it fixes (the penalty's count)."""
 
     name: str
-    changes: Mapping[str, Any]
+    alternative: ModelAlternative
+    values: Mapping[str, float]
     k: int
     what: str
-    source: str
+
+    @property
+    def source(self) -> str:
+        return self.alternative.source
+
+    def config(self, start: PlantConfig) -> PlantConfig:
+        """``start`` (the paper's form at its calibrated multipliers) with this alternative:
+        a drying law commissioned to ``start``'s nominal outlet moisture (its rate
+        multipliers scaled together), the other multipliers as ``start`` has them."""
+        return commission(start, self.alternative, self.values)
+
+    def keys(self, deployed: PlantConfig) -> dict[str, Any]:
+        """The plant keys that make ``deployed`` this alternative (PARAMS.toml's
+        ``[structure]``): the fixed and free keys, and the Table 1 bounds it widens."""
+        out: dict[str, Any] = {**self.alternative.sets, **self.values}
+        for name in self.alternative.parameters:
+            spec = deployed.parameters[name]
+            out[f"parameters.{name}.low"] = float(spec.low)
+            out[f"parameters.{name}.high"] = float(spec.high)
+        return out
 
 
-def default_library(config: PlantConfig) -> list[Alternative]:
-    """The alternatives searched by default, around ``config``'s own constants."""
+def _find(name: str) -> ModelAlternative:
+    return next(a for a in structure_space() if a.name == name)
+
+
+def default_library(config: PlantConfig) -> list[Candidate]:
+    """The alternatives searched by default: the two other drying laws at two shapes each,
+    the paper's bound-water rate a factor 3 either way, a longer cyclone hold-up and a
+    heat loss that grows in the cold (each from the model's library, around ``config``)."""
     f, c = config.fiber, config.cyclone
+    law, paper = _find("drying_law.cdc"), _find("drying_law.double_sigmoid")
+    rea, hold, loss = (_find("drying_law.rea"), _find("cyclone.hold_up"),
+                       _find("heat_loss.ambient"))
     return [
-        Alternative("bound-water rate x0.3", {"fiber.bound_fraction": f.bound_fraction * 0.3},
-                    1, "slower drying below the critical moisture: the outlet moisture answers "
-                       "the heat input more steeply", "Pang 2001; paper eq. 2"),
-        Alternative("bound-water rate x3", {"fiber.bound_fraction": min(f.bound_fraction * 3,
-                                                                         1.0)},
-                    1, "faster drying below the critical moisture: a flatter end of drying",
-                    "Pang 2001; paper eq. 2"),
-        Alternative("critical moisture 1.0", {"fiber.critical_moisture": 1.0}, 1,
-                    "the constant-rate period ends later (lower critical moisture)",
-                    "Fritzell et al. 2009 (spruce MDF fibre, 1.25 kg/kg)"),
-        Alternative("critical moisture 1.5", {"fiber.critical_moisture": 1.5}, 1,
-                    "the constant-rate period ends earlier", "Fritzell et al. 2009"),
-        Alternative("equilibrium approach x0.5",
-                    {"fiber.equilibrium_width": f.equilibrium_width * 0.5}, 1,
-                    "a sharper approach to the equilibrium moisture", "paper eq. 2"),
-        Alternative("equilibrium approach x2",
-                    {"fiber.equilibrium_width": f.equilibrium_width * 2.0}, 1,
-                    "a gentler approach to the equilibrium moisture", "paper eq. 2"),
-        Alternative("cyclone hold-up x3", {"cyclone.hold_up_time": min(c.hold_up_time * 3,
-                                                                        120.0)},
-                    1, "fibre held longer in the cyclones: more of the drying there",
-                    "the paper's 'held up for seconds to tens of seconds'"),
+        Candidate("characteristic drying curve, n = 1", law, {"fiber.cdc_exponent": 1.0}, 2,
+                  "Keey's curve: the rate falls linearly to the equilibrium moisture"),
+        Candidate("characteristic drying curve, n = 2", law, {"fiber.cdc_exponent": 2.0}, 2,
+                  "Keey's curve, falling as the square: a steeper end of drying"),
+        Candidate("reaction engineering, b = 5", rea, {"fiber.rea_b": 5.0}, 2,
+                  "Chen's REA: the surface vapour falls with the activation energy"),
+        Candidate("reaction engineering, b = 20", rea, {"fiber.rea_b": 20.0}, 2,
+                  "Chen's REA, its activation energy rising sooner"),
+        Candidate("bound-water rate x0.3", paper,
+                  {"fiber.bound_fraction": f.bound_fraction * 0.3}, 1,
+                  "the paper's law, slower below the critical moisture"),
+        Candidate("bound-water rate x3", paper,
+                  {"fiber.bound_fraction": min(f.bound_fraction * 3.0, 2e-2)}, 1,
+                  "the paper's law, faster below the critical moisture"),
+        Candidate("cyclone hold-up x3", hold,
+                  {"cyclone.hold_up_time": min(c.hold_up_time * 3.0, 30.0)}, 1,
+                  "fibre held longer in the cyclones: more of the drying there"),
+        Candidate("heat loss growing in the cold", loss,
+                  {"environment.ambient_loss_slope": 0.05}, 1,
+                  "outside heat loss 5 % larger per kelvin of ambient below 283 K"),
     ]
 
 
@@ -104,10 +134,11 @@ def held_out_score(ev: Evaluation) -> tuple[float, int]:
 
 
 @dataclass(frozen=True)
-class Candidate:
+class Scored:
     """One alternative calibrated and scored (module docstring)."""
 
-    alternative: Alternative
+    candidate: Candidate
+    keys: dict[str, Any]
     theta: np.ndarray
     held_out: dict[str, float]
     open_loop: dict[str, float]
@@ -120,8 +151,8 @@ class Candidate:
         return (max(self.held_out[c] for c in TEMPERATURES), self.held_out["moisture_out"])
 
     def row(self) -> dict[str, Any]:
-        a = self.alternative
-        return {"name": a.name, "changes": dict(a.changes), "k": a.k, "what": a.what,
+        a = self.candidate
+        return {"name": a.name, "keys": self.keys, "k": a.k, "what": a.what,
                 "source": a.source, "params": list(map(float, self.theta)),
                 "held_out_rmse": self.held_out, "open_loop_rmse": self.open_loop,
                 "score": self.score, "gain": self.gain, "adopted": self.adopted,
@@ -134,10 +165,10 @@ class StructureSearch:
 
     baseline_score: float
     baseline_held_out: dict[str, float]
-    candidates: list[Candidate]
+    candidates: list[Scored]
 
     @property
-    def adopted(self) -> Candidate | None:
+    def adopted(self) -> Scored | None:
         return next((c for c in self.candidates if c.adopted), None)
 
     def line(self) -> str:
@@ -145,17 +176,17 @@ class StructureSearch:
         a = self.adopted
         if a is None:
             best = max(self.candidates, key=lambda c: c.gain, default=None)
-            tail = "" if best is None else f" (best: {best.alternative.name}, {best.why_not})"
+            tail = "" if best is None else f" (best: {best.candidate.name}, {best.why_not})"
             return (f"structure: the paper's form kept; none of {len(self.candidates)} "
                     f"alternatives earned its place on the held-out data{tail}")
         t, m = a.point()
-        return (f"structure: adopted '{a.alternative.name}' ({a.alternative.what}): held-out "
+        return (f"structure: adopted '{a.candidate.name}' ({a.candidate.what}): held-out "
                 f"evidence gain {a.gain:.1f}, worse temperature {t:.2f} K, labs {m:.4f} kg/kg")
 
     def as_dict(self) -> dict[str, Any]:
         return {"baseline_score": self.baseline_score,
                 "baseline_held_out_rmse": self.baseline_held_out,
-                "adopted": None if self.adopted is None else self.adopted.alternative.name,
+                "adopted": None if self.adopted is None else self.adopted.candidate.name,
                 "candidates": [c.row() for c in self.candidates]}
 
     def params_table(self) -> dict[str, Any] | None:
@@ -165,10 +196,13 @@ class StructureSearch:
         if a is None:
             return None
         out: dict[str, Any] = {}
-        for dotted, v in a.alternative.changes.items():
-            section, _, key = dotted.partition(".")
-            out.setdefault(section, {})[key] = v
-        out["evidence"] = {"adopted": a.alternative.name, "source": a.alternative.source,
+        for dotted, v in a.keys.items():
+            node = out
+            *path, key = dotted.split(".")
+            for part in path:
+                node = node.setdefault(part, {})
+            node[key] = v
+        out["evidence"] = {"adopted": a.candidate.name, "source": a.candidate.source,
                            "gain": a.gain, "baseline_score": self.baseline_score,
                            "candidates": [{k: v for k, v in c.row().items()
                                            if k in ("name", "gain", "adopted", "why_not",
@@ -189,7 +223,7 @@ def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
 def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: PlantConfig,
            calibration: CalibrationSettings, baseline_theta: np.ndarray,
            baseline: Evaluation, front: TradeOff | None,
-           library: Sequence[Alternative], *, seed: int = 0, polish: bool = True,
+           library: Sequence[Candidate], *, seed: int = 0, polish: bool = True,
            say: Callable[[str], None] | None = None) -> StructureSearch:
     """Calibrate and score every alternative of ``library`` (module docstring) on the
     windows ``choices`` and the held-out ``held`` pieces, against the paper's form at
@@ -206,19 +240,26 @@ def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: Pla
     base_score, n = held_out_score(baseline)
     penalty_per_k = 0.5 * math.log(max(n, 2))
     out = []
+    start = config.with_parameters(baseline_theta)
     for alt in library:
         say(f"structure: {alt.name}")
-        cfg = config.with_keys(dict(alt.changes)).with_parameters(baseline_theta)
+        try:
+            cfg = alt.config(start)
+        except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
+            say(f"structure: {alt.name} skipped: {exc}")
+            continue
         res = calibrate([c.segment for c in choices], cfg,
                         StudySettings(n_trials=1, seed=seed, progress=False), light,
                         choices=choices, validation_segments=list(held),
-                        current_theta=baseline_theta, polish=polish, identify_result=False,
+                        current_theta=cfg.parameter_vector(), polish=polish,
+                        identify_result=False,
                         model=DryerModel(cfg))
         ev = res.validation.evaluation
         score, _ = held_out_score(ev)
         gain = base_score - score - alt.k * penalty_per_k
-        out.append(Candidate(alt, res.theta, {k: float(v) for k, v in ev.fit.rmse.items()},
-                             {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
+        out.append(Scored(alt, alt.keys(cfg), res.theta,
+                          {k: float(v) for k, v in ev.fit.rmse.items()},
+                          {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
     ranked = sorted(out, key=lambda c: -c.gain)
     adopted = None
     for c in ranked:
@@ -232,7 +273,7 @@ def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: Pla
         elif not c.gain > 0:
             final.append(dataclasses.replace(
                 c, why_not=f"evidence gain {c.gain:.1f} <= 0 after the penalty "
-                           f"{c.alternative.k * penalty_per_k:.1f}"))
+                           f"{c.candidate.k * penalty_per_k:.1f}"))
         elif _dominated(c.point(), front):
             final.append(dataclasses.replace(
                 c, why_not="a point of the paper's front fits both channels as well"))
@@ -242,5 +283,5 @@ def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: Pla
                            final)
 
 
-__all__ = ["Alternative", "Candidate", "StructureSearch", "default_library", "held_out_score",
-           "search"]
+__all__ = ["ALTERNATIVE_POLISH", "Candidate", "Scored", "StructureSearch", "default_library",
+           "held_out_score", "search"]
