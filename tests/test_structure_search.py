@@ -1,0 +1,118 @@
+"""Structural alternatives chosen by evidence from history (issue 29 items 2 and 3;
+:mod:`softsensor.calibration.structure`).
+
+A matched plant built with another drying law (Keey's characteristic drying curve, n = 2,
+commissioned to the paper's nominal outlet moisture) hides its structure in two days of
+history; calibrated from the paper's form, the search must name that law among decoys and
+the PARAMS.toml it writes must carry it, so that ``load_parameters`` (and so ``validate``,
+``replay``, ``run`` and ``diagnose``) builds the model with it. The matched plant of the
+paper's form keeps the paper's form. With the search off nothing is adopted, so the first
+test fails.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.history import calibrate_history
+from softsensor.calibration.optimize import StudySettings
+from softsensor.calibration.params_file import params_document, write_params
+from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.structure import default_library
+from softsensor.errors import ConfigError
+from softsensor.model import DryerModel
+from softsensor.plant.day import DEFAULT_START_NS
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import load_parameters, load_plant_config
+
+BASE = load_plant_config()
+TRUTH = {"mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.3, "hm_cyc": 3e-4, "hc_cyc": 30.0}
+DAY_NS = 86_400 * 10**9
+HOURS = 16.0
+
+
+def _library(names):
+    lib = {c.name: c for c in default_library(BASE)}
+    return [lib[n] for n in names]
+
+
+LIBRARY = ("characteristic drying curve, n = 2", "reaction engineering, b = 5",
+           "bound-water rate x3")
+
+
+def _history(config, n_days=2):
+    return [segment_from_day(simulate_day(config, HOURS, 70 + i,
+                                          start_ns=DEFAULT_START_NS + i * DAY_NS),
+                             BASE, source=f"history {i}") for i in range(n_days)]
+
+
+def _calibrate(days, library):
+    return calibrate_history(days, BASE, StudySettings(n_trials=12, seed=0, progress=False),
+                             calibration_settings(BASE), current_theta=BASE.parameter_vector(),
+                             window_hours=6.0, fit_hours=12.0, identify_result=False,
+                             structure=library)
+
+
+@pytest.fixture(scope="module")
+def cdc_history():
+    cdc = _library(LIBRARY[:1])[0]
+    truth = cdc.config(BASE.with_parameters(TRUTH))
+    assert truth.fiber.drying_law == "cdc"
+    return _history(truth)
+
+
+def test_a_hidden_drying_law_is_named_and_deployed(cdc_history, tmp_path):
+    hist = _calibrate(cdc_history, _library(LIBRARY))
+    search = hist.structure
+    assert search is not None and search.adopted is not None, search.as_dict()
+    assert search.adopted.candidate.name == LIBRARY[0], search.line()
+    assert search.adopted.gain > 0
+    t, m = search.adopted.point()
+    assert t < 1.0 and m < 0.006, (t, m)
+    # PARAMS.toml carries the structure and loading it builds the model with it
+    from softsensor.apps.calibrate import _params_doc
+
+    path = write_params(tmp_path / "p.toml", _params_doc(BASE, hist))
+    cfg = load_parameters(path, BASE)
+    assert cfg.fiber.drying_law == "cdc" and cfg.fiber.cdc_exponent == 2.0
+    assert cfg.parameter_vector() == pytest.approx(hist.theta)
+    assert DryerModel(cfg).theta0 == pytest.approx(hist.theta)
+
+
+def test_the_paper_form_keeps_the_paper_form():
+    days = _history(BASE.with_parameters(TRUTH))
+    hist = _calibrate(days, _library(LIBRARY))
+    assert hist.structure.adopted is None, hist.structure.line()
+    assert hist.structure.line().startswith("structure: the paper's form kept")
+
+
+def test_a_bad_structure_table_is_one_line(tmp_path):
+    doc = params_document(BASE, {n: BASE.parameters[n].value for n in BASE.parameters}, {})
+    doc["structure"] = {"fiber": {"drying_law": "page"}}
+    path = write_params(tmp_path / "p.toml", doc)
+    with pytest.raises(ConfigError, match="fiber.drying_law must be one of"):
+        load_parameters(path, BASE)
+    doc["structure"] = {"fibre": {"drying_law": "cdc"}}
+    with pytest.raises(ConfigError, match="fibre.drying_law is not a plant key"):
+        load_parameters(write_params(tmp_path / "q.toml", doc), BASE)
+
+
+def test_held_out_score_is_the_profile_likelihood():
+    from softsensor.calibration.structure import held_out_score
+
+    class Fit:
+        n = {"T_dryer_out": 10, "T_cyclone_out": 10, "moisture_out": 4}
+        rmse = {"T_dryer_out": 0.5, "T_cyclone_out": 2.0, "moisture_out": 0.005}
+
+    class Ev:
+        fit = Fit()
+
+    score, n = held_out_score(Ev())
+    assert n == 24
+    want = 5 * math.log(0.25) + 5 * math.log(4.0) + 2 * math.log(0.005**2)
+    assert score == pytest.approx(want)
+    assert np.isfinite(score)
