@@ -3,7 +3,7 @@
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
 ``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``,
 ``design``.
-Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a module that
+Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERBS`); a module that
 fails to import stops the command with one line naming it (exit status 1) rather than hiding
 its verbs. This module only parses arguments and turns every
 :class:`~softsensor.errors.SoftsensorError` into one line on stderr and exit status 2.
@@ -31,15 +31,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, one_line(f"{self.prog}: error: {message}") + "\n")
 
 
-#: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``.
-VERB_MODULES: tuple[str, ...] = (
-    "softsensor.apps.virtual_plant",  # simulate, plant-server
-    "softsensor.apps.calibrate",      # calibrate, identify, validate
-    "softsensor.apps.streaming",      # run, replay
-    "softsensor.apps.diagnose",       # diagnose
-    "softsensor.apps.historian",      # import, export
-    "softsensor.apps.design",         # design
-)
+#: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``, and
+#: the verbs each adds (``tests/test_cli.py`` checks these against what they add). A command
+#: line naming a verb imports that verb's module only: the daemon (``run``) must not carry
+#: the calibration's, the plant's and the import's libraries (150 MB resident, issue 31).
+VERBS: dict[str, tuple[str, ...]] = {
+    "softsensor.apps.virtual_plant": ("simulate", "plant-server"),
+    "softsensor.apps.calibrate": ("calibrate", "identify", "validate"),
+    "softsensor.apps.streaming": ("run", "replay", "health"),
+    "softsensor.apps.diagnose": ("diagnose",),
+    "softsensor.apps.historian": ("import", "export"),
+    "softsensor.apps.design": ("design",),
+}
 
 
 class VerbImportError(Exception):
@@ -54,12 +57,26 @@ def _import_verbs(module: str) -> Callable[[argparse._SubParsersAction], None]:
         raise VerbImportError(f"cannot load the verbs of {module}: {exc}") from exc
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _module_of(argv: Sequence[str]) -> str | None:
+    """The verb module of the command line's verb (its first word that is not an option), or
+    None (no verb, an unknown one, or help asked for the whole command)."""
+    for word in argv:
+        if word in ("-h", "--help", "--version"):
+            return None
+        if not word.startswith("-"):
+            return next((m for m, verbs in VERBS.items() if word in verbs), None)
+    return None
+
+
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser: with every verb, or (``argv`` naming a verb) with the verbs
+    of that verb's module only."""
     parser = _Parser(prog="softsensor", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"softsensor {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
-    for module in VERB_MODULES:
+    only = None if argv is None else _module_of(argv)
+    for module in tuple(VERBS) if only is None else (only,):
         _import_verbs(module)(sub)
     return parser
 
@@ -95,8 +112,9 @@ def setup_logging(verbose: bool = False) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        parser = build_parser()
+        parser = build_parser(argv)
     except VerbImportError as exc:
         print(f"softsensor: {exc}", file=sys.stderr)
         return 1
