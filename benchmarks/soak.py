@@ -37,6 +37,16 @@ kg/kg on a plant whose truth stays near 0.10). Exit status 0 when all hold.
 
 ``--days 0.5`` checks the harness in about a minute; the issue's run is ``--days 7`` (about
 17 minutes of wall time at 600x).
+
+Memory under a flood (issue 31 item 2), ``--flood N``: after the soak's days (``--days 0`` for
+the flood alone), the daemon's resident memory at rest (the median of ``--settle`` seconds of
+samples, after ``--settle`` seconds without faults) is the baseline; then ``N`` times a bus peer
+publishes 60 kB scans (under ``max_message_bytes``) as fast as it can for 10 s, and the resident
+memory at rest after each is compared with the baseline. Targets in ``benchmarks/targets.json``
+(``soak_memory``): baseline at most 250 MB, after every flood at most 1.1 times the baseline.
+``--flood-json FILE`` writes this phase's numbers with the targets.
+
+    python benchmarks/soak.py --days 0 --speed 60 --flood 2 --flood-json benchmarks/soak_flood.json
 """
 
 from __future__ import annotations
@@ -49,6 +59,7 @@ import logging
 import os
 import signal
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -437,6 +448,64 @@ def missing_windows(ends: list[int], t0: int, t1: int, excused: list[tuple[int, 
     return out
 
 
+#: A flood scan's padding: 60 kB, under the daemon's ``max_message_bytes`` (64 kB).
+FLOOD_PAD = "x" * 60_000
+TARGETS = Path(__file__).with_name("targets.json")
+
+
+def flood_bus(endpoint: str, now_ns: int, seconds: float) -> int:
+    """Publish 60 kB scans from another peer as fast as it can for ``seconds``; how many."""
+    with open_session(port=None, connect=[endpoint]) as s:
+        if not wait_for_peers(s, timeout=10.0):
+            raise RuntimeError("the flood peer did not reach the daemon")
+        pub = Publisher(s, "dryer1")
+        pub.declare(("scan",))
+        time.sleep(0.3)  # declarations propagate
+        n, end = 0, time.monotonic() + seconds
+        while time.monotonic() < end:
+            pub.put("scan", {"T_air_in": 480.0, "m_air": 82.0, "pad": FLOOD_PAD}, now_ns + n)
+            n += 1
+        time.sleep(0.5)
+        pub.close()
+    return n
+
+
+def resting_rss(d: DaemonProcess, seconds: float) -> tuple[float, float]:
+    """Wait ``seconds`` (the daemon settles), then sample its RSS once a second for
+    ``seconds``: the median and the peak of the samples [MB]."""
+    time.sleep(seconds)
+    n0 = len(d.rss)
+    for _ in range(max(1, int(seconds))):
+        d.sample_rss()
+        time.sleep(1.0)
+    got = [v for _r, v in d.rss[n0:]] or [float("nan")]
+    return statistics.median(got), max(got)
+
+
+def flood_phase(d: DaemonProcess, clock: Clock, endpoint: str, floods: int, settle_s: float,
+                flood_s: float = 10.0) -> dict:
+    """The daemon's resident memory at rest, then after each of ``floods`` floods (module
+    docstring)."""
+    base, base_peak = resting_rss(d, settle_s)
+    runs = []
+    for _ in range(floods):
+        n0 = len(d.rss)
+        sent: list[int] = []
+        t = threading.Thread(target=lambda out=sent: out.append(
+            flood_bus(endpoint, clock.now_ns(), flood_s)))
+        t.start()
+        while t.is_alive():
+            d.sample_rss()
+            time.sleep(0.5)
+        peak = max([v for _r, v in d.rss[n0:]] or [float("nan")])
+        after, _ = resting_rss(d, settle_s)
+        runs.append({"scans_sent": sum(sent), "mb_sent": round(sum(sent) * 60e3 / 1e6, 1),
+                     "rss_peak_mb": round(peak, 1), "rss_after_mb": round(after, 1),
+                     "after_over_baseline": round(after / base, 3)})
+    return {"rss_baseline_mb": round(base, 1), "rss_baseline_peak_mb": round(base_peak, 1),
+            "flood_s": flood_s, "settle_s": settle_s, "floods": runs}
+
+
 def memory_by_day(rss: list[tuple[int, float]], samples_per_day: int) -> list[float]:
     """Peak RSS [MB] per plant day of samples (one sample per wall second)."""
     return [round(max(v for _r, v in rss[i:i + samples_per_day]), 1)
@@ -483,6 +552,14 @@ def _soak(args: argparse.Namespace, workdir: Path, disk: bool) -> dict:
                 next_fault += args.fault_every * 3600 / args.speed
             time.sleep(1.0)
         t_end = clock.now_ns()
+        flood = None
+        if args.flood:
+            a = clock.now_ns()
+            flood = flood_phase(d, clock, f"tcp/127.0.0.1:{bus_port}", args.flood, args.settle)
+            t_end = clock.now_ns()
+            # the floods take the scans' rate (all scans, whoever publishes them): the PLC's
+            # scans are dropped with the flood's, so those windows are stale by design
+            excused.append((a, t_end))
     finally:
         stop_s = d.stop()
         plc.close()
@@ -497,7 +574,8 @@ def _soak(args: argparse.Namespace, workdir: Path, disk: bool) -> dict:
             "unreadable_or_truncated_files": problems, "empty_files": empty,
             "ok_estimates_of_nonsense": nonsense[:5], "n_ok_nonsense": len(nonsense),
             "final_sigterm_s": round(stop_s, 2),
-            "final_exit_code": d.proc.returncode if d.proc else None}
+            "final_exit_code": d.proc.returncode if d.proc else None,
+            **({"flood": flood} if flood is not None else {})}
 
 
 def main() -> int:
@@ -511,9 +589,29 @@ def main() -> int:
     ap.add_argument("--heal-windows", type=int, default=3)
     ap.add_argument("--seed", type=int, default=3)
     ap.add_argument("--workdir", default=None)
+    ap.add_argument("--flood", type=int, default=0, help="floods after the days (0: none)")
+    ap.add_argument("--settle", type=float, default=20.0,
+                    help="wall seconds at rest before and after a flood")
+    ap.add_argument("--flood-json", default=None, help="write the flood phase's numbers here")
     args = ap.parse_args()
     out = soak(args)
     mem = out["rss_peak_mb_by_day"]
+    flood_checks = {}
+    if "flood" in out:
+        target = json.loads(TARGETS.read_text())["soak_memory"]
+        fl = out["flood"]
+        flood_checks = {
+            "baseline_rss_at_most_target":
+                fl["rss_baseline_mb"] <= target["baseline_rss_at_most_mb"],
+            "rss_back_after_every_flood": all(
+                f["after_over_baseline"] <= target["after_flood_over_baseline_at_most"]
+                for f in fl["floods"]),
+        }
+        if args.flood_json:
+            Path(args.flood_json).write_text(json.dumps(
+                {"command": "python benchmarks/soak.py " + " ".join(sys.argv[1:]),
+                 "speed": args.speed, "outputs": ["modbus", "prometheus", "opcua", "web"],
+                 "targets": target, **fl, "checks": flood_checks}, indent=2) + "\n")
     out["checks"] = {
         "every_window_estimated_after_faults_heal": out["windows_missing"] == 0,
         "memory_flat": len(mem) < 2 or mem[-1] <= 1.25 * mem[0],
@@ -526,6 +624,7 @@ def main() -> int:
         "no_ok_estimate_of_nonsense": out["n_ok_nonsense"] == 0,
         "clean_sigterm": out["final_exit_code"] == 0 and out["final_sigterm_s"] < 10
         and all(f.get("exit_code", 0) == 0 for f in out["faults"] if f["fault"] != "sigkill"),
+        **flood_checks,
     }
     print(json.dumps(out, indent=2))
     return 0 if all(out["checks"].values()) else 1

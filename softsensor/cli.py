@@ -3,10 +3,10 @@
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
 ``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``,
 ``design``.
-Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERB_MODULES`); a command line
-naming its verb imports that verb's module alone (:data:`VERB_MODULE`), any other (``--help``)
-all of them. A module that fails to import stops the command with one line naming it (exit
-status 1) rather than hiding its verbs. This module only parses arguments and turns every
+Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERBS`); a command line
+naming its verb imports that verb's module alone, any other (``--help``) all of them. A
+module that fails to import stops the command with one line naming it (exit status 1)
+rather than hiding its verbs. This module only parses arguments and turns every
 :class:`~softsensor.errors.SoftsensorError` into one line on stderr and exit status 2 (1 for a
 package of an extra that is not installed). What every verb's ``--help`` shares is set here,
 in one place: its description (the verb's one-line help where the module gives none), its
@@ -36,24 +36,18 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, one_line(f"{self.prog}: error: {message}") + "\n")
 
 
-#: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``.
-VERB_MODULES: tuple[str, ...] = (
-    "softsensor.apps.virtual_plant",  # simulate, plant-server
-    "softsensor.apps.calibrate",      # calibrate, identify, validate
-    "softsensor.apps.streaming",      # run, replay, health
-    "softsensor.apps.diagnose",       # diagnose
-    "softsensor.apps.historian",      # import, export
-    "softsensor.apps.design",         # design
-)
-#: The module of each verb (a test holds it against what the modules register): a command
-#: line naming its verb imports that module alone, so ``softsensor health`` (a container's
-#: HEALTHCHECK every few seconds) does not pay seconds of importing the calibration's SciPy.
-VERB_MODULE: dict[str, str] = {
-    "simulate": VERB_MODULES[0], "plant-server": VERB_MODULES[0],
-    "calibrate": VERB_MODULES[1], "identify": VERB_MODULES[1], "validate": VERB_MODULES[1],
-    "run": VERB_MODULES[2], "replay": VERB_MODULES[2], "health": VERB_MODULES[2],
-    "diagnose": VERB_MODULES[3], "import": VERB_MODULES[4], "export": VERB_MODULES[4],
-    "design": VERB_MODULES[5]}
+#: Modules of :mod:`softsensor.apps` that add verbs, each through its ``add_commands``, and
+#: the verbs each adds (``tests/test_cli.py`` checks these against what they add). A command
+#: line naming a verb imports that verb's module only: the daemon (``run``) must not carry
+#: the calibration's, the plant's and the import's libraries (150 MB resident, issue 31).
+VERBS: dict[str, tuple[str, ...]] = {
+    "softsensor.apps.virtual_plant": ("simulate", "plant-server"),
+    "softsensor.apps.calibrate": ("calibrate", "identify", "validate"),
+    "softsensor.apps.streaming": ("run", "replay", "health"),
+    "softsensor.apps.diagnose": ("diagnose",),
+    "softsensor.apps.historian": ("import", "export"),
+    "softsensor.apps.design": ("design",),
+}
 
 
 #: What each verb's exit statuses mean (the README's "Exit codes" table, which a test holds
@@ -143,22 +137,27 @@ def _import_verbs(module: str) -> Callable[[argparse._SubParsersAction], None]:
         raise VerbImportError(f"cannot load the verbs of {module}: {exc}") from exc
 
 
-def _verb_of(argv: Sequence[str]) -> str | None:
-    """The verb a command line names (the first word not an option), if it is a known one."""
+def _module_of(argv: Sequence[str]) -> str | None:
+    """The verb module of the command line's verb (its first word that is not an option), or
+    None (no verb, an unknown one, or help asked for the whole command)."""
     for word in argv:
+        if word in ("-h", "--help", "--version"):
+            return None
         if not word.startswith("-"):
-            return word if word in VERB_MODULE else None
+            return next((m for m, verbs in VERBS.items() if word in verbs), None)
     return None
 
 
-def build_parser(verb: str | None = None) -> argparse.ArgumentParser:
-    """The ``softsensor`` parser: every verb, or only the verbs of ``verb``'s module."""
+def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The command line's parser: with every verb, or (``argv`` naming a verb) with the verbs
+    of that verb's module only."""
     parser = _Parser(prog="softsensor", description=__doc__.splitlines()[0])
     parser.add_argument("--version", action="version", version=f"softsensor {__version__}")
     parser.add_argument("-v", "--verbose", action="store_true",
                         help="debug logging, and the traceback of an unexpected error")
     sub = parser.add_subparsers(dest="verb", required=True, parser_class=_Parser)
-    for module in (VERB_MODULES if verb is None else (VERB_MODULE[verb],)):
+    only = None if argv is None else _module_of(argv)
+    for module in tuple(VERBS) if only is None else (only,):
         _import_verbs(module)(sub)
     _shared_help(sub)
     return parser
@@ -195,8 +194,9 @@ def setup_logging(verbose: bool = False) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        parser = build_parser(_verb_of(sys.argv[1:] if argv is None else argv))
+        parser = build_parser(argv)
     except VerbImportError as exc:
         print(f"softsensor: {exc}", file=sys.stderr)
         return 1

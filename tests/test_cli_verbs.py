@@ -3,6 +3,7 @@ with one line naming the module instead of silently dropping its verbs."""
 
 from __future__ import annotations
 
+import subprocess
 import sys
 from pathlib import Path
 
@@ -19,10 +20,7 @@ def test_every_verb_module_registers_its_verbs() -> None:
     assert CONTRACT_VERBS <= verbs
     assert {"identify", "validate", "run", "plant-server"} <= verbs
     # the table a command line's verb is looked up in names each verb's own module
-    assert set(cli.VERB_MODULE) == verbs
-    for verb, module in cli.VERB_MODULE.items():
-        alone = cli.build_parser(verb)._subparsers._group_actions[0].choices
-        assert verb in alone, (verb, module)
+    assert {v for vs in cli.VERBS.values() for v in vs} == verbs
 
 
 @pytest.mark.parametrize(("module", "missing"), [
@@ -34,17 +32,31 @@ def test_a_verb_module_that_fails_to_import_is_named(module: str, missing: str, 
     (tmp_path / "broken_verbs.py").write_text("import softsensor_no_such_dependency\n")
     monkeypatch.syspath_prepend(str(tmp_path))
     monkeypatch.delitem(sys.modules, "broken_verbs", raising=False)
-    monkeypatch.setattr(cli, "VERB_MODULES", ("softsensor.apps.virtual_plant", module))
+    monkeypatch.setattr(cli, "VERBS", {"softsensor.apps.virtual_plant": ("simulate",),
+                                       module: ("broken-verb",)})
     with pytest.raises(cli.VerbImportError, match=module):
         cli.build_parser()
-    # a command line naming a verb imports that verb's module alone (issue 30: health paid
-    # for the calibration's imports); a broken one is named, never a verb dropped
-    monkeypatch.setitem(cli.VERB_MODULE, "simulate", module)
-    assert cli.main(["simulate", "--out", str(tmp_path / "d.mcap")]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1
-    assert module in err[0] and missing in err[0]
-    assert not (tmp_path / "d.mcap").exists()
+    # its own verb, and a command line that needs every verb (help, an unknown verb), stop
+    # with one line naming the module
+    for argv in (["broken-verb"], ["no-such-verb"], ["--help"]):
+        assert cli.main(argv) == 1
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1
+        assert module in err[0] and missing in err[0]
+
+
+def test_a_verb_imports_its_own_module_only() -> None:
+    """``softsensor run`` does not import the calibration's, the plant's or the import's
+    modules (and pandas with them: 150 MB of the daemon's resident memory, issue 31)."""
+    for module, verbs in cli.VERBS.items():  # the table says what each module adds
+        parser = cli.build_parser([verbs[0]])
+        assert set(parser._subparsers._group_actions[0].choices) == set(verbs), module
+    code = ("import sys; from softsensor import cli; cli.build_parser(['-v', 'run']); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            f"('pandas', 'scipy', 'numba') or m in {sorted(cli.VERBS)!r}))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout
+    assert out.strip() == "['softsensor.apps.streaming']", out
 
 
 def test_diagnose_calibrates_with_the_trials_calibrate_uses():

@@ -376,8 +376,8 @@ def test_health_imports_only_its_own_verbs():
     """``softsensor health`` took 2.9 to 5.8 s here against a daemon that answered at once:
     building the parser imported every verb module, the calibration's SciPy among them. A
     command line naming its verb imports that verb's module alone."""
-    code = ("import sys, time; from softsensor.cli import build_parser, _verb_of; "
-            "t = time.perf_counter(); p = build_parser(_verb_of(['health'])); "
+    code = ("import sys, time; from softsensor.cli import build_parser; "
+            "t = time.perf_counter(); p = build_parser(['health']); "
             "print(time.perf_counter() - t, 'scipy.stats' in sys.modules, "
             "'softsensor.apps.calibrate' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,

@@ -60,6 +60,9 @@ def run_settings(args: argparse.Namespace
 
 
 def _run(args: argparse.Namespace) -> int:
+    from softsensor.service.memory import limit_arenas
+
+    limit_arenas()  # before any thread of the daemon's libraries is started
     from softsensor.ingest.tagmap import DEFAULT_TAGMAP
     from softsensor.service.daemon import Daemon, DaemonInfo
     from softsensor.service.logs import configure_logging

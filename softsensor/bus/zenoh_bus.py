@@ -248,12 +248,14 @@ def kind_of_key(key: str, unit: str = "dryer1") -> str:
 
 
 class BusMessage(NamedTuple):
-    """A decoded bus message. ``time_ns`` is the body's event time [ns] (None if absent)."""
+    """A decoded bus message. ``time_ns`` is the body's event time [ns] (None if absent);
+    ``nbytes`` the size of its payload (what a queue of messages is bounded by)."""
 
     kind: str
     key: str
     body: dict[str, Any]
     time_ns: int | None
+    nbytes: int = 0
 
     @property
     def topic(self) -> str:
@@ -269,7 +271,7 @@ def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
     if t is not None and (not isinstance(t, int) or isinstance(t, bool)):
         raise IngestError(f"{outside_text(key)}: time_ns must be an integer, got "
                           f"{outside_text(repr(t))}")
-    return BusMessage(kind, key, body, t)
+    return BusMessage(kind, key, body, t, len(data))
 
 
 # ----------------------------------------------------------------------------------------------

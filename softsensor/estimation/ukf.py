@@ -97,7 +97,6 @@ import math
 from typing import Any
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
 from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
@@ -119,6 +118,7 @@ from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.publication import TickContext, publish
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.ukf_step import FilterModel, TickData, step
+from softsensor.estimation.unscented import MerweScaledSigmaPoints
 from softsensor.estimation.window_inputs import InputHold
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES

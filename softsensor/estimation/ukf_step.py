@@ -18,9 +18,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, unscented_transform
-from filterpy.kalman import predict as kf_predict
-from filterpy.kalman import update as kf_update
 
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.base import LabResult, Window, WindowModel
@@ -44,6 +41,9 @@ from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
 from softsensor.estimation.lab_history import FilterState
 from softsensor.estimation.model_error import ModelError
 from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.unscented import MerweScaledSigmaPoints, unscented_transform
+from softsensor.estimation.unscented import predict as kf_predict
+from softsensor.estimation.unscented import update as kf_update
 from softsensor.estimation.window_inputs import MOISTURE_IN, temperatures
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 

@@ -60,15 +60,12 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import tzinfo
 from pathlib import Path
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any
 
 from softsensor.errors import IngestError, one_line
 from softsensor.files import atomic_path
 from softsensor.ingest.cells import delimiter_hint
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
-from softsensor.ingest.lims import convert_labs
 from softsensor.messages import (
     LabResult,
     lab_body,
@@ -76,6 +73,9 @@ from softsensor.messages import (
     make_lab_result,
     parse_sample_time,
 )
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +135,8 @@ def _csv_frame(text: str, where: str, delimiter: str = ",") -> pd.DataFrame:
     header = [c.strip() for c in rows[0]]
     if len(set(header)) != len(header):
         raise IngestError(f"{where}: the header names a column twice")
+    import pandas as pd  # (see parse_lab_text)
+
     return pd.DataFrame(rows[1:], columns=header, dtype=str)
 
 
@@ -168,6 +170,8 @@ def _json_frame(text: str, where: str) -> pd.DataFrame:
         if not all(isinstance(v, (str, int, float)) and not isinstance(v, bool)
                    and not (isinstance(v, int) and abs(v) >= 2**63) for v in entry.values()):
             raise IngestError(f"{where} entry {n}: values must be numbers or text")
+    import pandas as pd  # (see parse_lab_text)
+
     return pd.DataFrame(entries)
 
 
@@ -177,6 +181,10 @@ def parse_lab_text(text: str, suffix: str, *, log_time_ns: int | None = None,
     """The results of a lab file's text (``.csv`` or ``.json``), laid out by ``lab_map``,
     logged at ``log_time_ns`` (default now); :class:`IngestError` naming the row (and no
     content) if any entry is unusable."""
+    # pandas (and the converter that needs it) is imported by the first lab file, not with the
+    # daemon: tens of MB of resident memory a daemon without a lab folder never needs
+    from softsensor.ingest.lims import convert_labs
+
     frame = (_csv_frame(text, where, lab_map.delimiter) if suffix == ".csv"
              else _json_frame(text, where))
     cols = set(frame.columns)

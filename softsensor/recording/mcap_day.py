@@ -27,10 +27,9 @@ import struct
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 import zstandard
 from mcap.exceptions import InvalidMagic, McapError
 from mcap.reader import NonSeekingReader, SeekingReader
@@ -54,6 +53,9 @@ from softsensor.signals import (
     TOPIC_SCAN,
     TOPIC_TRUTH,
 )
+
+if TYPE_CHECKING:  # pandas is imported by the readers only: the daemon writes, never reads
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -502,6 +504,8 @@ class RecordedDay:
 
 
 def _scans_frame(times: list[int], rows: list[dict[str, float]]) -> pd.DataFrame:
+    import pandas as pd
+
     index = pd.Index(np.asarray(times, dtype=np.int64), name="log_time_ns")
     data = {name: np.fromiter((r[name] for r in rows), dtype=float, count=len(rows))
             for name in SCAN_SIGNALS}
@@ -509,6 +513,8 @@ def _scans_frame(times: list[int], rows: list[dict[str, float]]) -> pd.DataFrame
 
 
 def _labs_frame(labs: list[LabResult]) -> pd.DataFrame:
+    import pandas as pd
+
     return pd.DataFrame({
         "log_time_ns": np.asarray([lab.log_time_ns for lab in labs], dtype=np.int64),
         "sample_time_ns": np.asarray([lab.sample_time_ns for lab in labs], dtype=np.int64),
@@ -518,6 +524,8 @@ def _labs_frame(labs: list[LabResult]) -> pd.DataFrame:
 
 
 def _truth_frame(msgs: list[tuple[int, dict[str, Any]]]) -> pd.DataFrame | None:
+    import pandas as pd
+
     if not msgs:
         return None
     cols: dict[str, list[float]] = {}

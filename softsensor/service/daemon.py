@@ -75,6 +75,7 @@ from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
+from softsensor.service.memory import TRIM_EVERY_S, trim
 from softsensor.service.pipeline import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import (
@@ -544,7 +545,8 @@ class Daemon:
         in plant time, so per wall second they scale with ``time_scale``) and its watchdog."""
         s = self.settings
         limits = InputLimits(
-            max_queue=s.max_queue, max_bytes=s.max_message_bytes,
+            max_queue=s.max_queue, max_queue_bytes=s.max_queue_bytes,
+            max_bytes=s.max_message_bytes,
             rates_per_s={"scan": s.max_scan_rate_hz * s.time_scale,
                          "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
         pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
@@ -622,6 +624,7 @@ class Daemon:
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.pipeline is not None and self.clock is not None
         next_status = time.monotonic() + self.settings.status_every_s
+        next_trim = time.monotonic() + TRIM_EVERY_S
         while not stop.is_set():
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), HOUSEKEEPING_S)
@@ -634,6 +637,9 @@ class Daemon:
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
                 self._status()
+            if time.monotonic() >= next_trim:  # what a flood took, back to the system
+                next_trim = time.monotonic() + TRIM_EVERY_S
+                trim()
 
     def _status(self) -> None:
         assert self.pipeline is not None and self.poller is not None

@@ -64,10 +64,14 @@ from softsensor.estimation.plausibility import EstimateRanges, estimate_problems
 from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
 from softsensor.jsonable import jsonable
 from softsensor.log_throttle import Throttle, outside_text
-from softsensor.messages import iso_utc, lab_from_body
+from softsensor.messages import SCAN_EXTRA_FIELDS, iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
+from softsensor.signals import SCAN_SIGNALS
 
 log = logging.getLogger(__name__)
+
+#: The fields of a scan body the open window keeps (the signals and the scan's own numbers).
+_KEPT: frozenset[str] = frozenset(SCAN_SIGNALS) | SCAN_EXTRA_FIELDS
 
 NS = 10**9
 #: Health states from best to worst (CONTRACT section 2).
@@ -214,7 +218,9 @@ class EstimatorService:
             return []
         if closed:
             self._window_scans = []
-        self._window_scans.append((t, dict(body)))
+        # what the window needs again (on a restore), not what else a scan carried: a peer's
+        # 60 kB of padding must not be kept, checkpointed and written again every tick
+        self._window_scans.append((t, {k: v for k, v in body.items() if k in _KEPT}))
         self.stats.scans += 1
         self._last_scan = t if self._last_scan is None else max(self._last_scan, t)
         self._now = t if self._now is None else max(self._now, t)

@@ -60,10 +60,13 @@ class InputLimits:
     """What the estimator thread accepts from the bus (``[service]`` keys of the same names).
 
     ``rates_per_s`` maps an input kind to its sustained rate [messages per wall second];
-    ``burst`` is how many may come at once above it (a PLC reconnecting, a lab catching up).
+    ``burst`` is how many may come at once above it (a PLC reconnecting, a lab catching up);
+    ``max_queue`` and ``max_queue_bytes`` bound the messages waiting for the estimator thread
+    and their payload bytes.
     """
 
     max_queue: int = 10**9
+    max_queue_bytes: int | None = None
     rates_per_s: Mapping[str, float] = field(default_factory=dict)
     burst: float = 100.0
     max_bytes: int | None = None
@@ -140,6 +143,7 @@ class ServicePipeline:
         self._skip_inputs = False
         self._abandoned = False
         self._pending = 0  # input messages queued and not yet processed
+        self._pending_bytes = 0  # and their payload bytes
         self._pending_lock = threading.Lock()  # Zenoh's threads add, the worker removes
         self._buckets = {kind: _Bucket(rate, self.limits.burst)
                          for kind, rate in self.limits.rates_per_s.items()}
@@ -165,10 +169,13 @@ class ServicePipeline:
         if bucket is not None and not bucket.take(time.monotonic()):
             self._drop("rate")
             return
+        cap = self.limits.max_queue_bytes
         with self._pending_lock:
-            full = self._pending >= self.limits.max_queue
+            full = self._pending >= self.limits.max_queue or (
+                cap is not None and self._pending_bytes + message.nbytes > cap)
             if not full:
                 self._pending += 1
+                self._pending_bytes += message.nbytes
         if full:
             self._drop("queue_full")
             return
@@ -203,6 +210,7 @@ class ServicePipeline:
                 continue
             with self._pending_lock:
                 self._pending -= 1
+                self._pending_bytes -= item.nbytes
             if self._skip_inputs:
                 self.dropped["shutdown"] += 1
                 continue

@@ -126,8 +126,10 @@ class ServiceSettings:
         Larger bus messages are dropped before decoding and counted (``too_large``); above
         four times this Zenoh drops them on the link, uncounted (nothing of them reaches
         the daemon, which holds at most that much per link).
-    max_queue : int
-        Input messages waiting for the estimator thread; more are dropped and counted.
+    max_queue, max_queue_bytes : int
+        Input messages, and their payload bytes, waiting for the estimator thread; beyond
+        either, more are dropped and counted (``queue_full``). The bytes bound keeps a flood
+        of large messages from holding ``max_queue`` times ``max_message_bytes`` (640 MB).
     max_lab_silence_h : float
         Health turns ``degraded`` when no lab result was accepted for this long (since the
         last accepted one, or since the first scan) [h, plant time]; 0: never. A lab sends a
@@ -177,6 +179,7 @@ class ServiceSettings:
     zenoh_guard_outputs: bool = True
     max_message_bytes: int = num(65_536, ge=1024, le=64 * 1024 * 1024)
     max_queue: int = num(10_000, ge=10, le=10_000_000)
+    max_queue_bytes: int = num(4 * 1024 * 1024, ge=64 * 1024, le=1024**3)
     max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
     max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
     max_lab_silence_h: float = num(12.0, ge=0, le=24 * 365)
