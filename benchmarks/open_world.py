@@ -79,6 +79,7 @@ from softsensor.calibration.optimize import StudySettings  # noqa: E402
 from softsensor.calibration.params_file import write_params  # noqa: E402
 from softsensor.calibration.selection import DEFAULT_WINDOW_HOURS  # noqa: E402
 from softsensor.calibration.settings import calibration_settings  # noqa: E402
+from softsensor.calibration.structure import default_library  # noqa: E402
 from softsensor.errors import SoftsensorError  # noqa: E402
 from softsensor.estimation.base import LabResult  # noqa: E402
 from softsensor.estimation.model_error import model_error_of  # noqa: E402
@@ -240,6 +241,7 @@ class Context:
     work: Path
     cache: Path | None
     cost: str | None = None
+    structure: bool = True
 
     def simulate(self, d: DaySpec) -> SimulatedDay:
         """The day ``d`` (from the cache when ``--cache`` holds it)."""
@@ -300,7 +302,8 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         base = ctx.base
         key = _digest([ctx.kind, rec["plant_seed"], rec["history_seeds"], ctx.hours,
                        ctx.trials, ctx.truth.parameter_vector().tolist(), "v3"]
-                      + ([ctx.cost] if ctx.cost else []))
+                      + ([ctx.cost] if ctx.cost else [])
+                      + (["structure"] if ctx.structure else []))
         folder = ctx.cache / "calibration" if ctx.cache else ctx.work
         folder.mkdir(parents=True, exist_ok=True)
         params_path = folder / f"{key}.toml"
@@ -315,7 +318,9 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
                                      settings_with_cost(base, ctx.cost),
                                      current_theta=base.parameter_vector(),
                                      window_hours=min(window, ctx.hours),
-                                     fit_hours=HISTORY_FIT_HOURS, identify_result=False)
+                                     fit_hours=HISTORY_FIT_HOURS, identify_result=False,
+                                     structure=(default_library(base)
+                                                if ctx.structure and len(segs) > 1 else None))
             write_params(params_path, _params_doc(base, hist),
                          "Written by benchmarks/open_world.py (softsensor calibrate's code).")
             summary_path.write_text(json.dumps(jsonable(_calibration_summary(hist))))
@@ -616,6 +621,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
                     help="matched-plant test days per cause (1)")
     ap.add_argument("--cost", default=None, choices=("eq4", "likelihood"),
                     help="the calibration's cost (default: the config's [calibration] cost)")
+    ap.add_argument("--structure", action=argparse.BooleanOptionalAction, default=True,
+                    help="search the model's structural alternatives on the history, as "
+                         "calibrate does with several days (default on)")
     ap.add_argument("--out", default=None, metavar="FILE", help="also write the JSON here")
     ap.add_argument("--cache", default=None, metavar="DIR",
                     help="keep simulated days and calibrations here (default: nothing kept)")
@@ -666,6 +674,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                            "argv": list(sys.argv[1:] if argv is None else argv),
                            "settings": {k: getattr(args, k) for k in (
                                "plants", "plant_seeds", "history", "hours", "trials", "cost",
+                               "structure",
                                "days_per_cause",
                                "parts", "matched", "matched_days_per_cause", "quick")},
                            "targets": TARGETS}
@@ -681,7 +690,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             work = Path(tmp) / kind
             work.mkdir()
             ctx = Context(kind, cfg, truth, plan, args.hours, args.trials, work, cache,
-                          args.cost)
+                          args.cost, args.structure)
             say(f"{kind} plant: {n} plant(s), {args.history} x {args.hours:g} h history, "
                 f"{len(plan.tests)} test days, {args.trials} trials")
             t0 = time.perf_counter()
