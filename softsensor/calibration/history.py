@@ -185,9 +185,10 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
     search = None
-    if structure and held and result.validation is not None:
+    if structure and result.validation is not None:
         with phase("structure", timings, say):
-            search = structural_search(choices, held, config, calibration, theta,
+            search = structural_search(result.segments, result.validation.segments, config,
+                                       calibration, theta,
                                        result.validation.evaluation if not kept else
                                        result.current_validation.evaluation,
                                        result.trade_off, structure, seed=settings.seed,

@@ -36,7 +36,6 @@ import numpy as np
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.objective import RMSE_FLOOR, Evaluation
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
 from softsensor.errors import SoftsensorError
@@ -220,13 +219,13 @@ def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
                and float(p.held_out["moisture_out"]) <= m for p in front.points)
 
 
-def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: PlantConfig,
+def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
            calibration: CalibrationSettings, baseline_theta: np.ndarray,
            baseline: Evaluation, front: TradeOff | None,
            library: Sequence[Candidate], *, seed: int = 0, polish: bool = True,
            say: Callable[[str], None] | None = None) -> StructureSearch:
     """Calibrate and score every alternative of ``library`` (module docstring) on the
-    windows ``choices`` and the held-out ``held`` pieces, against the paper's form at
+    baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
     ``baseline_theta`` (its validation ``baseline``, its ``front``); ``polish`` False: each
     alternative is only scored at the baseline's multipliers."""
     from softsensor.calibration.pipeline import calibrate
@@ -248,9 +247,9 @@ def search(choices: Sequence[WindowChoice], held: Sequence[Segment], config: Pla
         except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
             say(f"structure: {alt.name} skipped: {exc}")
             continue
-        res = calibrate([c.segment for c in choices], cfg,
+        res = calibrate(list(fit), cfg,
                         StudySettings(n_trials=1, seed=seed, progress=False), light,
-                        choices=choices, validation_segments=list(held),
+                        validation_segments=list(held),
                         current_theta=cfg.parameter_vector(), polish=polish,
                         identify_result=False,
                         model=DryerModel(cfg))
