@@ -222,12 +222,12 @@ def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
 def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
            calibration: CalibrationSettings, baseline_theta: np.ndarray,
            baseline: Evaluation, front: TradeOff | None,
-           library: Sequence[Candidate], *, seed: int = 0, polish: bool = True,
+           library: Sequence[Candidate], *, seed: int = 0,
            say: Callable[[str], None] | None = None) -> StructureSearch:
     """Calibrate and score every alternative of ``library`` (module docstring) on the
     baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
-    ``baseline_theta`` (its validation ``baseline``, its ``front``); ``polish`` False: each
-    alternative is only scored at the baseline's multipliers."""
+    ``baseline_theta`` (its validation ``baseline``, its ``front``). The baseline must be
+    polished (:func:`~.history.calibrate_history` searches only then)."""
     from softsensor.calibration.pipeline import calibrate
 
     say = say or (lambda s: None)
@@ -250,7 +250,7 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
         res = calibrate(list(fit), cfg,
                         StudySettings(n_trials=1, seed=seed, progress=False), light,
                         validation_segments=list(held),
-                        current_theta=cfg.parameter_vector(), polish=polish,
+                        current_theta=cfg.parameter_vector(), polish=True,
                         identify_result=False,
                         model=DryerModel(cfg))
         ev = res.validation.evaluation
