@@ -196,3 +196,32 @@ def test_a_clean_day_stays_on_the_physics(clean_day):
     assert min(b["sources"]["physics"]["weight"] for b in blended) > 0.8
     first = np.array([b["window_end_ns"] for b in blended]) >= clean_day.labs.log_time_ns.min()
     assert rmse(blended, truth, first) <= 1.05 * rmse(physics, truth, first)
+
+
+def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from softsensor.apps.calibrate import _lab_regression
+
+    rng = np.random.default_rng(5)
+    t = (np.arange(1, 8641) * 10 + 1_767_571_200) * 10**9  # 24 h of 10 s scans
+    days = []
+    for _ in range(2):
+        scans = pd.DataFrame({s: 300 + rng.normal(size=len(t)) for s in REGRESSION_SIGNALS},
+                             index=t)
+        scans["flap_cmd"] = np.nan  # not read on this plant
+        sample = t[::720][1:] - 5 * 10**9  # one every 2 h
+        mean = scans["T_air_in"].rolling(60).mean().reindex(sample, method="ffill")
+        value = 0.1 + 0.01 * (mean - 300)
+        days.append(SimpleNamespace(scans=scans, labs=pd.DataFrame(
+            {"sample_time_ns": sample, "moisture_out": value.to_numpy()})))
+    reg = _lab_regression(days)
+    assert "flap_cmd" not in reg.signals and len(reg.signals) == len(REGRESSION_SIGNALS) - 1
+    assert reg.n_labs == 22
+    assert np.all(np.isfinite(reg.coef)) and reg.step_sd > 0
+    short = SimpleNamespace(scans=days[0].scans, labs=days[0].labs.iloc[:9])
+    assert _lab_regression([short]) is None  # 9 results for 11 coefficients
+    assert ("no [regression] written: the regression peer needs at least 11 lab results "
+            "with every signal scanned, the history holds 9") in capsys.readouterr().err

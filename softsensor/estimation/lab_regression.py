@@ -57,12 +57,13 @@ def lab_features(scans: pd.DataFrame, labs: pd.DataFrame,
                  signals: Sequence[str] = REGRESSION_SIGNALS) -> tuple[np.ndarray, np.ndarray]:
     """The regression's rows of one recorded day: the signals' window means at each lab
     result's sample time and its ``moisture_out``, in sample-time order; rows with a missing
-    signal dropped."""
+    signal or value dropped."""
     labs = labs.sort_values("sample_time_ns", kind="stable")
     wm = window_means(scans).reindex(columns=list(signals))
     F = at_windows(wm, labs["sample_time_ns"].to_numpy(np.int64))
-    ok = np.all(np.isfinite(F), axis=1)
-    return F[ok], labs["moisture_out"].to_numpy(float)[ok]
+    y = labs["moisture_out"].to_numpy(float)
+    ok = np.all(np.isfinite(F), axis=1) & np.isfinite(y)
+    return F[ok], y[ok]
 
 
 @dataclass(frozen=True)
