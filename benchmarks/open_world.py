@@ -94,6 +94,7 @@ from softsensor.plantconfig import (  # noqa: E402
     PlantConfig,
     load_parameters,
     load_plant_config,
+    with_table,
 )
 
 #: Causes of CONTRACT section 5 (``none``: a clean day).
@@ -242,6 +243,9 @@ class Context:
     cache: Path | None
     cost: str | None = None
     structure: bool = True
+    #: the regression fitted on the history carried into the estimator (PARAMS.toml's
+    #: ``[regression]``), which weighs it and the held lab against its physics
+    peers_inside: bool = True
 
     def simulate(self, d: DaySpec) -> SimulatedDay:
         """The day ``d`` (from the cache when ``--cache`` holds it)."""
@@ -327,8 +331,11 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         rec["calibrate_s"] = round(time.perf_counter() - t1, 1)
         rec.update(json.loads(summary_path.read_text()))
         config = load_parameters(params_path, base)
+        regression = peers.fit_regression(days)
+        if ctx.peers_inside:  # what `softsensor calibrate` writes to [regression] beside
+            config = with_table(config, "regression", regression.to_table())
         rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
-        return PlantModel(i, config, peers.fit_regression(days), rec)
+        return PlantModel(i, config, regression, rec)
     except Exception as exc:  # a failing plant is recorded, not fatal
         rec.update(error_record(exc))
         rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
@@ -365,7 +372,8 @@ def run_estimator(config: PlantConfig, day: SimulatedDay) -> dict[str, np.ndarra
                              int(r.log_time_ns)) for r in day.labs.itertuples(index=False)),
                   key=lambda r: (r.log_time_ns, r.sample_id))
     cols: dict[str, list[Any]] = {k: [] for k in ("end", "mo", "mo_sd", "mi", "status",
-                                                  "fallback", "tick_s")}
+                                                  "fallback", "tick_s", "mo_phys",
+                                                  "mo_phys_sd", "w_phys")}
     j = 0
     for w in windows:
         while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
@@ -382,9 +390,13 @@ def run_estimator(config: PlantConfig, day: SimulatedDay) -> dict[str, np.ndarra
         cols["tick_s"].append(time.perf_counter() - t0)
         cols["end"].append(w.end_ns)
         for key, name in (("mo", "moisture_out"), ("mo_sd", "moisture_out_std"),
-                          ("mi", "moisture_in")):
-            v = body.get(name)
+                          ("mi", "moisture_in"), ("mo_phys", "moisture_out_physics"),
+                          ("mo_phys_sd", "moisture_out_physics_std")):
+            # without the peers the published estimate is the physics'
+            v = body.get(name, body.get(name.replace("_physics", "")))
             cols[key].append(math.nan if v is None else float(v))
+        cols["w_phys"].append(float(body.get("sources", {}).get("physics", {})
+                                    .get("weight", 1.0)))
         cols["status"].append(str(body.get("status")))
         cols["fallback"].append(bool(body.get("fallback", False)))
     return {k: np.array(v) for k, v in cols.items()}
@@ -440,6 +452,13 @@ def estimate_day(ctx: Context, m: PlantModel, spec: DaySpec) -> dict[str, Any]:
     inside = np.abs(r["mo"] - truth) <= 1.96 * sd
     ok = scored & np.isfinite(r["mo"]) & np.isfinite(sd)
     out["coverage95"] = float(np.mean(inside[ok])) if ok.any() else math.nan
+    # the filter's physics alone, and its own band, beside what was published: whether the
+    # peers' weighting and the band's conformal scale helped
+    out["rmse_physics"] = rmse((r["mo_phys"] - truth)[scored])
+    inside_phys = np.abs(r["mo_phys"] - truth) <= 1.96 * r["mo_phys_sd"]
+    out["coverage95_physics"] = float(np.mean(inside_phys[ok])) if ok.any() else math.nan
+    out["physics_weight_mean"] = float(np.mean(r["w_phys"][scored])) if scored.any() \
+        else math.nan
     out["moisture_in_rmse"] = rmse((r["mi"] - truth_at(day, ends, "moisture_in"))[scored])
     out["fallback_share"] = float(np.mean(r["fallback"][scored])) if scored.any() else math.nan
     out["degraded_share"] = float(np.mean(r["status"][scored] == "degraded"))
@@ -482,7 +501,8 @@ def estimator_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]
     days = each_test_day(
         ctx, models, lambda m, spec: estimate_day(ctx, m, spec),
         lambda r: " ".join(f"{k} {v:.4f}" for k, v in r["rmse"].items())
-        + f" cov {r['coverage95']:.2f} mi {r['moisture_in_rmse']:.3f}", "estimator")
+        + f" cov {r['coverage95']:.2f} mi {r['moisture_in_rmse']:.3f}"
+        + f" physics {r['rmse_physics']:.4f} w {r['physics_weight_mean']:.2f}", "estimator")
     return {"days": days, "summary": estimator_summary(days)}
 
 
@@ -624,6 +644,10 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--structure", action=argparse.BooleanOptionalAction, default=True,
                     help="search the model's structural alternatives on the history, as "
                          "calibrate does with several days (default on)")
+    ap.add_argument("--peers-inside", action=argparse.BooleanOptionalAction, default=True,
+                    help="carry the history's regression into the estimator's PARAMS "
+                         "(its [regression]), which weighs it and the last lab against the "
+                         "physics")
     ap.add_argument("--out", default=None, metavar="FILE", help="also write the JSON here")
     ap.add_argument("--cache", default=None, metavar="DIR",
                     help="keep simulated days and calibrations here (default: nothing kept)")
@@ -674,7 +698,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                            "argv": list(sys.argv[1:] if argv is None else argv),
                            "settings": {k: getattr(args, k) for k in (
                                "plants", "plant_seeds", "history", "hours", "trials", "cost",
-                               "structure",
+                               "structure", "peers_inside",
                                "days_per_cause",
                                "parts", "matched", "matched_days_per_cause", "quick")},
                            "targets": TARGETS}
@@ -690,7 +714,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             work = Path(tmp) / kind
             work.mkdir()
             ctx = Context(kind, cfg, truth, plan, args.hours, args.trials, work, cache,
-                          args.cost, args.structure)
+                          args.cost, args.structure, args.peers_inside)
             say(f"{kind} plant: {n} plant(s), {args.history} x {args.hours:g} h history, "
                 f"{len(plan.tests)} test days, {args.trials} trials")
             t0 = time.perf_counter()

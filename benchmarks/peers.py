@@ -5,11 +5,12 @@ logged by then (each describing its earlier sample time):
 
 * **hold**: the latest lab result that has arrived (by sample time), held.
 * **regression**: the classic inferential sensor a plant engineer fits in a spreadsheet: a
-  least-squares regression (with a whisper of ridge, :data:`RIDGE`) of the lab moisture on
-  the 600 s means of every scanned signal at the sample time (:data:`REGRESSION_SIGNALS`),
-  fitted on the history's lab results, with the usual lab-bias update: at each arriving
-  result the bias becomes the result minus the regression at its sample time, and is added
-  until the next (Kadlec, Gabrys and Strandt, Comput. Chem. Eng. 33, 2009, section 4.3).
+  least-squares regression of the lab moisture on the 600 s means of every scanned signal at
+  the sample time, fitted on the history's lab results, with the usual lab-bias update: at
+  each arriving result the bias becomes the result minus the regression at its sample time,
+  and is added until the next. The fit is the core's
+  (:func:`softsensor.estimation.lab_regression.fit_lab_regression`), which the estimator
+  also runs beside its physics.
 * **time difference**: the latest lab result plus the change of the project's calibrated
   model, run open loop on the measured inputs at the history's inlet moisture, since that
   result's sample time (Kaneko and Funatsu's time-difference soft sensor, AIChE J. 57, 2011,
@@ -24,65 +25,27 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
 
-from softsensor.signals import SCAN_SIGNALS
+from softsensor.estimation.lab_regression import (
+    REGRESSION_SIGNALS,
+    LabRegression,
+    at_windows,
+    fit_lab_regression,
+    lab_features,
+    window_means,
+)
 
-W_NS = 600 * 10**9
-#: Signals of the regression peer: every scanned signal (a spreadsheet takes them all).
-REGRESSION_SIGNALS: tuple[str, ...] = SCAN_SIGNALS
-#: Ridge of the regression per lab sample, on standardised signals.
-RIDGE = 0.01
-
-
-def window_means(scans: pd.DataFrame, period_ns: int = W_NS) -> pd.DataFrame:
-    """600 s means of every scanned signal, indexed by window end [ns] (``(start, end]``)."""
-    t = scans.index.to_numpy(np.int64)
-    ends = (t - 1) // period_ns * period_ns + period_ns
-    return scans.groupby(ends).mean()
+#: The regression peer is the core's (:mod:`softsensor.estimation.lab_regression`): the
+#: estimator runs the same fit beside its physics, ``softsensor calibrate`` writes it.
+Regression = LabRegression
 
 
-def at_windows(frame: pd.DataFrame, t_ns: np.ndarray, period_ns: int = W_NS) -> np.ndarray:
-    """Rows of ``frame`` (indexed by window end) for the windows holding times ``t_ns``."""
-    ends = (np.asarray(t_ns, np.int64) - 1) // period_ns * period_ns + period_ns
-    return frame.reindex(ends).to_numpy(float)
-
-
-@dataclass(frozen=True)
-class Regression:
-    """OLS coefficients on standardised signals, with the signals' means and scales."""
-
-    mean: np.ndarray
-    scale: np.ndarray
-    coef: np.ndarray
-
-    def predict(self, X: np.ndarray) -> np.ndarray:
-        Z = (np.asarray(X, float) - self.mean) / self.scale
-        Z = np.where(np.isfinite(Z), Z, 0.0)
-        return self.coef[0] + Z @ self.coef[1:]
-
-
-def fit_regression(days: Sequence[object]) -> Regression:
+def fit_regression(days: Sequence[object]) -> LabRegression:
     """The regression peer fitted on the lab results of ``days`` (scans and labs frames)."""
-    X, y = [], []
-    for d in days:
-        wm = window_means(d.scans)[list(REGRESSION_SIGNALS)]
-        F = at_windows(wm, d.labs["sample_time_ns"].to_numpy(np.int64))
-        ok = np.all(np.isfinite(F), axis=1)
-        X.append(F[ok])
-        y.append(d.labs["moisture_out"].to_numpy(float)[ok])
-    Xa, ya = np.vstack(X), np.concatenate(y)
-    mean, scale = Xa.mean(axis=0), Xa.std(axis=0)
-    scale = np.where(scale > 0, scale, 1.0)
-    A = np.column_stack([np.ones(len(Xa)), (Xa - mean) / scale])
-    # a whisper of ridge (1 % of a sample's weight per standardised signal) keeps a short
-    # history with collinear signals from extrapolating wildly; with weeks of labs it is OLS
-    pen = np.r_[0.0, np.full(A.shape[1] - 1, RIDGE * len(ya))]
-    coef = np.linalg.solve(A.T @ A + np.diag(pen), A.T @ ya)
-    return Regression(mean, scale, coef)
+    return fit_lab_regression([lab_features(d.scans, d.labs) for d in days])
 
 
 def _labs_by_arrival(labs: pd.DataFrame) -> list[dict]:

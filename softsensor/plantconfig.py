@@ -297,6 +297,14 @@ def section_of(cfg: PlantConfig, name: str, cls: type[T]) -> T:
                                                           c.source))
 
 
+def with_table(cfg: PlantConfig, name: str, table: dict[str, Any]) -> PlantConfig:
+    """``cfg`` with PARAMS.toml's table ``name`` (e.g. ``regression``) set to ``table``, as
+    :func:`load_parameters` would carry it; the other built tables kept."""
+    out = _keeping_tables(cfg, dataclasses.replace(cfg, extra={**cfg.extra, name: table}))
+    out._tables.pop(name, None)
+    return out
+
+
 def _keeping_tables(old: PlantConfig, new: PlantConfig) -> PlantConfig:
     """``new`` with the tables ``old`` built from the very tables ``new`` still holds (or
     from their absence, which it shares)."""
@@ -438,8 +446,10 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     ``[discrepancy]`` table (what the model left on held-out data, checked here:
     :class:`DiscrepancyPrior`) and ``[model_error]`` (what the history says it misses, built by
     :func:`softsensor.estimation.model_error.model_error_of`), when present, are carried in
-    ``extra`` for the estimator and the diagnosis; ``[structure]`` (a structural alternative
-    adopted from history: plant-section keys such as ``fiber.critical_moisture``) replaces
+    ``extra`` for the estimator and the diagnosis, as is ``[regression]`` (the lab regression
+    fitted on the same history, :mod:`softsensor.estimation.lab_regression`); ``[structure]``
+    (a structural alternative adopted from history: plant-section keys such as
+    ``fiber.critical_moisture``) replaces
     those keys of the plant sections (:meth:`PlantConfig.with_keys`). The tables
     ``config`` built already stay built.
     """
@@ -477,6 +487,9 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
         if not isinstance(error, dict):
             raise ConfigError(f"{path}: [model_error] must be a table")
         extra["model_error"] = error  # built and checked by estimation.model_error_of
+    regression = data.get("regression")
+    if regression is not None:  # built and checked by estimation.lab_regression
+        extra["regression"] = regression
     out = _keeping_tables(cfg, dataclasses.replace(cfg, extra=extra,
                                                    source=f"{config.source} + {path}"))
     out._tables.update(built)

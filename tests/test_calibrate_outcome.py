@@ -31,7 +31,10 @@ from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
 from softsensor.display import moisture_pct_points
+from softsensor.estimation.lab_regression import regression_of
 from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
+from softsensor.recording.mcap_day import read_day
+from softsensor.signals import TOPIC_LAB
 from softsensor.verdicts import validation_verdict
 
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
@@ -82,6 +85,10 @@ def test_a_refused_calibration_leaves_a_file_replay_and_diagnose_run_on(days, tm
     assert doc["model_error"]["days"] == 2 and "discrepancy" in doc
     kept = load_parameters(out, load_plant_config())
     assert {n: kept.parameters[n].value for n in PARAMETER_NAMES} == TRUTH
+    # 10 lab results are too few for the lab regression of 11 signals: none is written,
+    # and the estimator weighs the held lab alone beside its physics
+    assert sum(len(read_day(p, topics=[TOPIC_LAB]).labs) for p in (d1, d2)) == 10
+    assert "regression" not in doc and regression_of(kept) is None
     # the user's next commands run on it
     assert cli_main(["replay", d2, "--params", str(out), "--out",
                      str(tmp_path / "est.mcap")]) == 0

@@ -128,6 +128,9 @@ CALIBRATED = {"T_offset_std": 0.2, "T_channel_std": 0.1, "moisture_in_walk": 0.0
 #: No covariance matching, no outlier gate, no noise adaptation: the plain filter.
 NO_ADAPT = {"moisture_in_adapt": 1e9, "moisture_out_bias_adapt": 1e9, "lab_gate": 1e9,
             "adapt_limit": 1.0}
+#: The filter's physics published alone: no peers weighed beside it, no conformal band
+#: (:mod:`softsensor.estimation.peer_blend`, tested in tests/test_peer_blend.py).
+PHYSICS_ONLY = {"peer_blend": False, "band_conformal": False}
 #: The inlet gain held at zero, as without a history: the linear Kalman filter is then the
 #: oracle (its product with the inlet moisture is not linear).
 NO_GAIN = {"inlet_gain_std": 1e-9, "inlet_gain_walk": 0.0}
@@ -137,7 +140,7 @@ NO_GAIN = {"inlet_gain_std": 1e-9, "inlet_gain_walk": 0.0}
 def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
     """UKF = KF to round-off (UT exact for linear maps and the soft clip the identity inside
     the range), including the reported moisture_out, offsets and NIS."""
-    s = dataclasses.replace(EstimatorSettings(), **NO_ADAPT, **NO_GAIN)
+    s = dataclasses.replace(EstimatorSettings(), **NO_ADAPT, **NO_GAIN, **PHYSICS_ONLY)
     est = UkfEstimator(CFG, s, model=LinearDryer())
     wins, truth = synthetic_day(30, seed=3)
     labs = {7: lab(7, truth[7, 1] + 0.004, "L1"), 19: lab(19, truth[19, 1] - 0.003, "L2")}
@@ -520,7 +523,7 @@ def test_a_taken_outlier_contradicted_by_later_labs_is_withdrawn_within_a_tick()
 def test_bias_state_takes_a_model_offset_from_two_labs():
     plant = LinearDryer(mo_offset=0.03)
     wins, truth = synthetic_day(60, seed=10, plant=plant)
-    est = make(**CALIBRATED, **NO_GAIN)  # an offset, not a response error
+    est = make(**CALIBRATED, **NO_GAIN, **PHYSICS_ONLY)  # an offset, not a response error
     bodies = run(est, wins, {12: [lab(8, truth[8, 1], "A")], 30: [lab(25, truth[25, 1], "B")]})
     # two labs of prior sd 0.01 take most of a 0.03 offset (without them: all of it missing)
     # and it decays with the bias's 24 h correlation time over the 6 h after the last one

@@ -221,7 +221,13 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              progress=not args.quiet and sys.stderr is not None)
     settings.check()
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
-    days = [load_segment(p, base) for p in args.days]
+    days, rows = [], []
+    for p in args.days:  # each day read once: the model's windows and the regression's rows
+        day = read_day_inputs(p)
+        days.append(segment_from_day(day, base, source=str(p)))
+        rows.append(day)
+    regression = _lab_regression(rows)
+    rows.clear()
     validation = [load_segment(p, base) for p in args.validate_on] if args.validate_on else None
 
     def progress(phase: str) -> None:
@@ -240,7 +246,10 @@ def calibrate_main(args: argparse.Namespace) -> int:
     result = hist.calibration
     for c in result.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
-    write_params(out, _params_doc(base, hist), _params_comment(calibration, hist))
+    doc = _params_doc(base, hist)
+    if regression is not None:
+        doc["regression"] = regression.to_table()
+    write_params(out, doc, _params_comment(calibration, hist))
     outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis)
     summary = {"out": str(out), "outcome": outcome, **result.summary(),
                "history": hist.summary()}
@@ -256,6 +265,26 @@ def calibrate_main(args: argparse.Namespace) -> int:
         print(f"calibrate: {hist.structure.line()}", file=sys.stderr)
     print(f"calibrate: {outcome}", file=sys.stderr)
     return 0
+
+
+def _lab_regression(days: Sequence[RecordedDay]) -> Any:
+    """The lab regression on the history (PARAMS.toml's ``[regression]``, the peer the
+    estimator runs beside its physics) on the signals every day scanned; None, with a line on
+    stderr, when the history holds too few lab results for it."""
+    from softsensor.estimation.lab_regression import (
+        REGRESSION_SIGNALS,
+        fit_lab_regression,
+        lab_features,
+    )
+
+    signals = [s for s in REGRESSION_SIGNALS
+               if all(s in d.scans.columns and d.scans[s].notna().any() for d in days)]
+    try:
+        return fit_lab_regression([lab_features(d.scans, d.labs, signals) for d in days],
+                                  signals)
+    except ConfigError as exc:
+        print(f"calibrate: no [regression] written: {exc}", file=sys.stderr)
+        return None
 
 
 def _errors(new: dict[str, float], old: dict[str, float], x_ref: float, basis: str) -> str:

@@ -11,7 +11,8 @@ This module holds what does not depend on the filter:
   results wait for their window in one queue, the estimator service's (by
   :attr:`~softsensor.messages.LabResult.due_ns`), not here;
 * :class:`TickRecord`: one tick of the history (window, inputs, filter state at its start,
-  lab results applied there, what it produced) and :class:`FilterState`;
+  lab results applied there, what it produced) and :class:`FilterState` (with the peers'
+  weights and the band's scale, so that a late result re-weighs them too);
 * JSON round trips of all of these, :class:`~softsensor.estimation.base.Window` and
   :class:`~softsensor.estimation.base.LabResult` for checkpoints. Floats go through ``repr`` in
   :mod:`json`, so a round trip is exact and a restored estimator continues bit for bit.
@@ -150,17 +151,20 @@ class FilterState:
     P: np.ndarray
     wall: np.ndarray | None
     adapt: dict[str, Any] = field(default_factory=dict)
+    #: the peers' weights and the band's scale (:mod:`~softsensor.estimation.peer_blend`);
+    #: empty before the first tick and in checkpoints written before them
+    peers: dict[str, Any] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         return {"x": self.x.tolist(), "P": self.P.tolist(),
                 "wall": None if self.wall is None else self.wall.tolist(),
-                "adapt": dict(self.adapt)}
+                "adapt": dict(self.adapt), "peers": dict(self.peers)}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> FilterState:
         return cls(np.array(d["x"], float), np.array(d["P"], float),
                    None if d["wall"] is None else np.array(d["wall"], float),
-                   dict(d.get("adapt", {})))
+                   dict(d.get("adapt", {})), dict(d.get("peers", {})))
 
 
 @dataclass

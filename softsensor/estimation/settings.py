@@ -139,6 +139,25 @@ class EstimatorSettings:
         False-alarm probability of that test per window. [-]
     sigma_alpha, sigma_beta, sigma_kappa : float
         Van der Merwe scaled sigma points (filterpy ``MerweScaledSigmaPoints``).
+    peer_blend : bool
+        Weigh the physics against the plant's simple peers (the last lab result held, the
+        history's lab regression) by their recent lab likelihood and publish the weighted
+        estimate (:mod:`softsensor.estimation.peer_blend`); false publishes the physics alone.
+    peer_prior_physics : float
+        Prior weight of the physics (the peers share the rest): where the weights return when
+        the labs say nothing. [-]
+    peer_forgetting : float
+        How much of the weights' log evidence each lab result keeps of what came before
+        (dynamic model averaging's forgetting factor; 0.85 keeps a result's evidence at half
+        after four more). [-]
+    band_conformal : bool
+        Scale the published band by the adaptive conformal scale updated at each lab result
+        towards 95 % coverage (:mod:`softsensor.estimation.peer_blend`). [-]
+    band_step : float
+        Step of the band's log scale per lab result (a miss widens it by
+        ``exp(0.95 band_step)``, a hit narrows it by ``exp(-0.05 band_step)``). [-]
+    band_scale_min, band_scale_max : float
+        Bounds of that scale. [-]
     openloop_moisture_in_std, openloop_moisture_out_std : float
         Fixed standard deviations the open-loop estimator reports (a prior, not an estimate:
         the open-loop model has no feedback to learn its error from). [kg/kg]
@@ -184,6 +203,13 @@ class EstimatorSettings:
     sigma_alpha: float = num(1.0, gt=0, le=10)
     sigma_beta: float = num(2.0, ge=0)
     sigma_kappa: float = num(1.0, ge=0)
+    peer_blend: bool = True
+    peer_prior_physics: float = num(0.9, gt=0, lt=1)
+    peer_forgetting: float = num(0.85, ge=0, le=1)
+    band_conformal: bool = True
+    band_step: float = num(0.3, gt=0, le=5)
+    band_scale_min: float = num(0.5, gt=0, le=1)
+    band_scale_max: float = num(5.0, ge=1, le=100)
     openloop_moisture_in_std: float = num(0.15, gt=0, lt=2)
     openloop_moisture_out_std: float = num(0.05, gt=0, lt=1)
 

@@ -92,6 +92,7 @@ side is taken: the model is off, not the lab). Its values need no other check: a
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from typing import Any
@@ -99,6 +100,7 @@ from typing import Any
 import numpy as np
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
+from softsensor.estimation import peer_blend
 from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.discrepancy import (
     STATE_NAMES,
@@ -114,6 +116,7 @@ from softsensor.estimation.discrepancy import (
     transition,
 )
 from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord
+from softsensor.estimation.lab_regression import regression_of
 from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.publication import TickContext, publish
 from softsensor.estimation.settings import EstimatorSettings
@@ -155,6 +158,8 @@ class UkfEstimator(ModelEstimator):
             raise ConfigError(f"{config.source}: estimator.consistency_ticks must be <= the "
                               f"history ({self.max_history} ticks), got {s.consistency_ticks}")
         self.filter = _filter_model(config, s, self.model, self.theta, self.window_s)
+        #: the history's lab regression, run beside the physics (:mod:`.peer_blend`)
+        self.regression = regression_of(config)
         f = self.filter
         P0 = np.zeros((len(STATE_NAMES), len(STATE_NAMES)))
         P0[X_IN, X_IN] = _inlet_sd0(config, s) ** 2
@@ -288,6 +293,8 @@ class UkfEstimator(ModelEstimator):
                          "value": float(taken["value"]), "mean": float(taken["mean"]),
                          "sd": float(taken["sd"])}
             AdaptiveNoise.from_json(state.adapt)
+            for rec in [*history, None]:
+                peer_blend.check_state((rec.start if rec else state).peers)
         except (KeyError, TypeError, ValueError) as exc:
             raise EstimationError(f"checkpoint is malformed: {exc!r}") from exc
         n = len(STATE_NAMES)
@@ -417,6 +424,11 @@ class UkfEstimator(ModelEstimator):
         rec.body = publish(self.filter, TickContext(rec.window, tuple(rec.held),
                                                     tuple(rec.labs), recent,
                                                     self._latest_lab(rec, k)), post, self.kind)
+        if s.peer_blend or s.band_conformal:
+            peers, rec.body = peer_blend.advance(
+                s, self.regression, rec.start.peers or peer_blend.fresh(s, self.regression),
+                rec.window, tuple(rec.labs), rec.body)
+            state = dataclasses.replace(state, peers=peers)
         rec.body["notes"] = list(post.notes)
         return state
 

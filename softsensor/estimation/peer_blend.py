@@ -1,0 +1,248 @@
+"""The peers inside the sensor and the band that holds: what is published, from which source.
+
+The filter's physics (:mod:`.ukf`) can be misled: an effect it cannot follow, parameters that
+are off. A plant keeps two simpler estimates that cannot be misled that way, and this module
+runs them beside the physics:
+
+* **hold**: the latest lab result (by sample time), its band the lab-anchored fallback's
+  (:func:`.publication.fallback`: lab noise, jitter and a drift growing with the hours since);
+* **regression**: the lab regression fitted on the same history as the calibration
+  (PARAMS.toml's ``[regression]``, :mod:`.lab_regression`) at the window's signal means, plus
+  the lab bias of the latest result; its spread the history's next-lab error (``step_sd``).
+  Without a ``[regression]`` only the hold runs beside the physics.
+
+**Weighing by evidence** (dynamic model averaging: Raftery, Kárný and Ettler, Technometrics
+52, 2010). Each lab result, before it is used, is scored by each source's predictive density:
+the physics' estimate at the previous tick with its band and the lab noise, the hold's and the
+regression's as they stood. The log weights are first flattened towards the prior
+(``log w <- a log w + (1 - a) log prior``, ``a = estimator.peer_forgetting`` per lab result:
+old evidence fades, so a source that was wrong yesterday can win today), then the log
+likelihood is added and they are normalised. The prior (``estimator.peer_prior_physics`` on
+the physics, the rest shared by the peers) is where the weights return without labs. The
+published ``moisture_out`` is the weighted mean of the sources, its variance the mixture's
+(each source's band plus the spread of the sources about the mean): on a day where the labs
+keep contradicting the physics the estimate moves to the peer they agree with, by the lab
+likelihood and no threshold; on a clean day the physics keeps its weight.
+
+**A band that holds** (adaptive conformal inference: Gibbs and Candès, NeurIPS 2021; on a scale
+as in Angelopoulos, Candès and Tibshirani's quantile tracking, 2023). The published standard
+deviation is the mixture's times a scale ``c``. At each lab result, before it is used: a miss
+is the result outside ``mean +- 1.96 sqrt((c band)^2 + lab_std^2)``, and ``log c`` moves by
+``estimator.band_step * (miss - 0.05)``, within ``[band_scale_min, band_scale_max]``: a miss
+widens by ``exp(0.95 step)``, a hit narrows by ``exp(-0.05 step)``, so the share of misses is
+driven to 5 %, whatever the filter believes of itself.
+
+The state (log weights, ``log c``, the latest lab, the regression's bias, the physics' last
+estimate) travels in :class:`~.lab_history.FilterState` (``peers``), so a late lab result
+re-filters it with the history and a checkpoint restores it. Pure: no clock, no log.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.lab_regression import LabRegression
+from softsensor.estimation.settings import EstimatorSettings
+
+#: The sources, in the order of the weights.
+SOURCES: tuple[str, ...] = ("physics", "hold", "regression")
+_Z95 = 1.96
+_MISS = 0.05
+#: Lowest log weight kept (a source a hundred nats behind can still come back within a few
+#: lab results once the forgetting has flattened it).
+_LOG_FLOOR = -100.0
+
+
+@dataclass(frozen=True)
+class Source:
+    """One source's estimate: the published value and band sd (truth), and the predictive sd
+    of a lab result (band plus what the lab adds)."""
+
+    value: float
+    band: float
+    predictive: float
+
+    @property
+    def ok(self) -> bool:
+        return math.isfinite(self.value) and math.isfinite(self.band) and self.predictive > 0
+
+
+def prior_log_weights(s: EstimatorSettings, reg: LabRegression | None) -> np.ndarray:
+    """Log prior weights of :data:`SOURCES` (the regression's at a finite nothing, -690,
+    without a fit: the state stays JSON)."""
+    peers = 2 if reg is not None else 1
+    rest = (1.0 - s.peer_prior_physics) / peers
+    p = np.array([s.peer_prior_physics, rest, rest if reg is not None else 0.0])
+    return np.log(np.maximum(p, 1e-300))
+
+
+def fresh(s: EstimatorSettings, reg: LabRegression | None) -> dict[str, Any]:
+    """The state before any tick (JSON)."""
+    return {"log_w": [float(v) for v in prior_log_weights(s, reg)], "log_scale": 0.0,
+            "hold": None, "bias": None, "physics": None, "labs": 0, "misses": 0,
+            "msz": [1.0] * len(SOURCES)}
+
+
+def check_state(state: dict[str, Any]) -> None:
+    """ValueError (or KeyError, TypeError) unless ``state`` is empty or a state of
+    :func:`advance` (a checkpoint is read like any other input)."""
+    if not state:
+        return
+    log_w = np.array(state["log_w"], float)
+    if log_w.shape != (len(SOURCES),) or np.any(np.isnan(log_w)) or np.any(log_w > 0):
+        raise ValueError(f"peers.log_w must be {len(SOURCES)} log weights, got {log_w}")
+    if not math.isfinite(float(state["log_scale"])):
+        raise ValueError("peers.log_scale must be finite")
+    for key in ("hold", "physics"):
+        v = state[key]
+        if v is not None and (len(v) != 2 or not all(math.isfinite(float(x)) for x in v)):
+            raise ValueError(f"peers.{key} must be null or two finite numbers")
+    if state["bias"] is not None and not math.isfinite(float(state["bias"])):
+        raise ValueError("peers.bias must be null or finite")
+    int(state["labs"]), int(state["misses"])
+
+
+def _normalised(log_w: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Weights over the sources that are ``ok`` (zero elsewhere)."""
+    w = np.zeros(len(log_w))
+    lw = np.where(ok, log_w, -np.inf)
+    if not np.any(np.isfinite(lw)):
+        return w
+    top = np.max(lw[np.isfinite(lw)])
+    e = np.where(np.isfinite(lw), np.exp(lw - top), 0.0)
+    return e / e.sum()
+
+
+def _mixture(sources: list[Source], w: np.ndarray) -> tuple[float, float]:
+    """Mean and band sd of the mixture of ``sources`` weighted ``w`` (zero weights skipped)."""
+    used = [(wi, src) for wi, src in zip(w, sources, strict=True) if wi > 0]
+    mean = sum(wi * src.value for wi, src in used)
+    var = sum(wi * (src.band**2 + (src.value - mean) ** 2) for wi, src in used)
+    return float(mean), math.sqrt(var)
+
+
+def _hold_source(s: EstimatorSettings, value: float | None, sample_ns: int | None,
+                 at_ns: int) -> Source:
+    """The hold: the lab-anchored fallback's band (:func:`.publication.fallback`'s rule)."""
+    if value is None or sample_ns is None:
+        return Source(math.nan, math.nan, 0.0)
+    hours = max(at_ns - sample_ns, 0) / 3.6e12
+    band = math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2 + s.fallback_drift**2 * hours)
+    return Source(value, band, math.sqrt(band**2 + s.lab_std**2))
+
+
+def _regression_source(s: EstimatorSettings, reg: LabRegression | None, bias: float | None,
+                       window: Window) -> Source:
+    if reg is None or bias is None:
+        return Source(math.nan, math.nan, 0.0)
+    # the history's next-lab error holds the lab noise of the result predicted; the band of
+    # the truth leaves it out
+    band = math.sqrt(max(reg.step_sd**2 - s.lab_std**2, s.lab_std**2))
+    return Source(reg.at_means(window.means) + bias, band, reg.step_sd)
+
+
+def _physics_source(s: EstimatorSettings, est: list[float] | None) -> Source:
+    if est is None:
+        return Source(math.nan, math.nan, 0.0)
+    mean, band = est
+    return Source(mean, band, math.sqrt(band**2 + s.lab_std**2))
+
+
+def _log_density(x: float, src: Source, spread: float = 1.0) -> float:
+    """Log density of ``x`` under ``src``'s predictive Gaussian, its sd times ``spread``."""
+    sd = src.predictive * spread
+    z = (x - src.value) / sd
+    return -0.5 * z * z - math.log(sd) - 0.5 * math.log(2 * math.pi)
+
+
+def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, Any],
+            window: Window, labs: tuple[LabResult, ...], body: dict[str, Any]
+            ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """One tick: score ``labs`` (sampled in ``window``) against each source as it stood,
+    update the weights and the band's scale, then blend the sources into ``body`` (the
+    filter's published estimate, its guard applied). Returns the new state and the body."""
+    st = dict(state)
+    log_w = np.array(st["log_w"], float)
+    prior = prior_log_weights(s, reg)
+    log_c = float(st["log_scale"])
+    msz = np.array(st.get("msz", [1.0] * len(SOURCES)), float)
+    phys_prev = _physics_source(s, st["physics"])
+    for lab in sorted(labs, key=lambda r: (r.sample_time_ns, r.sample_id)):
+        hold = st["hold"]
+        sources = [phys_prev,
+                   _hold_source(s, None if hold is None else hold[0],
+                                None if hold is None else hold[1], lab.sample_time_ns),
+                   _regression_source(s, reg, st["bias"], window)]
+        ok = np.array([src.ok for src in sources])
+        log_w = s.peer_forgetting * log_w + (1.0 - s.peer_forgetting) * prior
+        if s.peer_blend and ok.sum() >= 2:  # evidence needs two sources to compare
+            w_pred = _normalised(log_w, ok)
+            z2 = np.array([((lab.moisture_out - src.value) / src.predictive) ** 2 if src.ok
+                           else 1.0 for src in sources])
+            # each source scored with its spread as the recent labs found it (never narrower
+            # than it says itself): a band too narrow is not evidence against an estimate
+            # nearer the labs than a wider one
+            spread = np.sqrt(np.maximum(msz, 1.0))
+            ll = np.array([_log_density(lab.moisture_out, src, k) if src.ok else 0.0
+                           for src, k in zip(sources, spread, strict=True)])
+            log_w = log_w + np.where(ok, ll, 0.0)
+            log_w = np.maximum(log_w - np.max(log_w), _LOG_FLOOR)
+            msz = np.where(ok, s.peer_forgetting * msz + (1.0 - s.peer_forgetting) * z2, msz)
+        else:
+            w_pred = np.array([1.0, 0.0, 0.0]) if sources[0].ok else _normalised(log_w, ok)
+        if s.band_conformal and ok.any():
+            mean, band = _mixture(sources, w_pred)
+            half = _Z95 * math.sqrt((math.exp(log_c) * band) ** 2 + s.lab_std**2)
+            miss = abs(lab.moisture_out - mean) > half
+            log_c = min(max(log_c + s.band_step * (float(miss) - _MISS),
+                            math.log(s.band_scale_min)), math.log(s.band_scale_max))
+            st["misses"] = int(st["misses"]) + int(miss)
+        st["labs"] = int(st["labs"]) + 1
+        if hold is None or lab.sample_time_ns >= hold[1]:
+            st["hold"] = [float(lab.moisture_out), int(lab.sample_time_ns)]
+        if reg is not None:
+            st["bias"] = float(lab.moisture_out - reg.at_means(window.means))
+    st["log_w"] = [float(v) for v in log_w]
+    st["log_scale"] = log_c
+    st["msz"] = [float(v) for v in msz]
+    mo, mo_std = body.get("moisture_out"), body.get("moisture_out_std")
+    st["physics"] = (None if mo is None or mo_std is None else [float(mo), float(mo_std)])
+    hold = st["hold"]
+    sources = [_physics_source(s, st["physics"]),
+               _hold_source(s, None if hold is None else hold[0],
+                            None if hold is None else hold[1], window.end_ns),
+               _regression_source(s, reg, st["bias"], window)]
+    ok = np.array([src.ok for src in sources])
+    w = (_normalised(log_w, ok) if s.peer_blend
+         else np.array([1.0 if sources[0].ok else 0.0, 0.0, 0.0]))
+    out = dict(body)
+    if w.sum() > 0:
+        mean, band = _mixture(sources, w)
+        band *= math.exp(log_c)
+        clipped = not s.moisture_out_min <= mean <= s.moisture_out_max
+        out["moisture_out"] = min(max(mean, s.moisture_out_min), s.moisture_out_max)
+        out["moisture_out_std"] = band
+        out["clipped"] = bool(out.get("clipped")) or clipped
+    out["moisture_out_physics"] = mo
+    out["moisture_out_physics_std"] = mo_std
+    out["sources"] = {name: {"weight": float(wi),
+                             "moisture_out": src.value if math.isfinite(src.value) else None,
+                             "moisture_out_std": src.band if math.isfinite(src.band) else None}
+                      for name, wi, src in zip(SOURCES, w, sources, strict=True)}
+    out["band_scale"] = math.exp(log_c)
+    out["band_misses"] = [int(st["misses"]), int(st["labs"])]
+    lead = SOURCES[int(np.argmax(w))] if w.sum() > 0 else "physics"
+    out["source"] = lead
+    if lead != "physics":
+        out["detail"] = (f"the lab results favour {lead} over the physics (weights "
+                         + ", ".join(f"{n} {wi:.2f}" for n, wi in zip(SOURCES, w, strict=True))
+                         + f"); {out.get('detail', '')}")
+    return st, out
+
+
+__all__ = ["SOURCES", "Source", "advance", "check_state", "fresh", "prior_log_weights"]

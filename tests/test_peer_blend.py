@@ -1,0 +1,227 @@
+"""The peers inside the sensor and the band that holds (:mod:`softsensor.estimation.peer_blend`,
+:mod:`softsensor.estimation.lab_regression`).
+
+The band's conformal scale is tested on the pure :func:`advance` with a physics estimate
+handed in; the weighting on virtual-plant days through the estimator: a model given badly
+wrong parameters falls back to the held lab by the lab likelihood (and does not when the
+weighting is off), a clean day stays on the physics.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from softsensor.errors import ConfigError
+from softsensor.estimation.lab_regression import (
+    REGRESSION_SIGNALS,
+    LabRegression,
+    fit_lab_regression,
+    regression_of,
+)
+from softsensor.estimation.peer_blend import advance, check_state, fresh
+from softsensor.estimation.settings import EstimatorSettings
+from softsensor.messages import LabResult, Window
+from softsensor.plantconfig import load_plant_config, with_table
+
+CFG = load_plant_config()
+T0 = 1_767_571_200 * 10**9
+W = 600 * 10**9
+
+
+def window(k: int, means: dict[str, float] | None = None) -> Window:
+    return Window(start_ns=T0 + k * W, end_ns=T0 + (k + 1) * W, means=dict(means or {}),
+                  n_scans=60, n_good={}, stale=False, reasons={})
+
+
+def run_band(s: EstimatorSettings, offsets: list[float], state=None):
+    """Ticks with the physics at 0.10 +- 0.005 and a lab every third tick at 0.10 + offset;
+    the band scale after each lab."""
+    state = state or fresh(s, None)
+    scales = []
+    for i, off in enumerate(offsets):
+        for k in range(3):
+            t = 3 * i + k
+            w = window(t)
+            labs = ((LabResult(w.end_ns - W // 2, 0.10 + off, f"L{t}", w.end_ns),)
+                    if k == 2 else ())
+            state, body = advance(s, None, state, w, labs,
+                                  {"moisture_out": 0.10, "moisture_out_std": 0.005})
+        scales.append(body["band_scale"])
+    return state, body, scales
+
+
+BAND_ONLY = dataclasses.replace(EstimatorSettings(), peer_blend=False)
+
+
+def test_the_band_widens_when_labs_fall_outside_and_narrows_when_they_sit_inside():
+    state, body, wide = run_band(BAND_ONLY, [0.04] * 5)
+    # each miss widens it by exp(0.95 * band_step): 1.33, 1.77, ...
+    assert all(b > a for a, b in zip([1.0, *wide], wide, strict=False)), wide
+    assert wide[-1] > 4.0  # 0.04 is now inside 1.96 x 4.2 x 0.005: no more widening
+    assert body["moisture_out_std"] == pytest.approx(0.005 * wide[-1])
+    assert body["moisture_out"] == 0.10  # the band only: the physics published as it is
+    assert body["band_misses"] == [5, 5]
+    _, body, narrow = run_band(BAND_ONLY, [0.0] * 60, state)  # exp(-0.015) per hit
+    assert all(b < a for a, b in zip([wide[-1], *narrow], narrow, strict=False)), narrow
+    assert narrow[-1] < 0.5 * wide[-1]
+
+
+def test_the_band_scale_stays_within_its_bounds():
+    _, _, wide = run_band(BAND_ONLY, [0.2] * 20)
+    assert max(wide) == pytest.approx(BAND_ONLY.band_scale_max)
+    _, _, narrow = run_band(BAND_ONLY, [0.0] * 400)
+    assert min(narrow) == pytest.approx(BAND_ONLY.band_scale_min)
+
+
+def test_without_the_features_the_physics_is_published_as_it_is():
+    s = dataclasses.replace(EstimatorSettings(), peer_blend=False, band_conformal=False)
+    _, body, scales = run_band(s, [0.04] * 3)
+    assert scales == [1.0] * 3 and body["moisture_out_std"] == 0.005
+
+
+def test_a_checkpointed_peer_state_is_checked():
+    state, _, _ = run_band(EstimatorSettings(), [0.01, 0.0])
+    check_state(state)
+    for key, bad in (("log_w", [0.0, math.nan, 0.0]), ("log_scale", math.inf),
+                     ("hold", [0.1]), ("log_w", [0.0, 1.0])):
+        with pytest.raises(ValueError):
+            check_state({**state, key: bad})
+
+
+# --------------------------------------------------------------------------- the regression
+def synthetic_history(seed: int = 0, days: int = 3, per_day: int = 12):
+    rng = np.random.default_rng(seed)
+    beta = rng.normal(size=len(REGRESSION_SIGNALS)) * 0.01
+    out = []
+    for _ in range(days):
+        X = 300.0 + rng.normal(size=(per_day, len(REGRESSION_SIGNALS))) * 5.0
+        y = 0.1 + (X - 300.0) @ beta / 5.0 + rng.normal(size=per_day) * 0.001
+        out.append((X, y))
+    return out, beta
+
+
+def test_the_regression_fit_recovers_a_linear_lab_and_round_trips_through_params():
+    hist, beta = synthetic_history()
+    reg = fit_lab_regression(hist)
+    X = 300.0 + np.eye(len(REGRESSION_SIGNALS)) * 5.0
+    slope = (reg.predict(X) - reg.predict(np.full((1, len(REGRESSION_SIGNALS)), 300.0)))
+    assert np.allclose(slope, beta, atol=0.002)
+    # the bias-updated regression misses the next lab by about sqrt(2) x the lab noise
+    assert 0.0005 < reg.step_sd < 0.005 and reg.hold_sd > reg.step_sd
+    cfg = with_table(CFG, "regression", reg.to_table())
+    back = regression_of(cfg)
+    assert isinstance(back, LabRegression)
+    assert np.array_equal(back.predict(X), reg.predict(X))
+    means = dict(zip(REGRESSION_SIGNALS, X[0], strict=True))
+    assert back.at_means(means) == pytest.approx(float(reg.predict(X[:1])[0]))
+
+
+@pytest.mark.parametrize("key, bad, words", [
+    ("coef", [1.0], "regression].coef must be"),
+    ("signals", ["T_air_in", "speed"], "regression].signals must list"),
+    ("step_sd", -1.0, "regression].step_sd must be"),
+])
+def test_a_bad_regression_table_is_refused_naming_the_key(key, bad, words):
+    table = fit_lab_regression(synthetic_history()[0]).to_table()
+    cfg = with_table(CFG, "regression", {**table, key: bad})
+    with pytest.raises(ConfigError, match=words.replace("[", r"\[").replace("]", r"\]")):
+        regression_of(cfg)
+
+
+def test_too_short_a_history_for_the_regression_says_so():
+    hist, _ = synthetic_history(days=1, per_day=5)
+    with pytest.raises(ConfigError, match="needs at least 12 lab results"):
+        fit_lab_regression(hist)
+
+
+# --------------------------------------------------------------------------- virtual plant
+@pytest.fixture(scope="module")
+def clean_day():
+    from softsensor.plant.simulator import simulate_day
+
+    return simulate_day(CFG, 16, seed=21)
+
+
+def run_plant(cfg, day, **settings):
+    """The estimator over ``day`` (labs handed over at their log time): bodies and the truth
+    at each tick."""
+    from softsensor.estimation.settings import estimator_settings
+    from softsensor.estimation.ukf import UkfEstimator
+    from softsensor.estimation.windowing import windows_from_frame
+
+    est = UkfEstimator(cfg, dataclasses.replace(estimator_settings(cfg), **settings))
+    labs = sorted((LabResult(int(r.sample_time_ns), float(r.moisture_out), str(r.sample_id),
+                             int(r.log_time_ns)) for r in day.labs.itertuples(index=False)),
+                  key=lambda r: r.log_time_ns)
+    t = day.truth.index.to_numpy()
+    bodies, truth, j = [], [], 0
+    for w in windows_from_frame(day.scans):
+        while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
+            est.add_lab(labs[j])
+            j += 1
+        bodies.append(est.tick(w))
+        truth.append(float(day.truth.moisture_out.to_numpy()[np.searchsorted(t, w.end_ns,
+                                                                            "right") - 1]))
+    return bodies, np.array(truth)
+
+
+def rmse(bodies, truth, sel) -> float:
+    mo = np.array([b["moisture_out"] for b in bodies])
+    return float(np.sqrt(np.mean((mo - truth)[sel] ** 2)))
+
+
+def test_a_misled_model_falls_back_to_the_held_lab_by_the_lab_likelihood(clean_day):
+    """The model given a drying rate 0.4 times the plant's (mult_D): the lab results keep
+    contradicting its physics, the held lab predicts them better, and the published estimate
+    moves to it; with the weighting off it stays on the physics."""
+    wrong = CFG.with_parameters({"mult_D": 0.4})
+    blended, truth = run_plant(wrong, clean_day)
+    physics, _ = run_plant(wrong, clean_day, peer_blend=False)
+    ends = np.array([b["window_end_ns"] for b in blended])
+    last = ends >= np.sort(clean_day.labs.log_time_ns.to_numpy())[-1]
+    assert {b["source"] for b, k in zip(blended, last, strict=True) if k} == {"hold"}
+    assert all(b["sources"]["physics"]["weight"] < 0.1 for b, k in zip(blended, last,
+                                                                       strict=True) if k)
+    assert rmse(blended, truth, last) < 0.5 * rmse(physics, truth, last)
+
+
+def test_a_clean_day_stays_on_the_physics(clean_day):
+    blended, truth = run_plant(CFG, clean_day)
+    physics, _ = run_plant(CFG, clean_day, peer_blend=False, band_conformal=False)
+    assert {b["source"] for b in blended} == {"physics"}
+    assert min(b["sources"]["physics"]["weight"] for b in blended) > 0.8
+    first = np.array([b["window_end_ns"] for b in blended]) >= clean_day.labs.log_time_ns.min()
+    assert rmse(blended, truth, first) <= 1.05 * rmse(physics, truth, first)
+
+
+def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from softsensor.apps.calibrate import _lab_regression
+
+    rng = np.random.default_rng(5)
+    t = (np.arange(1, 8641) * 10 + 1_767_571_200) * 10**9  # 24 h of 10 s scans
+    days = []
+    for _ in range(2):
+        scans = pd.DataFrame({s: 300 + rng.normal(size=len(t)) for s in REGRESSION_SIGNALS},
+                             index=t)
+        scans["flap_cmd"] = np.nan  # not read on this plant
+        sample = t[::720][1:] - 5 * 10**9  # one every 2 h
+        mean = scans["T_air_in"].rolling(60).mean().reindex(sample, method="ffill")
+        value = 0.1 + 0.01 * (mean - 300)
+        days.append(SimpleNamespace(scans=scans, labs=pd.DataFrame(
+            {"sample_time_ns": sample, "moisture_out": value.to_numpy()})))
+    reg = _lab_regression(days)
+    assert "flap_cmd" not in reg.signals and len(reg.signals) == len(REGRESSION_SIGNALS) - 1
+    assert reg.n_labs == 22
+    assert np.all(np.isfinite(reg.coef)) and reg.step_sd > 0
+    short = SimpleNamespace(scans=days[0].scans, labs=days[0].labs.iloc[:9])
+    assert _lab_regression([short]) is None  # 9 results for 11 coefficients
+    assert ("no [regression] written: the regression peer needs at least 11 lab results "
+            "with every signal scanned, the history holds 9") in capsys.readouterr().err
