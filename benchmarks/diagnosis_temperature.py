@@ -8,7 +8,7 @@ does, :func:`~softsensor.calibration.model_error_fit.fit_model_error` at the con
 parameters), then ``--days-per-cause`` test days per cause (day seeds 300, 301, ...,
 magnitudes one uniform draw in each stratum of the effect's detectable range) diagnosed
 against it. Output: per day the true cause, the verdict and every candidate's
-log-evidence, and the temperature minimising the mean log loss of the true cause
+log-evidence, and the temperature minimising the mean Brier score
 (:func:`~softsensor.diagnosis.posterior.fit_temperature`) with the Brier score and top-1 and
 top-2 accuracy at it and at the module's :data:`~softsensor.diagnosis.posterior.TEMPERATURE`.
 
@@ -136,7 +136,7 @@ def main() -> int:
         days = diagnose_days(args)
         doc = {"settings": vars(args), "days": days}
     usable = [(np.array([c[2] for c in r["candidates"]]), true_index(r)) for r in days]
-    t = fit_temperature([(L, i) for L, i in usable if i >= 0])
+    t = fit_temperature(usable)
     doc["fitted_temperature"] = t
     doc["at_fitted"] = scores(days, t)
     doc["at_module_temperature"] = {"temperature": TEMPERATURE, **scores(days, TEMPERATURE)}

@@ -527,8 +527,8 @@ def diagnosis_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]
         named, named_channel = doc.get("cause"), doc.get("channel")
         right = named == spec.effect and (spec.effect != "sensor_bias"
                                           or named_channel == channel)
-        probs = [{"cause": c["cause"], "channel": c["channel"],
-                  "probability": c["probability"]} for c in doc.get("probabilities", [])]
+        probs = [{k: c[k] for k in ("cause", "channel", "probability", "log_evidence")}
+                 for c in doc.get("probabilities", [])]
         return {"channel": channel, "named": named, "named_channel": named_channel,
                 "gain": doc.get("gain"), "right": bool(right), "probabilities": probs,
                 **probability_record(probs, spec.effect, channel),
