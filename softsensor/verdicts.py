@@ -77,8 +77,31 @@ _SENTENCES: dict[str, Callable[[Mapping[str, float], Mapping[str, Any]], str]] =
 }
 
 
+def _cause_words(entry: Mapping[str, Any]) -> str:
+    return str(entry.get("cause")) + (f" on {entry['channel']}" if entry.get("channel") else "")
+
+
+def cannot_tell_sentence(doc: Mapping[str, Any]) -> str:
+    """The sentence that names both causes the record cannot tell apart (REPORT.json
+    ``cannot_tell``), or ``""``."""
+    both = list(doc.get("cannot_tell") or [])
+    if len(both) < 2:
+        return ""
+    a, b = both[0], both[1]
+    return (f"This record cannot tell {_cause_words(a)} (probability "
+            f"{float(a['probability']):.0%}) from {_cause_words(b)} "
+            f"({float(b['probability']):.0%}): on this day both would leave nearly the same "
+            f"trace in the data; check both.")
+
+
 def diagnosis_verdict(doc: Mapping[str, Any]) -> str:
-    """The diagnosis (REPORT.json, docs/interface.md section 5) as one or two sentences."""
+    """The diagnosis (REPORT.json, docs/interface.md section 5) as one or two sentences;
+    where the record cannot tell two causes apart, that is said first."""
+    undecided = cannot_tell_sentence(doc)
+    return (undecided + " " + _named_verdict(doc)) if undecided else _named_verdict(doc)
+
+
+def _named_verdict(doc: Mapping[str, Any]) -> str:
     cause = doc.get("cause")
     if cause == "none":
         return ("The calibrated model explains this record to within the sensors' noise: "
@@ -241,5 +264,5 @@ def health_words(body: Mapping[str, Any]) -> str:
 
 
 __all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
-           "diagnosis_verdict", "health_words", "held_out_verdict", "open_loop_sentence",
-           "validation_verdict"]
+           "cannot_tell_sentence", "diagnosis_verdict", "health_words", "held_out_verdict",
+           "open_loop_sentence", "validation_verdict"]

@@ -129,3 +129,26 @@ def test_why_not_is_said_in_a_few_words():
     assert why_not_short(_score(gain=0.03)) == "eq. 4 gain +0.030 <= 0.05"
     assert why_not_short(_score(p=0.5, penalised=-1.0, gain=0.0)) == (
         "not significant; P -1.0 < 10; eq. 4 gain +0.000 <= 0.05")
+
+
+def test_the_page_ranks_the_causes_by_probability(diagnosis, page):
+    """Issue 33: the page shows every cause with its probability, most probable first, with
+    the size of each cause this day can show; the JSON keeps ``cause``."""
+    doc = diagnosis.to_json()
+    assert doc["cause"] == "sensor_bias" and doc["channel"] == "T_dryer_out"
+    probs = doc["probabilities"]
+    assert probs[0]["cause"] == "sensor_bias" and probs[0]["channel"] == "T_dryer_out"
+    # a 14 h day and two extensions: the offset's evidence is modest, and at the tuned
+    # temperature (posterior.TEMPERATURE) it gets 0.45 (the effect days of
+    # tests/test_diagnosis_history.py get more than 0.9)
+    assert probs[0]["probability"] > 0.4 and probs[0]["probability"] > probs[1]["probability"]
+    assert sum(p["probability"] for p in probs) == pytest.approx(1.0, abs=1e-5)
+    head, rows = _table(_section(page, "Probability of every cause"))
+    assert head == ["rank", "cause", "channel", "probability", "log-evidence [nats]",
+                    "smallest size this day can show"]
+    assert [r[1] for r in rows] == [p["cause"] for p in probs]
+    assert [float(r[3]) for r in rows] == pytest.approx([p["probability"] for p in probs],
+                                                        abs=1e-3)
+    # the 3 K offset it found is above the size this day can show of one
+    size = doc["detectability"]["sensor_bias"]["detectable_size"]
+    assert 0.0 < size < 3.0 and rows[0][5] == f"{size:.3g} K"

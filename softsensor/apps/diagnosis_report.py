@@ -9,12 +9,14 @@
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
 * ``index.html``: a plain-language verdict first (:func:`softsensor.verdicts.
-  diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"), then the
-  statistics, the evidence table and the figures, embedded (the same page layout as the
-  calibration report, :func:`softsensor.apps.calibration_figures.write_page`). The evidence
-  is a table, one row per fitted extension and channel (before, after, change, log-likelihood
-  gain, eligible or why not; :func:`evidence_table`), and the prose evidence of every ranking
-  entry follows under "Details" (:func:`details`).
+  diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"; first of
+  all, where the record cannot tell two causes apart, both), then the statistics, the
+  ranking of the causes by probability with the size of each cause this day can show
+  (:func:`probability_table`), the evidence table and the figures, embedded (the same page
+  layout as the calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
+  The evidence is a table, one row per fitted extension and channel (before, after, change,
+  log-likelihood gain, eligible or why not; :func:`evidence_table`), and the prose evidence
+  of every ranking entry follows under "Details" (:func:`details`).
 
 What a person reads is in plant units (:mod:`softsensor.display`, the ``[display]`` table):
 °C, moisture in % on the display basis, time axes in the plant's local clock time; the
@@ -50,7 +52,7 @@ from softsensor.display import (  # noqa: E402
 )
 from softsensor.errors import ConfigError  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
-from softsensor.verdicts import diagnosis_verdict  # noqa: E402
+from softsensor.verdicts import cannot_tell_sentence, diagnosis_verdict  # noqa: E402
 
 
 def _save(fig, path: Path) -> Path:
@@ -218,6 +220,37 @@ def evidence_table(d: Diagnosis, doc: dict, plant: Callable[[str, float | None],
     return markdown_table(EVIDENCE_COLUMNS, rows)
 
 
+#: The columns of the probability ranking.
+PROBABILITY_COLUMNS = ("rank", "cause", "channel", "probability", "log-evidence [nats]",
+                       "smallest size this day can show")
+
+#: What the probability ranking is (printed above it).
+PROBABILITY_NOTE = (
+    "Every cause with its probability: a softmax over the causes' penalised held-out "
+    "log-likelihood gains against the plant's normal, each extension charged for the gain a "
+    "clean day reaches, `unexplained` for what the normal's noise allows, its temperature "
+    "fitted on tuning days. *Smallest size this day can show*: the size at which the cause's "
+    "trace on this day, seen through the plant's normal, is large enough to be named; a "
+    "cause smaller than that is beyond what this record can show.")
+
+
+def probability_table(doc: dict) -> str:
+    """The causes by probability (:data:`PROBABILITY_COLUMNS`), with the detectable size of
+    each cause on the day (REPORT.json ``detectability``)."""
+    det = doc.get("detectability") or {}
+    rows = []
+    for i, c in enumerate(doc.get("probabilities") or [], 1):
+        d = det.get(c["cause"])
+        size = "n/a" if d is None else (
+            "not at any size" if d.get("detectable_size") is None
+            else f"{d['detectable_size']:.3g} {d['unit']}")
+        rows.append([str(i), c["cause"], c.get("channel") or "", f"{c['probability']:.3f}",
+                     f"{c['log_evidence']:+.1f}", _cell(size)])
+    if not rows:
+        return "No probabilities."
+    return markdown_table(PROBABILITY_COLUMNS, rows)
+
+
 def details(doc: dict) -> str:
     """The prose evidence of every ranking entry, as a list (what the table leaves out)."""
     items = []
@@ -266,8 +299,11 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
         stats += f" Extension: {doc['extension']['description']}."
     if doc.get("structure"):
         stats += f" Baseline residuals structured: {doc['structure']}."
+    undecided = cannot_tell_sentence(doc)
     sections = [
         ("Statistics", stats + "\n\n" + rm),
+        ("Probability of every cause", ((undecided + "\n\n") if undecided else "")
+         + PROBABILITY_NOTE + "\n\n" + probability_table(doc)),
         ("Evidence", EVIDENCE_NOTE + "\n\n" + evidence_table(d, doc, plant, x_ref, disp)),
         ("Details", details(doc)),
         ("Residuals per channel", "![residuals](residuals.png)"),

@@ -130,6 +130,19 @@ class Extension(ABC):
         two folds of the cross-fitting in :mod:`.verdict`)."""
         return self.fit(problem), self.fit(problem.reversed())
 
+    #: The size at which :meth:`probe` applies the cause, in :attr:`probe_unit`: the virtual
+    #: plant's default size of the effect (a size plants see), a scale for the signature.
+    probe_size: ClassVar[float] = 1.0
+    probe_unit: ClassVar[str] = ""
+    #: The sensor :meth:`probe` applies the cause to when no channel is given (None: the
+    #: cause is not a sensor's).
+    default_channel: ClassVar[str | None] = None
+
+    @abstractmethod
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        """The baseline with this cause applied at :attr:`probe_size` over the whole day (its
+        signature on this day; ``channel`` picks the sensor of a sensor offset)."""
+
 
 def _fit_scalar(problem: Problem, make: Callable[[float, int | None], Prediction],
                 bounds: tuple[float, float], step: float, tol: float,
@@ -193,6 +206,14 @@ class SensorOffset(Extension):
     alternative's common state."""
 
     cause = "sensor_bias"
+    probe_size = 3.0
+    probe_unit = "K"
+    default_channel = KELVIN_CHANNELS[0]
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        unit = np.zeros(3)
+        unit[KELVIN_CHANNELS.index(channel or self.default_channel)] = self.probe_size
+        return _offset(problem.baseline, unit)
 
     def fit(self, problem: Problem) -> Fitted:
         base = problem.baseline
@@ -234,6 +255,12 @@ class LabTimeShift(Extension):
     #: a shift, and the grid's best then lands anywhere (a fold fitted on eight such results
     #: put 84.5 min on a 44 min delay); such a shift is noise and is not applied.
     min_chi2_drop = float(chi2_dist.isf(1e-3, 1))
+    probe_size = 45.0
+    probe_unit = "min"
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        _, values = self.lab_chi2(problem, np.array([self.probe_size]))
+        return Prediction(problem.baseline.Y, values[0])
 
     @staticmethod
     def lab_chi2(problem: Problem, shifts_min: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -297,33 +324,46 @@ class TransferDrift(Extension):
     bounds = (-1.0, 0.9)
     #: The loss at which the steady response is taken (a secant, not a derivative: the
     #: response bends as the transfer falls). [-]
-    probe = 0.2
+    secant = 0.2
 
     def response(self, problem: Problem) -> np.ndarray:
         """``S`` (3,): the model's steady output change per unit transfer loss at the day's
         mean inputs (``T_dryer_out``, ``T_cyclone_out`` [K], ``moisture_out`` [kg/kg])."""
         u = problem.windows.U.mean(axis=0)
         lost = np.array(problem.theta, float)
-        lost[_MULT_D] *= 1.0 - self.probe
-        lost[_MULT_H] *= 1.0 - self.probe
+        lost[_MULT_D] *= 1.0 - self.secant
+        lost[_MULT_H] *= 1.0 - self.secant
         _, y0 = problem.model.steady_state(u, problem.theta)
         _, y1 = problem.model.steady_state(u, lost)
-        return (np.asarray(y1, float) - np.asarray(y0, float)) / self.probe
+        return (np.asarray(y1, float) - np.asarray(y0, float)) / self.secant
 
-    def fit(self, problem: Problem) -> Fitted:
+    probe_size = 0.3
+    probe_unit = "loss by the end of the day"
+
+    def drifted(self, problem: Problem, S: np.ndarray, d: float,
+                k_end: int | None = None) -> Prediction:
+        """The baseline drifted by a loss ``d`` at the day's end (response ``S``) over the
+        first ``k_end`` windows (default all)."""
         w = problem.windows
         base = problem.baseline
-        S = self.response(problem)
         length_h = float(w.hours[-1])
         t_win = (w.hours - 0.5 * w.window_s / 3600.0) / length_h
         t_lab = w.lab_hours / length_h
         lab_window = np.searchsorted(w.end_ns, w.lab_time_ns, side="left")
+        k = w.n_windows if k_end is None else int(k_end)
+        Y = base.Y[:k] + d * t_win[:k, None] * S
+        lab = np.where(lab_window < k, base.lab + d * t_lab * S[2], np.nan)
+        return Prediction(Y, lab)
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        return self.drifted(problem, self.response(problem), self.probe_size)
+
+    def fit(self, problem: Problem) -> Fitted:
+        w = problem.windows
+        S = self.response(problem)
 
         def make(d: float, k_end: int | None) -> Prediction:
-            k = w.n_windows if k_end is None else int(k_end)
-            Y = base.Y[:k] + d * t_win[:k, None] * S
-            lab = np.where(lab_window < k, base.lab + d * t_lab * S[2], np.nan)
-            return Prediction(Y, lab)
+            return self.drifted(problem, S, d, k_end)
 
         d, chi = _fit_scalar(problem, make, self.bounds, step=0.05, tol=2e-3)
         trend = "lose" if d >= 0 else "gain"
@@ -339,13 +379,22 @@ class AirSensorLag(Extension):
 
     cause = "input_lag"
     bounds_min = (0.0, 45.0)
+    probe_size = 8.0
+    probe_unit = "min"
+
+    @staticmethod
+    def delagged(problem: Problem, tau_min: float, k_end: int | None = None) -> Prediction:
+        """The model on ``T_air_in`` with a lag of ``tau_min`` undone."""
+        w = problem.windows
+        U, bins = delagged_air(w.segment, w.air_edges, tau_min * 60.0)
+        return problem.predict(U, k_end=k_end, labs=problem.lab_points(U=U, bins=bins))
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        return self.delagged(problem, self.probe_size)
 
     def fit(self, problem: Problem) -> Fitted:
-        w = problem.windows
-
         def make(tau: float, k_end: int | None) -> Prediction:
-            U, bins = delagged_air(w.segment, w.air_edges, tau * 60.0)
-            return problem.predict(U, k_end=k_end, labs=problem.lab_points(U=U, bins=bins))
+            return self.delagged(problem, tau, k_end)
 
         tau, chi = _fit_scalar(problem, make, self.bounds_min, step=2.0, tol=0.05)
         return Fitted(self.cause, {"tau_min": tau}, self.n_params, make(tau, None), chi,
@@ -359,12 +408,22 @@ class AmbientHeatLoss(Extension):
 
     cause = "ambient_heat_loss"
     bounds = (-0.1, 0.6)
+    probe_size = 0.05
+    probe_unit = "1/K"
+
+    @staticmethod
+    def with_beta(problem: Problem, beta: float, k_end: int | None = None) -> Prediction:
+        """The model with the outside heat loss growing by ``beta`` per K of cold."""
+        aux = np.zeros(N_AUX)
+        aux[BETA_AMB] = beta
+        return problem.predict(aux=aux, k_end=k_end)
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        return self.with_beta(problem, self.probe_size)
 
     def fit(self, problem: Problem) -> Fitted:
         def make(beta: float, k_end: int | None) -> Prediction:
-            aux = np.zeros(N_AUX)
-            aux[BETA_AMB] = beta
-            return problem.predict(aux=aux, k_end=k_end)
+            return self.with_beta(problem, beta, k_end)
 
         beta, chi = _fit_scalar(problem, make, self.bounds, step=0.02, tol=5e-4)
         return Fitted(self.cause, {"beta_amb_per_K": beta}, self.n_params, make(beta, None), chi,
@@ -378,6 +437,20 @@ class InletMoistureEstimate(Extension):
     cause = "inlet_moisture"
     #: Random-walk intensities tried on the fit part. [kg/kg / sqrt(h)]
     walks = (0.01, 0.04)
+    probe_size = 0.15
+    probe_unit = "kg/kg"
+
+    def probe(self, problem: Problem, channel: str | None = None) -> Prediction:
+        """A sustained change of the inlet moisture, seen through the model's steady response
+        at the day's mean inputs (the filter tracks any course of it; a step held over the
+        day is the course the others are told from)."""
+        u = problem.windows.U.mean(axis=0)
+        U = np.stack([u, u])
+        U[1, _M_IN] += self.probe_size
+        _, y = problem.model.steady_state(U, problem.theta)
+        dy = np.asarray(y[1] - y[0], float)
+        base = problem.baseline
+        return Prediction(base.Y + dy, base.lab + dy[2])
 
     def estimator(self, problem: Problem, walk: float) -> UkfEstimator:
         """A UKF on the calibrated model with random-walk intensity ``walk``."""

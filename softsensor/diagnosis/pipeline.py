@@ -11,7 +11,10 @@
    separately, on the held-out part, and score it on the data each fit did not see
    (:mod:`.verdict`); only the costly inlet-moisture filter is skipped when the residuals
    rule it out (:func:`implausible`);
-4. name the cause and write the evidence (:mod:`.evidence`).
+4. name the cause and write the evidence (:mod:`.evidence`);
+5. give every cause its probability (:mod:`.posterior`), with every cause's signature on this
+   day and the size the normal can see of it (:mod:`.detectability`), and say where the two
+   most probable causes cannot be told apart on this day's data.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
 (:meth:`Diagnosis.to_json`) and feeds the report page (:mod:`.report`). Nothing here reads the
@@ -29,8 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from softsensor.diagnosis.detectability import Signature, signatures
 from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
 from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted, LabTimeShift
+from softsensor.diagnosis.posterior import Candidate, cannot_tell, posterior
 from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Prediction, Problem, choose_split
 from softsensor.diagnosis.residuals import LAB_SHIFTS_MIN, channel_stats, lab_stats
 from softsensor.diagnosis.verdict import (
@@ -38,6 +43,7 @@ from softsensor.diagnosis.verdict import (
     Verdict,
     cross_fitted,
     score,
+    structure_margins,
     structured,
     verdict,
 )
@@ -73,6 +79,9 @@ class Diagnosis:
     timings: dict[str, float] = field(default_factory=dict)
     source: str = "day"
     skipped: dict[str, str] = field(default_factory=dict)
+    signatures: dict[str, Signature] = field(default_factory=dict)
+    candidates: list[Candidate] = field(default_factory=list)
+    undecided: dict[str, Any] | None = None
 
     @property
     def cause(self) -> str:
@@ -154,6 +163,11 @@ class Diagnosis:
                 "split_gain": _num(win.split_gain if win is not None else 0.0)},
             "noise_levels": {k: _num(x) for k, x in zip(OUTPUT_NAMES, self.sigma, strict=True)},
             "structure": v.structure,
+            "probabilities": [c.to_json() for c in self.candidates],
+            "cannot_tell": [] if self.undecided is None else self.undecided["causes"],
+            "cannot_tell_collinearity": None if self.undecided is None
+            else self.undecided["collinearity"],
+            "detectability": {c: sg.to_json() for c, sg in self.signatures.items()},
             "parameters": {k: _num(x) for k, x in zip(PARAMETER_NAMES, p.theta, strict=True)},
             "timings_s": {k: round(x, 2) for k, x in self.timings.items()},
         }
@@ -273,6 +287,12 @@ def diagnose(config: PlantConfig, day: DayLike, *,
                   scores[f.cause].penalised)
     struct = structured(problem)
     v = verdict(list(scores.values()), struct)
+    say("probabilities and what this day can show of every cause")
+    t1 = time.perf_counter()
+    sigs = signatures(problem, extensions, fitted)
+    margin = max((m for m, _, _ in structure_margins(problem).values()), default=-math.inf)
+    cands = posterior(v, scores.values(), skipped, margin)
+    timings["probabilities"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
-                     skipped)
+                     skipped, sigs, cands, cannot_tell(cands, sigs))

@@ -224,21 +224,34 @@ def score(problem: Problem, fitted: Fitted, other_fold: Fitted) -> Score:
     return dataclasses.replace(sc, worse=worse)
 
 
-def structured(problem: Problem) -> str | None:
-    """Why the baseline residuals are clearly larger than the calibration error allows (None
-    when they are not): a channel whose whitened residuals (:meth:`Problem.whitened
-    <softsensor.diagnosis.problem.Problem.whitened>`, whole day) have a mean square above
-    ``STRUCTURE_MS`` with a chi-square p value below ``STRUCTURE_P`` (the lab channel with at
-    least ``MIN_LABS_STRUCTURE`` results)."""
-    out = []
+def structure_margins(problem: Problem) -> dict[str, tuple[float, int, float]]:
+    """Per channel with enough samples, ``(margin, n, SS)`` of the baseline's whitened
+    residuals over the whole day: ``margin`` is the smaller of ``(SS - STRUCTURE_MS n) / 2``
+    and ``log(STRUCTURE_P) - log(chi2.sf(SS, n))``, in nats, positive exactly when the
+    channel is clearly structured (:func:`structured`). It is what the residual holds beyond
+    what ``unexplained`` is charged: ``STRUCTURE_MS`` times its count of values, half of it in
+    log-likelihood."""
+    out = {}
     for name, w in zip(OUTPUT_NAMES, problem.whitened(problem.baseline, "all"), strict=True):
         n = w.size
         if n == 0 or (name == "moisture_out" and n < MIN_LABS_STRUCTURE):
             continue
         ss = float(w @ w)
-        if ss / n > STRUCTURE_MS and chi2_dist.sf(ss, n) < STRUCTURE_P:
-            out.append(f"{name} residuals are {math.sqrt(ss / n):.1f} times what the "
-                       f"calibration error explains (whitened RMS over {n} values)")
+        margin = min(0.5 * (ss - STRUCTURE_MS * n),
+                     math.log(STRUCTURE_P) - float(chi2_dist.logsf(ss, n)))
+        out[name] = (margin, n, ss)
+    return out
+
+
+def structured(problem: Problem) -> str | None:
+    """Why the baseline residuals are clearly larger than the calibration error allows (None
+    when they are not): a channel whose whitened residuals (:meth:`Problem.whitened
+    <softsensor.diagnosis.problem.Problem.whitened>`, whole day) have a mean square above
+    ``STRUCTURE_MS`` with a chi-square p value below ``STRUCTURE_P`` (the lab channel with at
+    least ``MIN_LABS_STRUCTURE`` results; :func:`structure_margins` positive)."""
+    out = [f"{name} residuals are {math.sqrt(ss / n):.1f} times what the calibration error "
+           f"explains (whitened RMS over {n} values)"
+           for name, (margin, n, ss) in structure_margins(problem).items() if margin > 0]
     return "; ".join(out) if out else None
 
 
