@@ -115,7 +115,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("consistency: the test's inequality turned", EST + "consistency.py",
              "if total <= limit:", "if total < 0.9 * limit:", T_EST),
     Mutation("consistency: one degree of freedom too many", EST + "consistency.py",
-             "limit = float(chi2.isf(alpha, dof))", "limit = float(chi2.isf(alpha, dof + 1))",
+             "limit = float(chdtri(dof, alpha))", "limit = float(chdtri(dof + 1, alpha))",
              T_EST),
     Mutation("UKF: the joint covariance with the mean's weights", EST + "ukf_step.py",
              "mean, cov = unscented_transform(joint, pts.Wm, pts.Wc)",

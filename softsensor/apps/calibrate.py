@@ -226,7 +226,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
         day = read_day_inputs(p)
         days.append(segment_from_day(day, base, source=str(p)))
         rows.append(day)
-    regression = _lab_regression(rows)
+    regression, no_regression = _lab_regression(rows)
     rows.clear()
     validation = [load_segment(p, base) for p in args.validate_on] if args.validate_on else None
 
@@ -259,6 +259,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
                                                  structure=hist.structure))
     write_json(summary, args.json)
+    if no_regression:  # said after the calibration, which may refuse the days first
+        print(f"calibrate: no [regression] written: {no_regression}", file=sys.stderr)
     if result.trade_off is not None:
         print(f"calibrate: {result.trade_off.verdict()}", file=sys.stderr)
     if hist.structure is not None:
@@ -267,10 +269,10 @@ def calibrate_main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _lab_regression(days: Sequence[RecordedDay]) -> Any:
+def _lab_regression(days: Sequence[RecordedDay]) -> tuple[Any, str | None]:
     """The lab regression on the history (PARAMS.toml's ``[regression]``, the peer the
-    estimator runs beside its physics) on the signals every day scanned; None, with a line on
-    stderr, when the history holds too few lab results for it."""
+    estimator runs beside its physics) on the signals every day scanned, and None; or None
+    and why, when the history holds too few lab results for it."""
     from softsensor.estimation.lab_regression import (
         REGRESSION_SIGNALS,
         fit_lab_regression,
@@ -281,10 +283,9 @@ def _lab_regression(days: Sequence[RecordedDay]) -> Any:
                if all(s in d.scans.columns and d.scans[s].notna().any() for d in days)]
     try:
         return fit_lab_regression([lab_features(d.scans, d.labs, signals) for d in days],
-                                  signals)
+                                  signals), None
     except ConfigError as exc:
-        print(f"calibrate: no [regression] written: {exc}", file=sys.stderr)
-        return None
+        return None, str(exc)
 
 
 def _errors(new: dict[str, float], old: dict[str, float], x_ref: float, basis: str) -> str:
