@@ -145,6 +145,7 @@ def test_layout_is_field_major_and_round_trips(model):
     assert L.size == 5 * (model.geometry.n_d + model.geometry.n_c)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("law", ["cdc", "rea"])
 def test_fast_model_agrees_with_method_of_lines_with_each_drying_law(model, law):
     # the law is dispatched inside the shared cell rates, so the method of lines integrates
