@@ -186,6 +186,10 @@ def test_chromium_dom_shows_a_faceplate(tmp_path):
     assert words == ("Less certain than usual: the outlet temperatures disagree with the model "
                      "more than usual."), words
     assert "NIS" not in words
+    # the +- is named as the 95 % band (issue 30 item 7), in the browser's DOM
+    assert re.search(r"[\d.]+ &plusmn; [\d.]+ % wb <span class=\"age\">\(95 % band\)</span>",
+                     dom) or re.search(r"[\d.]+ ± [\d.]+ % wb <span class=\"age\">\(95 % "
+                                       r"band\)</span>", dom), dom[:2000]
     # the age of each value, and the last diagnosis
     assert re.search(r"id=\"estimate-age\">\(7 min ago\)", dom)
     assert re.search(r"id=\"last-lab\">Last lab result: [\d.]+ % wb \(L15\), sampled "

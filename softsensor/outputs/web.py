@@ -260,9 +260,12 @@ def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> 
         v, sd = b.get(key), b.get(key + "_std")
         if v is None:
             return "n/a"
-        band = ("" if sd is None else
-                f" &plusmn; {moisture_pct_points(1.96 * float(sd), float(v), basis):.2f}")
-        return f"{float(moisture_pct(float(v), basis)):.2f}{band} {unit}"
+        if sd is None:
+            return f"{float(moisture_pct(float(v), basis)):.2f} {unit}"
+        half = moisture_pct_points(1.96 * float(sd), float(v), basis)
+        # the +- says which band it is: an operator reads it as a tolerance otherwise
+        return (f"{float(moisture_pct(float(v), basis)):.2f} &plusmn; {half:.2f} {unit} "
+                f"<span class='age'>(95 % band)</span>")
 
     def deg(key: str) -> str:
         v = b.get(key)
