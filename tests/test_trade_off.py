@@ -95,6 +95,15 @@ def test_a_front_that_cannot_fit_both_says_so_in_one_line(days, tmp_path, capsys
     d1, d2, _ = days
     trade, lines = _calibrate([d1, d2], tmp_path, capsys)
     assert trade["reachable"] is False
+    # without --storage the study is kept beside --out for optuna-dashboard (issue 30 item 7)
+    import optuna
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    journal = tmp_path / "p.toml.optuna.log"
+    study = optuna.load_study(study_name="softsensor-calibration",
+                              storage=JournalStorage(JournalFileBackend(str(journal))))
+    assert len(study.trials) >= 3
     assert lines[-2].startswith("calibrate: this model cannot hold the outlet temperatures "
                                 "within 1 K while the outlet moisture stays within 0.006 "
                                 "kg/kg on the held-out data"), lines[-2]

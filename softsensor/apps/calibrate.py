@@ -163,7 +163,8 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="TPE seed (default 0)")
     p.add_argument("--storage", default=None, metavar="URL",
                    help="Optuna storage shared by workers: journal:PATH, a .log file, "
-                        "sqlite:///f.db, postgresql://... (default: in memory)")
+                        "sqlite:///f.db, postgresql://... (default: a fresh journal file "
+                        "beside --out, PARAMS.toml.optuna.log, for optuna-dashboard)")
     p.add_argument("--study-name", default=DEFAULT_STUDY_NAME,
                    help=f"study in the storage (default {DEFAULT_STUDY_NAME})")
     p.add_argument("--batch", type=int, default=1,
@@ -186,6 +187,16 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     _add_objective_arguments(p)
     _add_data_arguments(p)
+
+
+def _fresh_journal(out: Path) -> str:
+    """Without ``--storage``, the study goes to a journal file beside ``--out``
+    (``PARAMS.toml.optuna.log``), started afresh, so that optuna-dashboard can open what the
+    calibration did (an in-memory study left nothing to look at)."""
+    journal = out.with_name(out.name + ".optuna.log")
+    for stale in (journal, journal.with_name(journal.name + ".lock")):
+        stale.unlink(missing_ok=True)
+    return str(journal)
 
 
 def _structure_library(args: argparse.Namespace, base: PlantConfig) -> list[Any]:
@@ -215,7 +226,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if not args.fit_hours > 0:
         raise ConfigError(f"--fit-hours must be > 0, got {args.fit_hours}")
     selection = _selection(args)
-    settings = StudySettings(n_trials=args.trials, seed=args.seed, storage=args.storage,
+    settings = StudySettings(n_trials=args.trials, seed=args.seed,
+                             storage=args.storage or _fresh_journal(out),
                              study_name=args.study_name, n_chunks=args.chunks,
                              batch=args.batch, prune=not args.no_prune,
                              progress=not args.quiet and sys.stderr is not None)
