@@ -245,6 +245,8 @@ class Context:
     cache: Path | None
     cost: str | None = None
     structure: bool = True
+    #: calibrate on the latest history record alone (more history must never be worse)
+    latest_only: bool = False
     #: the regression fitted on the history carried into the estimator (PARAMS.toml's
     #: ``[regression]``), which weighs it and the held lab against its physics
     peers_inside: bool = True
@@ -297,7 +299,7 @@ class PlantModel:
 
 def calibrate_plant(ctx: Context, i: int) -> PlantModel:
     """``softsensor calibrate`` on plant ``i``'s history (module docstring)."""
-    specs = ctx.plan.history[i]
+    specs = ctx.plan.history[i][-1:] if ctx.latest_only else ctx.plan.history[i]
     rec: dict[str, Any] = {"plant": i, "plant_seed": ctx.plan.plant_seeds[i],
                            "history_seeds": [d.seed for d in specs], "hours": ctx.hours,
                            "trials": ctx.trials}
@@ -333,7 +335,8 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         rec["calibrate_s"] = round(time.perf_counter() - t1, 1)
         rec.update(json.loads(summary_path.read_text()))
         config = load_parameters(params_path, base)
-        regression = peers.fit_regression(days)
+        # the peer is fitted on the whole history either way: only the model's data changes
+        regression = peers.fit_regression([ctx.simulate(d) for d in ctx.plan.history[i]])
         if ctx.peers_inside:  # what `softsensor calibrate` writes to [regression] beside
             config = with_table(config, "regression", regression.to_table())
         rec["wall_time_s"] = round(time.perf_counter() - t0, 1)
@@ -713,6 +716,9 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--structure", action=argparse.BooleanOptionalAction, default=True,
                     help="search the model's structural alternatives on the history, as "
                          "calibrate does with several days (default on)")
+    ap.add_argument("--latest-only", action="store_true",
+                    help="calibrate on the latest history record alone, to compare with the "
+                         "whole history (the same plan, peers and test days)")
     ap.add_argument("--peers-inside", action=argparse.BooleanOptionalAction, default=True,
                     help="carry the history's regression into the estimator's PARAMS "
                          "(its [regression]), which weighs it and the last lab against the "
@@ -767,7 +773,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                            "argv": list(sys.argv[1:] if argv is None else argv),
                            "settings": {k: getattr(args, k) for k in (
                                "plants", "plant_seeds", "history", "hours", "trials", "cost",
-                               "structure", "peers_inside",
+                               "structure", "latest_only", "peers_inside",
                                "days_per_cause",
                                "parts", "matched", "matched_days_per_cause", "quick")},
                            "targets": TARGETS}
@@ -783,7 +789,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             work = Path(tmp) / kind
             work.mkdir()
             ctx = Context(kind, cfg, truth, plan, args.hours, args.trials, work, cache,
-                          args.cost, args.structure, args.peers_inside)
+                          args.cost, args.structure, args.latest_only, args.peers_inside)
             say(f"{kind} plant: {n} plant(s), {args.history} x {args.hours:g} h history, "
                 f"{len(plan.tests)} test days, {args.trials} trials")
             t0 = time.perf_counter()

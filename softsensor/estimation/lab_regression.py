@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import ConfigError
+from softsensor.estimation.windowing import window_end
 from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import SCAN_SIGNALS
 
@@ -42,15 +43,13 @@ W_NS = 600 * 10**9
 def window_means(scans: pd.DataFrame, period_ns: int = W_NS) -> pd.DataFrame:
     """``period_ns`` means of every scanned signal, indexed by window end [ns]
     (``(start, end]``)."""
-    t = scans.index.to_numpy(np.int64)
-    ends = (t - 1) // period_ns * period_ns + period_ns
+    ends = window_end(scans.index.to_numpy(np.int64), period_ns)
     return scans.groupby(ends).mean()
 
 
 def at_windows(frame: pd.DataFrame, t_ns: np.ndarray, period_ns: int = W_NS) -> np.ndarray:
     """Rows of ``frame`` (indexed by window end) for the windows holding times ``t_ns``."""
-    ends = (np.asarray(t_ns, np.int64) - 1) // period_ns * period_ns + period_ns
-    return frame.reindex(ends).to_numpy(float)
+    return frame.reindex(window_end(np.asarray(t_ns, np.int64), period_ns)).to_numpy(float)
 
 
 def lab_features(scans: pd.DataFrame, labs: pd.DataFrame,

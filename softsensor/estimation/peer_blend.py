@@ -47,6 +47,7 @@ import numpy as np
 
 from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.lab_regression import LabRegression
+from softsensor.estimation.publication import fallback_std
 from softsensor.estimation.settings import EstimatorSettings
 
 #: The sources, in the order of the weights.
@@ -102,6 +103,9 @@ def check_state(state: dict[str, Any]) -> None:
         v = state[key]
         if v is not None and (len(v) != 2 or not all(math.isfinite(float(x)) for x in v)):
             raise ValueError(f"peers.{key} must be null or two finite numbers")
+    msz = np.array(state["msz"], float)
+    if msz.shape != (len(SOURCES),) or not np.all(np.isfinite(msz)) or np.any(msz < 0):
+        raise ValueError(f"peers.msz must be {len(SOURCES)} finite numbers >= 0, got {msz}")
     if state["bias"] is not None and not math.isfinite(float(state["bias"])):
         raise ValueError("peers.bias must be null or finite")
     int(state["labs"]), int(state["misses"])
@@ -128,22 +132,22 @@ def _mixture(sources: list[Source], w: np.ndarray) -> tuple[float, float]:
 
 def _hold_source(s: EstimatorSettings, value: float | None, sample_ns: int | None,
                  at_ns: int) -> Source:
-    """The hold: the lab-anchored fallback's band (:func:`.publication.fallback`'s rule)."""
+    """The hold: the lab-anchored fallback's band (:func:`.publication.fallback_std`)."""
     if value is None or sample_ns is None:
         return Source(math.nan, math.nan, 0.0)
-    hours = max(at_ns - sample_ns, 0) / 3.6e12
-    band = math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2 + s.fallback_drift**2 * hours)
+    band = fallback_std(s, at_ns - sample_ns)
     return Source(value, band, math.sqrt(band**2 + s.lab_std**2))
 
 
 def _regression_source(s: EstimatorSettings, reg: LabRegression | None, bias: float | None,
-                       window: Window) -> Source:
+                       at_window: float) -> Source:
+    """The regression at the window's means (``at_window``) plus the lab bias."""
     if reg is None or bias is None:
         return Source(math.nan, math.nan, 0.0)
     # the history's next-lab error holds the lab noise of the result predicted; the band of
     # the truth leaves it out
     band = math.sqrt(max(reg.step_sd**2 - s.lab_std**2, s.lab_std**2))
-    return Source(reg.at_means(window.means) + bias, band, reg.step_sd)
+    return Source(at_window + bias, band, reg.step_sd)
 
 
 def _physics_source(s: EstimatorSettings, est: list[float] | None) -> Source:
@@ -170,14 +174,16 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
     log_w = np.array(st["log_w"], float)
     prior = prior_log_weights(s, reg)
     log_c = float(st["log_scale"])
-    msz = np.array(st.get("msz", [1.0] * len(SOURCES)), float)
+    msz = np.array(st["msz"], float)
+    # the window is the same for every lab of the tick: the regression read once
+    reg_now = math.nan if reg is None else reg.at_means(window.means)
     phys_prev = _physics_source(s, st["physics"])
     for lab in sorted(labs, key=lambda r: (r.sample_time_ns, r.sample_id)):
         hold = st["hold"]
         sources = [phys_prev,
                    _hold_source(s, None if hold is None else hold[0],
                                 None if hold is None else hold[1], lab.sample_time_ns),
-                   _regression_source(s, reg, st["bias"], window)]
+                   _regression_source(s, reg, st["bias"], reg_now)]
         ok = np.array([src.ok for src in sources])
         log_w = s.peer_forgetting * log_w + (1.0 - s.peer_forgetting) * prior
         if s.peer_blend and ok.sum() >= 2:  # evidence needs two sources to compare
@@ -206,7 +212,7 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
         if hold is None or lab.sample_time_ns >= hold[1]:
             st["hold"] = [float(lab.moisture_out), int(lab.sample_time_ns)]
         if reg is not None:
-            st["bias"] = float(lab.moisture_out - reg.at_means(window.means))
+            st["bias"] = float(lab.moisture_out - reg_now)
     st["log_w"] = [float(v) for v in log_w]
     st["log_scale"] = log_c
     st["msz"] = [float(v) for v in msz]
@@ -216,7 +222,7 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
     sources = [_physics_source(s, st["physics"]),
                _hold_source(s, None if hold is None else hold[0],
                             None if hold is None else hold[1], window.end_ns),
-               _regression_source(s, reg, st["bias"], window)]
+               _regression_source(s, reg, st["bias"], reg_now)]
     ok = np.array([src.ok for src in sources])
     w = (_normalised(log_w, ok) if s.peer_blend
          else np.array([1.0 if sources[0].ok else 0.0, 0.0, 0.0]))

@@ -41,6 +41,7 @@ from softsensor.estimation.discrepancy import (
     X_TCYC,
     X_TDRY,
 )
+from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.ukf_step import FilterModel, Posterior, inlet_moments
 from softsensor.jsonable import finite_or_none
 from softsensor.signals import OUTPUT_NAMES
@@ -126,10 +127,16 @@ def fallback(filt: FilterModel, ctx: TickContext) -> tuple[float, float, str] | 
     latest = ctx.latest_lab
     if latest is None:
         return None
-    s = filt.settings
-    hours = max(ctx.window.end_ns - latest.sample_time_ns, 0) / 3.6e12
-    std = math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2 + s.fallback_drift**2 * hours)
+    std = fallback_std(filt.settings, ctx.window.end_ns - latest.sample_time_ns)
     return float(latest.moisture_out), std, latest.sample_id
+
+
+def fallback_std(s: EstimatorSettings, age_ns: int) -> float:
+    """Band sd of a lab result ``age_ns`` after its sample [kg/kg]: the lab's noise, the
+    outlet's jitter and a drift growing with the hours since (the fallback's, and the held
+    lab's among the peers)."""
+    hours = max(age_ns, 0) / 3.6e12
+    return math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2 + s.fallback_drift**2 * hours)
 
 
 def health(filt: FilterModel, ctx: TickContext, post: Posterior) -> tuple[str, str]:

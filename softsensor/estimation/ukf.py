@@ -290,8 +290,7 @@ class UkfEstimator(ModelEstimator):
             taken = snapshot.get("taken_outlier")  # absent in checkpoints before issue 31
             if taken is not None:
                 taken = {"sample_id": str(taken["sample_id"]), "side": int(taken["side"]),
-                         "value": float(taken["value"]), "mean": float(taken["mean"]),
-                         "sd": float(taken["sd"])}
+                         "value": float(taken["value"]), "mean": float(taken["mean"])}
             AdaptiveNoise.from_json(state.adapt)
             for rec in [*history, None]:
                 peer_blend.check_state((rec.start if rec else state).peers)
@@ -357,8 +356,7 @@ class UkfEstimator(ModelEstimator):
             self._gate_streak = 0
             self._taken = {"sample_id": lab.sample_id, "side": side,
                            "value": float(lab.moisture_out),
-                           "mean": float(body["moisture_out"]),
-                           "sd": float(body["moisture_out_std"])}
+                           "mean": float(body["moisture_out"])}
             return None
         if side * self._gate_streak > 0:
             gate = (f"{head}, the previous result too, but the temperatures do not allow it "
