@@ -227,3 +227,23 @@ def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
     assert reg is None  # 9 results for 11 coefficients
     assert why == ("the regression peer needs at least 11 lab results with every signal "
                    "scanned, the history holds 9")
+
+
+def test_the_regression_source_is_the_regression_at_the_window_plus_the_last_labs_bias():
+    """The regression peer with its lab-bias update (review: every other test handed in no
+    regression): after a lab, its value at a later window is the regression there plus what
+    the lab said the regression missed at the lab's window."""
+    reg = LabRegression(signals=("T_air_in",), mean=np.array([480.0]), scale=np.array([10.0]),
+                        coef=np.array([0.10, 0.01]), step_sd=0.004, hold_sd=0.006, n_labs=30)
+    s = EstimatorSettings()
+    state = fresh(s, reg)
+    w_lab, w_next = window(0, {"T_air_in": 490.0}), window(1, {"T_air_in": 470.0})
+    lab = LabResult(w_lab.end_ns - W // 2, 0.125, "L0", w_lab.end_ns)
+    state, _ = advance(s, reg, state, w_lab, (lab,),
+                       {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    assert state["bias"] == pytest.approx(0.125 - reg.at_means(w_lab.means))  # 0.125 - 0.11
+    state, body = advance(s, reg, state, w_next, (),
+                          {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    want = reg.at_means(w_next.means) + (0.125 - 0.11)  # 0.09 + 0.015
+    assert body["sources"]["regression"]["moisture_out"] == pytest.approx(want, abs=1e-12)
+    assert want == pytest.approx(0.105)
