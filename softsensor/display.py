@@ -112,6 +112,13 @@ def moisture_pct_points(dx: float, x: float, basis: str = "wet") -> float:
     return float(moisture_pct(x + dx, basis) - moisture_pct(x, basis))
 
 
+def lab_reference(segments) -> float:
+    """The moisture [kg/kg dry] at which kg/kg errors become % points: the median lab result
+    of ``segments`` (anything with ``lab_value``), 0.1 without one."""
+    labs = np.concatenate([seg.lab_value for seg in segments]) if segments else np.zeros(0)
+    return float(np.median(labs)) if labs.size else 0.1
+
+
 def plant_error(name: str, value: float, x_ref: float, settings: DisplaySettings
                 ) -> tuple[float, str]:
     """An error (RMSE, offset) of the output channel ``name`` in what people read: a kelvin
@@ -144,6 +151,6 @@ def local_clock(time_ns: int, settings: DisplaySettings) -> str:
     return local_times(np.array([time_ns]), settings)[0].isoformat(timespec="seconds")
 
 
-__all__ = ["C0", "MOISTURE_BASES", "T_H_PER_KG_S", "DisplaySettings", "celsius",
+__all__ = ["C0", "MOISTURE_BASES", "T_H_PER_KG_S", "DisplaySettings", "celsius", "lab_reference",
            "display_settings", "local_clock", "local_times", "moisture_band", "moisture_pct",
            "moisture_pct_points", "plant_error"]

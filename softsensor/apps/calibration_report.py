@@ -25,7 +25,7 @@ from softsensor.calibration.identifiability import (
 from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
 from softsensor.calibration.structure import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
-from softsensor.display import DisplaySettings, display_settings, plant_error
+from softsensor.display import DisplaySettings, display_settings, lab_reference, plant_error
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -33,12 +33,6 @@ from softsensor.signals import OUTPUT_NAMES
 from softsensor.verdicts import calibration_result_verdict, validation_verdict
 
 _UNIT = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
-
-
-def lab_reference(segments) -> float:
-    """The moisture [kg/kg dry] at which kg/kg errors become % points: the median lab."""
-    labs = np.concatenate([seg.lab_value for seg in segments]) if segments else np.zeros(0)
-    return float(np.median(labs)) if labs.size else 0.1
 
 
 def _dir(path: str | Path) -> Path:

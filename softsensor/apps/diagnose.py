@@ -27,12 +27,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.output import check_target, write_json
 from softsensor.calibration.settings import DEFAULT_TRIALS
-from softsensor.display import display_settings
+from softsensor.display import display_settings, lab_reference
 from softsensor.errors import ConfigError, require_packages
 from softsensor.plantconfig import PARAMETER_NAMES
 from softsensor.signals import OUTPUT_NAMES
@@ -119,8 +117,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
 
         doc["report"] = str(write_report(d, args.report, doc))
     write_json(doc, args.json)
-    labs = d.problem.windows.lab_value
-    x_ref = float(np.median(labs)) if labs.size else 0.1
+    x_ref = lab_reference([d.problem.windows])
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
           + f", held-out gain {doc['gain']:+.3f}. {diagnosis_verdict(doc)} "

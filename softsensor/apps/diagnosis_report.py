@@ -45,6 +45,7 @@ from softsensor.display import (  # noqa: E402
     DisplaySettings,
     celsius,
     display_settings,
+    lab_reference,
     local_times,
     moisture_pct,
     moisture_pct_points,
@@ -277,8 +278,7 @@ def write_report(d: Diagnosis, directory: str | Path, report: dict | None = None
     trajectory_figure(d, out / "trajectories.png")
     gain_figure(d, out / "gain.png")
     disp = display_settings(d.problem.config)
-    labs = d.problem.windows.lab_value
-    x_ref = float(np.median(labs)) if labs.size else 0.1
+    x_ref = lab_reference([d.problem.windows])
 
     def plant(n: str, v: float | None) -> str:
         if v is None or not np.isfinite(v):

@@ -1,6 +1,6 @@
 """What each cause would leave on this day: its signature at a plant's size, seen by the normal.
 
-Before the verdict, every cause of :data:`~.extensions.EXTENSIONS` is applied to the
+Beside the verdict, every cause of :data:`~.extensions.EXTENSIONS` is applied to the
 baseline at its :attr:`~.extensions.Extension.probe_size` (the virtual plant's default size
 of the effect) over the whole day (:meth:`~.extensions.Extension.probe`), and the change of
 the residuals is whitened through the calibration-error alternative exactly as the scores are

@@ -25,8 +25,9 @@ the verdict calls the residuals structured, so ``none`` and ``unexplained`` each
 the other explains, and ``unexplained`` carries the largest penalty of all candidates.
 
 The most probable candidate is the verdict's cause by construction: the winner is the
-eligible extension with the largest ``P`` (``L >= 0``), every other extension has ``L < 0``,
-and the unextended candidate the verdict falls back on has ``L = 0``.
+eligible extension with the largest ``P`` (``L >= 0``), every other eligible one a smaller
+``L`` and every ineligible or skipped one ``L < 0``, and the unextended candidate the
+verdict falls back on has ``L = 0``.
 
 The temperature ``T`` (:data:`TEMPERATURE`) is fitted on tuning days only (the minimum of the
 mean Brier score, :func:`fit_temperature`), never on the days it is judged on.

@@ -178,7 +178,8 @@ def rea_surface_factor(X, X_eq, phi_air, T_air, T_f, b, c):
     energy ``dE_v = dE_v,inf exp(-b (X - X_eq)^c)`` and its equilibrium value
     ``dE_v,inf = -R T_air ln(phi_air)`` (Chen & Xie 1997, Food Res. Int. 30:429; Chen 2008,
     Drying Technol. 26:627), so ``psi = phi_air ^ (exp(-b (X - X_eq)^c) T_air / T_f)``: 1
-    (a wet surface) far above ``X_eq``, the air's own relative humidity at equilibrium. The
+    (a wet surface) far above ``X_eq``, ``phi_air ^ (T_air / T_f)`` at equilibrium (the
+    air's own relative humidity where fibre and air share a temperature). The
     distance ``X - X_eq`` is taken as 0 below equilibrium (the law's ``(X - X_eq)^c`` is not
     real there); the driving force's sign then carries re-adsorption. ``phi_air`` is clipped
     to ``[0, 1]`` (supersaturated air condenses on a wet surface, ``psi = 1``).
