@@ -24,7 +24,12 @@ import numpy as np
 from softsensor.apps.export import add_export_command
 from softsensor.apps.output import writing
 from softsensor.errors import ConfigError, IngestError
-from softsensor.ingest.envelope import EnvelopeCheck, check_envelope, envelope_problem
+from softsensor.ingest.envelope import (
+    EnvelopeCheck,
+    check_envelope,
+    envelope_problem,
+    lab_unit_hints,
+)
 from softsensor.ingest.historian import ScanTable
 from softsensor.ingest.lims import LabTable
 from softsensor.messages import iso_utc, lab_body
@@ -104,8 +109,6 @@ def _envelope(cfg_path: str | None, scans: ScanTable, hmap) -> dict[str, Envelop
 def _lab_preview(hmap, labs: LabTable, path: Path, rows: int) -> list[str]:
     """The first lab results as the LIMS file wrote them and as converted (dry basis), and
     what looks wrong with the ``[lab]`` unit or basis."""
-    from softsensor.ingest.envelope import lab_unit_hints
-
     lab = hmap.lab
     out = [f"lab results of {path}: {len(labs.results)} from {labs.rows_read} rows, "
            f"{lab.moisture_column!r} read as {lab.unit} on a {lab.basis} basis:"]
@@ -206,7 +209,6 @@ def _import(args: argparse.Namespace) -> int:
         raise IngestError(envelope_problem(refused[0], hmap.signals[refused[0].name],
                                            str(scans_path)) + more)
     if labs is not None:
-        from softsensor.ingest.envelope import lab_unit_hints
 
         for hint in lab_unit_hints(hmap.lab, np.asarray(labs.raw)):
             print(f"warning: {args.lab}: {hint}", file=sys.stderr)

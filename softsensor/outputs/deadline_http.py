@@ -197,13 +197,16 @@ class DeadlineHTTPServer:
         return False
 
     def _drop(self, conn: _Conn) -> None:
+        self._close(conn)
+        if conn.task is not None:
+            conn.task.cancel()
+
+    def _close(self, conn: _Conn) -> None:
         self._open.pop(conn, None)
         if conn.writer is not None:
             conn.writer.transport.abort()  # the socket closes before the next accept
         else:  # its task has not wrapped the socket yet (and may never run)
             conn.sock.close()
-        if conn.task is not None:
-            conn.task.cancel()
 
     async def _client(self, conn: _Conn) -> None:
         deadline = time.monotonic() + self.header_timeout_s
@@ -227,11 +230,7 @@ class DeadlineHTTPServer:
         except (ConnectionError, TimeoutError, OSError):
             pass  # a client that went away or never took its answer
         finally:
-            self._open.pop(conn, None)
-            if conn.writer is not None:
-                conn.writer.transport.abort()
-            else:
-                conn.sock.close()
+            self._close(conn)
 
     async def _answer(self, writer: asyncio.StreamWriter, head: bytes) -> None:
         line = head.split(b"\r\n", 1)[0]
