@@ -52,11 +52,15 @@ def test_floods_of_bad_messages_are_a_few_short_lines(tmp_path: Path, caplog):
             await asyncio.to_thread(r.daemon.pipeline.sync)
             got["records"] = list(caplog.records)
             got["bad"] = r.daemon.pipeline.service.stats.bad_scans
+            got["dropped"] = dict(r.daemon.pipeline.dropped)  # said when it fails
 
     asyncio.run(asyncio.wait_for(run(), 150))
     noisy = [r for r in got["records"] if r.levelno >= logging.WARNING]
     lines = [r.getMessage() for r in noisy]
-    assert got["bad"] >= 100  # the flood arrived
+    # the flood arrived: how many bad scans reach the decoder past the rate limit depends on
+    # how fast the flood went (176 on a quiet machine, 61 to 93 with the suite's other worker
+    # busy); at least 40, more than the 25 lines allowed, so an unthrottled log would fail
+    assert got["bad"] >= 40, (got["bad"], got["dropped"])
     assert len(noisy) <= 25, (len(noisy), lines[:30])
     longest = max((len(r.getMessage()) + len(str(getattr(r, "softsensor_fields", "")))
                    for r in got["records"]), default=0)
