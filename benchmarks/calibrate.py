@@ -19,7 +19,7 @@ workstation for its 200 trials.
 
 The history case (:func:`history`, issue 21: "Calibration on 14 days of history (7 records of
 48 h, 200 trials) in at most 120 s on two cores") runs what ``softsensor calibrate
-DAY.mcap ...`` runs with its defaults (:func:`~softsensor.calibration.history.
+DAY.mcap ...`` runs with its defaults (:func:`~softsensor.calibration.history_calibration.
 calibrate_history`: 12 h windows picked across the records up to 96 h, 200 trials, the
 polish, validation on the held-out hours, the identifiability analysis, the per-day inlet
 levels and the model error) on consecutive 48 h records of one independent plant
@@ -50,10 +50,10 @@ import numpy as np
 import optuna
 
 from softsensor.apps.calibrate import HISTORY_FIT_HOURS, HISTORY_WINDOW_HOURS
+from softsensor.calibration.calibration_run import calibrate
 from softsensor.calibration.dataset import segment_from_day
-from softsensor.calibration.history import calibrate_history
+from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.pipeline import calibrate
 from softsensor.calibration.selection import DEFAULT_MIN_LABS
 from softsensor.calibration.settings import calibration_settings
 from softsensor.model import DryerModel
@@ -77,7 +77,7 @@ class TimedModel(DryerModel):
     """The dryer model, adding up the wall seconds its ``simulate`` calls take and the
     windows they simulate (summed over batch members; a lab sample's partial window counts
     as one) in ``tally``, which the search's copy of the model
-    (:func:`~softsensor.calibration.pipeline.search_model`) shares."""
+    (:func:`~softsensor.calibration.calibration_run.search_model`) shares."""
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)

@@ -1,6 +1,6 @@
 """Designed experiment against natural operation, on the independent plant (issue 15).
 
-The calibration (:func:`softsensor.calibration.pipeline.calibrate`, the code of ``softsensor
+The calibration (:func:`softsensor.calibration.calibration_run.calibrate`, the code of ``softsensor
 calibrate``) is run twice on one independent-plant member (:mod:`softsensor.plant.independent`,
 ``--plant-seed``), a dryer the model is not:
 
@@ -44,11 +44,11 @@ from softsensor.apps.design import (
     operating_point_of,
     record_schedule,
 )
+from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
 from softsensor.calibration.dataset import Segment, segment_from_day
-from softsensor.calibration.design import DesignLimits, optimise
+from softsensor.calibration.experiment_design import DesignLimits, optimise
 from softsensor.calibration.identifiability import identify
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.pipeline import calibrate, objective_spec, validate
 from softsensor.calibration.settings import calibration_settings
 from softsensor.jsonable import jsonable
 from softsensor.model import DryerModel

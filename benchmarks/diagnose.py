@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from softsensor.cli import main as cli_main
-from softsensor.diagnosis.pipeline import diagnose
+from softsensor.diagnosis.diagnose_day import diagnose
 from softsensor.plant.effects import EFFECTS
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_parameters, load_plant_config

@@ -44,7 +44,7 @@ def diagnose_days(args: argparse.Namespace) -> list[dict[str, Any]]:
     from softsensor.calibration.dataset import segment_from_day
     from softsensor.calibration.model_error_fit import fit_model_error
     from softsensor.calibration.params_file import params_document, write_params
-    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.diagnose_day import diagnose
     from softsensor.model.dryer import DryerModel
     from softsensor.plant.effects import EFFECTS
     from softsensor.plant.independent import simulate_independent_day

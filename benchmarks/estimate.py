@@ -26,13 +26,13 @@ import time
 
 import numpy as np
 
-from softsensor.estimation.base import LabResult
-from softsensor.estimation.openloop import OpenLoopEstimator
+from softsensor.estimation.interface import LabResult
+from softsensor.estimation.open_loop_estimator import OpenLoopEstimator
 from softsensor.estimation.ukf import UkfEstimator
-from softsensor.estimation.windowing import windows_from_frame
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 from softsensor.recording.mcap_day import read_day
+from softsensor.windows.accumulator import windows_from_frame
 
 
 def run(est, scans, labs_frame, truth):

@@ -4,7 +4,7 @@ fresh independent-plant seeds, with the matched plant beside as the floor.
 A plant hands its virtual sensor weeks of history; this benchmark does what a new user does
 with it, in the project's own code: per plant seed, ``--history`` clean records of
 ``--hours`` (default 7 x 48 h, consecutive dates) are calibrated on together
-(:func:`softsensor.calibration.history.calibrate_history`, the code of ``softsensor
+(:func:`softsensor.calibration.history_calibration.calibrate_history`, the code of ``softsensor
 calibrate DAY...`` with its defaults: windows across the days, the study, validation on the
 held-out hours, the model error learned from every day), and the PARAMS.toml it writes is read
 back as ``--params`` reads it. Then every test day of that plant (``--days-per-cause`` per
@@ -12,7 +12,7 @@ cause of CONTRACT section 5, clean days included, magnitudes stratified across e
 detectable range, dates after the history) is
 
 * **estimated** by the UKF as the estimator service runs it (windows of
-  :mod:`~softsensor.estimation.windowing`, lab results handed over at their log time), beside
+  :mod:`~softsensor.windows.accumulator`, lab results handed over at their log time), beside
   its peers (:mod:`peers`): holding the last lab result, the lab-bias-updated linear
   regression fitted on the history's labs, the time-difference estimate on the calibrated
   model, and the floor, the plant's own effect-free physics on the measured inputs with the
@@ -20,7 +20,7 @@ detectable range, dates after the history) is
   outlet-moisture RMSE against the truth at each tick's end (ticks after the first lab
   result), the 95 % band's coverage, the inlet-moisture RMSE, the share of ticks on the
   fallback and ``degraded``;
-* **diagnosed** by :func:`softsensor.diagnosis.pipeline.diagnose` with the same PARAMS.toml
+* **diagnosed** by :func:`softsensor.diagnosis.diagnose_day.diagnose` with the same PARAMS.toml
   (``softsensor diagnose --params``): named cause (and channel for a sensor offset), gain,
   right or wrong, the confusion matrix.
 
@@ -73,18 +73,17 @@ from softsensor.apps.calibrate import (  # noqa: E402
 )
 from softsensor.calibration.chunked_run import simulate_segments  # noqa: E402
 from softsensor.calibration.dataset import segment_from_day  # noqa: E402
-from softsensor.calibration.history import calibrate_history  # noqa: E402
+from softsensor.calibration.history_calibration import calibrate_history  # noqa: E402
 from softsensor.calibration.model_error_fit import at_inlet_moisture  # noqa: E402
 from softsensor.calibration.optimize import StudySettings  # noqa: E402
 from softsensor.calibration.params_file import write_params  # noqa: E402
 from softsensor.calibration.selection import DEFAULT_WINDOW_HOURS  # noqa: E402
 from softsensor.calibration.settings import calibration_settings  # noqa: E402
-from softsensor.calibration.structure import default_library  # noqa: E402
+from softsensor.calibration.structure_search import default_library  # noqa: E402
 from softsensor.errors import SoftsensorError  # noqa: E402
-from softsensor.estimation.base import LabResult  # noqa: E402
+from softsensor.estimation.interface import LabResult  # noqa: E402
 from softsensor.estimation.model_error import model_error_of  # noqa: E402
 from softsensor.estimation.ukf import UkfEstimator  # noqa: E402
-from softsensor.estimation.windowing import window_settings, windows_from_frame  # noqa: E402
 from softsensor.jsonable import jsonable  # noqa: E402
 from softsensor.model import DryerModel  # noqa: E402
 from softsensor.plant.day import DEFAULT_START_NS, SimulatedDay  # noqa: E402
@@ -96,6 +95,7 @@ from softsensor.plantconfig import (  # noqa: E402
     load_plant_config,
     with_table,
 )
+from softsensor.windows.accumulator import window_settings, windows_from_frame  # noqa: E402
 
 #: Causes of CONTRACT section 5 (``none``: a clean day).
 CAUSES: tuple[str, ...] = ("none", *EFFECTS)
@@ -546,7 +546,7 @@ def estimator_summary(days: Sequence[dict[str, Any]]) -> dict[str, Any]:
 # ------------------------------------------------------------------------------- part 3
 def diagnosis_part(ctx: Context, models: Sequence[PlantModel]) -> dict[str, Any]:
     """Part 3: every test day diagnosed with its plant's PARAMS.toml."""
-    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.diagnose_day import diagnose
 
     def one(m: PlantModel, spec: Any) -> dict[str, Any]:
         day = ctx.simulate(spec)

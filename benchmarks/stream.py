@@ -46,12 +46,12 @@ from softsensor.bus.zenoh_bus import (
     subscribe,
     wait_for_peers,
 )
-from softsensor.estimation.windowing import windows_from_frame
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 from softsensor.recording.mcap_day import read_day
 from softsensor.service.estimators import make_estimator
 from softsensor.service.offline_replay import replay_to_file
+from softsensor.windows.accumulator import windows_from_frame
 
 SCAN = {"T_air_in": 483.21, "m_air": 82.1, "m_fiber": 6.02, "T_fiber_in": 370.4,
         "m_steam": 0.501, "T_amb": 283.2, "H_amb": 0.0061, "flap_cmd": 41.3, "T_sp": 348.0,

@@ -45,7 +45,7 @@ VERBS: dict[str, tuple[str, ...]] = {
     "softsensor.apps.calibrate": ("calibrate", "identify", "validate"),
     "softsensor.apps.streaming": ("run", "replay", "health"),
     "softsensor.apps.diagnose": ("diagnose",),
-    "softsensor.apps.historian": ("import", "export"),
+    "softsensor.apps.import_export": ("import", "export"),
     "softsensor.apps.design": ("design",),
 }
 

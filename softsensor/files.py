@@ -17,6 +17,11 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
+from softsensor.errors import ConfigError
+
+#: The name of standard output where a verb takes a file.
+STDOUT = "-"
+
 
 def _umask() -> int:
     """The process's umask, read without changing it where Linux tells it (``os.umask`` can
@@ -60,4 +65,36 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
-__all__ = ["atomic_path"]
+def check_target(target: str | os.PathLike[str] | None, flag: str = "--json") -> None:
+    """Refuse, before the work, an output file that cannot be written: a folder, a missing
+    or read-only folder. ``-`` (stdout) and None pass."""
+    if target is None or str(target) == STDOUT:
+        return
+    p = Path(target)
+    if p.is_dir():
+        raise ConfigError(f"{flag} {p}: is a directory, not a file")
+    parent = p.resolve().parent
+    if not parent.is_dir():
+        raise ConfigError(f"{flag} {p}: directory {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ConfigError(f"{flag} {p}: directory {parent} is not writable")
+
+
+@contextlib.contextmanager
+def writing(target: str | os.PathLike[str], flag: str = "--out") -> Iterator[Path]:
+    """A temporary path to write ``target`` through (:func:`softsensor.files.atomic_path`),
+    after checking, before any work, that ``target`` can be written (:func:`check_target`).
+    Every verb's output file goes through here."""
+    check_target(target, flag)
+    with atomic_path(target) as tmp:
+        yield tmp
+
+
+def replace_file(target: str | os.PathLike[str], data: bytes, flag: str = "--out") -> Path:
+    """Write ``data`` beside ``target`` and rename it over ``target`` (:func:`writing`)."""
+    with writing(target, flag) as tmp:
+        tmp.write_bytes(data)
+    return Path(target)
+
+
+__all__ = ["STDOUT", "atomic_path", "check_target", "replace_file", "writing"]

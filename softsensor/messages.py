@@ -6,7 +6,7 @@ Both sides import this module: the adapters (:mod:`softsensor.recording`, :mod:`
 
 * :func:`scan_values`: a ``/plant/scan`` body (CONTRACT section 2) to SI floats per signal;
 * :class:`Window`: the scans of one model window, averaged (the estimator's and the
-  calibration's unit of data, built by :mod:`softsensor.estimation.windowing`);
+  calibration's unit of data, built by :mod:`softsensor.windows.accumulator`);
 * :class:`LabResult`: one laboratory moisture result with its sample and log times, valid by
   construction: the one lab-result contract (:func:`moisture_problem`,
   :func:`sample_time_problem`, :func:`sample_id_problem`) is checked when one is made, so
@@ -86,10 +86,10 @@ class Window:
     bins : dict[str, list[float | None]]
         Per measured model input, the mean of its good values in each consecutive bin of
         ``bin_s`` seconds of the window (``None`` for a bin without one): what a lab sample
-        taken inside the window saw (:mod:`softsensor.estimation.lab_alignment`).
+        taken inside the window saw (:mod:`softsensor.windows.lab_alignment`).
     refused : dict[str, int]
         Values per signal refused as implausible before they were averaged
-        (:mod:`softsensor.estimation.plausibility`); the reason is in ``reasons``.
+        (:mod:`softsensor.windows.plausibility`); the reason is in ``reasons``.
     """
 
     start_ns: int

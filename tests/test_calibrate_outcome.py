@@ -12,8 +12,8 @@ nothing; the user's next command failed on the missing file). With ``--force`` i
 "wrote ... New parameters NOT written"; it now says that it wrote the calibrated ones
 because ``--force`` asked. ``validate`` shows the config's default parameters beside the
 ones validated, and its line is the validation page's sentence
-(:func:`~softsensor.verdicts.validation_verdict`). The README's exit-code table names every
-verb once; ``--windows-per-day`` on one day fits that many windows (it was parsed and then
+(:func:`~softsensor.presentation.verdicts.validation_verdict`). The README's exit-code table names
+every verb once; ``--windows-per-day`` on one day fits that many windows (it was parsed and then
 ignored).
 """
 
@@ -26,16 +26,16 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.apps.calibration_report import lab_reference
 from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
-from softsensor.display import moisture_pct_points
 from softsensor.estimation.lab_regression import regression_of
 from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
+from softsensor.presentation.calibration_report import lab_reference
+from softsensor.presentation.display import moisture_pct_points
+from softsensor.presentation.verdicts import validation_verdict
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_LAB
-from softsensor.verdicts import validation_verdict
 
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
          "hm_cyc": 3e-4, "hc_cyc": 50.0}

@@ -14,13 +14,13 @@ import numpy as np
 import optuna
 import pytest
 
-from softsensor.apps.calibration_figures import trajectory_plot
+from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.pipeline import calibrate, objective_spec, validate
 from softsensor.calibration.settings import calibration_settings
-from softsensor.display import DisplaySettings
 from softsensor.plant.simulator import simulate_day
+from softsensor.presentation.calibration_figures import trajectory_plot
+from softsensor.presentation.display import DisplaySettings
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
 TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,

@@ -28,14 +28,14 @@ import numpy as np
 import pytest
 
 from softsensor.apps.calibrate import load_segment, load_segments
-from softsensor.calibration.chunked_run import evaluate_parameters
-from softsensor.calibration.params_file import read_fit
-from softsensor.calibration.pipeline import (
+from softsensor.calibration.calibration_run import (
     DataSelection,
     objective_spec,
     split_holdout,
     validate,
 )
+from softsensor.calibration.chunked_run import evaluate_parameters
+from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.settings import calibration_settings
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml

@@ -266,7 +266,7 @@ def test_search_model_with_one_wall_substep_keeps_the_settings_claim():
     demo day its outputs stay within the settings' claim (0.01 K, 2e-5 kg/kg) of the full
     model's, and it is a copy, so the full model keeps its substeps for polish and validation.
     """
-    from softsensor.calibration.pipeline import search_model
+    from softsensor.calibration.calibration_run import search_model
     from softsensor.calibration.settings import calibration_settings
     from softsensor.model import DryerModel
     from softsensor.plantconfig import load_plant_config

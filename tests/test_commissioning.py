@@ -18,9 +18,9 @@ import pytest
 from test_outputs import _scrape
 from test_outputs_web import _dom
 
-from softsensor.display import DisplaySettings
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import default_config_path, load_plant_config
+from softsensor.presentation.display import DisplaySettings
 from softsensor.service.logs import KeyValueFormatter
 
 # --- item 1: a refused lab file reaches the health, the counters, the page and the metrics ---
@@ -244,7 +244,7 @@ def test_a_replay_that_estimates_nothing_names_the_refused_input(tmp_path):
     """A day whose fibre flow the plausibility limits refuse (imported before the check, or
     recorded elsewhere): replay says that m_fiber was refused, outside 2..10, instead of
     blaming solver.scan_period."""
-    from softsensor.apps.historian import _read_scans, write_imported_day
+    from softsensor.apps.import_export import _read_scans, write_imported_day
     from softsensor.ingest.historian_map import load_map
     from softsensor.service.offline_replay import replay_to_file
 

@@ -15,8 +15,8 @@ import softsensor.configfile as configfile
 from softsensor.apps.loading import TABLES, load_config_and_params
 from softsensor.cli import main as cli_main
 from softsensor.errors import ConfigError
-from softsensor.estimation.discrepancy import ErrorPriors
 from softsensor.estimation.settings import estimator_settings
+from softsensor.estimation.state_space import ErrorPriors
 from softsensor.outputs.settings import output_settings
 from softsensor.plantconfig import (
     EXTRA_SECTIONS,
@@ -112,7 +112,7 @@ def test_tables_are_built_once_per_config(tmp_path, monkeypatch):
 
     monkeypatch.setattr(configfile, "build_section", counting)
     for module in ("softsensor.plantconfig", "softsensor.service.settings",
-                   "softsensor.estimation.plausibility", "softsensor.estimation.model_error"):
+                   "softsensor.windows.plausibility", "softsensor.estimation.model_error"):
         monkeypatch.setattr(f"{module}.build_section", counting, raising=False)
     service = make_service(cfg, service_settings(cfg), scan_period_s=10.0)
     assert service.estimator.settings.history_hours == 6.0

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from softsensor.apps.design import DEFAULT_NOISE, ModelLoop, OperatingPoint, build_problem
-from softsensor.calibration.design import (
+from softsensor.calibration.experiment_design import (
     DesignLimits,
     constant_levels,
     evaluate_levels,
@@ -141,7 +141,7 @@ def test_verb_bad_limits_one_line_exit_2(tmp_path, capsys, extra, words):
 def test_sequential_designs_at_each_new_estimate():
     from types import SimpleNamespace
 
-    from softsensor.calibration.design import Information, sequential
+    from softsensor.calibration.experiment_design import Information, sequential
 
     seen, recorded = [], []
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from softsensor.calibration.cost import Fit
+from softsensor.diagnosis.day_windows import day_windows, delagged_air
 from softsensor.diagnosis.extensions import (
     AirSensorLag,
     LabTimeShift,
@@ -29,7 +30,6 @@ from softsensor.diagnosis.residuals import (
     ljung_box,
 )
 from softsensor.diagnosis.verdict import ALPHA, MIN_PENALISED, Score, verdict
-from softsensor.diagnosis.windows import day_windows, delagged_air
 from softsensor.errors import IngestError
 from softsensor.model import DryerModel
 from softsensor.model.dryer import parameter_index
@@ -280,7 +280,7 @@ def test_cross_fitted_predictions_never_see_the_data_they_score(cfg, model, day,
 def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, model, day):
     """A sensor offset on the whole day: the report's numbers cover every window and lab
     result, each predicted by the fit on the other part."""
-    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.diagnose_day import diagnose
 
     scans = day.scans.copy()
     scans["T_dryer_out"] += 3.0
@@ -379,7 +379,7 @@ def test_unexplained_when_the_residuals_exceed_what_the_calibration_error_allows
     """A 1.5 K oscillation of 2 h period on one sensor is faster than any calibration error
     and than every extension tried here: ``unexplained``, naming the channel; the clean day
     is ``none``."""
-    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.diagnosis.diagnose_day import diagnose
     from softsensor.diagnosis.verdict import structured
 
     scans = day.scans.copy()

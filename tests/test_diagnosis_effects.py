@@ -37,7 +37,7 @@ import sys
 import numpy as np
 import pytest
 
-from softsensor.diagnosis.pipeline import diagnose
+from softsensor.diagnosis.diagnose_day import diagnose
 from softsensor.estimation.settings import estimator_settings
 from softsensor.plant.effects import EFFECTS
 from softsensor.plant.simulator import simulate_day
@@ -247,9 +247,9 @@ def test_randomised_days_are_named_correctly(cfg):
     only when :func:`check` finds nothing: the cause, the channel and a positive held-out
     gain.
     """
+    from softsensor.calibration.calibration_run import calibrate
     from softsensor.calibration.dataset import segment_from_day
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import calibrate
     from softsensor.calibration.settings import calibration_settings
 
     base = BASE_SEED

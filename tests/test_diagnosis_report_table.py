@@ -16,14 +16,14 @@ import re
 import numpy as np
 import pytest
 
-from softsensor.apps.diagnosis_report import why_not_short, write_report
 from softsensor.calibration.cost import Fit
+from softsensor.diagnosis.diagnose_day import diagnose
 from softsensor.diagnosis.extensions import LabTimeShift, SensorOffset
-from softsensor.diagnosis.pipeline import diagnose
 from softsensor.diagnosis.verdict import Score
-from softsensor.display import display_settings, plant_error
 from softsensor.plant.simulator import SimulatedDay, simulate_day
 from softsensor.plantconfig import load_plant_config
+from softsensor.presentation.diagnosis_report import why_not_short, write_report
+from softsensor.presentation.display import display_settings, plant_error
 from softsensor.signals import OUTPUT_NAMES
 
 HEADER = ["cause", "channel", "unit", "before", "after", "change", "log-lik. gain",

@@ -9,16 +9,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from softsensor.apps.calibration_figures import clock_axis  # noqa: E402
-from softsensor.display import (  # noqa: E402
+from softsensor.errors import ConfigError  # noqa: E402
+from softsensor.plantconfig import default_config_path, load_plant_config  # noqa: E402
+from softsensor.presentation.calibration_figures import clock_axis  # noqa: E402
+from softsensor.presentation.display import (  # noqa: E402
     DisplaySettings,
     celsius,
     display_settings,
     local_times,
     moisture_pct,
 )
-from softsensor.errors import ConfigError  # noqa: E402
-from softsensor.plantconfig import default_config_path, load_plant_config  # noqa: E402
 
 
 def _cfg(tmp_path, table: str):

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.display import DisplaySettings
 from softsensor.outputs.modbus_server import N_REGISTERS, EstimateModbusServer
 from softsensor.outputs.settings import ModbusOutputSettings
+from softsensor.presentation.display import DisplaySettings
 from tests.test_outputs import BODY, T_NS, _Loop, _read
 
 ROOT = Path(__file__).resolve().parents[1]

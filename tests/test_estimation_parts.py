@@ -15,20 +15,20 @@ import pytest
 from scipy.stats import chi2
 
 from softsensor.estimation.consistency import Innovation, chi_square_test
-from softsensor.estimation.discrepancy import (
+from softsensor.estimation.settings import estimator_settings
+from softsensor.estimation.state_space import (
     AdaptiveNoise,
     ErrorPriors,
     InletTransform,
     process_noise,
     transition,
 )
-from softsensor.estimation.lab_alignment import (
+from softsensor.windows.lab_alignment import (
     MIN_OFFSET_S,
     sample_inputs_from_bins,
     sample_offset,
     window_index,
 )
-from softsensor.estimation.settings import estimator_settings
 
 NS = 10**9
 PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01, 0.8]),

@@ -13,10 +13,10 @@ from pathlib import Path
 
 from prometheus_client.parser import text_string_to_metric_families
 
-from softsensor.display import DisplaySettings
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.settings import MetricsSettings
 from softsensor.plantconfig import load_plant_config
+from softsensor.presentation.display import DisplaySettings
 from softsensor.service.daemon import Daemon
 from softsensor.service.settings import service_settings
 

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from softsensor.errors import IngestError
-from softsensor.estimation.base import LabResult
+from softsensor.estimation.interface import LabResult
 from softsensor.ingest.lab_input import (
     LabFolderWatcher,
     LabInput,

@@ -44,5 +44,5 @@ def test_the_estimator_importing_the_mcap_reader_breaks_the_layers(tmp_path: Pat
         f.write("\nimport softsensor.recording.mcap_day  # noqa: E402,F401\n")
     res = _lint_imports(root)
     assert res.returncode != 0
-    assert "softsensor.estimation.windowing -> softsensor.recording.mcap_day" in res.stdout
+    assert "softsensor.windows.accumulator -> softsensor.recording.mcap_day" in res.stdout
     assert "BROKEN" in res.stdout

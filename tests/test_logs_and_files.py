@@ -18,7 +18,7 @@ _OPCUA_START = """
 import asyncio, logging, socket, sys
 from softsensor.cli import setup_logging
 setup_logging(verbose=sys.argv[1] == "verbose")
-from softsensor.display import DisplaySettings
+from softsensor.presentation.display import DisplaySettings
 from softsensor.outputs.opcua_server import EstimateOpcUaServer
 from softsensor.outputs.settings import OpcUaSettings
 with socket.socket() as s:
@@ -62,8 +62,8 @@ def umask():
 
 
 def test_files_replaced_whole_get_the_users_umask(tmp_path, umask):
-    from softsensor.apps.calibration_figures import write_page
     from softsensor.calibration.params_file import write_params
+    from softsensor.presentation.calibration_figures import write_page
 
     umask(0o022)
     params = write_params(tmp_path / "params.toml", {"fit": {"cost": 0.1}})

@@ -159,7 +159,7 @@ def test_model_error_with_zero_slopes_changes_nothing_in_the_config():
 def test_the_estimator_starts_at_the_latest_days_inlet_level(tmp_path):
     """History gives the normal, the latest day the state (issue 28 item 3): the filter's
     inlet moisture starts at the latest history day's level, not the history's mean."""
-    from softsensor.estimation.discrepancy import X_IN
+    from softsensor.estimation.state_space import X_IN
     from softsensor.estimation.ukf import UkfEstimator
 
     def start(me: ModelError) -> float:

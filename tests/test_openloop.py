@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 
 from softsensor.errors import EstimationError, IngestError
-from softsensor.estimation.base import LabResult
-from softsensor.estimation.openloop import OpenLoopEstimator
-from softsensor.estimation.windowing import windows_from_frame
+from softsensor.estimation.interface import LabResult
+from softsensor.estimation.open_loop_estimator import OpenLoopEstimator
 from softsensor.model import DryerModel
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import INPUT_NAMES
+from softsensor.windows.accumulator import windows_from_frame
 
 CFG = load_plant_config()
 

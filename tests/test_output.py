@@ -1,4 +1,4 @@
-"""How the verbs speak (softsensor/apps/output.py): one human line on stderr, JSON only where
+"""How the verbs speak (softsensor/apps/verb_output.py): one human line on stderr, JSON only where
 ``--json`` says, outputs replaced whole, unwritable targets refused before the work."""
 
 from __future__ import annotations
@@ -10,9 +10,10 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.apps.output import check_target, replace_file, write_json
+from softsensor.apps.verb_output import write_json
 from softsensor.cli import main as cli_main
 from softsensor.errors import ConfigError
+from softsensor.files import check_target, replace_file
 
 
 def test_json_goes_only_where_asked(tmp_path, capsys):
@@ -79,7 +80,7 @@ def test_replay_progress_is_throttled(capsys, monkeypatch):
 
 
 def test_writing_replaces_whole_or_not_at_all(tmp_path):
-    from softsensor.apps.output import writing
+    from softsensor.files import writing
 
     target = tmp_path / "out.csv"
     target.write_text("earlier\n")

@@ -19,7 +19,6 @@ import pytest
 from prometheus_client.parser import text_string_to_metric_families
 from pymodbus.client import AsyncModbusTcpClient
 
-from softsensor.display import DisplaySettings, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.modbus_server import (
@@ -30,6 +29,7 @@ from softsensor.outputs.modbus_server import (
 )
 from softsensor.outputs.settings import MetricsSettings, ModbusOutputSettings, output_settings
 from softsensor.plantconfig import default_config_path, load_plant_config
+from softsensor.presentation.display import DisplaySettings, moisture_pct
 
 BODY = {"moisture_out": 0.1034, "moisture_out_std": 0.0042, "moisture_in": 1.0312,
         "moisture_in_std": 0.021, "status": "degraded", "lab_updated": True}

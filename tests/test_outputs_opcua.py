@@ -14,9 +14,9 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from asyncua import Client, ua
 
-from softsensor.display import DisplaySettings
 from softsensor.outputs.opcua_server import NAMESPACE, EstimateOpcUaServer
 from softsensor.outputs.settings import OpcUaSettings
+from softsensor.presentation.display import DisplaySettings
 
 BODY = {"moisture_out": 0.1034, "moisture_out_std": 0.0042, "moisture_in": 1.0312,
         "moisture_in_std": 0.021, "status": "degraded", "lab_updated": True,

@@ -26,10 +26,10 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from softsensor.display import DisplaySettings
 from softsensor.outputs.settings import WebSettings
 from softsensor.outputs.web import BAND, LAB, LINE, MEASURED, MODEL, LivePage
 from softsensor.outputs.web_charts import LIMIT_BAND, TARGET, TIME_STEPS_MIN
+from softsensor.presentation.display import DisplaySettings
 
 ROOT = Path(__file__).resolve().parents[1]
 T0 = 1_767_571_200 * 10**9  # 2026-01-05T00:00Z

@@ -151,7 +151,7 @@ def run_plant(cfg, day, **settings):
     at each tick."""
     from softsensor.estimation.settings import estimator_settings
     from softsensor.estimation.ukf import UkfEstimator
-    from softsensor.estimation.windowing import windows_from_frame
+    from softsensor.windows.accumulator import windows_from_frame
 
     est = UkfEstimator(cfg, dataclasses.replace(estimator_settings(cfg), **settings))
     labs = sorted((LabResult(int(r.sample_time_ns), float(r.moisture_out), str(r.sample_id),

@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from softsensor.cli import main as cli_main
-from softsensor.estimation.windowing import measured_scan_period
 from softsensor.recording.mcap_day import iter_messages
 from softsensor.signals import TOPIC_ESTIMATE
+from softsensor.windows.accumulator import measured_scan_period
 
 REPLAY = Path(__file__).resolve().parents[1] / "replay"
 S = 10**9

@@ -10,16 +10,16 @@ from typing import Any
 import pytest
 
 from softsensor.errors import ConfigError
-from softsensor.estimation.plausibility import (
+from softsensor.messages import Window
+from softsensor.plantconfig import load_plant_config, plant_config_from_dict
+from softsensor.service.estimator_service import EstimatorService
+from softsensor.windows.accumulator import WindowAccumulator, window_settings
+from softsensor.windows.plausibility import (
     InputJudge,
     estimate_problems,
     estimate_ranges,
     plausibility_from_config,
 )
-from softsensor.estimation.windowing import WindowAccumulator, window_settings
-from softsensor.messages import Window
-from softsensor.plantconfig import load_plant_config, plant_config_from_dict
-from softsensor.service.estimator_service import EstimatorService
 
 S = 10**9
 T0 = 1_767_571_200 * S

@@ -11,7 +11,7 @@ import time
 from softsensor.bus.zenoh_bus import Publisher, listening_endpoints, open_session, wait_for_peers
 from softsensor.plantconfig import load_plant_config
 from softsensor.service.build import make_service
-from softsensor.service.pipeline import InputLimits, ServicePipeline
+from softsensor.service.bus_worker import InputLimits, ServicePipeline
 from softsensor.service.settings import ServiceSettings
 
 PAD = "x" * 60_000  # a 60 kB scan

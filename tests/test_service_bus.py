@@ -27,7 +27,7 @@ from softsensor.plant.plc_server import NOMINAL_VALUES, PlcServer, constant_valu
 from softsensor.recording.mcap_day import read_day
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.pipeline import InputSubscription
+from softsensor.service.bus_worker import InputSubscription
 from softsensor.service.scan_publisher import ScanPublisher
 
 DEADLINE = 10.0
@@ -170,7 +170,7 @@ def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
 def test_a_failing_advance_is_counted_and_the_worker_goes_on():
     """advance() has no caller waiting on it: its failure is counted and logged, and the
     next call is still served."""
-    from softsensor.service.pipeline import ServicePipeline
+    from softsensor.service.bus_worker import ServicePipeline
 
     class Failing:
         calls = 0
@@ -198,8 +198,8 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
     not through the worker's queue, since the watchdog speaks when the worker is stuck."""
     import threading
 
+    from softsensor.service.bus_worker import ServicePipeline, _Call
     from softsensor.service.estimator_service import Output
-    from softsensor.service.pipeline import ServicePipeline, _Call
 
     inside, most, seen = [0], [0], []
     lock = threading.Lock()

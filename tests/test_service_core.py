@@ -11,8 +11,7 @@ import pytest
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError, EstimationError
-from softsensor.estimation.base import LabResult, Window
-from softsensor.estimation.windowing import MODEL_SIGNALS, WindowSettings
+from softsensor.estimation.interface import LabResult, Window
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config, plant_config_from_dict
 from softsensor.service.checkpoint import CheckpointStore
@@ -23,6 +22,7 @@ from softsensor.service.logs import JsonFormatter, KeyValueFormatter, event
 from softsensor.service.settings import ServiceSettings, service_settings
 from softsensor.service.warmup import N_WINDOWS, warm_up
 from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.accumulator import MODEL_SIGNALS, WindowSettings
 
 S = 10**9
 T0 = 1_767_571_200 * S  # 2026-01-05T00:00:00Z, a multiple of 600 s

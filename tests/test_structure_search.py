@@ -1,5 +1,5 @@
 """Structural alternatives chosen by evidence from history (issue 29 items 2 and 3;
-:mod:`softsensor.calibration.structure`).
+:mod:`softsensor.calibration.structure_search`).
 
 A matched plant built with another drying law (Keey's characteristic drying curve, n = 2,
 commissioned to the paper's nominal outlet moisture) hides its structure in two days of
@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from softsensor.calibration.dataset import segment_from_day
-from softsensor.calibration.history import calibrate_history
+from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.params_file import params_document, write_params
 from softsensor.calibration.settings import calibration_settings
-from softsensor.calibration.structure import default_library
+from softsensor.calibration.structure_search import default_library
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
@@ -106,7 +106,7 @@ def test_a_bad_structure_table_is_one_line(tmp_path):
 
 
 def test_held_out_score_is_the_profile_likelihood():
-    from softsensor.calibration.structure import held_out_score
+    from softsensor.calibration.structure_search import held_out_score
 
     class Fit:
         n = {"T_dryer_out": 10, "T_cyclone_out": 10, "moisture_out": 4}

@@ -19,9 +19,10 @@ from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
 from filterpy.kalman import predict as kf_predict
 
 from softsensor.errors import ConfigError, EstimationError, IngestError
-from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
-from softsensor.estimation.discrepancy import (
+from softsensor.estimation.interface import LabResult, Window
+from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.estimation.state_space import (
     STATE_NAMES,
     X_BIAS,
     X_HEAT,
@@ -29,11 +30,10 @@ from softsensor.estimation.discrepancy import (
     ErrorPriors,
     InletTransform,
 )
-from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
-from softsensor.estimation.window_inputs import InputHold
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.inputs import InputHold
 
 W_NS = 600 * 10**9
 T0_NS = 1_767_571_200_000_000_000

@@ -21,12 +21,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from softsensor.estimation.base import LabResult
-from softsensor.estimation.openloop import OpenLoopEstimator
+from softsensor.estimation.interface import LabResult
+from softsensor.estimation.open_loop_estimator import OpenLoopEstimator
 from softsensor.estimation.ukf import UkfEstimator
-from softsensor.estimation.windowing import windows_from_frame
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
+from softsensor.windows.accumulator import windows_from_frame
 
 CFG = load_plant_config()
 

@@ -4,7 +4,7 @@ item 4): open loop first, at the calibration's inlet level (PARAMS.toml's ``[mod
 beside it, labelled; a verdict against the calibration's own held-out error; one sentence
 when reading the inlet from the temperatures makes the moisture worse. ``diagnose`` reports
 the same open-loop figure for the same day and parameter file (the issue saw 2.85 against
-0.72 % points): :func:`softsensor.calibration.open_loop.open_loop_summary` computes it for
+0.72 % points): :func:`softsensor.calibration.open_loop_errors.open_loop_summary` computes it for
 both verbs.
 
 The day is the shipped 48 h demo day; its parameter file carries a ``[model_error]`` learned
@@ -24,7 +24,7 @@ import pytest
 
 from softsensor.apps.calibrate import load_segment
 from softsensor.calibration.model_error_fit import fit_model_error
-from softsensor.calibration.open_loop import (
+from softsensor.calibration.open_loop_errors import (
     WITHIN_SPREAD,
     Reference,
     channel_verdicts,
@@ -35,8 +35,8 @@ from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.model import DryerModel
 from softsensor.plantconfig import load_parameters, load_plant_config
+from softsensor.presentation.verdicts import validation_verdict
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import validation_verdict
 
 DAY = Path(__file__).resolve().parents[1] / "replay" / "demo-day.mcap"
 #: The history's inlet level written into the parameter file [kg/kg] (nominal is 1.0).
@@ -66,9 +66,9 @@ def validated(params, tmp_path_factory) -> tuple[dict, str]:
 def test_validate_and_diagnose_report_the_same_open_loop_figure(params, validated):
     from softsensor.apps.loading import read_day_inputs
     from softsensor.calibration.params_file import read_fit
+    from softsensor.diagnosis.day_windows import day_windows
     from softsensor.diagnosis.problem import Problem, choose_split
     from softsensor.diagnosis.verdict import whole_day
-    from softsensor.diagnosis.windows import day_windows
 
     doc, _ = validated
     ol = doc["open_loop"]

@@ -7,9 +7,9 @@ import base64
 
 import pytest
 
-from softsensor.apps.calibration_figures import markdown_table, write_page
-from softsensor.display import moisture_pct, moisture_pct_points
-from softsensor.verdicts import calibration_verdict, diagnosis_verdict
+from softsensor.presentation.calibration_figures import markdown_table, write_page
+from softsensor.presentation.display import moisture_pct, moisture_pct_points
+from softsensor.presentation.verdicts import calibration_verdict, diagnosis_verdict
 
 
 def _doc(cause: str, params: dict, channel: str | None = None, gain: float = 0.42) -> dict:

@@ -10,7 +10,8 @@ import pandas as pd
 import pytest
 
 from softsensor.errors import ConfigError, IngestError
-from softsensor.estimation.windowing import (
+from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.accumulator import (
     MODEL_SIGNALS,
     WindowAccumulator,
     WindowSettings,
@@ -18,7 +19,6 @@ from softsensor.estimation.windowing import (
     windows_from_frame,
     windows_from_scans,
 )
-from softsensor.signals import SCAN_SIGNALS
 
 NS = 10**9
 P = 600 * NS

@@ -1,6 +1,6 @@
 """``softsensor calibrate | identify | validate``: argument parsing and output only.
 
-The work is done by :mod:`softsensor.calibration.pipeline`; the pages by
+The work is done by :mod:`softsensor.calibration.calibration_run`; the pages by
 :mod:`.calibration_report`. ``calibrate`` and ``validate``
 print one JSON document on stdout (progress and logging go to stderr); ``identify`` prints
 the table of what the data can and cannot pin down and writes JSON with ``--json``. Errors are
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
-from softsensor.apps.output import check_target, write_json
+from softsensor.apps.verb_output import write_json
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER
 from softsensor.calibration.params_file import params_document, read_fit, write_params
@@ -38,9 +38,10 @@ from softsensor.calibration.settings import (
     CalibrationSettings,
     calibration_settings,
 )
-from softsensor.display import display_settings, moisture_pct_points
 from softsensor.errors import ConfigError, require_packages
+from softsensor.files import check_target
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.presentation.display import display_settings, moisture_pct_points
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import OUTPUT_NAMES
 
@@ -90,7 +91,7 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
                   ) -> tuple[list[Segment], list[WindowChoice]]:
     """Read every day, one at a time, and pick its calibration window(s) (``selection``
     default: :class:`DataSelection`'s)."""
-    from softsensor.calibration.pipeline import select_segments
+    from softsensor.calibration.calibration_run import select_segments
 
     def days() -> Iterator[tuple[str, RecordedDay]]:
         for p in paths:
@@ -202,7 +203,7 @@ def _fresh_journal(out: Path) -> str:
 def _structure_library(args: argparse.Namespace, base: PlantConfig) -> list[Any]:
     """The structural alternatives to search: the default library with several days or
     ``--structure``, none with one day or ``--no-structure``."""
-    from softsensor.calibration.structure import default_library
+    from softsensor.calibration.structure_search import default_library
 
     on = len(args.days) > 1 if args.structure is None else args.structure
     return default_library(base) if on else []
@@ -215,7 +216,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
     require_packages("calibrate", "optuna", "matplotlib")
     import optuna
 
-    from softsensor.calibration.history import calibrate_history
+    from softsensor.calibration.history_calibration import calibrate_history
     from softsensor.calibration.optimize import StudySettings
 
     base, current = load_config_and_params(args)
@@ -266,7 +267,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
     summary = {"out": str(out), "outcome": outcome, **result.summary(),
                "history": hist.summary()}
     if args.report:
-        from softsensor.apps.calibration_report import calibration_page
+        from softsensor.presentation.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
                                                  structure=hist.structure))
@@ -315,7 +316,7 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
     """What ``calibrate`` wrote and why, for a person: the file to deploy, which parameters
     it holds and the errors before and after, in plant units. The terminal's last line and
     the report page's verdict say this same text."""
-    from softsensor.apps.calibration_report import lab_reference
+    from softsensor.presentation.calibration_report import lab_reference
 
     result, n = hist.calibration, hist.model_error.days
     new, old, where = result.validation, result.current_validation, "held-out data"
@@ -392,10 +393,10 @@ def add_identify_arguments(p: argparse.ArgumentParser) -> None:
 def identify_main(args: argparse.Namespace) -> int:
     """``softsensor identify``: sensitivities, FIM, correlations, verdicts."""
     require_packages("identify", "optuna", "matplotlib")
-    from softsensor.apps.calibration_report import identifiability_table, identify_page
+    from softsensor.calibration.calibration_run import objective_spec
     from softsensor.calibration.identifiability import identify
-    from softsensor.calibration.pipeline import objective_spec
     from softsensor.model import DryerModel
+    from softsensor.presentation.calibration_report import identifiability_table, identify_page
 
     check_target(args.json)
     base, config = load_config_and_params(args)
@@ -466,16 +467,16 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
 
 def validate_main(args: argparse.Namespace) -> int:
     """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days of
-    ``--params``, open loop first (:mod:`softsensor.calibration.open_loop`: the figure
+    ``--params``, open loop first (:mod:`softsensor.calibration.open_loop_errors`: the figure
     ``diagnose`` reports too) with its verdict against the calibration's own held-out error,
     then with the inlet moisture read from the temperatures, labelled; beside them the
     config's default parameters on the same data."""
     require_packages("validate", "optuna", "matplotlib")
-    from softsensor.apps.calibration_report import lab_reference
-    from softsensor.calibration.open_loop import displayed, open_loop_summary, prepared
-    from softsensor.calibration.pipeline import objective_spec, validate_many
+    from softsensor.calibration.calibration_run import objective_spec, validate_many
+    from softsensor.calibration.open_loop_errors import displayed, open_loop_summary, prepared
     from softsensor.model import DryerModel
-    from softsensor.verdicts import validation_verdict
+    from softsensor.presentation.calibration_report import lab_reference
+    from softsensor.presentation.verdicts import validation_verdict
 
     check_target(args.json)
     base, config = load_config_and_params(args)
@@ -518,7 +519,7 @@ def validate_main(args: argparse.Namespace) -> int:
                "inlet_read": {k: v for k, v in default.inlet_read().items()
                               if k in ("rmse", "weighted_rmse", "cost", "score")}}}
     if args.report:
-        from softsensor.apps.calibration_report import validation_page
+        from softsensor.presentation.calibration_report import validation_page
 
         shown = dataclasses.replace(result, segments=raw, runs=[
             displayed(config, s, r) for s, r in zip(raw, result.runs, strict=True)])

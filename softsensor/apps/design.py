@@ -1,8 +1,8 @@
 """``softsensor design``: a closed-loop experiment that makes the calibration identifiable.
 
-The search is :mod:`softsensor.calibration.design` (no I/O); this module supplies what the core
-may not import: the plant's outlet-temperature loop (:mod:`softsensor.plant.controller`: PI,
-flap drive, hot-gas mixing) around the calibrated model, the operating point of a recorded day
+The search is :mod:`softsensor.calibration.experiment_design` (no I/O); this module supplies what
+the core may not import: the plant's outlet-temperature loop (:mod:`softsensor.plant.controller`:
+PI, flap drive, hot-gas mixing) around the calibrated model, the operating point of a recorded day
 or of the config, a virtual plant to "record" a designed period on (``--rounds``), and the
 files an operator follows: ``schedule.csv`` and ``schedule.json`` (time, ``T_sp`` [K],
 ``m_air`` [kg/s]), ``prediction.csv``, ``design.png`` and ``design.svg`` (schedule and
@@ -24,9 +24,9 @@ import numpy as np
 import pandas as pd
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
-from softsensor.apps.output import say, write_json, writing
+from softsensor.apps.verb_output import say, write_json
 from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
-from softsensor.calibration.design import (
+from softsensor.calibration.experiment_design import (
     CRITERIA,
     DesignLimits,
     DesignProblem,
@@ -42,8 +42,8 @@ from softsensor.calibration.design import (
 from softsensor.calibration.identifiability import prior_sd
 from softsensor.calibration.params_file import read_fit
 from softsensor.calibration.settings import CalibrationSettings, calibration_settings
-from softsensor.display import C0, T_H_PER_KG_S
 from softsensor.errors import ConfigError, require_packages
+from softsensor.files import writing
 from softsensor.ingest.tables import write_table
 from softsensor.model import DryerModel
 from softsensor.model.geometry import N_AUX
@@ -52,6 +52,7 @@ from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.settings import virtual_plant_settings
 from softsensor.plant.simulator import initial_operating_point
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.presentation.display import C0, T_H_PER_KG_S
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 I_T_AIR, I_M_AIR = INPUT_NAMES.index("T_air_in"), INPUT_NAMES.index("m_air")
@@ -155,7 +156,7 @@ def build_problem(base: PlantConfig, config: PlantConfig, op: OperatingPoint,
                   limits: DesignLimits, calibration: CalibrationSettings, noise: np.ndarray,
                   kind: str = "D", names: Sequence[str] = ()) -> DesignProblem:
     """The design problem at ``config``'s parameters (checked: one-line ConfigError)."""
-    from softsensor.calibration.pipeline import objective_spec  # Optuna: the offline extra
+    from softsensor.calibration.calibration_run import objective_spec  # Optuna: the offline extra
 
     msg = limits.check(op.T_sp, float(op.u[I_M_AIR]))
     if msg:
@@ -176,7 +177,7 @@ def build_problem(base: PlantConfig, config: PlantConfig, op: OperatingPoint,
 def _natural_probe(loop: ModelLoop, limits: DesignLimits, theta: np.ndarray,
                    op: OperatingPoint) -> Segment:
     """The constant schedule's predicted segment (sets the objective's prior scale)."""
-    from softsensor.calibration.design import (
+    from softsensor.calibration.experiment_design import (
         constant_levels,
         prediction_segment,
         schedule_from_levels,
@@ -221,8 +222,8 @@ def recalibrator(base: PlantConfig, calibration: CalibrationSettings, trials: in
                  ) -> Callable[[list[Segment], np.ndarray], np.ndarray]:
     """``softsensor calibrate``'s fit (study, polish; no hold-out, no identify) as a function
     of the recorded segments; the current estimate is what the result must beat."""
+    from softsensor.calibration.calibration_run import calibrate
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import calibrate
 
     def fit(segments: list[Segment], theta: np.ndarray) -> np.ndarray:
         study = StudySettings(n_trials=trials, seed=seed, progress=False)
@@ -240,7 +241,7 @@ def assessor(base: PlantConfig, calibration: CalibrationSettings
     model = DryerModel(base)
 
     def assess(segments: list[Segment], theta: np.ndarray) -> Information:
-        from softsensor.calibration.pipeline import objective_spec
+        from softsensor.calibration.calibration_run import objective_spec
 
         spec = objective_spec(model, segments, base, calibration)
         return information(model, segments, theta, spec, None, prior_sd(spec, base.bounds()))

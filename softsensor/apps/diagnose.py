@@ -3,7 +3,7 @@
     softsensor diagnose --calibrate-on CAL.mcap DAY.mcap --json REPORT.json [--report DIR]
     softsensor diagnose --params PARAMS.toml DAY.mcap --json REPORT.json [--report DIR]
 
-With ``--calibrate-on`` the paper's calibration (:func:`softsensor.calibration.pipeline.
+With ``--calibrate-on`` the paper's calibration (:func:`softsensor.calibration.calibration_run.
 calibrate`: the Optuna TPE study, then the Gauss-Newton polish) runs on CAL with ``--trials``
 trials (default :data:`~softsensor.calibration.settings.DEFAULT_TRIALS`, 200 as the paper
 and ``calibrate``: the same calibration whichever verb runs it) on its
@@ -28,13 +28,14 @@ from pathlib import Path
 from typing import Any
 
 from softsensor.apps.loading import load_config_and_params, read_day_inputs
-from softsensor.apps.output import check_target, write_json
+from softsensor.apps.verb_output import write_json
 from softsensor.calibration.settings import DEFAULT_TRIALS
-from softsensor.display import display_settings, lab_reference
 from softsensor.errors import ConfigError, require_packages
+from softsensor.files import check_target
 from softsensor.plantconfig import PARAMETER_NAMES
+from softsensor.presentation.display import display_settings, lab_reference
+from softsensor.presentation.verdicts import diagnosis_verdict, open_loop_sentence
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import diagnosis_verdict, open_loop_sentence
 
 #: Calibration window taken from CAL. [h]
 DEFAULT_CAL_WINDOW_HOURS = 48.0
@@ -83,8 +84,8 @@ def _check_paths(args: argparse.Namespace) -> None:
 def diagnose_main(args: argparse.Namespace) -> int:
     """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
     require_packages("diagnose", "optuna", "matplotlib")
-    from softsensor.calibration.open_loop import open_loop_summary
-    from softsensor.diagnosis.pipeline import diagnose
+    from softsensor.calibration.open_loop_errors import open_loop_summary
+    from softsensor.diagnosis.diagnose_day import diagnose
     from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
 
     _check_paths(args)
@@ -113,7 +114,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
     doc["calibration"] = calibration
     doc["timings_s"]["calibration"] = round(t_cal, 2)
     if args.report:
-        from softsensor.apps.diagnosis_report import write_report
+        from softsensor.presentation.diagnosis_report import write_report
 
         doc["report"] = str(write_report(d, args.report, doc))
     write_json(doc, args.json)
@@ -144,8 +145,8 @@ def _calibrate(cfg, args: argparse.Namespace
     import optuna
 
     from softsensor.apps.calibrate import load_segments
+    from softsensor.calibration.calibration_run import calibrate
     from softsensor.calibration.optimize import StudySettings
-    from softsensor.calibration.pipeline import calibrate
     from softsensor.calibration.selection import DataSelection
     from softsensor.calibration.settings import calibration_settings
 

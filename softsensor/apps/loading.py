@@ -15,9 +15,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from softsensor.calibration.settings import calibration_settings
-from softsensor.display import display_settings
 from softsensor.estimation.model_error import model_error_of
-from softsensor.estimation.plausibility import plausibility_from_config
 from softsensor.estimation.settings import estimator_settings
 from softsensor.outputs.settings import output_settings
 from softsensor.plant.settings import virtual_plant_settings
@@ -28,9 +26,11 @@ from softsensor.plantconfig import (
     load_parameters,
     load_plant_config,
 )
+from softsensor.presentation.display import display_settings
 from softsensor.recording.mcap_day import RecordedDay, read_day
 from softsensor.service.settings import service_settings
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
+from softsensor.windows.plausibility import plausibility_from_config
 
 
 def _lab_map(cfg: PlantConfig) -> object:

@@ -258,7 +258,7 @@ def _health(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return 1
     if args.json:
-        from softsensor.apps.output import write_json
+        from softsensor.apps.verb_output import write_json
 
         write_json(doc, args.json)
     age = doc.get("last_tick_age_s")

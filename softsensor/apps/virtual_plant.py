@@ -18,8 +18,8 @@ import time
 from pathlib import Path
 
 from softsensor.apps.loading import load_config_and_params
-from softsensor.apps.output import writing
 from softsensor.errors import ConfigError
+from softsensor.files import writing
 from softsensor.plant.day import SimulatedDay
 from softsensor.plant.effects import EFFECTS
 from softsensor.plantconfig import PlantConfig

@@ -1,21 +1,21 @@
 """Calibration data: a recorded day as the model's windows, with its lab results aligned.
 
 The paper (section 3.3) feeds the model "resampling 600 s" data. The windows are those of the
-one windowing of the program (:mod:`softsensor.estimation.windowing`, the estimator's): aligned
+one windowing of the program (:mod:`softsensor.windows.accumulator`, the estimator's): aligned
 to multiples of the window length since the Unix epoch, half-open ``(start, end]``, the mean of
 the good scans of every signal, a signal with fewer good scans than ``solver.min_good_fraction``
 of the expected ``window / scan period`` dropped (the scan period is ``solver.scan_period``
 when set, else the day's own: the median spacing of its scans, so 1 s to 5 min historian
 exports window alike). Every window's model inputs are its
 input means, held when missing as the estimator holds them
-(:class:`~softsensor.estimation.window_inputs.InputHold`); its measured temperatures are its
+(:class:`~softsensor.windows.inputs.InputHold`); its measured temperatures are its
 means, missing where the window or the channel has too few good scans. Window means, not
 end-of-window values, are compared with the model's end-of-window outputs: the plant's
 controller moves ``T_air_in`` inside a window, and the model run on the window-mean inputs
 matches the window-mean outputs several times better than the end-of-window samples (the fast
 states sit at their quasi-steady profile; see :mod:`softsensor.model.kernels`).
 
-Lab results are aligned to their *sample* time by :mod:`softsensor.estimation.lab_alignment`
+Lab results are aligned to their *sample* time by :mod:`softsensor.windows.lab_alignment`
 (the estimator's alignment too): the model is evaluated at the sample time, one step from the
 start of its window with the inputs of the ``solver.lab_span`` seconds before it (``lab_U``).
 
@@ -37,22 +37,22 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import IngestError
-from softsensor.estimation.lab_alignment import (
-    bin_matrix,
-    sample_inputs_from_bins,
-    sample_offset,
-    window_index,
-)
-from softsensor.estimation.window_inputs import MEASURED_INPUTS, InputHold
-from softsensor.estimation.windowing import (
+from softsensor.messages import Window, iso_utc
+from softsensor.plantconfig import PlantConfig
+from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+from softsensor.windows.accumulator import (
     NS,
     measured_scan_period,
     window_settings,
     windows_from_frame,
 )
-from softsensor.messages import Window, iso_utc
-from softsensor.plantconfig import PlantConfig
-from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS, OUTPUT_NAMES, TOPIC_LAB, TOPIC_SCAN
+from softsensor.windows.inputs import MEASURED_INPUTS, InputHold
+from softsensor.windows.lab_alignment import (
+    bin_matrix,
+    sample_inputs_from_bins,
+    sample_offset,
+    window_index,
+)
 
 
 class DayLike(Protocol):
@@ -69,7 +69,7 @@ SCANNED_OUTPUTS: tuple[str, ...] = KELVIN_CHANNELS
 
 @dataclass(frozen=True)
 class LabPoints:
-    """Where lab samples meet the model (:mod:`softsensor.estimation.lab_alignment`): the
+    """Where lab samples meet the model (:mod:`softsensor.windows.lab_alignment`): the
     window holding each sample time, the seconds from its start, and the inputs there (L, 8)."""
 
     window: np.ndarray
@@ -102,7 +102,7 @@ class Segment:
     lab_id : tuple of str
         Lab sample ids.
     lab_U : ndarray, shape (L, 8), optional
-        Model inputs at each sample time (:mod:`~softsensor.estimation.lab_alignment`); by
+        Model inputs at each sample time (:mod:`~softsensor.windows.lab_alignment`); by
         default the inputs of the sample's window.
     bins : ndarray, shape (K, n_bins, 7), optional
         Sub-window bin means of the measured inputs (NaN where a bin had no good value), as
@@ -238,7 +238,7 @@ def trim_stale(windows: Sequence[Window], config: PlantConfig, source: str) -> l
 
 def segment_from_windows(windows: Sequence[Window], labs: pd.DataFrame, config: PlantConfig,
                          source: str) -> Segment:
-    """Windows of :mod:`~softsensor.estimation.windowing` (consecutive, in time order) and the
+    """Windows of :mod:`~softsensor.windows.accumulator` (consecutive, in time order) and the
     lab results (``sample_time_ns``, ``moisture_out``, ``sample_id``) as a :class:`Segment`.
 
     Leading and trailing stale windows are dropped (the model starts from a steady state at the
@@ -304,7 +304,7 @@ def segment_from_day(day: DayLike, config: PlantConfig, *, source: str | None = 
 
 
 def complete_windows(day: DayLike, config: PlantConfig, source: str) -> list[Window]:
-    """The day's scans as the windows of :mod:`softsensor.estimation.windowing` that lie
+    """The day's scans as the windows of :mod:`softsensor.windows.accumulator` that lie
     wholly inside the record. Raises :class:`IngestError` for no scans, a signal without any
     good value, or no complete window."""
     scans = day.scans

@@ -20,9 +20,9 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [fit.samples]              samples per channel
     [structure]                a structural alternative adopted from history (plant-section
     [structure.fiber]          keys such as fiber.bound_fraction, applied on load) and
-    [structure.evidence]       the held-out evidence for it (:mod:`.structure`)
+    [structure.evidence]       the held-out evidence for it (:mod:`.structure_search`)
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
-                               on its own error, :class:`~.pipeline.Discrepancy`)
+                               on its own error, :class:`~.calibration_run.Discrepancy`)
     [model_error]              what the history says the model misses, channel by channel
                                (:class:`~softsensor.estimation.model_error.ModelError`): the
                                features and their scales, the days and the typical inlet
@@ -74,7 +74,7 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
     """The PARAMS.toml document for parameter ``values``, the ``[fit]`` section, the flags
     of parameters at a bound, the ``[discrepancy]`` section, the history's
     ``[model_error]`` (:meth:`~softsensor.estimation.model_error.ModelError.to_table`) and
-    an adopted ``[structure]`` (:meth:`~.structure.StructureSearch.params_table`)."""
+    an adopted ``[structure]`` (:meth:`~.structure_search.StructureSearch.params_table`)."""
     params: dict[str, Any] = {}
     for name in PARAMETER_NAMES:
         spec = config.parameters[name]

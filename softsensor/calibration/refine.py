@@ -67,7 +67,7 @@ class WeightedResiduals:
 
     ``jac_model``: the model whose forward differences give the Jacobian (default ``model``).
     A cheaper one (the search's, with fewer wall substeps:
-    :func:`~.pipeline.search_model`) differs from ``model`` by far less than a step moves
+    :func:`~.calibration_run.search_model`) differs from ``model`` by far less than a step moves
     the outputs, so its differences steer the steps as well, while every residual the steps
     are accepted on is ``model``'s. Its base point runs in the same batched call as the
     displaced ones.

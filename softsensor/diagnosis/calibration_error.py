@@ -4,7 +4,7 @@ A calibrated model on a day it was not fitted on is a few tenths of a kelvin and
 thousandths of moisture off, the error wanders slowly with the load, and it is shared between
 the two outlet temperatures (heat input, losses) more than it is one channel's. The estimator
 carries that error as Ornstein-Uhlenbeck states whose sizes and correlation times come from the
-calibration's validation day (:mod:`softsensor.estimation.discrepancy`, PARAMS.toml
+calibration's validation day (:mod:`softsensor.estimation.state_space`, PARAMS.toml
 ``[discrepancy]``). The diagnosis carries the same states through the day's residuals
 (measured minus model):
 
@@ -35,7 +35,7 @@ samples exist), so
 * the whitened residuals of a prediction over the day are prequential: each is predicted from
   the samples before it only.
 
-The filter is the estimator's (:mod:`softsensor.estimation.discrepancy`: the same states,
+The filter is the estimator's (:mod:`softsensor.estimation.state_space`: the same states,
 their decay and process noise by the same rule, filterpy's ``predict`` and ``update``), run on
 the residuals instead of through the model. With a history (PARAMS.toml's ``[model_error]``)
 the states are the history's own structure (:func:`normal_states`): a level per day and a
@@ -55,13 +55,13 @@ import numpy as np
 from filterpy.kalman import predict as kf_predict
 from filterpy.kalman import update as kf_update
 
-from softsensor.estimation.discrepancy import ErrorPriors, error_decay, error_noise
 from softsensor.estimation.model_error import CHANNELS, ModelError, model_error_of
 from softsensor.estimation.settings import estimator_settings
+from softsensor.estimation.state_space import ErrorPriors, error_decay, error_noise
 from softsensor.plantconfig import PlantConfig
 
 #: The discrepancy states: the estimator's first four error states
-#: (:data:`~softsensor.estimation.discrepancy.ERROR_STATES`), the heat input's offset read as
+#: (:data:`~softsensor.estimation.state_space.ERROR_STATES`), the heat input's offset read as
 #: the outlet temperatures' common one.
 STATE_NAMES: tuple[str, ...] = ("T_common", "T_dryer_out", "T_cyclone_out", "moisture_out")
 #: Which temperature states each temperature channel reads (2, 3).

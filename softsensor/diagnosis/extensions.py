@@ -11,7 +11,7 @@ cause              extension (fitted parameter)
 sensor_bias        ``y_c + b`` on one outlet temperature ``c``, the better of the two; ``b``
                    [K] by generalised least squares (closed form: the whitening is linear)
 lab_delay          the lab sample times moved by ``delta`` [min] before the model is aligned
-                   to them (:mod:`softsensor.estimation.lab_alignment`; grid search, 2 min
+                   to them (:mod:`softsensor.windows.lab_alignment`; grid search, 2 min
                    steps within +-90 min refined to 0.5 min; the temperatures are untouched)
 fouling_drift      ``mult_D`` and ``mult_h`` falling as ``1 - d t / T`` (``t`` from the start,
                    ``T`` the day's length), the outputs moved quasi-statically by ``d t / T``
@@ -20,8 +20,8 @@ fouling_drift      ``mult_D`` and ``mult_h`` falling as ``1 - d t / T`` (``t`` f
 input_lag          the ``T_air_in`` the model sees is the measured one with a first-order
                    sensor lag of time constant ``tau`` [min] undone: over a window,
                    ``mean(x + tau dx/dt) = mean(x) + tau (x_end - x_start) / W``
-                   (:attr:`~.windows.DayWindows.air_edges`), and in the sub-window bins a lab
-                   sample sees (:func:`~.windows.delagged_air`)
+                   (:attr:`~.day_windows.DayWindows.air_edges`), and in the sub-window bins a lab
+                   sample sees (:func:`~.day_windows.delagged_air`)
 ambient_heat_loss  outside heat loss scaled by ``1 + beta (283.15 K - T_amb)``, ``beta``
                    [1/K] (model aux ``BETA_AMB``)
 inlet_moisture     the inlet moisture as an estimated disturbance: the UKF of
@@ -58,8 +58,8 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2 as chi2_dist
 
 from softsensor.calibration.dataset import LabPoints
+from softsensor.diagnosis.day_windows import delagged_air
 from softsensor.diagnosis.problem import Prediction, Problem
-from softsensor.diagnosis.windows import delagged_air
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.ukf import UkfEstimator

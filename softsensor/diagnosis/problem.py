@@ -3,7 +3,7 @@
 Everything an extension fit or a score needs sits in one :class:`Problem`:
 
 * the calibrated model (``DryerModel`` of the calibrated config) and its parameters ``theta``;
-* the day as model windows (:mod:`.windows`), the windows and lab alignment of calibration and
+* the day as model windows (:mod:`.day_windows`), the windows and lab alignment of calibration and
   the estimator: predictions run :func:`~softsensor.calibration.chunked_run.simulate_span`,
   window-end outputs against window means and ``moisture_out`` at each lab's sample time;
 * the held-out :class:`Split`: windows ``[0, k_fit)`` and the labs sampled before
@@ -40,9 +40,9 @@ import numpy as np
 
 from softsensor.calibration.chunked_run import lab_values_at, simulate_span, window_start_states
 from softsensor.calibration.dataset import LabPoints
-from softsensor.calibration.open_loop import normal_offsets
+from softsensor.calibration.open_loop_errors import normal_offsets
 from softsensor.diagnosis.calibration_error import DiscrepancyModel
-from softsensor.diagnosis.windows import MODEL_LAB_STD, DayWindows
+from softsensor.diagnosis.day_windows import MODEL_LAB_STD, DayWindows
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.model_error import ModelError, model_error_of
 from softsensor.model import DryerModel
@@ -303,7 +303,7 @@ def noise_levels(res: Residuals, split: Split, lab_noise: float,
     which sees the window-to-window noise and not slow structure (a model error that a trend,
     an offset or a daily cycle explains). Labs, a few a day, are too sparse for that: their
     noise is the configured lab standard deviation (``estimator.lab_std``) combined with the
-    moisture's movement inside a window (:data:`~.windows.MODEL_LAB_STD`). [K, K, kg/kg]
+    moisture's movement inside a window (:data:`~.day_windows.MODEL_LAB_STD`). [K, K, kg/kg]
     """
     if model_error is not None:
         return np.array([max(model_error.channel(c).noise, floor) for c, floor in

@@ -33,7 +33,7 @@ import numpy as np
 from scipy import stats
 
 from softsensor.calibration.identifiability import lag1_autocorrelation as lag1
-from softsensor.diagnosis.windows import DayWindows
+from softsensor.diagnosis.day_windows import DayWindows
 from softsensor.signals import INPUT_NAMES
 
 #: Lags of the Ljung-Box test.

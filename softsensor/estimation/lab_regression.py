@@ -28,9 +28,9 @@ import numpy as np
 import pandas as pd
 
 from softsensor.errors import ConfigError
-from softsensor.estimation.windowing import window_end
 from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.accumulator import window_end
 
 #: Signals of the regression: every scanned signal (a spreadsheet takes them all).
 REGRESSION_SIGNALS: tuple[str, ...] = tuple(SCAN_SIGNALS)

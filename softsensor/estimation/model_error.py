@@ -137,7 +137,7 @@ class ModelError:
         0.99: one energy balance) and the lab's follows them, so the diagnosis judges a day
         against correlated day offsets and a thermometer's own offset stands out (the
         estimator starts uncorrelated, which measured better:
-        :meth:`~softsensor.estimation.discrepancy.ErrorPriors.from_config`).
+        :meth:`~softsensor.estimation.state_space.ErrorPriors.from_config`).
     T_dryer_out, T_cyclone_out, moisture_out : ChannelError
         Per channel.
     """

@@ -33,7 +33,7 @@ widens by ``exp(0.95 step)``, a hit narrows by ``exp(-0.05 step)``, so the share
 driven to 5 %, whatever the filter believes of itself.
 
 The state (log weights, ``log c``, the latest lab, the regression's bias, the physics' last
-estimate) travels in :class:`~.lab_history.FilterState` (``peers``), so a late lab result
+estimate) travels in :class:`~.tick_history.FilterState` (``peers``), so a late lab result
 re-filters it with the history and a checkpoint restores it. Pure: no clock, no log.
 """
 
@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.estimation.base import LabResult, Window
+from softsensor.estimation.interface import LabResult, Window
 from softsensor.estimation.lab_regression import LabRegression
 from softsensor.estimation.publication import fallback_std
 from softsensor.estimation.settings import EstimatorSettings

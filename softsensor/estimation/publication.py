@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.estimation.base import LabResult, Window
 from softsensor.estimation.consistency import Innovation, chi_square_test
-from softsensor.estimation.discrepancy import (
+from softsensor.estimation.interface import LabResult, Window
+from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.state_space import (
     STATE_NAMES,
     STATE_UNITS,
     X_BIAS,
@@ -41,7 +42,6 @@ from softsensor.estimation.discrepancy import (
     X_TCYC,
     X_TDRY,
 )
-from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.ukf_step import FilterModel, Posterior, inlet_moments
 from softsensor.jsonable import finite_or_none
 from softsensor.signals import OUTPUT_NAMES

@@ -73,7 +73,7 @@ class EstimatorSettings:
         long default (a thermometer that reads off stays off).
     inlet_gain_std : float or None
         Prior standard deviation of the relative error of the model's outlet-moisture
-        response to the inlet moisture (:mod:`~softsensor.estimation.discrepancy`,
+        response to the inlet moisture (:mod:`~softsensor.estimation.state_space`,
         ``inlet_gain``): 1 says the plant's response may be anywhere from none to twice the
         model's. Default (None): 1 when the parameters carry a history's ``[model_error]``
         (the history says how the model is not the plant), else the gain is held at zero
@@ -89,7 +89,7 @@ class EstimatorSettings:
         [K, kg/kg]
     adapt_ticks : int
         Memory of the innovation-based noise adaptation, in ticks
-        (:class:`~softsensor.estimation.discrepancy.AdaptiveNoise`). [-]
+        (:class:`~softsensor.estimation.state_space.AdaptiveNoise`). [-]
     adapt_limit : float
         Largest inflation of an error state's process noise. [-]
     inlet_margin : float

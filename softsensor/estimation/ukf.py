@@ -6,7 +6,7 @@ carries ``moisture_in`` as a state and corrects it every 600 s tick with the two
 outlet temperatures (the model, fed the *measured* ``T_air_in``, needs the right inlet
 moisture to reproduce them), and with the lab's outlet moisture whenever a result arrives,
 tens of minutes after its sample time. Because a real dryer is never the model, the state also
-carries the model's own slowly varying error (:mod:`.discrepancy`): an offset of the heat
+carries the model's own slowly varying error (:mod:`.state_space`): an offset of the heat
 input it sees, two per-channel temperature offsets, an outlet-moisture bias and the error of
 its outlet-moisture response to the inlet moisture; and the measurement model adds what the
 plant's history says the model misses at the window's operating point (:mod:`.model_error`,
@@ -17,14 +17,15 @@ One tick (:func:`~.ukf_step.step`, pure)
 1. *Predict* (linear, exact): the inlet moisture a mean-reverting walk, the error states
    first-order processes or random walks: ``x = F x + (I - F) x_ref``, ``P = F P F' + Q``
    (``filterpy.kalman.predict``), ``Q``'s diagonal inflated per channel by the
-   innovation-based adaptation (:class:`~.discrepancy.AdaptiveNoise`).
+   innovation-based adaptation (:class:`~.state_space.AdaptiveNoise`).
 2. *Sigma points* of the prior (filterpy's ``MerweScaledSigmaPoints``). Only the inlet moisture
-   and the heat input's offset enter the model (:data:`~.discrepancy.MODEL_STATES`), so the
+   and the heat input's offset enter the model (:data:`~.state_space.MODEL_STATES`), so the
    sigma points hold five distinct pairs of them; the model is stepped over the window for
    those, for each point's heat input at the reference inlet moisture (the inlet gain's
    response), and for four probes about the mean (partial derivatives for step 4): one batched
    call from the current wall temperatures. A lab result sampled in the window adds one
-   batched short step to its sample time (:mod:`.lab_alignment`, the calibration's alignment).
+   batched short step to its sample time (:mod:`softsensor.windows.lab_alignment`, the
+   calibration's alignment).
 3. *Measurements*: ``T_dryer_out = y_d(X_in, T_air_in + offset) + g_d + T_dryer_out_offset``,
    the same for ``T_cyclone_out``, and per lab result ``y(X_ref) + (1 + inlet_gain) (y(X_in) -
    y(X_ref)) + g_m + moisture_out_bias`` (``g``: the learned discrepancy, its variance added
@@ -101,8 +102,12 @@ import numpy as np
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
 from softsensor.estimation import peer_blend
-from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
-from softsensor.estimation.discrepancy import (
+from softsensor.estimation.interface import LabResult, ModelEstimator, Window, WindowModel
+from softsensor.estimation.lab_regression import regression_of
+from softsensor.estimation.model_error import model_error_of
+from softsensor.estimation.publication import TickContext, publish
+from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.state_space import (
     STATE_NAMES,
     X_BIAS,
     X_HEAT,
@@ -115,16 +120,12 @@ from softsensor.estimation.discrepancy import (
     process_noise,
     transition,
 )
-from softsensor.estimation.lab_history import FilterState, LabBook, TickRecord
-from softsensor.estimation.lab_regression import regression_of
-from softsensor.estimation.model_error import model_error_of
-from softsensor.estimation.publication import TickContext, publish
-from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.tick_history import FilterState, LabBook, TickRecord
 from softsensor.estimation.ukf_step import FilterModel, TickData, step
 from softsensor.estimation.unscented import MerweScaledSigmaPoints
-from softsensor.estimation.window_inputs import InputHold
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES
+from softsensor.windows.inputs import InputHold
 
 log = logging.getLogger(__name__)
 

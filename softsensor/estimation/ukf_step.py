@@ -3,7 +3,7 @@
 
 :class:`FilterModel` holds what does not change from tick to tick (the model and its
 parameters, the settings, the state layout's transition and process noise, the sigma points,
-the learned model error); :class:`~softsensor.estimation.lab_history.FilterState` the filter's
+the learned model error); :class:`~softsensor.estimation.tick_history.FilterState` the filter's
 state; :class:`TickData` what one tick brings (its window, the inputs after holding, the lab
 results sampled in it). :func:`step` does the five steps of :mod:`softsensor.estimation.ukf`'s
 docstring and returns the new state and a :class:`Posterior` (state, published outputs and
@@ -20,9 +20,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softsensor.errors import SoftsensorError
-from softsensor.estimation.base import LabResult, Window, WindowModel
 from softsensor.estimation.consistency import Innovation
-from softsensor.estimation.discrepancy import (
+from softsensor.estimation.interface import LabResult, Window, WindowModel
+from softsensor.estimation.jump_matching import jumps, widen
+from softsensor.estimation.model_error import ModelError
+from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.state_space import (
     ADAPT_CHANNELS,
     MODEL_STATES,
     STATE_NAMES,
@@ -36,16 +39,13 @@ from softsensor.estimation.discrepancy import (
     ErrorPriors,
     InletTransform,
 )
-from softsensor.estimation.jump_matching import jumps, widen
-from softsensor.estimation.lab_alignment import sample_inputs, sample_offset
-from softsensor.estimation.lab_history import FilterState
-from softsensor.estimation.model_error import ModelError
-from softsensor.estimation.settings import EstimatorSettings
+from softsensor.estimation.tick_history import FilterState
 from softsensor.estimation.unscented import MerweScaledSigmaPoints, unscented_transform
 from softsensor.estimation.unscented import predict as kf_predict
 from softsensor.estimation.unscented import update as kf_update
-from softsensor.estimation.window_inputs import MOISTURE_IN, temperatures
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+from softsensor.windows.inputs import MOISTURE_IN, temperatures
+from softsensor.windows.lab_alignment import sample_inputs, sample_offset
 
 _MO = OUTPUT_NAMES.index("moisture_out")
 _T_AIR_IN = INPUT_NAMES.index("T_air_in")
@@ -61,7 +61,7 @@ _FD_STEP = {X_IN: 1e-3, X_HEAT: 0.5}
 class FilterModel:
     """What a tick needs besides the state (module docstring).
 
-    ``F``, ``q``: transition and process-noise diagonal (:mod:`.discrepancy`); ``reference``:
+    ``F``, ``q``: transition and process-noise diagonal (:mod:`.state_space`); ``reference``:
     the state the inlet moisture reverts to (filter coordinate) and ``x_ref`` that inlet
     moisture [kg/kg], the point of the ``inlet_gain``'s response; ``thresholds``: the
     covariance-matching threshold of each state that may jump; ``heat_gain``: the model's gain
@@ -98,7 +98,7 @@ class TickData:
 class Measurements:
     """One tick's measurement rows: their kind (0, 1: temperature channels; 2: a lab result,
     in the order of the tick's labs), measured values less the learned discrepancy, ``R``,
-    channel names and the adaptive channel (:data:`~.discrepancy.ADAPT_CHANNELS`) of each
+    channel names and the adaptive channel (:data:`~.state_space.ADAPT_CHANNELS`) of each
     row."""
 
     rows: list[int]
@@ -154,7 +154,7 @@ class _Sigma:
 @dataclass
 class _LabSteps:
     """Per lab result, the model inputs just before its sample (L, 8) and the step from the
-    window's start to its sample time (L,) [s] (:mod:`.lab_alignment`)."""
+    window's start to its sample time (L,) [s] (:mod:`softsensor.windows.lab_alignment`)."""
 
     u: np.ndarray
     dt: np.ndarray
@@ -309,7 +309,7 @@ def _model_inputs(u: np.ndarray, moisture_in: np.ndarray, heat: np.ndarray) -> n
 
 def _moisture(y: np.ndarray, y_ref: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
     """Outlet moisture at the sigma points with the inlet gain and the bias (module
-    docstring of :mod:`.discrepancy`)."""
+    docstring of :mod:`.state_space`)."""
     return y + sigmas[:, X_GAIN] * (y - y_ref) + sigmas[:, X_BIAS]
 
 

@@ -1,7 +1,7 @@
 """Cells of an exported table (CSV text or typed Parquet) as numbers and times.
 
-Shared by historian exports (:mod:`.historian`) and LIMS files (:mod:`.lims`, also read by the
-daemon's lab folder). Pure: pandas Series in, numpy arrays out, one
+Shared by historian exports (:mod:`.historian_export`) and LIMS files (:mod:`.lims`, also read by
+the daemon's lab folder). Pure: pandas Series in, numpy arrays out, one
 :class:`~softsensor.errors.IngestError` line naming the file, the row and the column.
 
 * Times: ISO-8601 text (or the map's ``time_format``, or day-first dates with ``dayfirst``)

@@ -3,7 +3,7 @@
 The import's physical ranges (:data:`~softsensor.ingest.units.PHYSICAL_RANGE`) catch what no
 instrument reads; a wrong unit can still land inside them (a fibre flow in t/h declared as kg/h
 is 0.006 kg/s, a possible reading of a stopped line). The estimator then refuses every value
-against its plausibility limits (:mod:`softsensor.estimation.plausibility`, the plant config's
+against its plausibility limits (:mod:`softsensor.windows.plausibility`, the plant config's
 ``[plausibility]`` table: one rule, read here, not copied) and estimates nothing. So ``import``
 holds each mapped signal against those limits (:func:`check_envelope`):
 
@@ -28,10 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.estimation.plausibility import SignalLimits
 from softsensor.ingest.historian_map import LabMap, SignalMap
 from softsensor.ingest.units import to_signal_si
 from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.plausibility import SignalLimits
 
 #: A signal with more than this share of its good values outside the envelope is refused.
 REFUSE_SHARE = 0.5

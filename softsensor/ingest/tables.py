@@ -1,6 +1,6 @@
 """Reading and writing tables (CSV, Parquet) for historians, LIMS and spreadsheets.
 
-CSV cells are read as text, so :mod:`softsensor.ingest.historian` decides what is a number, a
+CSV cells are read as text, so :mod:`softsensor.ingest.historian_export` decides what is a number, a
 bad-quality string or a time (pandas would silently turn a column with one ``Bad`` into text
 and guess date formats). Parquet keeps its typed columns. Every problem is one
 :class:`~softsensor.errors.IngestError` line naming the file.

@@ -19,8 +19,8 @@ are also served under their old names, marked deprecated in their help, for the 
 alerts that use them. Moisture is given twice: as a dry-basis ratio (SI, like every interface
 the program offers to other programs) and in % on a wet basis (what a plant's lab and
 operators read), with the 95 % band (its low end clipped at bone dry,
-:func:`~softsensor.display.moisture_band`) and the ``[display]`` target and acceptable band,
-so a dashboard plots them without arithmetic.
+:func:`~softsensor.presentation.display.moisture_band`) and the ``[display]`` target and acceptable
+band, so a dashboard plots them without arithmetic.
 """
 
 from __future__ import annotations
@@ -32,9 +32,9 @@ from typing import Any
 from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_server
 from prometheus_client.core import CounterMetricFamily
 
-from softsensor.display import DisplaySettings, moisture_band, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.settings import MetricsSettings
+from softsensor.presentation.display import DisplaySettings, moisture_band, moisture_pct
 
 HEALTH_STATES: tuple[str, ...] = ("ok", "degraded", "stale")
 _ESTIMATES = ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std")

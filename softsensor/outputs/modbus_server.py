@@ -33,9 +33,9 @@ from pymodbus.pdu import ExceptionResponse, ModbusPDU
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from softsensor.display import DisplaySettings, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.settings import ModbusOutputSettings
+from softsensor.presentation.display import DisplaySettings, moisture_pct
 
 log = logging.getLogger(__name__)
 

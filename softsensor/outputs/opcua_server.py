@@ -34,9 +34,9 @@ from typing import Any
 from asyncua import Server, ua
 from asyncua.common.instantiate_util import instantiate
 
-from softsensor.display import DisplaySettings, moisture_pct
 from softsensor.errors import ConfigError
 from softsensor.outputs.settings import OpcUaSettings
+from softsensor.presentation.display import DisplaySettings, moisture_pct
 
 log = logging.getLogger(__name__)
 

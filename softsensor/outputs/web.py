@@ -4,8 +4,8 @@
 plant networks are closed), drawn on the server as inline SVG and reloaded by the browser every
 ``refresh_s``:
 
-* the health in plain words (:func:`softsensor.verdicts.health_words`), the technical detail
-  beside it in small type;
+* the health in plain words (:func:`softsensor.presentation.verdicts.health_words`), the technical
+  detail beside it in small type;
 * the outlet and inlet moisture now, with their 95 % band, the target and acceptable band of
   the ``[display]`` table, the last lab result, and the age of each value; the last lab
   result or lab file refused, with why and when (the health's ``last_lab_refusal``);
@@ -16,9 +16,9 @@ plant networks are closed), drawn on the server as inline SVG and reloaded by th
 * the last diagnosis when a report exists (the ``diagnosis`` key: a ``softsensor diagnose
   --json`` file, re-read when it changes).
 
-What a person reads is in plant units (:mod:`softsensor.display`: % on the display basis, °C,
-the plant's local clock). ``GET /api/latest.json`` gives the latest estimate and health as the
-bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers 200 while
+What a person reads is in plant units (:mod:`softsensor.presentation.display`: % on the display
+basis, °C, the plant's local clock). ``GET /api/latest.json`` gives the latest estimate and health
+as the bus carries them (SI, docs/interface.md section 3), ``GET /healthz`` answers 200 while
 estimates arrive and 503 when none came for three windows (a container's health check).
 
 The server (:class:`~softsensor.outputs.deadline_http.DeadlineHTTPServer`) reads every
@@ -47,19 +47,19 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from softsensor.display import (
+from softsensor.errors import ConfigError
+from softsensor.jsonable import dumps
+from softsensor.outputs.deadline_http import DeadlineHTTPServer, Response
+from softsensor.outputs.settings import WebSettings
+from softsensor.outputs.web_charts import Chart, Series, legend, svg
+from softsensor.presentation.display import (
     DisplaySettings,
     local_clock,
     moisture_band,
     moisture_pct,
     moisture_pct_points,
 )
-from softsensor.errors import ConfigError
-from softsensor.jsonable import dumps
-from softsensor.outputs.deadline_http import DeadlineHTTPServer, Response
-from softsensor.outputs.settings import WebSettings
-from softsensor.outputs.web_charts import Chart, Series, legend, svg
-from softsensor.verdicts import diagnosis_verdict, health_words
+from softsensor.presentation.verdicts import diagnosis_verdict, health_words
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from softsensor.display import DisplaySettings, local_times
+from softsensor.presentation.display import DisplaySettings, local_times
 
 NS = 10**9
 W, H, PAD_L, PAD_R, PAD_T, PAD_B = 960, 260, 64, 20, 14, 34

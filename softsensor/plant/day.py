@@ -25,7 +25,7 @@ TOPIC_TRUTH_EFFECT = "/truth/effect"
 
 
 #: A schedule of knob moves a plant can follow: ``(t [s from the start], T_sp [K],
-#: m_air [kg/s])``, as :mod:`softsensor.calibration.design` proposes.
+#: m_air [kg/s])``, as :mod:`softsensor.calibration.experiment_design` proposes.
 KnobSchedule = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 

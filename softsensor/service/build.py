@@ -3,7 +3,7 @@
 ``softsensor run`` (:mod:`.daemon`) and ``softsensor replay`` (:mod:`.offline_replay`) run the
 same :class:`~softsensor.service.estimator_service.EstimatorService`, built here from the
 config's tables (built once, :mod:`softsensor.plantconfig`): its windowing is the core's
-(:func:`~softsensor.estimation.windowing.window_settings`, ``[solver]`` and
+(:func:`~softsensor.windows.accumulator.window_settings`, ``[solver]`` and
 ``[plausibility]``) at the scan period the caller knows, its estimator the config's
 ``estimator.kind`` unless the command line names another, its bounds the ``[service]`` table's.
 """
@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import math
 
-from softsensor.estimation.plausibility import Plausibility, estimate_ranges
 from softsensor.estimation.settings import estimator_settings
-from softsensor.estimation.windowing import WindowSettings, window_settings
 from softsensor.ingest.tagmap import load_tagmap
 from softsensor.plantconfig import PlantConfig
 from softsensor.service.estimator_service import EstimatorService
 from softsensor.service.estimators import make_estimator
 from softsensor.service.settings import ServiceSettings, resolve_unit
+from softsensor.windows.accumulator import WindowSettings, window_settings
+from softsensor.windows.plausibility import Plausibility, estimate_ranges
 
 
 def service_window(cfg: PlantConfig, settings: ServiceSettings,

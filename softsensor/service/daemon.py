@@ -48,15 +48,8 @@ from softsensor.bus.zenoh_bus import (
     listening_endpoints,
     open_session,
 )
-from softsensor.display import (
-    DisplaySettings,
-    display_settings,
-    local_clock,
-    moisture_pct,
-    moisture_pct_points,
-)
 from softsensor.errors import ConfigError, EstimationError, IngestError
-from softsensor.estimation.base import LabResult
+from softsensor.estimation.interface import LabResult
 from softsensor.ingest.historian_map import plant_lab_map
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
@@ -67,16 +60,23 @@ from softsensor.outputs.modbus_server import EstimateModbusServer
 from softsensor.outputs.settings import output_settings
 from softsensor.outputs.web import LivePage
 from softsensor.plantconfig import PlantConfig
+from softsensor.presentation.display import (
+    DisplaySettings,
+    display_settings,
+    local_clock,
+    moisture_pct,
+    moisture_pct_points,
+)
 from softsensor.recording.recorder import Recorder
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
+from softsensor.service.bus_worker import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import parse_time
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
 from softsensor.service.memory import TRIM_EVERY_S, trim
-from softsensor.service.pipeline import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import (
     PLC_CLOCK,

@@ -1,7 +1,7 @@
 """The estimator service, sans I/O: scans and lab results in, estimate and health bodies out.
 
-:class:`EstimatorService` owns a :class:`~softsensor.estimation.windowing.WindowAccumulator`
-and an :class:`~softsensor.estimation.base.Estimator`. It never touches a socket, a file or a
+:class:`EstimatorService` owns a :class:`~softsensor.windows.accumulator.WindowAccumulator`
+and an :class:`~softsensor.estimation.interface.Estimator`. It never touches a socket, a file or a
 clock: time is whatever the messages say, so the daemon (Zenoh, live), the ``replay`` verb
 (Zenoh, offline) and the tests drive the very same object and get the very same estimates.
 
@@ -22,9 +22,9 @@ Events and what they return (a list of :class:`Output`, in publishing order):
   ``gap_after_s`` past their end are closed (stale) and ticked, and health turns ``stale``.
 * :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
 
-Scan values are judged before a window sums them (:mod:`softsensor.estimation.plausibility`,
+Scan values are judged before a window sums them (:mod:`softsensor.windows.plausibility`,
 inside the accumulator); an estimate body is judged before it goes out: one with a value
-outside its physical range (:func:`~softsensor.estimation.plausibility.estimate_problems`) is
+outside its physical range (:func:`~softsensor.windows.plausibility.estimate_problems`) is
 never ``ok``; it is published ``degraded`` with the reason first in its ``detail``.
 
 Health (CONTRACT section 2) is emitted at every tick, whenever the input state changes
@@ -53,20 +53,20 @@ from dataclasses import dataclass
 from typing import Any
 
 from softsensor.errors import EstimationError, IngestError, SoftsensorError
-from softsensor.estimation.base import Estimator, LabResult, Window
-from softsensor.estimation.lab_history import (
+from softsensor.estimation.interface import Estimator, LabResult, Window
+from softsensor.estimation.tick_history import (
     lab_from_json,
     lab_to_json,
     window_from_json,
     window_to_json,
 )
-from softsensor.estimation.plausibility import EstimateRanges, estimate_problems
-from softsensor.estimation.windowing import WindowAccumulator, WindowSettings
 from softsensor.jsonable import jsonable
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import SCAN_EXTRA_FIELDS, iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
 from softsensor.signals import SCAN_SIGNALS
+from softsensor.windows.accumulator import WindowAccumulator, WindowSettings
+from softsensor.windows.plausibility import EstimateRanges, estimate_problems
 
 log = logging.getLogger(__name__)
 

@@ -2,9 +2,10 @@
 
 ``make_estimator("ukf", cfg)`` (the default) builds the unscented Kalman filter of
 :mod:`softsensor.estimation.ukf`, ``make_estimator("openloop", cfg)`` the calibrated model run
-open loop (:mod:`softsensor.estimation.openloop`). Both take the plant config with calibrated
-parameter values (apply a ``PARAMS.toml`` with :func:`softsensor.plantconfig.load_parameters`
-first) and read their tuning from its optional ``[estimator]`` table.
+open loop (:mod:`softsensor.estimation.open_loop_estimator`). Both take the plant config with
+calibrated parameter values (apply a ``PARAMS.toml`` with
+:func:`softsensor.plantconfig.load_parameters` first) and read their tuning from its optional
+``[estimator]`` table.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from softsensor.errors import ConfigError
-from softsensor.estimation.base import Estimator
+from softsensor.estimation.interface import Estimator
 from softsensor.estimation.settings import ESTIMATOR_KINDS, estimator_settings
 from softsensor.plantconfig import PlantConfig
 
@@ -23,7 +24,7 @@ def _ukf(cfg: PlantConfig) -> Estimator:
 
 
 def _openloop(cfg: PlantConfig) -> Estimator:
-    from softsensor.estimation.openloop import OpenLoopEstimator
+    from softsensor.estimation.open_loop_estimator import OpenLoopEstimator
     return OpenLoopEstimator(cfg)
 
 

@@ -53,20 +53,20 @@ from softsensor.bus.zenoh_bus import (
     wait_for_peers,
 )
 from softsensor.errors import ConfigError, EstimationError, IngestError, SoftsensorError
-from softsensor.estimation.windowing import measured_scan_period
 from softsensor.files import atomic_path
 from softsensor.messages import iso_utc
 from softsensor.plantconfig import PlantConfig
 from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
+from softsensor.service.bus_worker import INPUT_KINDS, ServicePipeline
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
-from softsensor.service.pipeline import INPUT_KINDS, ServicePipeline
 from softsensor.service.settings import ServiceSettings, service_settings
 from softsensor.service.warmup import warm_up
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
+from softsensor.windows.accumulator import measured_scan_period
 
 log = logging.getLogger(__name__)
 
@@ -226,7 +226,7 @@ def _wait(cond: Callable[[], bool], progress: Callable[[], int], what: str) -> N
 class DayStream:
     """The one read of a replayed day: the scans and lab results logged in ``[start_ns,
     end_ns)`` to publish, the scan period measured on the first ``n_period`` of its scans
-    (:func:`~softsensor.estimation.windowing.measured_scan_period`), and, when ``truth``, the
+    (:func:`~softsensor.windows.accumulator.measured_scan_period`), and, when ``truth``, the
     ``/truth/plant`` values met on the way (read up to ``horizon_ns`` past the end, so the last
     window's estimate has its truth too).
 

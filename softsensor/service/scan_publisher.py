@@ -2,7 +2,7 @@
 
 :class:`ScanPublisher` is the poller's sink (:class:`~softsensor.ingest.modbus_poller.
 ModbusPoller` awaits it with each scan): it publishes the scan on ``plant/<unit>/scan``, whence
-the daemon's consumer (:mod:`.pipeline`) and recorder take it like any other publisher's.
+the daemon's consumer (:mod:`.bus_worker`) and recorder take it like any other publisher's.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ window's ``fsum`` on every later message (no estimate again, about 14 log lines 
 and the checkpoint kept the open window, so a restart resumed into the same stall. Twenty
 PLC scans of ``T_air_in`` at 690 K (inside the tag map's 300..700 K) were averaged into a
 window and published as an ``ok`` estimate of 37.5 % moisture. Now every value is judged
-before a window sums it (range and rate of change, :mod:`softsensor.estimation.plausibility`)
+before a window sums it (range and rate of change, :mod:`softsensor.windows.plausibility`)
 and the estimates go on from the sane values.
 """
 

@@ -16,9 +16,9 @@ import threading
 
 import pytest
 
-from softsensor.display import DisplaySettings
 from softsensor.outputs.modbus_server import N_REGISTERS, EstimateModbusServer
 from softsensor.outputs.settings import ModbusOutputSettings
+from softsensor.presentation.display import DisplaySettings
 
 #: function code -> request PDU after the code (what a client would send)
 REQUESTS: dict[int, bytes] = {

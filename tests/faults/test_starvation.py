@@ -20,8 +20,8 @@ from harness import SCALE, running_daemon
 
 from softsensor.bus.zenoh_bus import Publisher, open_session, subscribe
 from softsensor.cli import main
+from softsensor.service.bus_worker import _Call
 from softsensor.service.daemon import SHUTDOWN_WAIT_S
-from softsensor.service.pipeline import _Call
 
 
 def _flood(endpoint: str, now_ns: int, n: int) -> float:

@@ -20,9 +20,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from softsensor.apps.output import writing
-from softsensor.display import DisplaySettings, local_clock, moisture_pct, moisture_pct_points
 from softsensor.errors import ConfigError, IngestError
+from softsensor.files import writing
+from softsensor.presentation.display import (
+    DisplaySettings,
+    local_clock,
+    moisture_pct,
+    moisture_pct_points,
+)
 
 #: The columns written without ``--all-columns``, in this order (those the recording has).
 PLANT_COLUMNS: tuple[str, ...] = (
@@ -36,8 +41,8 @@ _TEMPERATURES = ("T_dryer_out_measured", "T_dryer_out_model", "T_cyclone_out_mea
 
 
 def _display(config: str | None) -> DisplaySettings:
-    from softsensor.display import display_settings
     from softsensor.plantconfig import load_plant_config
+    from softsensor.presentation.display import display_settings
 
     return display_settings(load_plant_config(config)) if config else DisplaySettings()
 

@@ -7,7 +7,7 @@ whole-day :class:`~.dataset.Segment` s and
 1. picks the calibration windows by natural variability *across* the days
    (:func:`~.selection.select_across`, ``window_hours`` each, ``fit_hours`` in all): the
    study's cost grows with the hours it simulates, not with the days handed over;
-2. fits the seven Table 1 parameters on them with :func:`~.pipeline.calibrate` (each window
+2. fits the seven Table 1 parameters on them with :func:`~.calibration_run.calibrate` (each window
    its own inlet-moisture trajectory: every day its own level), and validates the result
    against the current parameters on the rest of every day (each day's hours not used for
    fitting, in pieces of at least :data:`MIN_VALIDATION_HOURS` holding lab results), pooled;
@@ -35,11 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.chunked_run import evaluate_parameters
-from softsensor.calibration.dataset import Segment
-from softsensor.calibration.model_error_fit import fit_model_error
-from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.pipeline import (
+from softsensor.calibration.calibration_run import (
     MIN_HELD_LABS,
     CalibrationResult,
     Discrepancy,
@@ -47,10 +43,14 @@ from softsensor.calibration.pipeline import (
     discrepancy,
     phase,
 )
+from softsensor.calibration.chunked_run import evaluate_parameters
+from softsensor.calibration.dataset import Segment
+from softsensor.calibration.model_error_fit import fit_model_error
+from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
 from softsensor.calibration.settings import CalibrationSettings
-from softsensor.calibration.structure import Candidate, StructureSearch
-from softsensor.calibration.structure import search as structural_search
+from softsensor.calibration.structure_search import Candidate, StructureSearch
+from softsensor.calibration.structure_search import search as structural_search
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -68,7 +68,7 @@ class HistoryResult:
     ``kept_current`` and ``reason``: whether and why the current ones were kept;
     ``inlet_levels``: each day's fitted inlet moisture [kg/kg]; ``model_error``: learned at
     ``theta``; ``discrepancy``: what ``theta`` leaves on the held-out data (the heat input's
-    prior); ``structure``: the structural search (:mod:`.structure`), when it ran.
+    prior); ``structure``: the structural search (:mod:`.structure_search`), when it ran.
     """
 
     calibration: CalibrationResult
@@ -166,7 +166,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                       progress: Callable[[str], None] | None = None) -> HistoryResult:
     """Calibrate on the history ``days`` (module docstring); ``validation``: days to validate
     on instead of the held-out hours; ``structure``: the structural alternatives to search
-    (:mod:`.structure`; None or empty: the paper's form only)."""
+    (:mod:`.structure_search`; None or empty: the paper's form only)."""
     say = progress or (lambda phase: None)
     model = model or DryerModel(config)
     t0, c0 = time.perf_counter(), time.process_time()

@@ -245,7 +245,7 @@ class ValidationResult:
 
     def inlet_read(self) -> dict[str, Any]:
         """The scores with the inlet trajectory read from the temperatures (``validate``'s
-        JSON ``inlet_read``; its ``open_loop`` is :mod:`.open_loop`'s)."""
+        JSON ``inlet_read``; its ``open_loop`` is :mod:`.open_loop_errors`'s)."""
         ev = self.evaluation
         return {"rmse": dict(ev.fit.rmse), "weighted_rmse": weighted_rmse(ev.fit, self.weights),
                 "cost": ev.fit.cost, "score": ev.data, "samples": dict(ev.fit.n),

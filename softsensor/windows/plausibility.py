@@ -4,7 +4,7 @@ The tag map's valid ranges catch broken sensors (``T_air_in`` 300 to 700 K); a v
 them can still be nonsense for this dryer, and one such window used to make an ``ok`` estimate
 of 37.5 % moisture and then lose the model for hours. So every scan value is judged here
 *before* a window sums it (:class:`InputJudge`, used by
-:mod:`softsensor.estimation.windowing`):
+:mod:`softsensor.windows.accumulator`):
 
 * **range**: outside ``[low, high]`` of its signal (the plant's operating envelope of CONTRACT
   section 6 with a margin, :data:`DEFAULT_LIMITS`), or beyond :data:`MAX_MAGNITUDE` for any

@@ -13,15 +13,15 @@ The inputs before the sample are the means of the window's sub-window bins
 (:attr:`softsensor.messages.Window.bins`, 60 s) that overlap the ``lab_span`` seconds
 (``solver.lab_span``, 120 s) before the sample time; a signal without a good value there takes
 the window's value. Windows are the half-open ``(start, end]`` of
-:mod:`softsensor.estimation.windowing`.
+:mod:`softsensor.windows.accumulator`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from softsensor.estimation.window_inputs import MEASURED_INPUTS
 from softsensor.messages import Window
+from softsensor.windows.inputs import MEASURED_INPUTS
 
 NS = 10**9
 #: Shortest step from a window's start to a sample time [s] (a sample on the boundary).

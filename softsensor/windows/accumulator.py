@@ -5,10 +5,10 @@ the Unix epoch; a window is the half-open interval ``(start, end]``, so a scan s
 on a boundary belongs to the window that ends there. For each window the accumulator averages
 the good values (non-null, finite) of every signal of :data:`~softsensor.signals.SCAN_SIGNALS`.
 
-Every value is judged before it is summed (:mod:`softsensor.estimation.plausibility`): one
+Every value is judged before it is summed (:mod:`softsensor.windows.plausibility`): one
 outside its plausible range, or a jump no sensor makes, is refused and counted in
 ``Window.refused`` with the reason in ``Window.reasons``; a value beyond
-:data:`~softsensor.estimation.plausibility.MAX_MAGNITUDE` is refused even without limits, so
+:data:`~softsensor.windows.plausibility.MAX_MAGNITUDE` is refused even without limits, so
 a window's sum can never overflow and no accumulator can hold something a checkpoint could
 not restore.
 
@@ -21,7 +21,7 @@ emitted too, stale, so time keeps advancing for the estimator.
 
 Each window also keeps, per measured model input, the mean of its good values in consecutive
 bins of ``bin_s`` seconds (60 s): what a lab sample taken inside the window saw
-(:mod:`softsensor.estimation.lab_alignment`). This accumulator is the one windowing of the
+(:mod:`softsensor.windows.lab_alignment`). This accumulator is the one windowing of the
 program: the estimator service feeds it live, calibration and diagnosis feed it a recorded day
 (:func:`windows_from_frame`), so all three see the same windows.
 
@@ -36,10 +36,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from softsensor.errors import ConfigError
-from softsensor.estimation.plausibility import InputJudge, Plausibility, plausibility_from_config
 from softsensor.messages import Window, scan_values
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, SCAN_SIGNALS
+from softsensor.windows.plausibility import InputJudge, Plausibility, plausibility_from_config
 
 NS = 10**9
 #: Signals without which a window cannot drive the model: the measured inputs.
@@ -69,7 +69,7 @@ class WindowSettings:
         Length of the sub-window bins of the measured inputs [s]; must divide ``period_s``.
     plausibility : Plausibility, optional
         Per-signal range and rate limits judged before a value is summed; None: only
-        :data:`~softsensor.estimation.plausibility.MAX_MAGNITUDE`.
+        :data:`~softsensor.windows.plausibility.MAX_MAGNITUDE`.
     """
 
     period_s: float = 600.0
@@ -172,7 +172,7 @@ class _Sums:
 
 
 class WindowAccumulator:
-    """Turns a stream of scans into :class:`~softsensor.estimation.base.Window` objects.
+    """Turns a stream of scans into :class:`~softsensor.estimation.interface.Window` objects.
 
     Parameters
     ----------

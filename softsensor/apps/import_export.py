@@ -3,9 +3,10 @@ in, estimate tables out.
 
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map
-(:mod:`softsensor.ingest.historian_map`); the conversion is :mod:`softsensor.ingest.historian`
-and :mod:`softsensor.ingest.lims`. Each signal is also held against the operating envelope
-the estimator will apply (the plausibility limits of the plant config, ``--config``;
+(:mod:`softsensor.ingest.historian_map`); the conversion is
+:mod:`softsensor.ingest.historian_export` and :mod:`softsensor.ingest.lims`. Each signal is also
+held against the operating envelope the estimator will apply (the plausibility limits of the plant
+config, ``--config``;
 :mod:`softsensor.ingest.envelope`): a signal mostly outside it is refused in one line naming
 the likely right unit. ``--preview`` prints what the map makes of the export (and the LIMS
 file: each result as read and as converted) and writes nothing. It prints one summary line,
@@ -21,16 +22,16 @@ from pathlib import Path
 
 import numpy as np
 
-from softsensor.apps.export import add_export_command
-from softsensor.apps.output import writing
+from softsensor.apps.estimates_export import add_export_command
 from softsensor.errors import ConfigError, IngestError
+from softsensor.files import writing
 from softsensor.ingest.envelope import (
     EnvelopeCheck,
     check_envelope,
     envelope_problem,
     lab_unit_hints,
 )
-from softsensor.ingest.historian import ScanTable
+from softsensor.ingest.historian_export import ScanTable
 from softsensor.ingest.lims import LabTable
 from softsensor.messages import iso_utc, lab_body
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
@@ -65,13 +66,13 @@ def _clock(ns: int, zone: str | None) -> str:
     """A time as the plant's clock reads it (the map's zone), or UTC."""
     if zone is None:
         return iso_utc(ns)
-    from softsensor.display import DisplaySettings, local_clock
+    from softsensor.presentation.display import DisplaySettings, local_clock
 
     return local_clock(ns, DisplaySettings(time_zone=zone))
 
 
 def _read_scans(hmap, path: Path, strict: bool) -> ScanTable:
-    from softsensor.ingest.historian import convert_scans
+    from softsensor.ingest.historian_export import convert_scans
     from softsensor.ingest.tables import read_table
 
     src = hmap.source
@@ -99,8 +100,8 @@ def _aligned(rows: list[tuple[str, ...]]) -> list[str]:
 def _envelope(cfg_path: str | None, scans: ScanTable, hmap) -> dict[str, EnvelopeCheck]:
     """Every mapped signal held against the estimator's plausibility limits of the plant
     config (``--config``; the built-in one without)."""
-    from softsensor.estimation.plausibility import plausibility_from_config
     from softsensor.plantconfig import load_plant_config
+    from softsensor.windows.plausibility import plausibility_from_config
 
     limits = plausibility_from_config(load_plant_config(cfg_path)).limits
     return check_envelope(scans.values, scans.raw, hmap.signals, limits)

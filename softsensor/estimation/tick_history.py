@@ -13,8 +13,8 @@ This module holds what does not depend on the filter:
 * :class:`TickRecord`: one tick of the history (window, inputs, filter state at its start,
   lab results applied there, what it produced) and :class:`FilterState` (with the peers'
   weights and the band's scale, so that a late result re-weighs them too);
-* JSON round trips of all of these, :class:`~softsensor.estimation.base.Window` and
-  :class:`~softsensor.estimation.base.LabResult` for checkpoints. Floats go through ``repr`` in
+* JSON round trips of all of these, :class:`~softsensor.estimation.interface.Window` and
+  :class:`~softsensor.estimation.interface.LabResult` for checkpoints. Floats go through ``repr`` in
   :mod:`json`, so a round trip is exact and a restored estimator continues bit for bit.
 """
 
@@ -143,7 +143,7 @@ def window_from_json(data: dict[str, Any]) -> Window:
 @dataclass(frozen=True)
 class FilterState:
     """Mean ``x`` and covariance ``P`` of the filter state, the mean wall state, and the
-    filter's adaptive-noise memory (JSON, see :class:`~softsensor.estimation.discrepancy.
+    filter's adaptive-noise memory (JSON, see :class:`~softsensor.estimation.state_space.
     AdaptiveNoise`). Frozen: a tick makes a new one (:func:`~softsensor.estimation.
     ukf_step.step`)."""
 

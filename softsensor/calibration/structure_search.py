@@ -227,8 +227,8 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
     """Calibrate and score every alternative of ``library`` (module docstring) on the
     baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
     ``baseline_theta`` (its validation ``baseline``, its ``front``). The baseline must be
-    polished (:func:`~.history.calibrate_history` searches only then)."""
-    from softsensor.calibration.pipeline import calibrate
+    polished (:func:`~.history_calibration.calibrate_history` searches only then)."""
+    from softsensor.calibration.calibration_run import calibrate
 
     say = say or (lambda s: None)
     # the multipliers start at the baseline's optimum and move little: a shorter polish

@@ -1,7 +1,7 @@
 """A recorded day as the model's windows, as diagnosis needs it.
 
 The windows are those of the one windowing of the program
-(:mod:`softsensor.estimation.windowing`): the estimator's and the calibration's
+(:mod:`softsensor.windows.accumulator`): the estimator's and the calibration's
 (:func:`softsensor.calibration.dataset.segment_from_windows`), so the diagnosis baseline on a
 day is the calibration's prediction of that day and its eq. 4 cost is the one ``validate``
 prints. :class:`DayWindows` holds
@@ -10,7 +10,7 @@ prints. :class:`DayWindows` holds
   when missing, ``moisture_in`` at its nominal value as the calibrated open-loop model has
   it, or with a history's ``[model_error]`` at the history's typical inlet moisture), the
   measured window means of ``T_dryer_out`` and ``T_cyclone_out`` and the lab results with
-  their sample-time alignment (:mod:`softsensor.estimation.lab_alignment`);
+  their sample-time alignment (:mod:`softsensor.windows.lab_alignment`);
 * the :class:`~softsensor.messages.Window` objects themselves, which the inlet-moisture
   extension hands to the estimator exactly as the daemon does;
 * ``air_edges``: ``T_air_in`` at every window boundary, from the sub-window bins on either
@@ -36,19 +36,19 @@ from softsensor.calibration.dataset import (
     trim_stale,
 )
 from softsensor.calibration.model_error_fit import at_inlet_moisture
-from softsensor.calibration.open_loop import inlet_level
+from softsensor.calibration.open_loop_errors import inlet_level
 from softsensor.errors import IngestError
-from softsensor.estimation.window_inputs import MEASURED_INPUTS
 from softsensor.messages import Window
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
+from softsensor.windows.inputs import MEASURED_INPUTS
 
 #: Fewest windows a day must have to be diagnosed (six hours of 600 s windows).
 MIN_WINDOWS = 36
 #: Spread of the model's outlet moisture at a lab's sample time about the plant's, beyond the
 #: lab's own noise: on a 48 h virtual-plant day at the true parameters the sample-time
 #: alignment leaves 0.0036 kg/kg RMS against a lab noise of 0.003, i.e.
-#: ``sqrt(0.0036^2 - 0.003^2)`` (:mod:`softsensor.estimation.lab_alignment`). [kg/kg]
+#: ``sqrt(0.0036^2 - 0.003^2)`` (:mod:`softsensor.windows.lab_alignment`). [kg/kg]
 MODEL_LAB_STD = 0.002
 
 _T_AIR_BIN = MEASURED_INPUTS.index("T_air_in")

@@ -4,8 +4,8 @@ Each function writes one PNG (matplotlib, Agg backend, no display needed) and re
 path; :func:`write_page` puts the figures (embedded) and tables on one self-contained HTML
 page, a plain-language verdict first. Times on the axes
 of measured data are the plant's local clock time, temperatures °C and moisture % on the
-``[display]`` basis (:mod:`softsensor.display`; the program keeps SI everywhere else); the
-model-analysis figures (sensitivities, profiles) keep hours from the start and kg/kg.
+``[display]`` basis (:mod:`softsensor.presentation.display`; the program keeps SI everywhere else);
+the model-analysis figures (sensitivities, profiles) keep hours from the start and kg/kg.
 """
 
 from __future__ import annotations
@@ -25,18 +25,18 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from optuna.trial import TrialState  # noqa: E402
 
-from softsensor.apps.output import writing  # noqa: E402
 from softsensor.calibration.cost import ModelRun  # noqa: E402
 from softsensor.calibration.dataset import Segment  # noqa: E402
 from softsensor.calibration.identifiability import Sensitivities  # noqa: E402
-from softsensor.display import (  # noqa: E402
+from softsensor.files import writing  # noqa: E402
+from softsensor.model import DryerModel  # noqa: E402
+from softsensor.plantconfig import PARAMETER_NAMES  # noqa: E402
+from softsensor.presentation.display import (  # noqa: E402
     DisplaySettings,
     celsius,
     local_times,
     moisture_pct,
 )
-from softsensor.model import DryerModel  # noqa: E402
-from softsensor.plantconfig import PARAMETER_NAMES  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
 
 C0 = 273.15

@@ -2,7 +2,7 @@
 
 :func:`diagnose` runs the whole of issue 6 on one day with an already calibrated config:
 
-1. cut the day into model windows (:mod:`.windows`) and split it into a fit part and a
+1. cut the day into model windows (:mod:`.day_windows`) and split it into a fit part and a
    held-out part (:func:`~.problem.choose_split`, 60 % by default, moved so that both parts
    hold lab results);
 2. run the calibrated model on the day (the baseline) and compute the residual statistics of
@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from softsensor.diagnosis.day_windows import DayLike, DayWindows, day_windows
 from softsensor.diagnosis.detectability import Signature, signatures
 from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
 from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted, LabTimeShift
@@ -47,7 +48,6 @@ from softsensor.diagnosis.verdict import (
     structured,
     verdict,
 )
-from softsensor.diagnosis.windows import DayLike, DayWindows, day_windows
 from softsensor.estimation.settings import estimator_settings
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig

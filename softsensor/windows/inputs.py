@@ -1,4 +1,4 @@
-"""From a :class:`~softsensor.estimation.base.Window` to model inputs and measured outputs.
+"""From a :class:`~softsensor.estimation.interface.Window` to model inputs and measured outputs.
 
 The model needs all seven measured inputs of :data:`softsensor.signals.INPUT_NAMES` every
 window. A signal whose window mean is missing (sensor out, too few good scans) holds its last
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.estimation.base import Window
+from softsensor.messages import Window
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
 
 #: Measured model inputs (all but the unmeasured ``moisture_in``).

@@ -15,8 +15,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from softsensor.errors import EstimationError
-from softsensor.estimation.lab_history import LabBook
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
+from softsensor.estimation.tick_history import LabBook
 from softsensor.messages import LabResult, Window
 from softsensor.plantconfig import PlantConfig
 
@@ -87,7 +87,7 @@ class ModelEstimator:
     def _screen_lab(self, lab: LabResult) -> str | None:
         """The reason ``lab`` is refused (outside the plant lab's envelope, or a duplicate
         ``sample_id``), or ``None`` after remembering its id; needs the estimator's ``_labs``
-        (:class:`~.lab_history.LabBook`). A :class:`LabResult` holds the lab-result contract
+        (:class:`~.tick_history.LabBook`). A :class:`LabResult` holds the lab-result contract
         of :mod:`softsensor.messages` (any dryer); the envelope is this plant's
         (``estimator.lab_envelope_min/max``), and what the estimator adds beyond it is the
         history's age and its statistical gate."""

@@ -8,18 +8,18 @@
   extension (as scored);
 * ``gain.png``: held-out gain (1 - extended cost / baseline cost) and penalised log-likelihood
   gain of every extension, eligible ones highlighted;
-* ``index.html``: a plain-language verdict first (:func:`softsensor.verdicts.
+* ``index.html``: a plain-language verdict first (:func:`softsensor.presentation.verdicts.
   diagnosis_verdict`: "the cyclone outlet thermometer reads 2.9 °C high: check it"; first of
   all, where the record cannot tell two causes apart, both), then the statistics, the
   ranking of the causes by probability with the size of each cause this day can show
   (:func:`probability_table`), the evidence table and the figures, embedded (the same page
-  layout as the calibration report, :func:`softsensor.apps.calibration_figures.write_page`).
+  layout as the calibration report, :func:`softsensor.presentation.calibration_figures.write_page`).
   The evidence is a table, one row per fitted extension and channel (before, after, change,
   log-likelihood gain, eligible or why not; :func:`evidence_table`), and the prose evidence
   of every ranking entry follows under "Details" (:func:`details`).
 
-What a person reads is in plant units (:mod:`softsensor.display`, the ``[display]`` table):
-°C, moisture in % on the display basis, time axes in the plant's local clock time; the
+What a person reads is in plant units (:mod:`softsensor.presentation.display`, the ``[display]``
+table): °C, moisture in % on the display basis, time axes in the plant's local clock time; the
 program keeps SI everywhere else.
 """
 
@@ -34,14 +34,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from softsensor.apps.calibration_figures import (  # noqa: E402
+from softsensor.diagnosis.diagnose_day import Diagnosis  # noqa: E402
+from softsensor.diagnosis.verdict import MIN_GAIN, MIN_PENALISED, Score  # noqa: E402
+from softsensor.errors import ConfigError  # noqa: E402
+from softsensor.presentation.calibration_figures import (  # noqa: E402
     clock_axis,
     markdown_table,
     write_page,
 )
-from softsensor.diagnosis.pipeline import Diagnosis  # noqa: E402
-from softsensor.diagnosis.verdict import MIN_GAIN, MIN_PENALISED, Score  # noqa: E402
-from softsensor.display import (  # noqa: E402
+from softsensor.presentation.display import (  # noqa: E402
     DisplaySettings,
     celsius,
     display_settings,
@@ -51,9 +52,8 @@ from softsensor.display import (  # noqa: E402
     moisture_pct_points,
     plant_error,
 )
-from softsensor.errors import ConfigError  # noqa: E402
+from softsensor.presentation.verdicts import cannot_tell_sentence, diagnosis_verdict  # noqa: E402
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
-from softsensor.verdicts import cannot_tell_sentence, diagnosis_verdict  # noqa: E402
 
 
 def _save(fig, path: Path) -> Path:
@@ -201,7 +201,8 @@ def evidence_table(d: Diagnosis, doc: dict, plant: Callable[[str, float | None],
                    x_ref: float, disp: DisplaySettings) -> str:
     """The evidence as a table (:data:`EVIDENCE_COLUMNS`): per scored extension, in the
     ranking's order, and channel the cross-fitted RMSE before and after in plant units
-    (:func:`~softsensor.display.plant_error`), its change, the log-likelihood gain against
+    (:func:`~softsensor.presentation.display.plant_error`), its change, the log-likelihood gain
+    against
     the calibration error and whether the extension is eligible."""
     rows = []
     for r in doc["ranking"]:

@@ -15,22 +15,27 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.apps import calibration_figures as figures
+from softsensor.calibration.calibration_run import CalibrationResult, ValidationResult
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
     Identifiability,
     Sensitivities,
 )
-from softsensor.calibration.pipeline import CalibrationResult, ValidationResult
-from softsensor.calibration.structure import StructureSearch
+from softsensor.calibration.structure_search import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
-from softsensor.display import DisplaySettings, display_settings, lab_reference, plant_error
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.presentation import calibration_figures as figures
+from softsensor.presentation.display import (
+    DisplaySettings,
+    display_settings,
+    lab_reference,
+    plant_error,
+)
+from softsensor.presentation.verdicts import calibration_result_verdict, validation_verdict
 from softsensor.signals import OUTPUT_NAMES
-from softsensor.verdicts import calibration_result_verdict, validation_verdict
 
 _UNIT = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
 
@@ -148,7 +153,7 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
                      verdict: str | None = None,
                      structure: StructureSearch | None = None) -> Path:
     """Figures and tables of a calibration (Figs. 2 to 5) under ``verdict`` (default: the
-    shared calibration verdict of :mod:`softsensor.verdicts`)."""
+    shared calibration verdict of :mod:`softsensor.presentation.verdicts`)."""
     d = _dir(directory)
     cfg = result.config
     model = DryerModel(cfg)
@@ -222,7 +227,8 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
     calibration.open_loop.open_loop_summary`) with the calibration's held-out error beside,
     then with the inlet moisture read from the temperatures (``result``); ``default``: the
     config's default parameters on the same data; ``verdict``: the sentence first on the page
-    (:func:`~softsensor.verdicts.validation_verdict`, which the ``validate`` line says too)."""
+    (:func:`~softsensor.presentation.verdicts.validation_verdict`, which the ``validate`` line says
+    too)."""
     d = _dir(directory)
     disp, x_ref = display_settings(config), lab_reference(result.segments)
     figures.trajectory_figure(result.segments, result.runs, d / "fig6_validation.png",

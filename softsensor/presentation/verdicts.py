@@ -13,7 +13,7 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from softsensor.display import moisture_pct_points
+from softsensor.presentation.display import moisture_pct_points
 
 #: What each thermometer is called on the plant floor.
 SENSOR_NAMES: dict[str, str] = {
@@ -155,7 +155,7 @@ def _errors(rmse: Mapping[str, float], x_ref: float, basis: str) -> str:
 
 
 def open_loop_sentence(summary: Mapping[str, Any], x_ref: float, basis: str = "wet") -> str:
-    """The open-loop errors (:func:`softsensor.calibration.open_loop.open_loop_summary`) in
+    """The open-loop errors (:func:`softsensor.calibration.open_loop_errors.open_loop_summary`) in
     plant units (°C, % points on ``basis`` at the moisture ``x_ref`` [kg/kg dry]), with the
     inlet level they hold: what ``validate`` says first and ``diagnose`` says of the same
     model on the same day."""
@@ -167,7 +167,7 @@ def open_loop_sentence(summary: Mapping[str, Any], x_ref: float, basis: str = "w
 
 def held_out_verdict(summary: Mapping[str, Any]) -> str:
     """Each channel's open-loop error against the calibration's own held-out error
-    (``summary['verdict']``, :func:`softsensor.calibration.open_loop.channel_verdicts`)."""
+    (``summary['verdict']``, :func:`softsensor.calibration.open_loop_errors.channel_verdicts`)."""
     checks = summary.get("verdict") or {}
     if summary.get("reference") is None:
         return ("No verdict: the parameter file holds no held-out error of its calibration "
@@ -213,7 +213,7 @@ def validation_verdict(open_loop: Mapping[str, Any], inlet_read: Mapping[str, fl
 
 
 def calibration_result_verdict(result: Any, basis: str = "wet") -> str:
-    """:func:`calibration_verdict` of a :class:`~softsensor.calibration.pipeline.
+    """:func:`calibration_verdict` of a :class:`~softsensor.calibration.calibration_run.
     CalibrationResult`: its held-out errors (its calibration data when nothing was held
     out), at the median lab moisture of its data."""
     import numpy as np

@@ -19,13 +19,13 @@ from typing import Any
 import numpy as np
 
 from softsensor.errors import EstimationError, SoftsensorError
-from softsensor.estimation.base import LabResult, ModelEstimator, Window, WindowModel
-from softsensor.estimation.lab_history import LabBook
+from softsensor.estimation.interface import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.settings import EstimatorSettings
-from softsensor.estimation.window_inputs import MOISTURE_IN, InputHold
+from softsensor.estimation.tick_history import LabBook
 from softsensor.jsonable import finite_or_none
 from softsensor.plantconfig import PlantConfig
 from softsensor.signals import OUTPUT_NAMES
+from softsensor.windows.inputs import MOISTURE_IN, InputHold
 
 log = logging.getLogger(__name__)
 
