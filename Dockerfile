@@ -7,7 +7,7 @@
 #       -p 127.0.0.1:7447:7447 softsensor --config /config/dryer1.toml --plc 10.0.0.20:502
 #
 # BASE: any image with Python >= 3.11 whose `pip` and `python` are on PATH (the public slim
-# image by default; tests/test_dockerfile.py builds from a local Debian base where Docker Hub
+# image by default; tests/system/test_dockerfile.py builds from a local Debian base where Docker Hub
 # is out of reach).
 #
 # Three stages so that an edit of the code rebuilds only its own small layer: `deps` installs

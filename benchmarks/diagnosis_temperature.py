@@ -3,7 +3,7 @@
 The softmax of :mod:`softsensor.diagnosis.posterior` turns the candidates' log-evidences into
 probabilities; its temperature is fitted here, on tuning seeds only: independent plant
 ``--plant`` (default 11, one of the tuning plants 11 to 13), its normal learned from
-``--history`` clean days (day seeds 100, 101, ...; as ``tests/test_diagnosis_history.py``
+``--history`` clean days (day seeds 100, 101, ...; as ``tests/diagnosis/test_diagnose_history.py``
 does, :func:`~softsensor.calibration.model_error_fit.fit_model_error` at the config's
 parameters), then ``--days-per-cause`` test days per cause (day seeds 300, 301, ...,
 magnitudes one uniform draw in each stratum of the effect's detectable range) diagnosed

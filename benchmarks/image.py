@@ -10,7 +10,7 @@ JSON object: the image size, the base's size, what the Dockerfile adds, the seco
 and to stop, the exit code, and whether the target (at most 600 MB, a clean stop) is met.
 Exit status 0 when every check passes, 1 when one fails, 2 when no engine or base is there.
 
-``tests/test_dockerfile.py`` (slow suite) uses the same functions.
+``tests/system/test_dockerfile.py`` (slow suite) uses the same functions.
 """
 
 from __future__ import annotations

@@ -12,8 +12,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-WINDOWING = Path("softsensor") / "estimation" / "windowing.py"
+from paths import REPO
+
+ROOT = REPO
+WINDOWING = Path("softsensor") / "windows" / "accumulator.py"
 LINT = "from importlinter.cli import lint_imports_command; lint_imports_command()"
 
 

@@ -1,9 +1,9 @@
 """Plant configuration: the shipped file, validation errors naming the key, parameter files."""
 
-from pathlib import Path
 
 import numpy as np
 import pytest
+from paths import REPO
 
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import (
@@ -13,7 +13,7 @@ from softsensor.plantconfig import (
     load_plant_config,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 CONFIG = ROOT / "config" / "dryer1.toml"
 
 #: The paper's Table 1: the seven parameters and their search ranges. It gives no default

@@ -48,8 +48,8 @@ One tick (:func:`~.ukf_step.step`, pure)
 Why filterpy's functions and not its ``UnscentedKalmanFilter``: the class calls ``hx`` once
 per sigma point, where the model here runs once, batched over the distinct model inputs;
 covariance matching changes ``P`` between the model run and the update; and the measurement
-vector changes size. ``tests/test_ukf.py`` checks a tick against the class with the model in
-``hx``.
+vector changes size. ``tests/estimation/test_ukf.py`` checks a tick against the class with the
+model in ``hx``.
 
 Published (:mod:`.publication`): the now-cast ``moisture_out`` with ``moisture_out_std`` (its
 uncertainty plus the short-term jitter a 600 s window cannot follow, so its 95 % band is the

@@ -6,7 +6,7 @@ item 2). These are filterpy 1.4.5's :class:`MerweScaledSigmaPoints` (with its de
 ``scipy.linalg.cholesky`` square root and ``np.subtract``), ``unscented_transform`` (default
 mean and residual), ``kalman.predict`` and ``kalman.update`` (``return_all=False``), the same
 operations in the same order, so the numbers are bit for bit filterpy's
-(``tests/test_unscented.py`` checks against filterpy itself, which stays the reference).
+(``tests/estimation/test_unscented.py`` checks against filterpy itself, which stays the reference).
 filterpy is MIT-licensed, copyright 2015 Roger R. Labbe Jr.
 """
 

@@ -2,7 +2,7 @@
 
 Read-only by construction: the only Modbus requests this module makes are in
 :meth:`ModbusPoller._read`, which calls ``read_holding_registers`` (function code 3) or
-``read_input_registers`` (function code 4) and nothing else. ``tests/test_modbus_poller.py``
+``read_input_registers`` (function code 4) and nothing else. ``tests/ingest/test_modbus_poller.py``
 checks that no other client method is called anywhere in this file.
 
 Every scan yields ``(time_ns, body, quality)``:

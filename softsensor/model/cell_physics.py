@@ -50,7 +50,7 @@ Choices where the paper is garbled or silent:
   the fibre's own ``K_c``; ``hc_cyc`` [W/(m2 K)] heats the held-up fibre. So each cyclone
   parameter has its own effect: at the nominal point, across its Table 1 range, ``mult_C``
   moves ``T_cyclone_out`` by 5 K and ``moisture_out`` by 0.035 kg/kg, ``hm_cyc`` by 2.9 K and
-  0.021 kg/kg, ``hc_cyc`` by 2.3 K and 0.005 kg/kg (tests/test_parameter_directions.py).
+  0.021 kg/kg, ``hc_cyc`` by 2.3 K and 0.005 kg/kg (tests/model/test_parameter_directions.py).
 * ``mult_k`` ("heat conduction through the steel pipe", paper section 2.1) scales the wall's
   conductivity wherever it conducts: along the tube (the paper's eq. 2 Laplacian, which a 6 mm
   wall carries almost nothing through) and through the wall, from the wall node at mid-steel
@@ -74,7 +74,7 @@ Choices where the paper is garbled or silent:
   box scheme (theta = 1/2) is second order but not damped: the stiff air-to-fibre heat
   exchange (fibre reaches air temperature within ~0.3 m) made the fibre temperature zig-zag
   by +-10 K over the first cells. Theta = 0.6 damps that to +-3 K and brings n_d = 25, 50 and
-  100 within 0.08 K and 0.0004 kg/kg of each other (tests/test_grid_convergence.py). Cyclone
+  100 within 0.08 K and 0.0004 kg/kg of each other (tests/model/test_grid_convergence.py). Cyclone
   cells stay stirred tanks (the paper's lumped cyclone).
 * ``K_c`` and ``h_af`` are evaluated at that rate state; the slip velocity and the wall-side
   coefficient at the air entering the cell (they vary slowly). The full method of lines makes

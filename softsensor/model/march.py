@@ -17,7 +17,7 @@ exactly and the energy balance of fibre plus air gives ``T_a`` from ``(X, T_f)``
 leaves a 2 x 2 Newton problem in ``(X, T_f)``: the fibre water and fibre energy balances. This
 is the same set of algebraic equations the full method of lines (:mod:`softsensor.model.mol`)
 reaches at steady state, so both agree on the outputs (checked by ``benchmarks/model.py`` and
-``tests/test_model_reference.py``).
+``tests/model/test_mol.py``).
 
 :func:`solve_profile` marches the cells (tube, then cyclone), each solved by
 :func:`~softsensor.model.cell_solver.solve_cell` from its upstream context (the cell physics

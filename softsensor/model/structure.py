@@ -12,7 +12,7 @@ multipliers to the configured model's nominal outlet moisture.
 
 Alternatives of one ``family`` exclude each other (one drying law); alternatives of different
 families combine (a drying law with a cyclone hold-up). The paper's form is each family's
-default and keeps the model bit for bit as it was (``tests/test_model_digest.py``).
+default and keeps the model bit for bit as it was (``tests/model/test_model_digest.py``).
 
 Commissioning
 -------------
@@ -21,7 +21,7 @@ the critical moisture, and the nominal inlet (1.0 kg/kg) is already below it (1.
 Keey's curve and Chen's approach leave the rate within a factor of a few of the free-water
 rate there. So an alternative law reaches the paper's nominal outlet moisture only with the
 drying multipliers ``mult_D`` and ``mult_C`` scaled down together by a factor ``k`` (measured
-at the nominal point with the default shape parameters, ``tests/test_drying_laws.py``):
+at the nominal point with the default shape parameters, ``tests/model/test_drying_laws.py``):
 ``k = 0.0120`` for ``cdc`` (``n = 1``) and ``0.00591`` for ``rea`` (``b = 5``, ``c = 1``);
 ``k`` grows steeply with ``n`` (0.145 at ``n = 2``, 2.0 at ``n = 3``; beyond 3 no ``mult_D``
 within Table 1's 5 reaches it). Each alternative therefore carries the Table 1 values it is

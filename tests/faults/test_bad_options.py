@@ -9,13 +9,12 @@ with a traceback (its poll wait overflowed).
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import pytest
+from paths import REPO
 
 from softsensor.cli import main
 
-DEMO = Path(__file__).resolve().parents[2] / "replay" / "demo-day.mcap"
+DEMO = REPO / "replay" / "demo-day.mcap"
 
 
 @pytest.mark.parametrize(("argv", "says"), [

@@ -14,7 +14,7 @@ import json
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import Publisher, open_session
 from softsensor.cli import main

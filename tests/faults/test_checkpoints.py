@@ -97,7 +97,7 @@ def test_a_daemon_whose_checkpoint_was_rejected_does_not_say_it_resumed(saved, t
     ``resumed=true`` after the checkpoint had been moved aside."""
     import asyncio
 
-    from harness import running_daemon
+    from daemon_harness import running_daemon
 
     (tmp_path / "ckpt.json").write_text(json.dumps(_bad_docs(saved)["nan state"]))
     got = {}

@@ -20,7 +20,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import open_session
 from softsensor.recording.mcap_day import read_day

@@ -16,7 +16,7 @@ import logging
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 DAY_NS = 86_400 * 10**9
 

@@ -19,7 +19,7 @@ import threading
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import open_session, wait_for_peers
 from softsensor.cli import main

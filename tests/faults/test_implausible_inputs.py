@@ -16,7 +16,7 @@ import logging
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import Publisher, open_session, wait_for_peers
 from softsensor.recording.mcap_day import read_day

@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
+from paths import REPO
 
 from softsensor.ingest.lab_input import MAX_BYTES, MAX_ROWS, LabFolderWatcher, LabInput
 
@@ -212,9 +213,9 @@ def test_the_daemon_reads_the_lims_file_and_applies_every_result_of_a_flood(tmp_
     from datetime import UTC, datetime
     from zoneinfo import ZoneInfo
 
-    from tests.faults.harness import running_daemon
+    from daemon_harness import running_daemon
 
-    map_lab = (Path(__file__).resolve().parents[2] / "replay" / "historian-map.toml"
+    map_lab = (REPO / "replay" / "historian-map.toml"
                ).read_text().split("[lab]", 1)[1]
     extra = '[display]\ntime_zone = "Europe/Madrid"\n\n[lab]' + map_lab
     n_flood = 120

@@ -16,7 +16,7 @@ import logging
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import open_session, wait_for_peers
 

@@ -14,7 +14,7 @@ import asyncio
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 
 from softsensor.bus.zenoh_bus import Publisher, open_session, wait_for_peers
 

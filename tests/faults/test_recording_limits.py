@@ -15,7 +15,7 @@ import json
 import time
 from pathlib import Path
 
-from harness import running_daemon
+from daemon_harness import running_daemon
 from mcap.reader import make_reader
 
 from softsensor.bus.zenoh_bus import Publisher, open_session

@@ -16,7 +16,7 @@ import threading
 import time
 from pathlib import Path
 
-from harness import SCALE, running_daemon
+from daemon_harness import SCALE, running_daemon
 
 from softsensor.bus.zenoh_bus import Publisher, open_session, subscribe
 from softsensor.cli import main

@@ -9,7 +9,7 @@ dry wood and *liquid* water at zero there (vapour carries its latent heat). Clos
 ``|in - out| / in``; the flow march conserves both exactly by construction (the gas state is
 computed from the conserved totals), so what is left is the walls' steady-state iteration
 (tolerance 1e-6 K): below 1e-9 for energy, rounding (1e-15) for water (measured over the family in
-``tests/test_independent_plant.py``).
+``tests/plant/independent/test_independent_plant.py``).
 """
 
 from __future__ import annotations

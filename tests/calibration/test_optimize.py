@@ -1,0 +1,287 @@
+"""The Optuna study: chunked runs, pruning, failed solves, bounds, resume, two workers on
+one journal file, the polish, the command line's errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import optuna
+import pytest
+from optuna.trial import TrialState
+from paths import REPO
+
+from softsensor.calibration.chunked_run import ChunkedRun, chunk_bounds, simulate_segments
+from softsensor.calibration.dataset import segment_from_day
+from softsensor.calibration.objective import ObjectiveSpec
+from softsensor.calibration.optimize import (
+    FAILED_COST,
+    StudySettings,
+    count_trials,
+    data_fingerprint,
+    n_finished,
+    open_storage,
+    open_study,
+    run_trials,
+    search_space,
+)
+from softsensor.calibration.refine import refine
+from softsensor.cli import main as cli_main
+from softsensor.errors import ConfigError
+from softsensor.plant.simulator import simulate_day
+from softsensor.plantconfig import PARAMETER_NAMES
+
+optuna.logging.set_verbosity(optuna.logging.WARNING)
+TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
+         "hm_cyc": 3e-4, "hc_cyc": 50.0}
+
+
+@pytest.fixture(scope="module")
+def day6(config):
+    """A 6 h virtual-plant day with known (non-default) parameters."""
+    return simulate_day(config.with_parameters(TRUTH), 6.0, seed=3)
+
+
+@pytest.fixture(scope="module")
+def segment(day6, config):
+    return segment_from_day(day6, config, source="day6")
+
+
+@pytest.fixture(scope="module")
+def eq4(config):
+    """The paper's objective: eq. 4, nominal inlet moisture, no prior."""
+    return ObjectiveSpec(cost="eq4", weights=config.cost.weights())
+
+
+@pytest.fixture(scope="module")
+def day6_file(day6, tmp_path_factory):
+    return day6.write(tmp_path_factory.mktemp("days") / "day6.mcap")
+
+
+def test_chunked_run_continues_the_state_exactly(model, segment, eq4):
+    """Four chunks with the state passed on give the same outputs as one run; the partial
+    cost after the last chunk is the full cost."""
+    theta = np.stack([model.theta0, np.array(list(TRUTH.values()))])
+    run = ChunkedRun(model, [segment], theta, eq4, n_chunks=4)
+    assert list(run.bounds[0]) == list(chunk_bounds(segment.n_windows, 4))
+    costs = []
+    while not run.done:
+        costs.append(run.advance())
+    full = simulate_segments(model, [segment], theta)[0]
+    np.testing.assert_allclose(run.runs[0].Y, full.Y, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(run.runs[0].lab, full.lab, rtol=1e-10, atol=1e-12)
+    assert full.lab.shape == (2, len(segment.lab_value)) and np.isfinite(full.lab).all()
+    final = run.run()
+    assert [f.objective for f in final] == pytest.approx([costs[-1][0].objective,
+                                                          costs[-1][1].objective])
+    assert final[0].objective == final[0].fit.cost  # eq. 4 without a prior
+    assert len(costs) == 4 and costs[0][0].fit.n["T_dryer_out"] == run.bounds[0][1] == 9
+    assert final[0].fit.n["T_dryer_out"] == segment.n_windows == 36
+    assert list(chunk_bounds(3, 4)) == [0, 1, 2, 3]
+
+
+def test_chunked_run_over_two_segments_of_different_length(model, segment, eq4):
+    """Several days or windows: each segment starts from its own steady state; the pooled
+    cost equals eq. 4 over the concatenated residuals."""
+    a, b = segment.slice(0, 20), segment.slice(20, 36)
+    theta = np.array(list(TRUTH.values()))
+    run = ChunkedRun(model, [a, b], theta[None], eq4, n_chunks=3)
+    fit = run.run()[0].fit
+    sep = simulate_segments(model, [a, b], theta)
+    np.testing.assert_allclose(run.runs[1].Y, sep[1].Y, rtol=1e-10)
+    assert fit.n["T_dryer_out"] == 36 and fit.n["moisture_out"] == len(segment.lab_value)
+    one = simulate_segments(model, [segment], theta)[0]
+    # the second segment restarts from a steady state: its first windows differ from the
+    # continuous run, later ones converge as the wall forgets its start
+    d = np.abs(sep[1].Y[0, :, 0] - one.Y[0, 20:, 0])
+    assert d[-1] < d[0] or d[0] < 1e-6
+
+
+def test_study_prunes_keeps_bounds_and_starts_from_the_config(model, segment, config, eq4):
+    settings = StudySettings(n_trials=24, seed=4, progress=False, n_chunks=4)
+    study, created = open_study(settings, config, data_fingerprint([segment], config))
+    assert created
+    report = run_trials(study, model, [segment], config, settings, eq4)
+    trials = study.get_trials()
+    assert n_finished(study) == 24 == report.trials
+    assert trials[0].user_attrs["origin"] == "config"
+    assert trials[0].params == {n: config.parameters[n].value for n in PARAMETER_NAMES}
+    counts = count_trials(study)
+    assert counts["pruned"] == report.pruned > 0 and counts["complete"] == report.complete
+    space = search_space(config)
+    for t in trials:
+        for name, v in t.params.items():
+            assert space[name].low <= v <= space[name].high
+        if t.state == TrialState.PRUNED:
+            assert t.intermediate_values and max(t.intermediate_values) < 3
+        else:
+            assert t.user_attrs["rmse_moisture_out"] > 0
+    assert all(space[n].log for n in PARAMETER_NAMES)
+    assert report.windows_simulated < report.windows_full  # pruning saved model time
+
+
+class _FailingModel:
+    """Wraps a model; members with mult_D < 0.05 fail (NaN) from their second window."""
+
+    def __init__(self, model):
+        self.model = model
+
+    def simulate(self, U, theta, state0=None, raise_on_failure=True, **kw):
+        Y, x = self.model.simulate(U, theta, state0=state0, raise_on_failure=False, **kw)
+        bad = np.atleast_2d(theta)[:, 0] < 0.05
+        Y[bad, 1:] = np.nan
+        return Y, x
+
+
+def test_failed_solves_are_pruned_with_a_high_cost(model, segment, config, eq4):
+    settings = StudySettings(n_trials=4, seed=0, progress=False, n_chunks=2)
+    study, _ = open_study(settings, config, "x")
+    study.enqueue_trial({**TRUTH, "mult_D": 0.02})
+    study.enqueue_trial({**TRUTH, "mult_D": 0.03})
+    run_trials(study, _FailingModel(model), [segment], config, settings, eq4)
+    failed = [t for t in study.get_trials() if t.user_attrs.get("solver_failed")]
+    assert len(failed) == 2
+    for t in failed:
+        assert t.state == TrialState.PRUNED and t.intermediate_values[0] == FAILED_COST
+    assert study.best_value < 1.0
+
+
+def test_resume_and_data_fingerprint(tmp_path, model, segment, config, eq4):
+    url = f"journal:{tmp_path / 'study.log'}"
+    fp = data_fingerprint([segment], config)
+    s1 = StudySettings(n_trials=5, seed=1, storage=url, progress=False, study_name="r")
+    study, created = open_study(s1, config, fp)
+    run_trials(study, model, [segment], config, s1, eq4)
+    first = [t.params for t in study.get_trials()]
+    s2 = StudySettings(n_trials=8, seed=1, storage=url, progress=False, study_name="r")
+    study2, created2 = open_study(s2, config, fp)
+    assert created and not created2
+    report = run_trials(study2, model, [segment], config, s2, eq4)
+    assert report.trials == 3 and n_finished(study2) == 8
+    assert [t.params for t in study2.get_trials()[:5]] == first
+    with pytest.raises(ConfigError, match="made on other data"):
+        open_study(s2, config, "another")
+    with pytest.raises(ConfigError, match="journal file"):
+        open_storage("study.txt")
+    with pytest.raises(ConfigError, match="does not exist"):
+        open_storage(str(tmp_path / "no" / "s.log"))
+    # a database URL opens Optuna's RDB storage, which creates and keeps the study there
+    db = tmp_path / "s.db"
+    rdb = open_storage(f"sqlite:///{db}")
+    assert isinstance(rdb, optuna.storages.RDBStorage) and db.is_file()
+    optuna.create_study(storage=rdb, study_name="kept")
+    assert [s.study_name for s in optuna.get_all_study_summaries(open_storage(
+        f"sqlite:///{db}"))] == ["kept"]
+
+
+def test_two_workers_share_one_journal_study(tmp_path, day6_file):
+    """Two processes join one study through a journal file; they start together, split the
+    trials, and the trials add up to the study's target."""
+    journal = tmp_path / "shared.log"
+    go = tmp_path / "go"
+    worker = textwrap.dedent(f"""
+        import sys, time, pathlib
+        from softsensor.cli import main  # imports numba and the model before the start
+        import softsensor.model.kernels  # noqa
+        pathlib.Path(sys.argv[1] + ".ready").touch()
+        while not pathlib.Path({str(go)!r}).exists():
+            time.sleep(0.05)
+        sys.exit(main(["calibrate", {str(day6_file)!r}, "--trials", "16", "--quiet",
+                       "--storage", "journal:{journal}", "--study-name", "w",
+                       "--no-polish", "--no-identify", "--seed", "3",
+                       "--out", sys.argv[1], "--json", "-"]))
+    """)
+    outs = [tmp_path / f"p{i}.toml" for i in range(2)]
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    procs = [subprocess.Popen([sys.executable, "-c", worker, str(o)], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=env) for o in outs]
+    deadline = time.time() + 120
+    while not all(Path(str(o) + ".ready").exists() for o in outs):
+        assert time.time() < deadline, "workers did not start"
+        assert all(p.poll() is None for p in procs), procs[0].communicate()
+        time.sleep(0.1)
+    go.touch()
+    results = [p.communicate(timeout=300) for p in procs]
+    for p, (_out, err) in zip(procs, results, strict=True):
+        assert p.returncode == 0, err
+    docs = [json.loads(out) for out, _ in results]
+    study = optuna.load_study(study_name="w", storage=open_storage(f"journal:{journal}"))
+    finished = [t for t in study.get_trials() if t.state in (TrialState.COMPLETE,
+                                                             TrialState.PRUNED)]
+    by_worker: dict[int, int] = {}
+    for t in study.get_trials():
+        by_worker[t.user_attrs["worker"]] = by_worker.get(t.user_attrs["worker"], 0) + 1
+    assert 16 <= len(finished) <= 17  # a worker may start one trial as the other fills it
+    assert sum(d["trials_this_process"] for d in docs) == len(study.get_trials())
+    assert sorted(by_worker.values()) == sorted(d["trials_this_process"] for d in docs)
+    assert len(by_worker) == 2 and min(by_worker.values()) >= 3
+    assert all(t.state != TrialState.RUNNING for t in study.get_trials())
+    # the two workers proposed different trials (different sampler seeds)
+    params = [tuple(sorted(t.params.items())) for t in study.get_trials()]
+    assert len(set(params)) == len(params)
+
+
+def test_polish_lowers_the_cost_within_bounds(model, segment, config, eq4):
+    start = np.array([0.3, 0.5, 3.0, 1.0, 4.0, 1e-5, 30.0])
+    bounds = config.bounds()
+    bounds[4, 1] = 4.5  # a tight upper bound on mult_p: the polish must respect it
+    r = refine(model, [segment], start, bounds, eq4)
+    assert r.improved and r.evaluation.fit.cost < 0.6 * r.start.fit.cost
+    assert np.all(r.theta >= bounds[:, 0]) and np.all(r.theta <= bounds[:, 1])
+    assert r.simulations <= 100  # two passes of at most 6 evaluations of 1 + 7 members
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys, config):
+    day = simulate_day(config, 1.5, seed=1)
+    nolab = day.labs.iloc[:0]
+    from softsensor.plant.simulator import SimulatedDay
+
+    path = SimulatedDay(day.scans, nolab, day.truth, day.effect).write(tmp_path / "nolab.mcap")
+    out = tmp_path / "P.toml"
+    cases = [
+        (["calibrate", str(path), "--trials", "3", "--out", str(out)], "too short"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(out), "--window-hours",
+          "1"], "0 lab sample"),
+        (["calibrate", str(tmp_path / "missing.mcap"), "--trials", "3", "--out", str(out)],
+         "missing.mcap"),
+        (["calibrate", str(path), "--trials", "0", "--out", str(out)], "--trials must be"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(tmp_path / "x" / "P.toml")],
+         "does not exist"),
+        (["validate", str(path), "--params", str(tmp_path / "none.toml")], "none.toml"),
+    ]
+    for argv, words in cases:
+        assert cli_main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_search_model_with_one_wall_substep_keeps_the_settings_claim():
+    """The TPE search runs the model with ``[calibration] search_wall_substeps`` (1): on the
+    demo day its outputs stay within the settings' claim (0.01 K, 2e-5 kg/kg) of the full
+    model's, and it is a copy, so the full model keeps its substeps for polish and validation.
+    """
+    from softsensor.calibration.calibration_run import search_model
+    from softsensor.calibration.settings import calibration_settings
+    from softsensor.model import DryerModel
+    from softsensor.plantconfig import load_plant_config
+    from softsensor.recording.mcap_day import read_day
+
+    cfg = load_plant_config()
+    seg = segment_from_day(read_day(REPO / "replay" / "demo-day.mcap"),
+                           cfg, source="demo")
+    full = DryerModel(cfg, threads=1)
+    fast = search_model(full, calibration_settings(cfg))
+    assert fast is not full and fast.wall_substeps == 1
+    assert full.wall_substeps == cfg.solver.wall_substeps == 4
+    Y_full, _ = full.simulate(seg.U[None])
+    Y_fast, _ = fast.simulate(seg.U[None])
+    d = np.abs(Y_fast - Y_full)[0].max(axis=0)
+    assert d[0] < 0.01 and d[1] < 0.01 and d[2] < 2e-5, d
+    assert d[0] > 0  # the copy really runs with fewer substeps
