@@ -8,15 +8,15 @@ calibration's validation day (:mod:`softsensor.estimation.state_space`, PARAMS.t
 ``[discrepancy]``). The diagnosis carries the same states through the day's residuals
 (measured minus model):
 
-================ =============================================== =================== ========
-state            moves                                           std                 corr.
-                                                                                     time
-================ =============================================== =================== ========
-``T_common``     both outlet temperatures alike [K]              ``s_common``        ``tau_0``
-``T_dryer_out``  ``T_dryer_out`` alone [K]                       ``s_dryer``         ``tau_1``
-``T_cyclone_out`` ``T_cyclone_out`` alone [K]                    ``s_cyclone``       ``tau_2``
-``moisture_out`` the lab results [kg/kg]                         ``s_moisture``      ``tau_3``
-================ =============================================== =================== ========
+================= =============================================== =================== ========
+state             moves                                           std                 corr.
+                                                                                      time
+================= =============================================== =================== ========
+``T_common``      both outlet temperatures alike [K]              ``s_common``        ``tau_0``
+``T_dryer_out``   ``T_dryer_out`` alone [K]                       ``s_dryer``         ``tau_1``
+``T_cyclone_out`` ``T_cyclone_out`` alone [K]                     ``s_cyclone``       ``tau_2``
+``moisture_out``  the lab results [kg/kg]                         ``s_moisture``      ``tau_3``
+================= =============================================== =================== ========
 
 plus white measurement noise of each channel's noise level. This is a linear Gaussian state
 space model, so a Kalman filter turns any residual series into its one-step-ahead prediction

@@ -224,7 +224,7 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
                     open_loop: Mapping[str, Any], default: ValidationResult | None = None,
                     verdict: str | None = None) -> Path:
     """Fig. 6 and the validation's tables: open loop first (``open_loop``, :func:`~softsensor.
-    calibration.open_loop.open_loop_summary`) with the calibration's held-out error beside,
+    calibration.open_loop_errors.open_loop_summary`) with the calibration's held-out error beside,
     then with the inlet moisture read from the temperatures (``result``); ``default``: the
     config's default parameters on the same data; ``verdict``: the sentence first on the page
     (:func:`~softsensor.presentation.verdicts.validation_verdict`, which the ``validate`` line says

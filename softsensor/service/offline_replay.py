@@ -75,7 +75,7 @@ STALL_TIMEOUT_S = 60.0
 
 
 class FileRecorder:
-    """One MCAP file for a :class:`~softsensor.recording.recorder.BusRecorder` (no rotation).
+    """One MCAP file for a :class:`~softsensor.service.bus_recorder.BusRecorder` (no rotation).
 
     Thread-safe ``write(topic, log_time_ns, body)``; ``tick`` does nothing (the file is
     finished by :meth:`close`).
