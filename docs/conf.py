@@ -92,8 +92,11 @@ nitpick_ignore_regex = [
 html_theme = "pydata_sphinx_theme"
 html_title = f"softsensor {release}"
 html_static_path = []
+# the left bar shows the current section two levels deep, collapsed: rendering the whole
+# toctree (160 module pages) into every page was most of the build's time
 html_theme_options = {
-    "navigation_depth": 3,
+    "navigation_depth": 2,
+    "collapse_navigation": True,
     "show_toc_level": 2,
     "secondary_sidebar_items": ["page-toc"],
     "footer_start": ["copyright"],

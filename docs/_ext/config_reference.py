@@ -43,6 +43,9 @@ class Table:
     #: Other dataclasses the program builds for this same table (a table merged with its
     #: defaults and built again), named so that the tests know they are covered.
     also: tuple[str, ...] = ()
+    #: Render fields typed as dataclasses as sub-tables (off where one generic table, such as
+    #: ``[plausibility.<signal>]``, stands for them all).
+    subtables: bool = True
 
 
 @dataclass(frozen=True)
@@ -88,7 +91,7 @@ FILES: tuple[ConfigFile, ...] = (
                "Each operator output is a sub-table; all are off by default."),
          Table("plausibility", "softsensor.windows.plausibility.PlausibilityTable",
                "``hold_s`` and one sub-table per scan signal, whose keys replace that "
-               "signal's default limits (the table below)."),
+               "signal's default limits (the table below).", subtables=False),
          Table("plausibility.<signal>", "softsensor.windows.plausibility.LimitsChange",
                also=("softsensor.windows.plausibility.SignalLimits",)),
          Table("lab", "softsensor.ingest.historian_map.LabMap",
@@ -123,6 +126,7 @@ FILES: tuple[ConfigFile, ...] = (
                "(:func:`softsensor.estimation.lab_regression.fit_lab_regression`)."))),
 )
 
+_WRAPPED_TARGET = re.compile(r"(:[a-z]+:`[~.]?[\w.]*\.)\n\s*(?=\w)")
 _BOUND_SIGNS = {"gt": ">", "ge": "≥", "lt": "<", "le": "≤"}
 _PLAIN_UNITS = {"s", "K", "m", "kg", "Pa", "W", "J", "%", "h", "min", "ns", "bytes"}
 
@@ -162,38 +166,40 @@ def _attribute_docs(cls: type) -> dict[str, str]:
         return {}
     out: dict[str, str] = {}
     for param in NumpyDocString(doc)["Attributes"]:
-        text = " ".join(" ".join(param.desc).split())
+        # a role whose dotted target the source wraps after a dot is one name (conf.py)
+        text = " ".join(_WRAPPED_TARGET.sub(r"\1", "\n".join(param.desc)).split())
         for name in param.name.split(","):
             out[name.strip()] = text
     return out
 
 
-def _comment_docs(cls: type) -> dict[str, str]:
-    """Field name -> the comment on its line, after the comment lines above it."""
+def _comment_docs(cls: type) -> dict[str, tuple[str, str]]:
+    """Field name -> (the comment lines above it, the comment on its line)."""
     try:
         source = textwrap.dedent(inspect.getsource(cls))
     except (OSError, TypeError):
         return {}
     names = {f.name for f in dataclasses.fields(cls)}
-    out: dict[str, str] = {}
+    above_of: dict[str, str] = {}
+    trailing: dict[str, str] = {}
     above: list[str] = []
     line_field: dict[int, str] = {}
     for tok in tokenize.generate_tokens(io.StringIO(source).readline):
         if tok.type == tokenize.NAME and tok.start[1] == 4 and tok.string in names:
             line_field.setdefault(tok.start[0], tok.string)
             if above:
-                out[tok.string] = " ".join(above)
+                above_of[tok.string] = " ".join(above)
                 above = []
         elif tok.type == tokenize.COMMENT:
             text = tok.string.lstrip("#:").strip()
             field = line_field.get(tok.start[0])
             if field is not None:
-                out[field] = (out.get(field, "") + " " + text).strip()
+                trailing[field] = text
             elif tok.start[1] == 4:
                 above.append(text)
         elif tok.type == tokenize.NL and tok.start[1] == 0 and not tok.line.strip():
             above = []
-    return out
+    return {n: (above_of.get(n, ""), trailing.get(n, "")) for n in names}
 
 
 def split_unit(text: str, from_comment: bool) -> tuple[str, str]:
@@ -291,22 +297,32 @@ def table_keys(cls: type) -> tuple[list[Key], list[tuple[str, type]]]:
         if f.name in attrs:
             unit, text = split_unit(attrs[f.name], from_comment=False)
         else:
-            unit, text = split_unit(comments.get(f.name, ""), from_comment=True)
+            above, line = comments.get(f.name, ("", ""))
+            unit, text = split_unit(line, from_comment=True)
+            if not unit:
+                unit, above = split_unit(above, from_comment=True)
+            text = "; ".join(t for t in (above, text) if t)
         keys.append(Key(f.metadata.get(TOML_KEY, f.name), _type_name(typ), _default(f),
                         _rules(f), unit, text))
     return keys, subs
 
 
 def _summary(cls: type) -> str:
-    doc = inspect.getdoc(cls) or ""
-    return " ".join(doc.split("\n\n")[0].split())
+    """The first paragraph of the class's own docstring (a dataclass without one has its
+    signature as ``__doc__``: nothing to say)."""
+    doc = cls.__dict__.get("__doc__") or ""
+    if doc.startswith(f"{cls.__name__}("):
+        return ""
+    return " ".join(inspect.cleandoc(doc).split("\n\n")[0].split())
 
 
-def table_rst(name: str, cls: type, note: str = "", path: str = "") -> list[str]:
+def table_rst(name: str, cls: type, note: str = "", path: str = "", file: str = "",
+              subtables: bool = True) -> list[str]:
     """reST of table ``[name]`` read by ``cls`` (at dotted ``path``: a class made by
     ``dataclasses.make_dataclass`` does not know its module), then its sub-tables."""
     keys, subs = table_keys(cls)
-    lines = [f".. _config-{re.sub(r'[^a-z0-9]+', '-', name.lower()).strip('-')}:", "",
+    label = re.sub(r"[^a-z0-9]+", "-", f"{file} {name}".lower()).strip("-")
+    lines = [f".. _config-{label}:", "",
              f"``[{name}]``", "^" * (len(name) + 6), ""]
     summary = _summary(cls)
     if summary:
@@ -324,8 +340,8 @@ def table_rst(name: str, cls: type, note: str = "", path: str = "") -> list[str]
                       f"     - {_cell(k.rules)}", f"     - {_cell(k.unit)}",
                       f"     - {_cell(k.description)}"]
         lines.append("")
-    for sub_name, sub_cls in subs:
-        lines += table_rst(f"{name}.{sub_name}", sub_cls)
+    for sub_name, sub_cls in subs if subtables else ():
+        lines += table_rst(f"{name}.{sub_name}", sub_cls, file=file)
     return lines
 
 
@@ -356,7 +372,8 @@ def config_rst() -> list[str]:
         lines += [cf.title, "-" * len(cf.title), "", cf.intro, "",
                   f"Example: ``{cf.example}``.", ""]
         for table in cf.tables:
-            lines += table_rst(table.name, resolve(table.cls), table.note, table.cls)
+            lines += table_rst(table.name, resolve(table.cls), table.note, table.cls,
+                               cf.title, table.subtables)
             if table.name == "plausibility.<signal>":
                 lines += plausibility_defaults_rst()
     return lines

@@ -30,5 +30,5 @@ def test_every_verb_option_and_exit_status_is_rendered(cli_reference):
 
 
 def test_the_cli_page_renders_the_reference():
-    page = (REPO / "docs" / "reference" / "cli.md").read_text(encoding="utf-8")
-    assert re.search(r"^```\{softsensor-cli\}$", page, re.M), page
+    page = (REPO / "docs" / "reference" / "cli.rst").read_text(encoding="utf-8")
+    assert re.search(r"^\.\. softsensor-cli::$", page, re.M), page

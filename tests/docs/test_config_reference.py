@@ -156,5 +156,5 @@ def test_units_are_read_from_brackets_and_leading_unit_comments(config_reference
 
 
 def test_the_config_page_renders_the_reference():
-    page = (REPO / "docs" / "reference" / "config.md").read_text(encoding="utf-8")
-    assert re.search(r"^```\{softsensor-config\}$", page, re.M), page
+    page = (REPO / "docs" / "reference" / "config.rst").read_text(encoding="utf-8")
+    assert re.search(r"^\.\. softsensor-config::$", page, re.M), page
