@@ -1,7 +1,7 @@
 """``softsensor calibrate | identify | validate``: argument parsing and output only.
 
 The work is done by :mod:`softsensor.calibration.calibration_run`; the pages by
-:mod:`.calibration_report`. ``calibrate`` and ``validate``
+:mod:`softsensor.presentation.calibration_report`. ``calibrate`` and ``validate``
 print one JSON document on stdout (progress and logging go to stderr); ``identify`` prints
 the table of what the data can and cannot pin down and writes JSON with ``--json``. Errors are
 :class:`~softsensor.errors.SoftsensorError` subclasses, which the ``softsensor`` command turns

@@ -1,5 +1,5 @@
-"""``softsensor import`` (and, from :mod:`.export`, ``softsensor export``): historian tables
-in, estimate tables out.
+"""``softsensor import`` (and, from :mod:`.estimates_export`, ``softsensor export``):
+historian tables in, estimate tables out.
 
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map

@@ -18,8 +18,8 @@ The statistics of what the validation leaves (:class:`Discrepancy`) go into PARA
 the estimator: how far, how correlated and how slowly the calibrated model misses a day it
 was not fitted on.
 
-The command-line verbs in :mod:`.commands` only parse arguments and print or write what these
-return.
+The command-line verbs in :mod:`softsensor.apps.calibrate` only parse arguments and print or
+write what these return.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@
    most probable causes cannot be told apart on this day's data.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
-(:meth:`Diagnosis.to_json`) and feeds the report page (:mod:`.report`). Nothing here reads the
+(:meth:`Diagnosis.to_json`) and feeds the report page
+(:mod:`softsensor.presentation.diagnosis_report`). Nothing here reads the
 ground truth a simulated day may carry.
 """
 
