@@ -46,6 +46,9 @@ class Table:
     #: Render fields typed as dataclasses as sub-tables (off where one generic table, such as
     #: ``[plausibility.<signal>]``, stands for them all).
     subtables: bool = True
+    #: The keys are signals of CONTRACT section 1 (the nominal operating point): a key
+    #: without a unit of its own has its signal's SI unit.
+    signal_units: bool = False
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,7 @@ FILES: tuple[ConfigFile, ...] = (
          Table("environment", f"{PC}.Environment"),
          Table("nominal", f"{PC}.Nominal",
                "The nominal operating point, one key per model input of CONTRACT section 1, "
-               "in its SI unit (:doc:`/nomenclature`)."),
+               "in its SI unit (:doc:`/nomenclature`).", signal_units=True),
          Table("solver", f"{PC}.Solver"),
          Table("cost", f"{PC}.Cost",
                "The weights of the paper's eq. 4, per channel [1/K for the temperatures, "
@@ -278,9 +281,14 @@ class Key:
     description: str
 
 
-def table_keys(cls: type) -> tuple[list[Key], list[tuple[str, type]]]:
-    """The keys of ``cls`` and its sub-tables (``(field name, dataclass)``)."""
+def table_keys(cls: type, signal_units: bool = False
+               ) -> tuple[list[Key], list[tuple[str, type]]]:
+    """The keys of ``cls`` and its sub-tables (``(field name, dataclass)``); with
+    ``signal_units`` a key named after a signal without a unit of its own has the signal's."""
     from softsensor.configfile import TOML_KEY
+    from softsensor.signals import SCAN_SIGNALS
+
+    units = {**SCAN_SIGNALS, "moisture_in": "kg/kg", "moisture_out": "kg/kg"}
 
     attrs, comments = _attribute_docs(cls), _comment_docs(cls)
     hints = typing.get_type_hints(cls)
@@ -302,6 +310,8 @@ def table_keys(cls: type) -> tuple[list[Key], list[tuple[str, type]]]:
             if not unit:
                 unit, above = split_unit(above, from_comment=True)
             text = "; ".join(t for t in (above, text) if t)
+        if signal_units and not unit:
+            unit = units.get(f.name, "")
         keys.append(Key(f.metadata.get(TOML_KEY, f.name), _type_name(typ), _default(f),
                         _rules(f), unit, text))
     return keys, subs
@@ -317,10 +327,10 @@ def _summary(cls: type) -> str:
 
 
 def table_rst(name: str, cls: type, note: str = "", path: str = "", file: str = "",
-              subtables: bool = True) -> list[str]:
+              subtables: bool = True, signal_units: bool = False) -> list[str]:
     """reST of table ``[name]`` read by ``cls`` (at dotted ``path``: a class made by
     ``dataclasses.make_dataclass`` does not know its module), then its sub-tables."""
-    keys, subs = table_keys(cls)
+    keys, subs = table_keys(cls, signal_units)
     label = re.sub(r"[^a-z0-9]+", "-", f"{file} {name}".lower()).strip("-")
     lines = [f".. _config-{label}:", "",
              f"``[{name}]``", "^" * (len(name) + 6), ""]
@@ -373,7 +383,7 @@ def config_rst() -> list[str]:
                   f"Example: ``{cf.example}``.", ""]
         for table in cf.tables:
             lines += table_rst(table.name, resolve(table.cls), table.note, table.cls,
-                               cf.title, table.subtables)
+                               cf.title, table.subtables, table.signal_units)
             if table.name == "plausibility.<signal>":
                 lines += plausibility_defaults_rst()
     return lines
