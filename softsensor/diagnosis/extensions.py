@@ -465,7 +465,7 @@ class InletMoistureEstimate(Extension):
         with _quiet(ukf_logger):
             nominal = float(problem.config.nominal.moisture_in)
             for k, w in enumerate(problem.windows.windows):
-                v = ukf.tick(w)["moisture_in"]
+                v = ukf.tick(w).moisture_in
                 out[k] = nominal if v is None else float(v)
         return out
 

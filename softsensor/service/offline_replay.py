@@ -403,7 +403,7 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
 
         def _keep(o: Output) -> None:
             if o.kind == "estimate":
-                summary.estimates.append((o.time_ns, o.body))
+                summary.estimates.append((o.time_ns, o.to_body()))
                 if progress is not None:
                     progress(o.time_ns, len(summary.estimates))
 

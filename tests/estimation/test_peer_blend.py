@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate
 from softsensor.estimation.lab_regression import (
     REGRESSION_SIGNALS,
     LabRegression,
@@ -23,6 +24,7 @@ from softsensor.estimation.lab_regression import (
     regression_of,
 )
 from softsensor.estimation.peer_blend import advance, check_state, fresh
+from softsensor.estimation.publication import blended
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.messages import LabResult, Window
 from softsensor.plantconfig import load_plant_config, with_table
@@ -37,6 +39,14 @@ def window(k: int, means: dict[str, float] | None = None) -> Window:
                   n_scans=60, n_good={}, stale=False, reasons={})
 
 
+def published(s: EstimatorSettings, reg, state, w: Window, labs, mo: float, sd: float):
+    """One tick of the peers beside a physics estimate ``mo +- sd``: the new state and the
+    published estimate's body (:func:`~softsensor.estimation.publication.blended`)."""
+    state, blend, mixture = advance(s, reg, state, w, labs, (mo, sd))
+    physics = Estimate(w.start_ns, w.end_ns, "ukf", mo, sd, None, None, None, None)
+    return state, blended(physics, blend, mixture, s).to_body()
+
+
 def run_band(s: EstimatorSettings, offsets: list[float], state=None):
     """Ticks with the physics at 0.10 +- 0.005 and a lab every third tick at 0.10 + offset;
     the band scale after each lab."""
@@ -48,8 +58,7 @@ def run_band(s: EstimatorSettings, offsets: list[float], state=None):
             w = window(t)
             labs = ((LabResult(w.end_ns - W // 2, 0.10 + off, f"L{t}", w.end_ns),)
                     if k == 2 else ())
-            state, body = advance(s, None, state, w, labs,
-                                  {"moisture_out": 0.10, "moisture_out_std": 0.005})
+            state, body = published(s, None, state, w, labs, 0.10, 0.005)
         scales.append(body["band_scale"])
     return state, body, scales
 
@@ -163,7 +172,7 @@ def run_plant(cfg, day, **settings):
         while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
             est.add_lab(labs[j])
             j += 1
-        bodies.append(est.tick(w))
+        bodies.append(est.tick(w).to_body())
         truth.append(float(day.truth.moisture_out.to_numpy()[np.searchsorted(t, w.end_ns,
                                                                             "right") - 1]))
     return bodies, np.array(truth)
@@ -239,11 +248,9 @@ def test_the_regression_source_is_the_regression_at_the_window_plus_the_last_lab
     state = fresh(s, reg)
     w_lab, w_next = window(0, {"T_air_in": 490.0}), window(1, {"T_air_in": 470.0})
     lab = LabResult(w_lab.end_ns - W // 2, 0.125, "L0", w_lab.end_ns)
-    state, _ = advance(s, reg, state, w_lab, (lab,),
-                       {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    state, _ = published(s, reg, state, w_lab, (lab,), 0.11, 0.005)
     assert state["bias"] == pytest.approx(0.125 - reg.at_means(w_lab.means))  # 0.125 - 0.11
-    state, body = advance(s, reg, state, w_next, (),
-                          {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    state, body = published(s, reg, state, w_next, (), 0.11, 0.005)
     want = reg.at_means(w_next.means) + (0.125 - 0.11)  # 0.09 + 0.015
     assert body["sources"]["regression"]["moisture_out"] == pytest.approx(want, abs=1e-12)
     assert want == pytest.approx(0.105)

@@ -23,6 +23,7 @@ from paths import REPO
 from pymodbus.client import AsyncModbusTcpClient
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate, Health
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.modbus_server import (
     N_REGISTERS,
@@ -37,6 +38,7 @@ from softsensor.presentation.display import DisplaySettings, moisture_pct
 BODY = {"moisture_out": 0.1034, "moisture_out_std": 0.0042, "moisture_in": 1.0312,
         "moisture_in_std": 0.021, "status": "degraded", "lab_updated": True}
 T_NS = 1_767_607_800 * 10**9  # 2026-01-05T10:10:00Z
+ESTIMATE = Estimate.from_body({**BODY, "window_end_ns": T_NS})
 
 
 def _free_port() -> int:
@@ -104,7 +106,7 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_mbpoll_and_refuses_wr
         try:
             before, _, _ = lp.run(_read(server.port))
             assert before[14] == 3 and math.isnan(f32(before, "moisture_out"))
-            server.publish(BODY, T_NS)  # from this (another) thread, as the estimator's
+            server.on_estimate(ESTIMATE)  # from this (another) thread, as the estimator's
             words = None
             for _ in range(100):  # bounded: the store is handed to the server's loop
                 words, wr, hr = lp.run(_read(server.port, write=True))
@@ -114,7 +116,7 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_mbpoll_and_refuses_wr
             assert f32(words, "moisture_out") == np.float32(BODY["moisture_out"])
             assert f32(words, "moisture_in_pct") == np.float32(moisture_pct(1.0312, "dry"))
             assert server.refused >= 2
-            server.health("stale")
+            server.on_health(Health.from_body({"status": "stale"}, T_NS))
             for _ in range(100):
                 words, _, _ = lp.run(_read(server.port))
                 if words[14] == 2:
@@ -138,13 +140,13 @@ def test_metrics_parse_with_prometheus_client_and_read_the_counters_live():
     ticks = [3]
     m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill-north"),
                       {"softsensor_ticks": ("ticks", lambda: ticks[0])}, unit="dryer2",
-                      display=DisplaySettings(moisture_basis="dry"))
-    m.start()
+                      display=DisplaySettings(moisture_basis="dry"), tick_seconds=lambda: 0.04)
+    asyncio.run(m.start())
     try:
         first = scrape_metrics(m.port, "dryer2", "mill-north")
         assert math.isnan(first["softsensor_moisture_out_kg_per_kg"])
         body = {**BODY, "T_dryer_out_measured": 348.65, "T_dryer_out_model": 348.15}
-        m.publish(body, T_NS, duration_s=0.04)
+        m.on_estimate(Estimate.from_body({**body, "window_end_ns": T_NS}))
         ticks[0] = 4
         got = scrape_metrics(m.port, "dryer2", "mill-north")
         # % wet basis whatever the display basis (what a lab and an operator read)
@@ -172,7 +174,7 @@ def test_metrics_parse_with_prometheus_client_and_read_the_counters_live():
         assert got["softsensor_tick_duration_seconds_count"] == 1.0
         assert got["softsensor_tick_duration_seconds_sum"] == pytest.approx(0.04)
     finally:
-        m.stop()
+        asyncio.run(m.stop())
 
 
 def test_output_tables_are_validated(tmp_path):
@@ -203,7 +205,7 @@ def test_a_port_in_use_is_a_one_line_error():
         m = DaemonMetrics(MetricsSettings(enabled=True, port=port))
         with pytest.raises(ConfigError, match=rf"outputs\.prometheus: cannot listen on "
                                               rf"127\.0\.0\.1:{port}"):
-            m.start()
+            asyncio.run(m.start())
 
 
 def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
@@ -255,10 +257,11 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
                 assert asyncio.get_running_loop().time() < deadline and not task.done()
                 await asyncio.sleep(0.05)
             got["info"] = up[0]
-            got["registers"], _, _ = await _read(daemon.modbus_out.port)
-            got["metrics"] = await asyncio.to_thread(scrape_metrics, daemon.metrics.port)
-            got["opcua"] = await opcua_read(daemon.opcua.endpoint, ["moisture_out", "health"])
-            url = f"http://127.0.0.1:{daemon.web.port}/api/latest.json"
+            got["registers"], _, _ = await _read(daemon.outputs["modbus"].port)
+            outputs = daemon.outputs
+            got["metrics"] = await asyncio.to_thread(scrape_metrics, outputs["prometheus"].port)
+            got["opcua"] = await opcua_read(outputs["opcua"].endpoint, ["moisture_out", "health"])
+            url = f"http://127.0.0.1:{outputs['web'].port}/api/latest.json"
             got["web"] = json.loads(await asyncio.to_thread(
                 lambda: urllib.request.urlopen(url, timeout=5).read()))
             got["last"] = published[-1]
@@ -275,7 +278,7 @@ def test_the_daemon_serves_its_estimates_on_both_outputs(tmp_path):
     # the registers hold an estimate the daemon published (the last one, or one tick before)
     assert w[15] >= 3 and (w[12] << 16 | w[13]) * 10**9 <= last.time_ns
     if (w[12] << 16 | w[13]) * 10**9 == last.time_ns:
-        assert f32(w, "moisture_out") == np.float32(last.body["moisture_out"])
+        assert f32(w, "moisture_out") == np.float32(last.moisture_out)
     assert 0.0 < f32(w, "moisture_out") < 1.0 and w[14] in (0, 1)
     assert m["softsensor_ticks_total"] >= 3 and m["softsensor_scans_total"] > 0
     assert m["softsensor_poller_read_failures_total"] == 0
@@ -328,7 +331,7 @@ def test_the_documented_mbpoll_commands_read_every_register():
     with _Loop() as lp:
         lp.run(server.start())
         try:
-            server.publish(BODY, T_NS)
+            server.on_estimate(ESTIMATE)
             for _ in range(100):  # bounded: the store is handed to the server's loop
                 words, _, _ = lp.run(_read(server.port))
                 if words[15] == 1:

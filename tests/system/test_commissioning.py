@@ -19,6 +19,7 @@ from clients import chromium_dom, scrape_metrics
 from paths import REPO
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate
 from softsensor.plantconfig import default_config_path, load_plant_config
 from softsensor.presentation.display import DisplaySettings
 from softsensor.service.logs import KeyValueFormatter
@@ -65,7 +66,7 @@ def test_a_refused_lab_file_reaches_health_metrics_page_and_status_line(tmp_path
         def spy(out):
             hook(out)
             if out.kind == "health":
-                health.append(out.body)
+                health.append(out.to_body())
 
         daemon._on_output = spy
         stop = asyncio.Event()
@@ -85,13 +86,14 @@ def test_a_refused_lab_file_reaches_health_metrics_page_and_status_line(tmp_path
                 await asyncio.sleep(0.05)
             got["refused"] = next(h for h in health if h.get("last_lab_refusal"))
             while not (health[-1]["lab_status"] == "degraded"
-                       and daemon.web is not None and daemon.web.snapshot()[0]):
+                       and "web" in daemon.outputs and daemon.outputs["web"].snapshot()[0]):
                 assert loop.time() < deadline and not task.done()
                 await asyncio.sleep(0.05)
             got["degraded"] = health[-1]
             await asyncio.sleep(0.4)  # a status line after the refusal
-            got["metrics"] = await asyncio.to_thread(scrape_metrics, daemon.metrics.port)
-            base = f"http://127.0.0.1:{daemon.web.port}/"
+            outputs = daemon.outputs
+            got["metrics"] = await asyncio.to_thread(scrape_metrics, outputs["prometheus"].port)
+            base = f"http://127.0.0.1:{outputs['web'].port}/"
             got["latest"] = json.loads(await asyncio.to_thread(
                 lambda: urllib.request.urlopen(base + "api/latest.json", timeout=5).read()))
             got["dom"] = await asyncio.to_thread(chromium_dom, base)
@@ -557,14 +559,15 @@ def test_prometheus_names_a_ratio_and_a_timestamp_keeps_the_old_and_clips_the_ba
 
     m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill"),
                       {"softsensor_ticks": ("ticks", lambda: 3)}, unit="dryer2")
-    m.start()
+    asyncio.run(m.start())
     try:
-        m.publish({"moisture_out": 0.03, "moisture_out_std": 0.03, "moisture_in": 1.0,
-                   "moisture_in_std": 0.02, "status": "ok"}, 1_767_607_800 * 10**9)
+        m.on_estimate(Estimate.from_body({
+            "moisture_out": 0.03, "moisture_out_std": 0.03, "moisture_in": 1.0,
+            "moisture_in_std": 0.02, "status": "ok", "window_end_ns": 1_767_607_800 * 10**9}))
         text = urllib.request.urlopen(f"http://127.0.0.1:{m.port}/metrics",
                                       timeout=5).read().decode()
     finally:
-        m.stop()
+        asyncio.run(m.stop())
     samples = {}
     for fam in text_string_to_metric_families(text):
         for s in fam.samples:
@@ -591,16 +594,17 @@ def test_the_pages_outlet_axis_stops_at_zero_for_a_wide_start_up_band(tmp_path):
     page = LivePage(WebSettings(enabled=True, port=0), DisplaySettings(moisture_basis="wet"),
                     clock=lambda: t0 + 13 * 600 * 10**9)
     for k in range(12):
-        page.add_estimate(t0 + (k + 1) * 600 * 10**9, {
+        page.on_estimate(Estimate.from_body({
+            "window_end_ns": t0 + (k + 1) * 600 * 10**9,
             "moisture_out": 0.03, "moisture_out_std": 0.03 - 0.002 * k, "moisture_in": 1.0,
             "moisture_in_std": 0.05, "status": "ok", "T_dryer_out_model": 348.0,
             "T_dryer_out_measured": 348.2, "T_cyclone_out_model": 345.0,
-            "T_cyclone_out_measured": 345.1})
-    page.start()
+            "T_cyclone_out_measured": 345.1}))
+    asyncio.run(page.start())
     try:
         dom = chromium_dom(f"http://127.0.0.1:{page.port}/")
     finally:
-        page.stop()
+        asyncio.run(page.stop())
     outlet = re.search(r"<svg[^>]*id=\"outlet\".*?</svg>", dom, re.S).group(0)
     ticks = [float(v) for v in re.findall(r"class=\"tick-y\"[^>]*>([^<]+)<", outlet)]
     assert ticks and min(ticks) >= 0.0, ticks
