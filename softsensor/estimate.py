@@ -4,7 +4,7 @@ What the soft sensor says every tick is an :class:`Estimate` (``/softsensor/esti
 CONTRACT section 2) and a :class:`Health` (``/softsensor/health``). Both are frozen: the
 estimator builds an estimate in one place (:mod:`softsensor.estimation.publication`), the
 service finishes it with the window's facts by one pure step
-(:func:`softsensor.estimation.publication.finish`) and says its health; the daemon adds what
+(:func:`softsensor.service.estimator_service.finish`) and says its health; the daemon adds what
 only it knows (the recorder's state, what the input limits dropped, a stalled estimator thread)
 as fields of a new :class:`Health`, never by editing text. Every sink (the bus, the recording,
 the operator outputs) gets these objects; :meth:`Estimate.to_body` and :meth:`Health.to_body`

@@ -31,7 +31,7 @@ class Estimator(Protocol):
 
     def tick(self, window: Window) -> Estimate:
         """Advance to ``window.end_ns`` and return the tick's estimate (the service finishes
-        it with the window's facts, :func:`softsensor.estimation.publication.finish`)."""
+        it with the window's facts, :func:`softsensor.service.estimator_service.finish`)."""
         ...
 
     def add_lab(self, lab: LabResult) -> str | None:

@@ -57,24 +57,8 @@ one to hold a grab sample against), ``moisture_in`` and its standard deviation, 
 states, the model temperatures, ``nis``, and ``status``/``detail``; a lab-anchored fallback
 when the model has lost the plant.
 
-What was tried (measured on the independent plant, ``benchmarks/open_world.py``)
-------------------------------------------------------------------------------------
-Tuning plant seeds 11 to 13, seven 48 h history days each, one test day per cause: the filter
-with only the calibration's error priors and one day of history published 0.0052, 0.0084 and
-0.0067 kg/kg on the clean days against 0.0055, 0.0084 and 0.0061 for holding the last lab
-result; the model's own response to load and set-point moves was the main error (a learned
-slope on ``T_air_in`` and ``m_fiber`` of the lab residual of 0.014 kg/kg per standard
-deviation), and the inlet moisture drifted against the outlet-moisture bias on the
-temperature channels' day offsets. The discrepancy learned from history on all three channels
-with random-walk offsets sized by the history took the clean days to 0.0040, 0.0052 and
-0.0067; on days where the inlet moisture moved, the bias jumped back at every lab because the
-model's outlet moisture follows the inlet moisture several times more than the plant's does,
-which the ``inlet_gain`` state learns from the labs. Pooled over the 24 tuning days
-(``moisture_out`` RMSE against the truth; holding the last lab 0.0141, the lab-bias-updated
-regression 0.0133 kg/kg): without the inlet gain 0.0128, its prior at 0.3 0.0113, at 1.0 with
-the bias's covariance matching at 5 sigma 0.0083; the error states started with the
-history's day-offset correlation 0.0086 (so they start uncorrelated). The numbers of the
-final design on fresh plants are in the README ("Accuracy on the independent plant").
+Why this design, and what else was tried on the independent plant: the documentation's
+explanation of the estimator (``docs/explanation/estimator.md``).
 
 Late lab results
 ----------------
