@@ -19,11 +19,11 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from open_world import SHIFTED
 
-from softsensor.calibration.calibration_run import validate_many
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import validate_many
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.simulator import simulate_day

@@ -44,12 +44,13 @@ from softsensor.apps.design import (
     operating_point_of,
     record_schedule,
 )
-from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
+from softsensor.calibration.calibration_run import calibrate, objective_spec
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.experiment_design import DesignLimits, optimise
 from softsensor.calibration.identifiability import identify
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import validate
 from softsensor.jsonable import jsonable
 from softsensor.model import DryerModel
 from softsensor.plant.independent import simulate_independent_day

@@ -381,7 +381,7 @@ def load_plant_config(path: str | Path | None = None) -> PlantConfig:
 class DiscrepancyPrior:
     """PARAMS.toml's ``[discrepancy]``: what the calibrated model left on held-out data, the
     estimator's prior on its own error (written by ``softsensor calibrate``,
-    :class:`softsensor.calibration.calibration_run.Discrepancy`; read by
+    :class:`softsensor.calibration.validation.Discrepancy`; read by
     :meth:`softsensor.estimation.state_space.ErrorPriors.from_config`). Every key may be
     absent: not known (TOML has no null; a NaN in memory counts as absent too).
 

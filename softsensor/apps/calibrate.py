@@ -91,7 +91,7 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
                   ) -> tuple[list[Segment], list[WindowChoice]]:
     """Read every day, one at a time, and pick its calibration window(s) (``selection``
     default: :class:`DataSelection`'s)."""
-    from softsensor.calibration.calibration_run import select_segments
+    from softsensor.calibration.selection import select_segments
 
     def days() -> Iterator[tuple[str, RecordedDay]]:
         for p in paths:
@@ -472,8 +472,9 @@ def validate_main(args: argparse.Namespace) -> int:
     then with the inlet moisture read from the temperatures, labelled; beside them the
     config's default parameters on the same data."""
     require_packages("validate", "optuna", "matplotlib")
-    from softsensor.calibration.calibration_run import objective_spec, validate_many
+    from softsensor.calibration.calibration_run import objective_spec
     from softsensor.calibration.open_loop_errors import displayed, open_loop_summary, prepared
+    from softsensor.calibration.validation import validate_many
     from softsensor.model import DryerModel
     from softsensor.presentation.calibration_report import lab_reference
     from softsensor.presentation.verdicts import validation_verdict

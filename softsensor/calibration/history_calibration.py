@@ -35,14 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.calibration_run import (
-    MIN_HELD_LABS,
-    CalibrationResult,
-    Discrepancy,
-    calibrate,
-    discrepancy,
-    phase,
-)
+from softsensor.calibration.calibration_run import CalibrationResult, calibrate, phase
 from softsensor.calibration.chunked_run import evaluate_parameters
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.model_error_fit import fit_model_error
@@ -51,6 +44,7 @@ from softsensor.calibration.selection import WindowChoice, select_across, select
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.structure_search import Candidate, StructureSearch
 from softsensor.calibration.structure_search import search as structural_search
+from softsensor.calibration.validation import MIN_HELD_LABS, Discrepancy, discrepancy
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig

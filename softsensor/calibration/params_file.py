@@ -22,7 +22,7 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [structure.fiber]          keys such as fiber.bound_fraction, applied on load) and
     [structure.evidence]       the held-out evidence for it (:mod:`.structure_search`)
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
-                               on its own error, :class:`~.calibration_run.Discrepancy`)
+                               on its own error, :class:`~.validation.Discrepancy`)
     [model_error]              what the history says the model misses, channel by channel
                                (:class:`~softsensor.estimation.model_error.ModelError`): the
                                features and their scales, the days and the typical inlet
