@@ -13,7 +13,7 @@ What is minimised is :mod:`.objective`: eq. 4 or the likelihood, after the unmea
 moisture's trajectory, plus a prior on the parameters (``[calibration]``,
 :class:`~.settings.CalibrationSettings`; :func:`objective_spec` sets it up once per
 calibration). What the validation leaves on the held-out data
-(:class:`~.validation.Discrepancy`) goes into PARAMS.toml for the estimator.
+(:func:`~.validation.discrepancy_prior`) goes into PARAMS.toml for the estimator.
 
 The command-line verbs in :mod:`.commands` only parse arguments and print or write what these
 return.
@@ -64,14 +64,13 @@ from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import FrontPoint, TradeOff, scored, study_front
 from softsensor.calibration.validation import (
-    Discrepancy,
     ValidationResult,
-    discrepancy,
+    discrepancy_prior,
     split_holdout,
     validate_many,
 )
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig
 from softsensor.signals import OUTPUT_NAMES
 
 
@@ -121,7 +120,7 @@ class CalibrationResult:
     importance: dict[str, float] | None
     validation: ValidationResult | None = None
     current_validation: ValidationResult | None = None
-    discrepancy: Discrepancy | None = None
+    discrepancy: DiscrepancyPrior | None = None
     sensitivities: list[Sensitivities] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     trials_here: int = 0
@@ -148,9 +147,8 @@ class CalibrationResult:
         cfg = self.config.with_parameters(self.theta)
         if self.discrepancy is None:
             return cfg
-        disc = {k: float(v) for k, v in self.discrepancy.as_dict().items()
-                if isinstance(v, (int, float)) and not isinstance(v, bool)}
-        return dataclasses.replace(cfg, extra={**cfg.extra, "discrepancy": disc})
+        return dataclasses.replace(cfg, extra={**cfg.extra,
+                                               "discrepancy": self.discrepancy.as_table()})
 
     @property
     def accepted(self) -> bool:
@@ -323,7 +321,7 @@ def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
 def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
                    theta: np.ndarray, current: np.ndarray, fit_cost: float,
                    model: DryerModel, front: Sequence[FrontPoint] = ()
-                   ) -> tuple[ValidationResult, ValidationResult, Discrepancy,
+                   ) -> tuple[ValidationResult, ValidationResult, DiscrepancyPrior,
                               list[ValidationResult]]:
     """The result and the current parameters on the held-out data, the result's
     discrepancy there (the [discrepancy] the estimator and the diagnosis use), and the
@@ -331,13 +329,13 @@ def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: Objective
     thetas = [theta, current, *(p.theta for p in front)]
     vals = validate_many(held, config, spec, thetas, [fit_cost] + [None] * (len(thetas) - 1),
                          model)
-    return vals[0], vals[1], discrepancy(vals[0].evaluation, held), vals[2:]
+    return vals[0], vals[1], discrepancy_prior(vals[0].evaluation, held), vals[2:]
 
 
 def _trade_off(study: optuna.Study, held: Sequence[Segment], config: PlantConfig,
                spec: ObjectiveSpec, calibration: CalibrationSettings, theta: np.ndarray,
                current: np.ndarray, evs: Sequence[Evaluation], model: DryerModel
-               ) -> tuple[ValidationResult, ValidationResult, Discrepancy, TradeOff]:
+               ) -> tuple[ValidationResult, ValidationResult, DiscrepancyPrior, TradeOff]:
     """:func:`_validate_both` with the study's front beside (:mod:`.trade_off`)."""
     front = study_front(study)
     val, cur_val, disc, front_vals = _validate_both(held, config, spec, theta, current,

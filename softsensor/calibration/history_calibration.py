@@ -44,10 +44,10 @@ from softsensor.calibration.selection import WindowChoice, select_across, select
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.structure_search import Candidate, StructureSearch
 from softsensor.calibration.structure_search import search as structural_search
-from softsensor.calibration.validation import MIN_HELD_LABS, Discrepancy, discrepancy
+from softsensor.calibration.validation import MIN_HELD_LABS, discrepancy_prior
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig
 
 #: Shortest piece of a day's unused hours that validates [h].
 MIN_VALIDATION_HOURS = 4.0
@@ -71,7 +71,7 @@ class HistoryResult:
     reason: str
     inlet_levels: list[float]
     model_error: ModelError
-    discrepancy: Discrepancy | None
+    discrepancy: DiscrepancyPrior | None
     timings: dict[str, float] = field(default_factory=dict)
     structure: StructureSearch | None = None
 
@@ -202,7 +202,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
-        disc = discrepancy(cur.evaluation, cur.segments)
+        disc = discrepancy_prior(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
     return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)

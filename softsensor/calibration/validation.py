@@ -8,9 +8,9 @@ moisture) are reported beside. :func:`validate_many` scores several sets in one 
 (:func:`~.calibration_run.calibrate` compares its result with the current parameters and the
 study's front that way).
 
-The statistics of what the validation leaves (:class:`Discrepancy`) go into PARAMS.toml for
-the estimator: how far, how correlated and how slowly the calibrated model misses a day it
-was not fitted on.
+The statistics of what the validation leaves (:func:`discrepancy_prior`) go into PARAMS.toml's
+``[discrepancy]`` (:class:`~softsensor.plantconfig.DiscrepancyPrior`) for the estimator: how
+far, how correlated and how slowly the calibrated model misses a day it was not fitted on.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from softsensor.calibration.dataset import Segment
 from softsensor.calibration.identifiability import lag1_autocorrelation
 from softsensor.calibration.objective import Evaluation, ObjectiveSpec
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import DiscrepancyPrior, PlantConfig
 
 #: Lab samples a held-out part must hold to validate on it.
 MIN_HELD_LABS = 2
@@ -56,43 +56,11 @@ def split_holdout(segments: Sequence[Segment], fraction: float,
     return fit, held
 
 
-@dataclass(frozen=True)
-class Discrepancy:
-    """What the calibrated model leaves on data it was not fitted on (after the inlet
-    trajectory fitted to the temperatures): the estimator's prior on its own error.
-
-    Attributes
-    ----------
-    common_std : float
-        Root mean square of the part of the two outlet temperatures' residuals they share
-        (``sqrt(max(mean(r_d r_c), 0))``, moments about zero: the mean offset counts) [K].
-    dryer_std, cyclone_std : float
-        Root mean square of each channel's own part [K].
-    tau_s : float
-        Correlation time of the temperature residuals, from their lag-one autocorrelation [s].
-    moisture_std : float
-        Root mean square of the lab residuals (out of sample) [kg/kg].
-    inlet_walk : float
-        Random-walk intensity of the fitted inlet trajectory [kg/kg / sqrt(h)].
-    n_windows, n_labs : int
-        Samples behind these numbers.
-    """
-
-    common_std: float
-    dryer_std: float
-    cyclone_std: float
-    tau_s: float
-    moisture_std: float
-    inlet_walk: float
-    n_windows: int
-    n_labs: int
-
-    def as_dict(self) -> dict[str, float | int]:
-        return dataclasses.asdict(self)
-
-
-def discrepancy(ev: Evaluation, segments: Sequence[Segment]) -> Discrepancy:
-    """:class:`Discrepancy` from a validation evaluation (residuals per segment)."""
+def discrepancy_prior(ev: Evaluation, segments: Sequence[Segment]) -> DiscrepancyPrior:
+    """PARAMS.toml's ``[discrepancy]`` (:class:`~softsensor.plantconfig.DiscrepancyPrior`,
+    whose attributes say what each number is) from a validation evaluation (residuals per
+    segment). A number these data cannot give (fewer than two windows, no lab result, no inlet
+    knot) is None: not known."""
     pairs_d, pairs_c, rhos = [], [], []
     for r, seg in zip(ev.res, segments, strict=True):
         ok = np.isfinite(seg.Y[:, 0]) & np.isfinite(seg.Y[:, 1])
@@ -124,9 +92,16 @@ def discrepancy(ev: Evaluation, segments: Sequence[Segment]) -> Discrepancy:
         if cs.size > 1:
             walks.append(np.diff(cs) / np.sqrt(np.diff(kn)))
     walk = float(np.sqrt(np.mean(np.concatenate(walks) ** 2))) if walks else float("nan")
-    return Discrepancy(common_std=common, dryer_std=own_d, cyclone_std=own_c, tau_s=tau,
-                       moisture_std=float(np.sqrt(np.mean(labs**2))) if labs.size else math.nan,
-                       inlet_walk=walk, n_windows=int(d.size), n_labs=int(labs.size))
+    moisture = float(np.sqrt(np.mean(labs**2))) if labs.size else math.nan
+    return DiscrepancyPrior(
+        common_std=_known(common), dryer_std=_known(own_d), cyclone_std=_known(own_c),
+        tau_s=_known(tau), moisture_std=_known(moisture), inlet_walk=_known(walk),
+        n_windows=float(d.size), n_labs=float(labs.size))
+
+
+def _known(x: float) -> float | None:
+    """``x``, or None (not known) when it is not finite."""
+    return x if math.isfinite(x) else None
 
 
 @dataclass(frozen=True)
@@ -198,5 +173,5 @@ def validate(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSp
     theta = config.parameter_vector() if theta is None else np.asarray(theta, float)
     return validate_many(segments, config, spec, [theta], [calibration_cost], model)[0]
 
-__all__ = ["MIN_HELD_LABS", "Discrepancy", "ValidationResult", "discrepancy", "split_holdout",
-           "validate", "validate_many"]
+__all__ = ["MIN_HELD_LABS", "ValidationResult", "discrepancy_prior", "split_holdout", "validate",
+           "validate_many"]
