@@ -369,7 +369,8 @@ def plant_config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Plan
 
 
 def default_config_path() -> Path:
-    """The reference plant's config shipped with the package (a copy of config/dryer1.toml)."""
+    """The reference plant's config shipped with the package (the repository's
+    config/dryer1.toml links to it)."""
     return Path(str(resources.files("softsensor").joinpath("data/dryer1.toml")))
 
 
