@@ -6,7 +6,7 @@ study of TRIALS trials, the polish, validation on the held-out hours, identifiab
 result and the true parameters are then scored on the same held-out pieces, eq. 4 with the
 inlet read from the temperatures and open loop. Target: the ratio at most 1.25.
 
-    python benchmarks/calibrate_matched.py 7 48 200 benchmarks/calibrate_matched.json
+    python benchmarks/calibrate_matched.py 7 48 200 benchmarks/results/calibrate_matched.json
 
 Simulated days are cached under ``--cache`` (default a temporary folder)."""
 import json
