@@ -10,19 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from recorded_days import PERIOD, T0, scan, write_day
+from recorded_days import PERIOD, T0, scan
 
 from softsensor.errors import IngestError
 from softsensor.recording.day_writer import DayWriter
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
-
-
-@pytest.fixture
-def day(tmp_path: Path) -> Path:
-    path = tmp_path / "day.mcap"
-    write_day(path)
-    return path
 
 
 def test_nan_and_null(tmp_path: Path) -> None:
