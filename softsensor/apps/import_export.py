@@ -39,7 +39,7 @@ from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
 
 def write_imported_day(path: str | Path, scans: ScanTable, labs: LabTable | None) -> int:
     """Write scans and lab results as a recorded day, in log-time order; messages written."""
-    from softsensor.recording.mcap_day import DayWriter
+    from softsensor.recording.day_writer import DayWriter
 
     pending = labs.results if labs is not None else []
     j = 0

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.calibration_run import CalibrationResult, ValidationResult
+from softsensor.calibration.calibration_run import CalibrationResult
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -24,6 +24,7 @@ from softsensor.calibration.identifiability import (
 )
 from softsensor.calibration.structure_search import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
+from softsensor.calibration.validation import ValidationResult
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig

@@ -56,7 +56,8 @@ from softsensor.errors import ConfigError, EstimationError, IngestError, Softsen
 from softsensor.files import atomic_path
 from softsensor.messages import iso_utc
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
+from softsensor.recording.day_writer import DEFAULT_CHUNK_SIZE, DayWriter
+from softsensor.recording.mcap_day import iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import INPUT_KINDS, ServicePipeline

@@ -212,7 +212,7 @@ def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
 
     import pandas as pd
 
-    from softsensor.apps.calibrate import _lab_regression
+    from softsensor.calibration.history_calibration import history_regression
 
     rng = np.random.default_rng(5)
     t = (np.arange(1, 8641) * 10 + 1_767_571_200) * 10**9  # 24 h of 10 s scans
@@ -226,13 +226,13 @@ def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
         value = 0.1 + 0.01 * (mean - 300)
         days.append(SimpleNamespace(scans=scans, labs=pd.DataFrame(
             {"sample_time_ns": sample, "moisture_out": value.to_numpy()})))
-    reg, why = _lab_regression(days)
+    reg, why = history_regression(days)
     assert why is None
     assert "flap_cmd" not in reg.signals and len(reg.signals) == len(REGRESSION_SIGNALS) - 1
     assert reg.n_labs == 22
     assert np.all(np.isfinite(reg.coef)) and reg.step_sd > 0
     short = SimpleNamespace(scans=days[0].scans, labs=days[0].labs.iloc[:9])
-    reg, why = _lab_regression([short])
+    reg, why = history_regression([short])
     assert reg is None  # 9 results for 11 coefficients
     assert why == ("the regression peer needs at least 11 lab results with every signal "
                    "scanned, the history holds 9")

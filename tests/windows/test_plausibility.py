@@ -87,6 +87,16 @@ def test_a_plausibility_table_changes_a_limit_and_is_checked():
     unknown = plant_config_from_dict({**raw, "plausibility": {"T_foo": {}}}, "site.toml")
     with pytest.raises(ConfigError, match=r"plausibility\.T_foo is not a known key \(known: h"):
         plausibility_from_config(unknown)
+    # a signal's table is read as the one SignalLimits it becomes (no second dataclass of the
+    # same keys): its errors name the dotted key
+    for table, match in [({"hihg": 700.0}, r"plausibility\.T_air_in\.hihg is not a known key "
+                                           r"\(known: low, high, max_rate, max_step\)"),
+                         (5, r"\[plausibility\.T_air_in\] must be a table, got int"),
+                         ({"max_rate": -1.0}, r"plausibility\.T_air_in\.max_rate must be >= 0"),
+                         ({"low": "x"}, r"plausibility\.T_air_in\.low must be a number")]:
+        wrong = plant_config_from_dict({**raw, "plausibility": {"T_air_in": table}}, "site.toml")
+        with pytest.raises(ConfigError, match=match):
+            plausibility_from_config(wrong)
 
 
 def _raw_config(cfg) -> dict[str, Any]:
