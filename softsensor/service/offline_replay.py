@@ -443,7 +443,7 @@ def _stream_zenoh(messages: Iterator[tuple[str, int, dict[str, Any]]],
 
                 def _sink(kind: str, body: dict[str, Any], time_ns: int) -> None:
                     publisher.put(kind, body, time_ns)
-                    if kind == "lab":  # the next scan must not overtake it (see below)
+                    if kind == "lab":  # the next scan must not overtake it (module docstring)
                         labs_sent[0] += 1
                         _wait(lambda: worker.n_labs_received >= labs_sent[0],
                               lambda: worker.n_labs_received, "a lab result")
