@@ -30,6 +30,13 @@ def config():
 
 
 @pytest.fixture(scope="session")
+def cfg(config):
+    """The reference plant under the short name the model, plant, diagnosis and design tests
+    give it."""
+    return config
+
+
+@pytest.fixture(scope="session")
 def model(config):
     """The model of the reference plant (files that need another grid define their own)."""
     from softsensor.model import DryerModel

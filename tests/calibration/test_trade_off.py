@@ -14,14 +14,13 @@ import json
 
 import numpy as np
 import pytest
+from synthetic_days import TRUTH
 
 from softsensor.calibration.params_file import params_document, write_params
 from softsensor.calibration.trade_off import FrontPoint, TradeOff, pareto_indices, spread
 from softsensor.cli import main as cli_main
 from softsensor.plantconfig import load_plant_config
 
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 WEAK = ["--trials", "3", "--no-polish", "--no-identify", "--window-hours", "6",
         "--fit-hours", "6", "--quiet", "--no-structure"]
 

@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import optuna
 import pytest
+from synthetic_days import TRUTH
 
 from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
 from softsensor.calibration.dataset import segment_from_day
@@ -23,8 +24,6 @@ from softsensor.presentation.calibration_figures import trajectory_plot
 from softsensor.presentation.display import DisplaySettings
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 #: The moisture drawn in % of the dry mass: 100 X, so the drawn lab errors are 100 x kg/kg.
 DRY = DisplaySettings(moisture_basis="dry")
 
