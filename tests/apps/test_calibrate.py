@@ -26,9 +26,8 @@ from pathlib import Path
 
 import pytest
 from paths import REPO
-from synthetic_days import TRUTH
+from synthetic_days import TRUTH, truth_days
 
-from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
 from softsensor.estimation.lab_regression import regression_of
@@ -48,15 +47,7 @@ WEAK = ["--trials", "3", "--no-polish", "--no-identify", "--window-hours", "6",
 
 @pytest.fixture(scope="module")
 def days(tmp_path_factory) -> tuple[str, str, str]:
-    d = tmp_path_factory.mktemp("refusal")
-    true = write_params(d / "true.toml", params_document(load_plant_config(), TRUTH, {}))
-    out = []
-    for seed in (1, 2):
-        day = d / f"day{seed}.mcap"
-        assert cli_main(["simulate", "--plant", "model", "--params", str(true), "--hours",
-                         "16", "--seed", str(seed), "--out", str(day)]) == 0
-        out.append(str(day))
-    return out[0], out[1], str(true)
+    return truth_days(tmp_path_factory.mktemp("refusal"), (1, 2))
 
 
 def _last_line(capsys) -> str:

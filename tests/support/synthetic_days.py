@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from softsensor.calibration.params_file import params_document, write_params
+from softsensor.cli import main as cli_main
+from softsensor.plantconfig import load_plant_config
 from softsensor.recording.mcap_day import RecordedDay
 from softsensor.signals import SCAN_SIGNALS
 
@@ -48,4 +51,19 @@ def labs_every(hours: float, every_h: float):
             for h in np.arange(0.7, hours, every_h)]
 
 
-__all__ = ["NS", "T0", "TRUTH", "labs_every", "make_day"]
+def truth_days(directory: Path, seeds: tuple[int, int]) -> tuple[str, str, str]:
+    """Two 16 h days of the matched plant with :data:`TRUTH` (``softsensor simulate``, day
+    ``seeds``) and that plant's PARAMS.toml, written into ``directory``: ``(day, day,
+    params)``."""
+    true = write_params(directory / "true.toml",
+                        params_document(load_plant_config(), TRUTH, {}))
+    out = []
+    for seed in seeds:
+        day = directory / f"day{seed}.mcap"
+        assert cli_main(["simulate", "--plant", "model", "--params", str(true), "--hours",
+                         "16", "--seed", str(seed), "--out", str(day)]) == 0
+        out.append(str(day))
+    return out[0], out[1], str(true)
+
+
+__all__ = ["NS", "T0", "TRUTH", "labs_every", "make_day", "truth_days"]
