@@ -40,10 +40,9 @@ import numpy as np
 import pytest
 
 from softsensor.diagnosis.diagnose_day import diagnose
-from softsensor.diagnosis.extensions import LabTimeShift, SensorOffset
 from softsensor.estimation.settings import estimator_settings
 from softsensor.plant.effects import EFFECTS
-from softsensor.plant.simulator import SimulatedDay, simulate_day
+from softsensor.plant.simulator import simulate_day
 
 HOURS = 72.0
 SLOW_HOURS = 30.0
@@ -275,13 +274,10 @@ def test_randomised_days_are_named_correctly(cfg):
     assert len(false_alarms) <= 1, summary
 
 
-def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, model, day):
+def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, offset_diagnosis):
     """A sensor offset on the whole day: the report's numbers cover every window and lab
     result, each predicted by the fit on the other part."""
-    scans = day.scans.copy()
-    scans["T_dryer_out"] += 3.0
-    d = diagnose(cfg, SimulatedDay(scans, day.labs, day.truth),
-                 extensions=(SensorOffset(), LabTimeShift()))
+    d = offset_diagnosis
     rep = d.to_json()
     assert rep["cause"] == "sensor_bias" and rep["channel"] == "T_dryer_out"
     w = d.problem.windows
