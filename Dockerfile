@@ -64,8 +64,9 @@ COPY --from=app /opt/softsensor-app /opt/softsensor-app
 RUN printf '#!/opt/softsensor/bin/python\nimport sys\nfrom softsensor.cli import main\n\
 sys.exit(main())\n' > /opt/softsensor/bin/softsensor && chmod 755 /opt/softsensor/bin/softsensor
 
-# the reference plant and its tag map, used when no config is mounted over /config
-COPY --chown=10001:10001 config/dryer1.toml config/tagmap_dryer1.toml /config/
+# the reference plant and its tag map, used when no config is mounted over /config (the
+# package's copies: the repository's config/ only links to them)
+COPY --chown=10001:10001 softsensor/data/dryer1.toml softsensor/data/tagmap_dryer1.toml /config/
 
 USER softsensor
 # compile the model once at build time, so the daemon starts in seconds (the cache is read

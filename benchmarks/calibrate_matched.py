@@ -6,7 +6,7 @@ study of TRIALS trials, the polish, validation on the held-out hours, identifiab
 result and the true parameters are then scored on the same held-out pieces, eq. 4 with the
 inlet read from the temperatures and open loop. Target: the ratio at most 1.25.
 
-    python benchmarks/calibrate_matched.py 7 48 200 benchmarks/calibrate_matched.json
+    python benchmarks/calibrate_matched.py 7 48 200 benchmarks/results/calibrate_matched.json
 
 Simulated days are cached under ``--cache`` (default a temporary folder)."""
 import json
@@ -19,11 +19,11 @@ import time
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from open_world import SHIFTED
 
-from softsensor.calibration.calibration_run import validate_many
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import validate_many
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.simulator import simulate_day

@@ -44,12 +44,13 @@ from softsensor.apps.design import (
     operating_point_of,
     record_schedule,
 )
-from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
+from softsensor.calibration.calibration_run import calibrate, objective_spec
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.experiment_design import DesignLimits, optimise
 from softsensor.calibration.identifiability import identify
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import validate
 from softsensor.jsonable import jsonable
 from softsensor.model import DryerModel
 from softsensor.plant.independent import simulate_independent_day
@@ -148,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
     val = [segment_from_day(val_day, base, source="validation seed 103")]
     log(f"days simulated ({time.perf_counter() - t0:.0f} s)")
     natural = calibrate_and_score([nat_seg], val, base, settings, a.trials, "natural")
-    # the designed periods start a day after the natural one (as benchmarks/design.json did)
+    # the designed periods start a day after the natural one (as benchmarks/results/design.json did)
     op = operating_point_of(nat_day, base, a.hours, "natural seed 101")
     op = dataclasses.replace(op, start_ns=op.start_ns + DAY_NS)
     m0 = float(op.u[INPUT_NAMES.index("m_air")])

@@ -48,7 +48,7 @@ def run(est, scans, labs_frame, truth):
         while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
             est.add_lab(labs[j])
             j += 1
-        body = est.tick(w)
+        body = est.tick(w).to_body()
         seconds.append(time.perf_counter() - t0)
         row = {"end": w.end_ns, "mo": body["moisture_out"], "mo_sd": body["moisture_out_std"],
                "mo_wsd": body.get("moisture_out_window_std", np.nan), "mi": body["moisture_in"],

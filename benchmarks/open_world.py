@@ -389,7 +389,7 @@ def run_estimator(config: PlantConfig, day: SimulatedDay) -> dict[str, np.ndarra
             j += 1
         t0 = time.perf_counter()
         try:
-            body = est.tick(w)
+            body = est.tick(w).to_body()
         except (SoftsensorError, ArithmeticError, ValueError):
             body = {"status": "degraded"}
         cols["tick_s"].append(time.perf_counter() - t0)

@@ -44,9 +44,10 @@ samples, after ``--settle`` seconds without faults) is the baseline; then ``N`` 
 publishes 60 kB scans (under ``max_message_bytes``) as fast as it can for 10 s, and the resident
 memory at rest after each is compared with the baseline. Targets in ``benchmarks/targets.json``
 (``soak_memory``): baseline at most 250 MB, after every flood at most 1.1 times the baseline.
-``--flood-json FILE`` writes this phase's numbers with the targets.
+``--flood-json FILE`` writes this phase's numbers with the targets (the committed run:
+``benchmarks/results/soak_flood.json``)::
 
-    python benchmarks/soak.py --days 0 --speed 60 --flood 2 --flood-json benchmarks/soak_flood.json
+    python benchmarks/soak.py --days 0 --speed 60 --flood 2 --flood-json FILE.json
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 Every error raised on purpose derives from :class:`SoftsensorError`; its message is one line
 that names what is wrong (the file, the dotted config key, the signal). The command line turns
-any ``SoftsensorError`` into ``softsensor: <message>`` on stderr and a non-zero exit status.
+any ``SoftsensorError`` into ``softsensor: <message>`` on stderr and a non-zero exit status::
 
     SoftsensorError
     +-- ConfigError      a config or parameter file is missing, malformed or out of range

@@ -67,7 +67,9 @@ class Cyclone:
     shell_density: float = num(gt=0)
     shell_heat_capacity: float = num(gt=0)
     inner_heat_transfer: float = num(gt=0)    # W/(m2 K)
-    hold_up_time: float = num(8.0, gt=0, le=120)  # s, fibre residence in the cyclones
+    # s, fibre residence in the cyclones: the reference plant's (config/dryer1.toml), the
+    # paper's form of the structural library (softsensor.model.structure)
+    hold_up_time: float = num(4.0, gt=0, le=120)
 
 
 #: The drying-rate laws the model compiles (``fiber.drying_law``; the model's law index is the
@@ -367,7 +369,8 @@ def plant_config_from_dict(data: dict[str, Any], source: str = "<dict>") -> Plan
 
 
 def default_config_path() -> Path:
-    """The reference plant's config shipped with the package (a copy of config/dryer1.toml)."""
+    """The reference plant's config shipped with the package (the repository's
+    config/dryer1.toml links to it)."""
     return Path(str(resources.files("softsensor").joinpath("data/dryer1.toml")))
 
 
@@ -379,24 +382,30 @@ def load_plant_config(path: str | Path | None = None) -> PlantConfig:
 
 @dataclass(frozen=True)
 class DiscrepancyPrior:
-    """PARAMS.toml's ``[discrepancy]``: what the calibrated model left on held-out data, the
-    estimator's prior on its own error (written by ``softsensor calibrate``,
-    :class:`softsensor.calibration.calibration_run.Discrepancy`; read by
-    :meth:`softsensor.estimation.state_space.ErrorPriors.from_config`). Every key may be
-    absent: not known (TOML has no null; a NaN in memory counts as absent too).
+    """PARAMS.toml's ``[discrepancy]``: what the calibrated model leaves on data it was not
+    fitted on (after the inlet trajectory fitted to the temperatures), the estimator's prior on
+    its own error. The calibration builds it
+    (:func:`softsensor.calibration.validation.discrepancy_prior`) and writes it; it is read back
+    here (:func:`load_parameters`) for
+    :meth:`softsensor.estimation.state_space.ErrorPriors.from_config` and the diagnosis. Every
+    key may be absent: not known (TOML has no null; a NaN in memory counts as absent too).
 
     Attributes
     ----------
-    common_std, dryer_std, cyclone_std : float
-        Root mean square of the outlet temperatures' common and own residuals [K].
+    common_std : float
+        Root mean square of the part of the two outlet temperatures' residuals they share
+        (``sqrt(max(mean(r_d r_c), 0))``, moments about zero: the mean offset counts) [K].
+    dryer_std, cyclone_std : float
+        Root mean square of each outlet temperature's own part [K].
     tau_s : float
-        Correlation time of the temperature residuals [s].
+        Correlation time of the temperature residuals, from their lag-one autocorrelation [s].
     moisture_std : float
-        Root mean square of the lab residuals [kg/kg].
+        Root mean square of the lab residuals (out of sample) [kg/kg].
     inlet_walk : float
         Random-walk intensity of the fitted inlet trajectory [kg/kg / sqrt(h)].
     n_windows, n_labs : float
-        Samples behind these numbers.
+        Samples behind these numbers (numbers, not integers, as PARAMS.toml files have
+        always been read).
     """
 
     common_std: float | None = num(None, ge=0)
@@ -407,6 +416,14 @@ class DiscrepancyPrior:
     inlet_walk: float | None = num(None, ge=0)
     n_windows: float | None = num(None, ge=0)
     n_labs: float | None = num(None, ge=0)
+
+    def as_dict(self) -> dict[str, float | None]:
+        """Every key, None where not known (the JSON summaries; :meth:`as_table` for TOML)."""
+        return dataclasses.asdict(self)
+
+    def as_table(self) -> dict[str, float]:
+        """The ``[discrepancy]`` table as PARAMS.toml holds it: the known keys only."""
+        return {k: v for k, v in self.as_dict().items() if v is not None}
 
 
 def _discrepancy(table: Any, source: str) -> DiscrepancyPrior | None:
@@ -480,8 +497,7 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     disc = data.get("discrepancy")
     if disc is not None:
         prior = built["discrepancy"] = _discrepancy(disc, str(path))
-        extra["discrepancy"] = {k: v for k, v in dataclasses.asdict(prior).items()
-                                if v is not None}
+        extra["discrepancy"] = prior.as_table()
     error = data.get("model_error")
     if error is not None:
         if not isinstance(error, dict):

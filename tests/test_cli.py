@@ -132,8 +132,9 @@ def _verbs() -> dict[str, argparse.ArgumentParser]:
 
 
 def _readme_exit_codes() -> dict[str, set[int]]:
-    """Per verb, the exit statuses the README's table gives (a '-' cell: none)."""
-    text = (REPO / "README.md").read_text()
+    """Per verb, the exit statuses the documented table gives (docs/user-guide/commands.md;
+    a '-' cell: none)."""
+    text = (REPO / "docs" / "user-guide" / "commands.md").read_text()
     table = text.split("| verb | 0 | 1 | 2 | 130 |")[1].split("\n\n")[0]
     out: dict[str, set[int]] = {}
     for row in table.strip().splitlines()[1:]:

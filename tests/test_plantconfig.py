@@ -32,8 +32,12 @@ def _value_comment(text: str, name: str) -> str:
     return line.partition("#")[2].strip()
 
 
-def test_packaged_config_is_the_repository_config():
-    assert default_config_path().read_text() == (ROOT / "config" / "dryer1.toml").read_text()
+def test_the_repository_config_is_the_packaged_one():
+    """One copy of the reference plant: the package's (a pip install needs it inside
+    ``softsensor/``); the repository's ``config/dryer1.toml``, which the README and the docs
+    point at, links to it."""
+    link = ROOT / "config" / "dryer1.toml"
+    assert link.is_symlink() and link.resolve() == default_config_path().resolve()
 
 
 def test_reference_plant_matches_contract_section_6():
@@ -138,7 +142,31 @@ def test_parameter_file_overrides_values_within_bounds(tmp_path):
         load_parameters(unknown, cfg)
 
 
-def test_packaged_tagmap_is_the_repository_tagmap():
+def test_the_repository_tagmap_is_the_packaged_one():
     from softsensor.ingest.tagmap import DEFAULT_TAGMAP
 
-    assert DEFAULT_TAGMAP.read_text() == (ROOT / "config" / "tagmap_dryer1.toml").read_text()
+    link = ROOT / "config" / "tagmap_dryer1.toml"
+    assert link.is_symlink() and link.resolve() == DEFAULT_TAGMAP.resolve()
+
+
+def test_every_default_is_the_shipped_configs_value():
+    """A key with a default in the code and a value in the shipped config must agree: a
+    plant config that leaves the key out gets the reference plant's value (issue 37:
+    ``cyclone.hold_up_time`` defaulted to 8 s in the code and was 4 s in the config)."""
+    import dataclasses
+    import tomllib
+
+    from softsensor.plantconfig import PlantSections
+
+    shipped = tomllib.loads(default_config_path().read_text())
+    cfg = load_plant_config()
+    checked = []
+    for section in dataclasses.fields(PlantSections):
+        table = shipped.get(section.name, {})
+        for f in dataclasses.fields(getattr(cfg, section.name)):
+            if f.default is dataclasses.MISSING or f.name not in table:
+                continue
+            checked.append(f"{section.name}.{f.name}")
+            assert table[f.name] == f.default, (
+                f"{section.name}.{f.name}: default {f.default!r}, shipped {table[f.name]!r}")
+    assert "cyclone.hold_up_time" in checked and len(checked) >= 15, checked

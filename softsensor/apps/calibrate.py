@@ -1,7 +1,7 @@
 """``softsensor calibrate | identify | validate``: argument parsing and output only.
 
 The work is done by :mod:`softsensor.calibration.calibration_run`; the pages by
-:mod:`.calibration_report`. ``calibrate`` and ``validate``
+:mod:`softsensor.presentation.calibration_report`. ``calibrate`` and ``validate``
 print one JSON document on stdout (progress and logging go to stderr); ``identify`` prints
 the table of what the data can and cannot pin down and writes JSON with ``--json``. Errors are
 :class:`~softsensor.errors.SoftsensorError` subclasses, which the ``softsensor`` command turns
@@ -91,7 +91,7 @@ def load_segments(paths: Sequence[str | Path], config: PlantConfig,
                   ) -> tuple[list[Segment], list[WindowChoice]]:
     """Read every day, one at a time, and pick its calibration window(s) (``selection``
     default: :class:`DataSelection`'s)."""
-    from softsensor.calibration.calibration_run import select_segments
+    from softsensor.calibration.selection import select_segments
 
     def days() -> Iterator[tuple[str, RecordedDay]]:
         for p in paths:
@@ -217,7 +217,6 @@ def calibrate_main(args: argparse.Namespace) -> int:
     import optuna
 
     from softsensor.calibration.history_calibration import calibrate_history
-    from softsensor.calibration.optimize import StudySettings
 
     base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
@@ -227,20 +226,9 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if not args.fit_hours > 0:
         raise ConfigError(f"--fit-hours must be > 0, got {args.fit_hours}")
     selection = _selection(args)
-    settings = StudySettings(n_trials=args.trials, seed=args.seed,
-                             storage=args.storage or _fresh_journal(out),
-                             study_name=args.study_name, n_chunks=args.chunks,
-                             batch=args.batch, prune=not args.no_prune,
-                             progress=not args.quiet and sys.stderr is not None)
-    settings.check()
+    settings = _study_settings(args, out)
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
-    days, rows = [], []
-    for p in args.days:  # each day read once: the model's windows and the regression's rows
-        day = read_day_inputs(p)
-        days.append(segment_from_day(day, base, source=str(p)))
-        rows.append(day)
-    regression, no_regression = _lab_regression(rows)
-    rows.clear()
+    days, regression, no_regression = _history(args.days, base)
     validation = [load_segment(p, base) for p in args.validate_on] if args.validate_on else None
 
     def progress(phase: str) -> None:
@@ -256,14 +244,53 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              identify_result=not args.no_identify, force=args.force,
                              validation=validation, progress=progress,
                              structure=_structure_library(args, base))
-    result = hist.calibration
-    for c in result.choices:
+    for c in hist.calibration.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
     doc = _params_doc(base, hist)
     if regression is not None:
         doc["regression"] = regression.to_table()
     write_params(out, doc, _params_comment(calibration, hist))
     outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis)
+    write_json(_calibrate_summary(args, out, hist, outcome), args.json)
+    _say_outcome(hist, outcome, no_regression)
+    return 0
+
+
+def _study_settings(args: argparse.Namespace, out: Path) -> Any:
+    """The Optuna study of ``calibrate`` (checked): in a fresh journal beside ``out`` unless
+    ``--storage`` says where."""
+    from softsensor.calibration.optimize import StudySettings
+
+    settings = StudySettings(n_trials=args.trials, seed=args.seed,
+                             storage=args.storage or _fresh_journal(out),
+                             study_name=args.study_name, n_chunks=args.chunks,
+                             batch=args.batch, prune=not args.no_prune,
+                             progress=not args.quiet and sys.stderr is not None)
+    settings.check()
+    return settings
+
+
+def _history(paths: Sequence[str | Path], base: PlantConfig
+             ) -> tuple[list[Segment], Any, str | None]:
+    """The history's days as model windows and the lab regression fitted on them (or None
+    and why not, :func:`~softsensor.calibration.history_calibration.history_regression`):
+    each day read once, for both."""
+    from softsensor.calibration.history_calibration import history_regression
+
+    days, rows = [], []
+    for p in paths:
+        day = read_day_inputs(p)
+        days.append(segment_from_day(day, base, source=str(p)))
+        rows.append(day)
+    regression, no_regression = history_regression(rows)
+    return days, regression, no_regression
+
+
+def _calibrate_summary(args: argparse.Namespace, out: Path, hist: Any, outcome: str
+                       ) -> dict[str, Any]:
+    """The JSON ``calibrate`` prints: where PARAMS.toml went, the outcome, the calibration's
+    and the history's summaries, and the report page when ``--report`` asked for one."""
+    result = hist.calibration
     summary = {"out": str(out), "outcome": outcome, **result.summary(),
                "history": hist.summary()}
     if args.report:
@@ -271,34 +298,21 @@ def calibrate_main(args: argparse.Namespace) -> int:
 
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
                                                  structure=hist.structure))
-    write_json(summary, args.json)
-    if no_regression:  # said after the calibration, which may refuse the days first
+    return summary
+
+
+def _say_outcome(hist: Any, outcome: str, no_regression: str | None) -> None:
+    """The closing lines on stderr: why no regression was written (said after the
+    calibration, which may refuse the days first), the trade-off, the structure, the
+    outcome."""
+    result = hist.calibration
+    if no_regression:
         print(f"calibrate: no [regression] written: {no_regression}", file=sys.stderr)
     if result.trade_off is not None:
         print(f"calibrate: {result.trade_off.verdict()}", file=sys.stderr)
     if hist.structure is not None:
         print(f"calibrate: {hist.structure.line()}", file=sys.stderr)
     print(f"calibrate: {outcome}", file=sys.stderr)
-    return 0
-
-
-def _lab_regression(days: Sequence[RecordedDay]) -> tuple[Any, str | None]:
-    """The lab regression on the history (PARAMS.toml's ``[regression]``, the peer the
-    estimator runs beside its physics) on the signals every day scanned, and None; or None
-    and why, when the history holds too few lab results for it."""
-    from softsensor.estimation.lab_regression import (
-        REGRESSION_SIGNALS,
-        fit_lab_regression,
-        lab_features,
-    )
-
-    signals = [s for s in REGRESSION_SIGNALS
-               if all(s in d.scans.columns and d.scans[s].notna().any() for d in days)]
-    try:
-        return fit_lab_regression([lab_features(d.scans, d.labs, signals) for d in days],
-                                  signals), None
-    except ConfigError as exc:
-        return None, str(exc)
 
 
 def _errors(new: dict[str, float], old: dict[str, float], x_ref: float, basis: str) -> str:
@@ -472,11 +486,7 @@ def validate_main(args: argparse.Namespace) -> int:
     then with the inlet moisture read from the temperatures, labelled; beside them the
     config's default parameters on the same data."""
     require_packages("validate", "optuna", "matplotlib")
-    from softsensor.calibration.calibration_run import objective_spec, validate_many
-    from softsensor.calibration.open_loop_errors import displayed, open_loop_summary, prepared
-    from softsensor.model import DryerModel
-    from softsensor.presentation.calibration_report import lab_reference
-    from softsensor.presentation.verdicts import validation_verdict
+    from softsensor.calibration.open_loop_errors import displayed
 
     check_target(args.json)
     base, config = load_config_and_params(args)
@@ -486,6 +496,34 @@ def validate_main(args: argparse.Namespace) -> int:
             and fit["cost_kind"] in COSTS and not args.paper:
         calibration = dataclasses.replace(calibration, cost=fit["cost_kind"])
     raw = [load_segment(p, config) for p in args.days]
+    runs = _validation_runs(base, config, fit, calibration, raw)
+    text = _validation_text(runs, raw, base)
+    doc = _validation_doc(args, raw, runs, text)
+    if args.report:
+        from softsensor.presentation.calibration_report import validation_page
+
+        (open_loop, result), (_, default) = runs["params"], runs["default"]
+        shown = dataclasses.replace(result, segments=raw, runs=[
+            displayed(config, s, r) for s, r in zip(raw, result.runs, strict=True)])
+        doc["report"] = str(validation_page(shown, config, args.report, open_loop,
+                                            default=default, verdict=text))
+    write_json(doc, args.json)
+    print(f"validate: {len(raw)} day(s): {text}", file=sys.stderr)
+    return 0
+
+
+def _validation_runs(base: PlantConfig, config: PlantConfig, fit: dict[str, Any],
+                     calibration: CalibrationSettings, raw: Sequence[Segment]
+                     ) -> dict[str, tuple[Any, Any]]:
+    """``{"params": ..., "default": ...}``: for the parameters of ``--params`` (``config``,
+    its ``[fit]`` section ``fit``) and for the config's defaults, the open-loop summary and
+    the validation with the inlet moisture read from the temperatures, scored with the
+    objective of ``calibration``."""
+    from softsensor.calibration.calibration_run import objective_spec
+    from softsensor.calibration.open_loop_errors import open_loop_summary, prepared
+    from softsensor.calibration.validation import validate_many
+    from softsensor.model import DryerModel
+
     model = DryerModel(config)
     # the calibration cost of the parameters the file holds: the current ones when it kept them
     cal_cost = fit.get("cost_at_current" if fit.get("deployed") == "current" else "cost")
@@ -496,38 +534,45 @@ def validate_main(args: argparse.Namespace) -> int:
         spec = spec or objective_spec(model, segs, base, calibration)
         read = validate_many(segs, cfg, spec, [cfg.parameter_vector()], [cost], model)[0]
         runs[name] = (open_loop_summary(cfg, raw, fit if cfg is config else None, model), read)
+    return runs
+
+
+def _validation_text(runs: dict[str, tuple[Any, Any]], raw: Sequence[Segment],
+                     base: PlantConfig) -> str:
+    """The verdict line of ``validate`` (:func:`~softsensor.presentation.verdicts.
+    validation_verdict`), with the config's default parameters beside unless they are the
+    ones validated."""
+    from softsensor.presentation.calibration_report import lab_reference
+    from softsensor.presentation.verdicts import validation_verdict
+
     (open_loop, result), (d_open, default) = runs["params"], runs["default"]
     x_ref, basis = lab_reference(raw), display_settings(base).moisture_basis
     text = validation_verdict(open_loop, result.fit.rmse, x_ref, basis)
     if np.array_equal(result.theta, default.theta) and open_loop["rmse"] == d_open["rmse"]:
-        text += " They are the config's default parameters."
-    else:
-        pts = moisture_pct_points(d_open["rmse"]["moisture_out"], x_ref, basis)
-        d = d_open["rmse"]
-        text += (f" With the config's default parameters instead (open loop): dryer outlet "
-                 f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C and "
-                 f"outlet moisture {pts:.2f} % points.")
+        return text + " They are the config's default parameters."
+    pts = moisture_pct_points(d_open["rmse"]["moisture_out"], x_ref, basis)
+    d = d_open["rmse"]
+    return text + (f" With the config's default parameters instead (open loop): dryer outlet "
+                   f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C "
+                   f"and outlet moisture {pts:.2f} % points.")
+
+
+def _validation_doc(args: argparse.Namespace, raw: Sequence[Segment],
+                    runs: dict[str, tuple[Any, Any]], text: str) -> dict[str, Any]:
+    """The JSON ``validate`` prints: open loop first (the headline), the inlet read from the
+    temperatures, the verdict, and the config's default parameters beside."""
+    (open_loop, result), (d_open, default) = runs["params"], runs["default"]
     read = result.inlet_read()
     read["moisture_worse_than_open_loop"] = bool(
         read["rmse"]["moisture_out"] > open_loop["rmse"]["moisture_out"])
-    doc = {"days": [str(p) for p in args.days], "hours": float(sum(s.hours for s in raw)),
-           "headline": "open_loop", "open_loop": open_loop, "inlet_read": read,
-           "summary": text,
-           "default_parameters": {
-               "open_loop": {k: d_open[k] for k in ("rmse", "weighted_rmse", "cost",
-                                                    "inlet_moisture")},
-               "inlet_read": {k: v for k, v in default.inlet_read().items()
-                              if k in ("rmse", "weighted_rmse", "cost", "score")}}}
-    if args.report:
-        from softsensor.presentation.calibration_report import validation_page
-
-        shown = dataclasses.replace(result, segments=raw, runs=[
-            displayed(config, s, r) for s, r in zip(raw, result.runs, strict=True)])
-        doc["report"] = str(validation_page(shown, config, args.report, open_loop,
-                                            default=default, verdict=text))
-    write_json(doc, args.json)
-    print(f"validate: {len(raw)} day(s): {text}", file=sys.stderr)
-    return 0
+    return {"days": [str(p) for p in args.days], "hours": float(sum(s.hours for s in raw)),
+            "headline": "open_loop", "open_loop": open_loop, "inlet_read": read,
+            "summary": text,
+            "default_parameters": {
+                "open_loop": {k: d_open[k] for k in ("rmse", "weighted_rmse", "cost",
+                                                     "inlet_moisture")},
+                "inlet_read": {k: v for k, v in default.inlet_read().items()
+                               if k in ("rmse", "weighted_rmse", "cost", "score")}}}
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:

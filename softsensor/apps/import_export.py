@@ -1,5 +1,5 @@
-"""``softsensor import`` (and, from :mod:`.export`, ``softsensor export``): historian tables
-in, estimate tables out.
+"""``softsensor import`` (and, from :mod:`.estimates_export`, ``softsensor export``):
+historian tables in, estimate tables out.
 
 ``import`` turns a historian export (CSV or Parquet, wide or long layout) and optionally a
 LIMS file into a recorded day (CONTRACT section 2), laid out by a historian map
@@ -39,7 +39,7 @@ from softsensor.signals import TOPIC_LAB, TOPIC_SCAN
 
 def write_imported_day(path: str | Path, scans: ScanTable, labs: LabTable | None) -> int:
     """Write scans and lab results as a recorded day, in log-time order; messages written."""
-    from softsensor.recording.mcap_day import DayWriter
+    from softsensor.recording.day_writer import DayWriter
 
     pending = labs.results if labs is not None else []
     j = 0

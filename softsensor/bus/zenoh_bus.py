@@ -129,36 +129,55 @@ def make_config(*, mode: str = "peer", port: int | None = 0, host: str = DEFAULT
         port that accepts and never answers costs in full).
     """
     listen = _endpoints(mode, port, host, listen, connect)
+    keys = [*_session_keys(mode, listen, connect, multicast_scouting, adminspace),
+            *_guard_keys(user, password, users_file, acl, max_message_bytes, open_timeout_s)]
     cfg = zenoh.Config()
     try:
-        cfg.insert_json5("mode", json.dumps(mode))
-        cfg.insert_json5("listen/endpoints", json.dumps(list(listen)))
-        cfg.insert_json5("connect/endpoints", json.dumps(list(connect)))
-        cfg.insert_json5("scouting/multicast/enabled", json.dumps(bool(multicast_scouting)))
-        cfg.insert_json5("adminspace/enabled", json.dumps(bool(adminspace)))
-        if adminspace:
-            cfg.insert_json5("adminspace/permissions", '{"read": true, "write": false}')
-        # a peer that cannot reach its connect endpoints (refused, wrong password) still
-        # opens, and keeps trying, rather than blocking the caller
-        if mode == "peer":
-            cfg.insert_json5("connect/timeout_ms", "5000")
-            cfg.insert_json5("connect/exit_on_failure", "false")
-        auth = {k: v for k, v in (("user", user), ("password", password),
-                                  ("dictionary_file", users_file)) if v is not None}
-        if auth:
-            cfg.insert_json5("transport/auth/usrpwd", json.dumps(auth))
-        if acl is not None:
-            cfg.insert_json5("access_control", json.dumps(acl))
-        if max_message_bytes is not None:
-            cfg.insert_json5("transport/link/rx/max_message_size", str(int(max_message_bytes)))
-        if open_timeout_s is not None:
-            ms = str(max(1, int(open_timeout_s * 1000)))
-            cfg.insert_json5("transport/unicast/open_timeout", ms)
-            cfg.insert_json5("connect/timeout_ms", ms)
+        for key, value in keys:
+            cfg.insert_json5(key, value)
     except zenoh.ZError as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise ConfigError(f"bus config rejected by zenoh: {first}") from exc
     return cfg
+
+
+def _session_keys(mode: str, listen: Sequence[str], connect: Sequence[str],
+                  multicast_scouting: bool, adminspace: bool) -> list[tuple[str, str]]:
+    """Where a session listens and connects and what it shows (:func:`make_config`): Zenoh
+    configuration keys and their JSON5 values, in the order they are inserted."""
+    keys = [("mode", json.dumps(mode)),
+            ("listen/endpoints", json.dumps(list(listen))),
+            ("connect/endpoints", json.dumps(list(connect))),
+            ("scouting/multicast/enabled", json.dumps(bool(multicast_scouting))),
+            ("adminspace/enabled", json.dumps(bool(adminspace)))]
+    if adminspace:
+        keys.append(("adminspace/permissions", '{"read": true, "write": false}'))
+    # a peer that cannot reach its connect endpoints (refused, wrong password) still
+    # opens, and keeps trying, rather than blocking the caller
+    if mode == "peer":
+        keys += [("connect/timeout_ms", "5000"), ("connect/exit_on_failure", "false")]
+    return keys
+
+
+def _guard_keys(user: str | None, password: str | None, users_file: str | None,
+                acl: dict[str, Any] | None, max_message_bytes: int | None,
+                open_timeout_s: float | None) -> list[tuple[str, str]]:
+    """Who may connect and what a connection may cost (:func:`make_config`): authentication,
+    access control, the largest message, the handshake's timeout (after
+    :func:`_session_keys`, whose connect timeout it overrides)."""
+    keys = []
+    auth = {k: v for k, v in (("user", user), ("password", password),
+                              ("dictionary_file", users_file)) if v is not None}
+    if auth:
+        keys.append(("transport/auth/usrpwd", json.dumps(auth)))
+    if acl is not None:
+        keys.append(("access_control", json.dumps(acl)))
+    if max_message_bytes is not None:
+        keys.append(("transport/link/rx/max_message_size", str(int(max_message_bytes))))
+    if open_timeout_s is not None:
+        ms = str(max(1, int(open_timeout_s * 1000)))
+        keys += [("transport/unicast/open_timeout", ms), ("connect/timeout_ms", ms)]
+    return keys
 
 
 def open_session(config: zenoh.Config | None = None, **kwargs: Any) -> zenoh.Session:

@@ -1,34 +1,30 @@
-"""Calibrate, identify, validate: the three workflows of the paper's section 3, as functions.
+"""Calibrate: the paper's section 3 as one function, :func:`calibrate`, and its result.
 
 :func:`calibrate` takes the calibration segments (the recorded days, cut to their calibration
 windows by :mod:`.selection`), holds out the end of each (``holdout_fraction``) unless other
 days are given for validation, runs the Optuna study on the rest (:mod:`.optimize`), polishes
 its best trial (:mod:`.refine`), and validates the result against the current parameters on
-the held-out data (:func:`validate`): a result that predicts worse than the current parameters
-is marked not accepted, with the numbers, and the ``calibrate`` verb then refuses to write it.
-Unless told not to, it analyses which parameters the data pin down (:mod:`.identifiability`).
+the held-out data (:mod:`.validation`): a result that predicts worse than the current
+parameters is marked not accepted, with the numbers, and the ``calibrate`` verb then refuses
+to write it. Unless told not to, it analyses which parameters the data pin down
+(:mod:`.identifiability`).
 
 What is minimised is :mod:`.objective`: eq. 4 or the likelihood, after the unmeasured inlet
 moisture's trajectory, plus a prior on the parameters (``[calibration]``,
-:class:`~.settings.CalibrationSettings`). Validation scores with the trajectory fitted to the
-temperatures only, so that the lab results test the model out of sample, as the virtual sensor
-meets them; the open-loop numbers (nominal inlet moisture) are reported beside.
+:class:`~.settings.CalibrationSettings`; :func:`objective_spec` sets it up once per
+calibration). What the validation leaves on the held-out data
+(:func:`~.validation.discrepancy_prior`) goes into PARAMS.toml for the estimator.
 
-The statistics of what the validation leaves (:class:`Discrepancy`) go into PARAMS.toml for
-the estimator: how far, how correlated and how slowly the calibrated model misses a day it
-was not fitted on.
-
-The command-line verbs in :mod:`.commands` only parse arguments and print or write what these
-return.
+The command-line verbs in :mod:`softsensor.apps.calibrate` only parse arguments and print or
+write what these return.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
@@ -38,14 +34,13 @@ import optuna
 
 from softsensor.calibration.chunked_run import ChunkedRun, evaluate_parameters
 from softsensor.calibration.cost import ModelRun, weighted_rmse
-from softsensor.calibration.dataset import DayLike, Segment, segment_from_day
+from softsensor.calibration.dataset import Segment
 from softsensor.calibration.disturbance import InletPrior
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
     Identifiability,
     Sensitivities,
     identify,
-    lag1_autocorrelation,
     parameter_importance,
 )
 from softsensor.calibration.objective import (
@@ -65,41 +60,18 @@ from softsensor.calibration.optimize import (
     theta_of,
 )
 from softsensor.calibration.refine import Refinement, refine
-from softsensor.calibration.selection import (
-    DEFAULT_WINDOW_HOURS,
-    DataSelection,
-    WindowChoice,
-    select_windows,
-)
+from softsensor.calibration.selection import WindowChoice
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import FrontPoint, TradeOff, scored, study_front
-from softsensor.errors import IngestError
+from softsensor.calibration.validation import (
+    ValidationResult,
+    discrepancy_prior,
+    split_holdout,
+    validate_many,
+)
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig
 from softsensor.signals import OUTPUT_NAMES
-
-#: Lab samples a held-out part must hold to validate on it.
-MIN_HELD_LABS = 2
-
-
-def select_segments(days: Iterable[tuple[str, DayLike]], config: PlantConfig,
-                    selection: DataSelection | None = None
-                    ) -> tuple[list[Segment], list[WindowChoice]]:
-    """Resample every ``(source, day)`` and pick its calibration window(s). ``days`` may be
-    a generator (the apps read each file as it is needed, :mod:`softsensor.apps.loading`);
-    ``selection`` defaults to :class:`DataSelection`'s."""
-    selection = selection or DataSelection()
-    segments, choices, n_days = [], [], 0
-    for source, day in days:
-        n_days += 1
-        seg = segment_from_day(day, config, source=source)
-        picked = select_windows(seg, selection.window_hours, selection.windows_per_day,
-                                selection.min_labs)
-        choices += picked
-        segments += [c.segment for c in picked]
-    if not n_days:
-        raise IngestError("no recorded day given")
-    return segments, choices
 
 
 def objective_spec(model: DryerModel, segments: Sequence[Segment], config: PlantConfig,
@@ -117,169 +89,6 @@ def objective_spec(model: DryerModel, segments: Sequence[Segment], config: Plant
     ratio = effective_ratio(ev0, segments) if settings.cost == "likelihood" else np.ones(3)
     return dataclasses.replace(spec, prior_scale=prior_scale(settings.cost, ev0, spec.weights),
                                n_eff_ratio=ratio)
-
-
-def split_holdout(segments: Sequence[Segment], fraction: float,
-                  min_labs: int = MIN_HELD_LABS) -> tuple[list[Segment], list[Segment]]:
-    """Cut the last ``fraction`` of every segment off for validation. A segment whose tail
-    would hold fewer than ``min_labs`` lab results (or whose head would hold none) is kept
-    whole for fitting. Returns ``(fit, held)``."""
-    fit, held = [], []
-    for seg in segments:
-        k = int(round((1.0 - fraction) * seg.n_windows))
-        if fraction <= 0 or k < 1 or k >= seg.n_windows:
-            fit.append(seg)
-            continue
-        n_head = seg.labs_before(k)
-        if n_head < 1 or len(seg.lab_value) - n_head < min_labs:
-            fit.append(seg)
-            continue
-        fit.append(seg.slice(0, k))
-        held.append(seg.slice(k, seg.n_windows))
-    return fit, held
-
-
-@dataclass(frozen=True)
-class Discrepancy:
-    """What the calibrated model leaves on data it was not fitted on (after the inlet
-    trajectory fitted to the temperatures): the estimator's prior on its own error.
-
-    Attributes
-    ----------
-    common_std : float
-        Root mean square of the part of the two outlet temperatures' residuals they share
-        (``sqrt(max(mean(r_d r_c), 0))``, moments about zero: the mean offset counts) [K].
-    dryer_std, cyclone_std : float
-        Root mean square of each channel's own part [K].
-    tau_s : float
-        Correlation time of the temperature residuals, from their lag-one autocorrelation [s].
-    moisture_std : float
-        Root mean square of the lab residuals (out of sample) [kg/kg].
-    inlet_walk : float
-        Random-walk intensity of the fitted inlet trajectory [kg/kg / sqrt(h)].
-    n_windows, n_labs : int
-        Samples behind these numbers.
-    """
-
-    common_std: float
-    dryer_std: float
-    cyclone_std: float
-    tau_s: float
-    moisture_std: float
-    inlet_walk: float
-    n_windows: int
-    n_labs: int
-
-    def as_dict(self) -> dict[str, float | int]:
-        return dataclasses.asdict(self)
-
-
-def discrepancy(ev: Evaluation, segments: Sequence[Segment]) -> Discrepancy:
-    """:class:`Discrepancy` from a validation evaluation (residuals per segment)."""
-    pairs_d, pairs_c, rhos = [], [], []
-    for r, seg in zip(ev.res, segments, strict=True):
-        ok = np.isfinite(seg.Y[:, 0]) & np.isfinite(seg.Y[:, 1])
-        okd, okc = np.isfinite(seg.Y[:, 0]), np.isfinite(seg.Y[:, 1])
-        rd = np.full(seg.n_windows, np.nan)
-        rc = np.full(seg.n_windows, np.nan)
-        rd[okd] = r[0]
-        rc[okc] = r[1]
-        pairs_d.append(rd[ok])
-        pairs_c.append(rc[ok])
-        rhos.append(lag1_autocorrelation(0.5 * (rd + rc)[ok]))
-    d = np.concatenate(pairs_d) if pairs_d else np.zeros(0)
-    c = np.concatenate(pairs_c) if pairs_c else np.zeros(0)
-    if d.size >= 2:
-        # second moments about zero, not about the mean: the model's error on a day it was not
-        # fitted on includes its mean offset, which the estimator must expect too
-        cross = float(np.mean(d * c))
-        common = math.sqrt(max(cross, 0.0))
-        own_d = math.sqrt(max(float(np.mean(d * d)) - max(cross, 0.0), 0.0))
-        own_c = math.sqrt(max(float(np.mean(c * c)) - max(cross, 0.0), 0.0))
-    else:
-        common = own_d = own_c = float("nan")
-    rho = float(np.clip(np.mean(rhos), 1e-3, 0.999)) if rhos else 0.5
-    window = segments[0].window if segments else 600.0
-    tau = -window / math.log(rho)
-    labs = np.concatenate([r[2] for r in ev.res]) if ev.res else np.zeros(0)
-    walks = []
-    for cs, kn in zip(ev.inlet, ev.knots, strict=True):
-        if cs.size > 1:
-            walks.append(np.diff(cs) / np.sqrt(np.diff(kn)))
-    walk = float(np.sqrt(np.mean(np.concatenate(walks) ** 2))) if walks else float("nan")
-    return Discrepancy(common_std=common, dryer_std=own_d, cyclone_std=own_c, tau_s=tau,
-                       moisture_std=float(np.sqrt(np.mean(labs**2))) if labs.size else math.nan,
-                       inlet_walk=walk, n_windows=int(d.size), n_labs=int(labs.size))
-
-
-@dataclass(frozen=True)
-class ValidationResult:
-    """A parameter set evaluated on data it was not fitted on.
-
-    ``evaluation``: with the inlet trajectory fitted to the temperatures only (the lab results
-    out of sample); its ``open_fit`` is the model with the nominal inlet moisture.
-    """
-
-    theta: np.ndarray
-    evaluation: Evaluation
-    segments: list[Segment]
-    runs: list[ModelRun]
-    weights: np.ndarray
-    calibration_cost: float | None = None
-
-    @property
-    def fit(self):
-        return self.evaluation.fit
-
-    @property
-    def score(self) -> float:
-        """The data term of the calibration's cost on these data (lower is better)."""
-        return self.evaluation.data
-
-    @property
-    def ratio(self) -> float | None:
-        """Validation eq. 4 over calibration eq. 4 (None when the latter is unknown)."""
-        if not self.calibration_cost:
-            return None
-        return self.fit.cost / self.calibration_cost
-
-    def inlet_read(self) -> dict[str, Any]:
-        """The scores with the inlet trajectory read from the temperatures (``validate``'s
-        JSON ``inlet_read``; its ``open_loop`` is :mod:`.open_loop_errors`'s)."""
-        ev = self.evaluation
-        return {"rmse": dict(ev.fit.rmse), "weighted_rmse": weighted_rmse(ev.fit, self.weights),
-                "cost": ev.fit.cost, "score": ev.data, "samples": dict(ev.fit.n),
-                "inlet_moisture_offset": [float(np.mean(c)) if c.size else 0.0
-                                          for c in ev.inlet],
-                "calibration_cost": self.calibration_cost, "cost_ratio": self.ratio}
-
-
-def validate_many(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
-                  thetas: Sequence[np.ndarray], calibration_costs: Sequence[float | None],
-                  model: DryerModel) -> list[ValidationResult]:
-    """:func:`validate` of several parameter sets through one batched run (the members run
-    on the model's threads; each gets the numbers it gets alone)."""
-    for seg in segments:
-        seg.require_labs(1)
-    vspec = dataclasses.replace(spec, inlet_from_labs=False)
-    run = ChunkedRun(model, segments, np.stack([np.asarray(t, float) for t in thetas]), vspec,
-                     n_chunks=1)
-    evs = run.run()
-    return [ValidationResult(theta=np.asarray(t, float), evaluation=ev, segments=list(segments),
-                             runs=run.model_lines(b, ev), weights=config.cost.weights(),
-                             calibration_cost=cost)
-            for b, (t, ev, cost) in enumerate(zip(thetas, evs, calibration_costs, strict=True))]
-
-
-def validate(segments: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
-             theta: np.ndarray | None = None, calibration_cost: float | None = None,
-             model: DryerModel | None = None) -> ValidationResult:
-    """Score ``theta`` (default: the config's values) on ``segments`` with the inlet
-    trajectory fitted to the temperatures only (module docstring). Its ``runs`` hold the
-    model with that trajectory (row 0, what the scores compare) and open loop (row 1)."""
-    model = model or DryerModel(config)
-    theta = config.parameter_vector() if theta is None else np.asarray(theta, float)
-    return validate_many(segments, config, spec, [theta], [calibration_cost], model)[0]
 
 
 def at_bounds(theta: np.ndarray, bounds: np.ndarray, margin: float) -> list[str]:
@@ -311,7 +120,7 @@ class CalibrationResult:
     importance: dict[str, float] | None
     validation: ValidationResult | None = None
     current_validation: ValidationResult | None = None
-    discrepancy: Discrepancy | None = None
+    discrepancy: DiscrepancyPrior | None = None
     sensitivities: list[Sensitivities] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     trials_here: int = 0
@@ -338,9 +147,8 @@ class CalibrationResult:
         cfg = self.config.with_parameters(self.theta)
         if self.discrepancy is None:
             return cfg
-        disc = {k: float(v) for k, v in self.discrepancy.as_dict().items()
-                if isinstance(v, (int, float)) and not isinstance(v, bool)}
-        return dataclasses.replace(cfg, extra={**cfg.extra, "discrepancy": disc})
+        return dataclasses.replace(cfg, extra={**cfg.extra,
+                                               "discrepancy": self.discrepancy.as_table()})
 
     @property
     def accepted(self) -> bool:
@@ -513,7 +321,7 @@ def _polish(study: optuna.Study, model: DryerModel, fit_segs: Sequence[Segment],
 def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: ObjectiveSpec,
                    theta: np.ndarray, current: np.ndarray, fit_cost: float,
                    model: DryerModel, front: Sequence[FrontPoint] = ()
-                   ) -> tuple[ValidationResult, ValidationResult, Discrepancy,
+                   ) -> tuple[ValidationResult, ValidationResult, DiscrepancyPrior,
                               list[ValidationResult]]:
     """The result and the current parameters on the held-out data, the result's
     discrepancy there (the [discrepancy] the estimator and the diagnosis use), and the
@@ -521,13 +329,13 @@ def _validate_both(held: Sequence[Segment], config: PlantConfig, spec: Objective
     thetas = [theta, current, *(p.theta for p in front)]
     vals = validate_many(held, config, spec, thetas, [fit_cost] + [None] * (len(thetas) - 1),
                          model)
-    return vals[0], vals[1], discrepancy(vals[0].evaluation, held), vals[2:]
+    return vals[0], vals[1], discrepancy_prior(vals[0].evaluation, held), vals[2:]
 
 
 def _trade_off(study: optuna.Study, held: Sequence[Segment], config: PlantConfig,
                spec: ObjectiveSpec, calibration: CalibrationSettings, theta: np.ndarray,
                current: np.ndarray, evs: Sequence[Evaluation], model: DryerModel
-               ) -> tuple[ValidationResult, ValidationResult, Discrepancy, TradeOff]:
+               ) -> tuple[ValidationResult, ValidationResult, DiscrepancyPrior, TradeOff]:
     """:func:`_validate_both` with the study's front beside (:mod:`.trade_off`)."""
     front = study_front(study)
     val, cur_val, disc, front_vals = _validate_both(held, config, spec, theta, current,
@@ -611,6 +419,5 @@ def calibrate(segments: Sequence[Segment], config: PlantConfig, settings: StudyS
         trials_here=report.trials, pruned_here=report.pruned, trade_off=trade)
 
 
-__all__ = ["DEFAULT_WINDOW_HOURS", "CalibrationResult", "DataSelection", "Discrepancy",
-           "ValidationResult", "at_bounds", "calibrate", "discrepancy", "objective_spec", "phase",
-           "select_segments", "split_holdout", "validate", "validate_many"]
+__all__ = ["CalibrationResult", "at_bounds", "calibrate", "objective_spec", "phase",
+           "search_model"]

@@ -21,7 +21,8 @@ whole-day :class:`~.dataset.Segment` s and
    state (its inlet level, where the estimator starts).
 
 Everything after the study is one or two simulations of the history, so the time grows
-linearly with the days.
+linearly with the days. The lab regression, the estimator's peer beside the physics, is fitted
+on the same days (:func:`history_regression`).
 """
 
 from __future__ import annotations
@@ -35,25 +36,26 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.calibration_run import (
-    MIN_HELD_LABS,
-    CalibrationResult,
-    Discrepancy,
-    calibrate,
-    discrepancy,
-    phase,
-)
+from softsensor.calibration.calibration_run import CalibrationResult, calibrate, phase
 from softsensor.calibration.chunked_run import evaluate_parameters
-from softsensor.calibration.dataset import Segment
+from softsensor.calibration.dataset import DayLike, Segment
 from softsensor.calibration.model_error_fit import fit_model_error
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.structure_search import Candidate, StructureSearch
 from softsensor.calibration.structure_search import search as structural_search
+from softsensor.calibration.validation import MIN_HELD_LABS, discrepancy_prior
+from softsensor.errors import ConfigError
+from softsensor.estimation.lab_regression import (
+    REGRESSION_SIGNALS,
+    LabRegression,
+    fit_lab_regression,
+    lab_features,
+)
 from softsensor.estimation.model_error import ModelError
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig
 
 #: Shortest piece of a day's unused hours that validates [h].
 MIN_VALIDATION_HOURS = 4.0
@@ -77,7 +79,7 @@ class HistoryResult:
     reason: str
     inlet_levels: list[float]
     model_error: ModelError
-    discrepancy: Discrepancy | None
+    discrepancy: DiscrepancyPrior | None
     timings: dict[str, float] = field(default_factory=dict)
     structure: StructureSearch | None = None
 
@@ -208,11 +210,24 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
-        disc = discrepancy(cur.evaluation, cur.segments)
+        disc = discrepancy_prior(cur.evaluation, cur.segments)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
     return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
 
 
+def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, str | None]:
+    """The lab regression on the history (PARAMS.toml's ``[regression]``, the peer the
+    estimator runs beside its physics) on the signals every day scanned, and None; or None
+    and why, when the history holds too few lab results for it."""
+    signals = [s for s in REGRESSION_SIGNALS
+               if all(s in d.scans.columns and d.scans[s].notna().any() for d in days)]
+    try:
+        return fit_lab_regression([lab_features(d.scans, d.labs, signals) for d in days],
+                                  signals), None
+    except ConfigError as exc:
+        return None, str(exc)
+
+
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
-           "inlet_levels", "validation_pieces"]
+           "history_regression", "inlet_levels", "validation_pieces"]

@@ -70,7 +70,7 @@ PROFILE_NFEV = 3
 IDENTIFIABLE_SE = 0.075
 #: Posterior / prior standard deviation above which a parameter counts as not identifiable.
 NOT_IDENTIFIABLE_RATIO = 0.5
-#: |correlation| above which two parameters are reported as confounded.
+#: Absolute correlation above which two parameters are reported as confounded.
 STRONG_CORRELATION = 0.9
 #: Noise floors of the statistical FIM [K, K, kg/kg].
 NOISE_FLOOR = np.array([0.01, 0.01, 1e-4])

@@ -33,6 +33,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import json
 import os
@@ -56,7 +57,7 @@ from softsensor.calibration.objective import ObjectiveSpec
 from softsensor.calibration.settings import DEFAULT_STUDY_NAME
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, PlantSections
 
 #: Objective reported for a trial whose model solve failed (far above any real objective).
 FAILED_COST = 1.0e9
@@ -131,8 +132,11 @@ def open_storage(url: str | None) -> BaseStorage:
 
 def data_fingerprint(segments: Sequence[Segment], config: PlantConfig,
                      spec: ObjectiveSpec | None = None) -> str:
-    """A short hash of the calibration data, search space and objective: a study is only
-    resumed or joined on the same problem."""
+    """A short hash of the calibration problem: the data, the search space, the objective
+    and the plant the trials simulate (every plant section but the unit's name, so also the
+    structural keys a PARAMS.toml's ``[structure]`` sets, :mod:`softsensor.model.structure`).
+    A study is only resumed or joined on the same problem: trials of another structure scored
+    another model."""
     h = hashlib.sha256()
     for seg in segments:
         h.update(np.ascontiguousarray(seg.U).tobytes())
@@ -141,6 +145,9 @@ def data_fingerprint(segments: Sequence[Segment], config: PlantConfig,
         h.update(seg.lab_value.tobytes())
     h.update(json.dumps(config.bounds().tolist()).encode())
     h.update(np.asarray(config.cost.weights()).tobytes())
+    plant = {f.name: dataclasses.asdict(getattr(config, f.name))
+             for f in dataclasses.fields(PlantSections) if f.name != "unit"}
+    h.update(json.dumps(plant, sort_keys=True).encode())
     if spec is not None:
         h.update(repr((spec.cost, spec.prior_sigma, spec.prior_scale, spec.inlet,
                        None if spec.prior_center is None else spec.prior_center.tolist(),
@@ -186,7 +193,8 @@ def open_study(settings: StudySettings, config: PlantConfig, fingerprint: str
         other = study.user_attrs.get("data_fingerprint")
         if other is not None and other != fingerprint:
             raise ConfigError(f"--storage {settings.storage}: study {settings.study_name!r} was "
-                              f"made on other data or bounds; give another --study-name")
+                              f"made on other data, bounds or plant structure; give another "
+                              f"--study-name")
     return study, created
 
 

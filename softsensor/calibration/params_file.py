@@ -22,7 +22,7 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     [structure.fiber]          keys such as fiber.bound_fraction, applied on load) and
     [structure.evidence]       the held-out evidence for it (:mod:`.structure_search`)
     [discrepancy]              what the model leaves on held-out data (the estimator's prior
-                               on its own error, :class:`~.calibration_run.Discrepancy`)
+                               on its own error, :class:`~softsensor.plantconfig.DiscrepancyPrior`)
     [model_error]              what the history says the model misses, channel by channel
                                (:class:`~softsensor.estimation.model_error.ModelError`): the
                                features and their scales, the days and the typical inlet
@@ -115,19 +115,9 @@ def _section(path: str | Path, name: str) -> dict[str, Any]:
     return table
 
 
-def read_discrepancy(path: str | Path) -> dict[str, float]:
-    """The ``[discrepancy]`` section of a PARAMS.toml ({} when absent), every value a number."""
-    out = {}
-    for k, v in _section(path, "discrepancy").items():
-        if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise ConfigError(f"{path}: discrepancy.{k} must be a number, got {v!r}")
-        out[str(k)] = float(v)
-    return out
-
-
 def read_fit(path: str | Path) -> dict[str, Any]:
     """The ``[fit]`` section of a PARAMS.toml ({} when absent)."""
     return _section(path, "fit")
 
 
-__all__ = ["dumps", "params_document", "read_discrepancy", "read_fit", "write_params"]
+__all__ = ["dumps", "params_document", "read_fit", "write_params"]

@@ -14,13 +14,21 @@ moisture channel cannot be fitted. Several windows are picked greedily without o
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-from softsensor.calibration.dataset import MEASURED_INPUTS, SCANNED_OUTPUTS, Segment
+from softsensor.calibration.dataset import (
+    MEASURED_INPUTS,
+    SCANNED_OUTPUTS,
+    DayLike,
+    Segment,
+    segment_from_day,
+)
 from softsensor.errors import IngestError
 from softsensor.messages import iso_utc
+from softsensor.plantconfig import PlantConfig
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
 
 #: The paper's calibration horizon [h].
@@ -195,5 +203,25 @@ def select_across(days: list[Segment], hours: float, budget_hours: float, min_la
     return sorted(chosen, key=lambda c: (c.day, c.k0))
 
 
-__all__ = ["SCORED_SIGNALS", "WindowChoice", "select_across", "select_windows",
-           "variability_scores"]
+def select_segments(days: Iterable[tuple[str, DayLike]], config: PlantConfig,
+                    selection: DataSelection | None = None
+                    ) -> tuple[list[Segment], list[WindowChoice]]:
+    """Resample every ``(source, day)`` and pick its calibration window(s). ``days`` may be
+    a generator (the apps read each file as it is needed, :mod:`softsensor.apps.loading`);
+    ``selection`` defaults to :class:`DataSelection`'s."""
+    selection = selection or DataSelection()
+    segments, choices, n_days = [], [], 0
+    for source, day in days:
+        n_days += 1
+        seg = segment_from_day(day, config, source=source)
+        picked = select_windows(seg, selection.window_hours, selection.windows_per_day,
+                                selection.min_labs)
+        choices += picked
+        segments += [c.segment for c in picked]
+    if not n_days:
+        raise IngestError("no recorded day given")
+    return segments, choices
+
+
+__all__ = ["SCORED_SIGNALS", "WindowChoice", "select_across", "select_segments",
+           "select_windows", "variability_scores"]

@@ -228,8 +228,6 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
     baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
     ``baseline_theta`` (its validation ``baseline``, its ``front``). The baseline must be
     polished (:func:`~.history_calibration.calibrate_history` searches only then)."""
-    from softsensor.calibration.calibration_run import calibrate
-
     say = say or (lambda s: None)
     # the multipliers start at the baseline's optimum and move little: a shorter polish
     light = dataclasses.replace(calibration, polish_passes=min(calibration.polish_passes,
@@ -247,21 +245,36 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
         except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
             say(f"structure: {alt.name} skipped: {exc}")
             continue
-        res = calibrate(list(fit), cfg,
-                        StudySettings(n_trials=1, seed=seed, progress=False), light,
-                        validation_segments=list(held),
-                        current_theta=cfg.parameter_vector(), polish=True,
-                        identify_result=False,
-                        model=DryerModel(cfg))
-        ev = res.validation.evaluation
+        ev, theta = _calibrated(fit, held, cfg, light, seed)
         score, _ = held_out_score(ev)
         gain = base_score - score - alt.k * penalty_per_k
-        out.append(Scored(alt, alt.keys(cfg), res.theta,
+        out.append(Scored(alt, alt.keys(cfg), theta,
                           {k: float(v) for k, v in ev.fit.rmse.items()},
                           {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
-    ranked = sorted(out, key=lambda c: -c.gain)
+    return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
+                           _decided(out, front, penalty_per_k))
+
+
+def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfig,
+                calibration: CalibrationSettings, seed: int) -> tuple[Evaluation, np.ndarray]:
+    """An alternative's config ``cfg`` calibrated from its commissioned start on ``fit``
+    (one trial, then the polish) and validated on ``held``: the validation and the
+    parameters."""
+    from softsensor.calibration.calibration_run import calibrate
+
+    res = calibrate(list(fit), cfg, StudySettings(n_trials=1, seed=seed, progress=False),
+                    calibration, validation_segments=list(held),
+                    current_theta=cfg.parameter_vector(), polish=True, identify_result=False,
+                    model=DryerModel(cfg))
+    return res.validation.evaluation, res.theta
+
+
+def _decided(out: Sequence[Scored], front: TradeOff | None, penalty_per_k: float
+             ) -> list[Scored]:
+    """``out`` with the adopted alternative marked (the largest gain above zero that no
+    point of the paper's ``front`` dominates) and why each other one was not."""
     adopted = None
-    for c in ranked:
+    for c in sorted(out, key=lambda c: -c.gain):
         if c.gain > 0 and not _dominated(c.point(), front):
             adopted = c
             break
@@ -278,8 +291,7 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
                 c, why_not="a point of the paper's front fits both channels as well"))
         else:
             final.append(dataclasses.replace(c, why_not="another alternative gained more"))
-    return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
-                           final)
+    return final
 
 
 __all__ = ["ALTERNATIVE_POLISH", "Candidate", "Scored", "StructureSearch", "default_library",

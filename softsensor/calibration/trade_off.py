@@ -8,7 +8,7 @@ study already scored every channel on the calibration windows (trial attributes
 ``rmse_<channel>``), so the front costs no extra search: the trials that no other trial beats
 on both the worse of the two temperature RMSEs and the lab RMSE. A few of them, spread along
 the front, are scored on the held-out data beside the deployed and the current parameters, in
-the same batched validation run (:func:`~.calibration_run.validate_many`), in both of its modes:
+the same batched validation run (:func:`~.validation.validate_many`), in both of its modes:
 the inlet moisture read from the temperatures (the lab results out of sample, what the
 sensor does) and open loop.
 

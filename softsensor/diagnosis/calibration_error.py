@@ -8,19 +8,19 @@ calibration's validation day (:mod:`softsensor.estimation.state_space`, PARAMS.t
 ``[discrepancy]``). The diagnosis carries the same states through the day's residuals
 (measured minus model):
 
-================ =============================================== =================== ========
-state            moves                                           std                 corr.
-                                                                                     time
-================ =============================================== =================== ========
-``T_common``     both outlet temperatures alike [K]              ``s_common``        ``tau_0``
-``T_dryer_out``  ``T_dryer_out`` alone [K]                       ``s_dryer``         ``tau_1``
-``T_cyclone_out`` ``T_cyclone_out`` alone [K]                    ``s_cyclone``       ``tau_2``
-``moisture_out`` the lab results [kg/kg]                         ``s_moisture``      ``tau_3``
-================ =============================================== =================== ========
+================= =============================================== =================== ========
+state             moves                                           std                 corr.
+                                                                                      time
+================= =============================================== =================== ========
+``T_common``      both outlet temperatures alike [K]              ``s_common``        ``tau_0``
+``T_dryer_out``   ``T_dryer_out`` alone [K]                       ``s_dryer``         ``tau_1``
+``T_cyclone_out`` ``T_cyclone_out`` alone [K]                     ``s_cyclone``       ``tau_2``
+``moisture_out``  the lab results [kg/kg]                         ``s_moisture``      ``tau_3``
+================= =============================================== =================== ========
 
 plus white measurement noise of each channel's noise level. This is a linear Gaussian state
 space model, so a Kalman filter turns any residual series into its one-step-ahead prediction
-errors, each divided by its predicted standard deviation (:meth:`DiscrepancyModel.whiten`).
+errors, each divided by its predicted standard deviation (:meth:`CalibrationErrorModel.whiten`).
 The whitened residuals are what the calibration-error alternative cannot predict: their sum
 of squares is minus twice its log-likelihood (up to a constant that depends only on which
 samples exist), so
@@ -70,7 +70,7 @@ _H = np.array([[1.0, 1.0, 0.0],
 
 
 @dataclass(frozen=True)
-class DiscrepancyModel:
+class CalibrationErrorModel:
     """The calibration-error alternative (module docstring).
 
     Attributes
@@ -103,7 +103,7 @@ class DiscrepancyModel:
         return np.r_[self.T_priors.sigma, self.lab_priors.sigma]
 
     @classmethod
-    def from_config(cls, config: PlantConfig, noise: np.ndarray) -> DiscrepancyModel:
+    def from_config(cls, config: PlantConfig, noise: np.ndarray) -> CalibrationErrorModel:
         """The plant's normal from the history's ``[model_error]`` (:func:`normal_states`),
         else the estimator's error states (:class:`ErrorPriors`: the heat input's offset read
         as the outlet temperatures' common one, the calibration's ``[discrepancy]`` or the
@@ -171,7 +171,7 @@ _H_NORMAL = np.array([[1.0, 0.0, 1.0, 0.0],
                       [0.0, 1.0, 0.0, 1.0]])
 
 
-def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> DiscrepancyModel:
+def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> CalibrationErrorModel:
     """The plant's normal as the history learned it (:mod:`softsensor.estimation.model_error`):
     per channel a day level (correlated across the temperatures as their day offsets were)
     plus a first-order wander about it, and the white noise the history left. A slow drift
@@ -196,8 +196,8 @@ def normal_states(me: ModelError, noise: np.ndarray, window_s: float) -> Discrep
     lab = ErrorPriors(np.r_[max(m.day_sd, 1e-12), m.wander_sd],
                       np.r_[np.inf, m.wander_tau_h * 3600.0], source, np.zeros(2),
                       np.eye(2))
-    return DiscrepancyModel(T, lab, _H_NORMAL, np.ones((1, 2)), np.asarray(noise, float),
+    return CalibrationErrorModel(T, lab, _H_NORMAL, np.ones((1, 2)), np.asarray(noise, float),
                             window_s, source)
 
 
-__all__ = ["STATE_NAMES", "DiscrepancyModel", "normal_states"]
+__all__ = ["STATE_NAMES", "CalibrationErrorModel", "normal_states"]

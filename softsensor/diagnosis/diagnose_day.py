@@ -17,7 +17,8 @@
    most probable causes cannot be told apart on this day's data.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
-(:meth:`Diagnosis.to_json`) and feeds the report page (:mod:`.report`). Nothing here reads the
+(:meth:`Diagnosis.to_json`) and feeds the report page
+(:mod:`softsensor.presentation.diagnosis_report`). Nothing here reads the
 ground truth a simulated day may carry.
 """
 
@@ -234,6 +235,34 @@ def implausible(cause: str, summary: ResidualSummary) -> str | None:
     return None
 
 
+def _fit_extensions(problem: Problem, summary: ResidualSummary,
+                    extensions: tuple[Extension, ...], say: Callable[[str], None],
+                    timings: dict[str, float]
+                    ) -> tuple[dict[str, Fitted], dict[str, Fitted], dict[str, Score],
+                               dict[str, str]]:
+    """Fit every extension the residuals do not rule out (:func:`implausible`) on both folds
+    and score it; ``(fitted, other_fold, scores, skipped)`` by cause (``skipped``: why not
+    fitted), each fit's seconds in ``timings[cause]``."""
+    fitted: dict[str, Fitted] = {}
+    other_fold: dict[str, Fitted] = {}
+    scores: dict[str, Score] = {}
+    skipped: dict[str, str] = {}
+    for i, ext in enumerate(extensions, 1):
+        reason = implausible(ext.cause, summary)
+        if reason is not None:
+            skipped[ext.cause] = reason
+            continue
+        say(f"extension {i} of {len(extensions)}: {ext.cause}")
+        t1 = time.perf_counter()
+        f, b = ext.fit_both(problem)
+        fitted[f.cause], other_fold[f.cause] = f, b
+        scores[f.cause] = score(problem, f, b)
+        timings[f.cause] = time.perf_counter() - t1
+        log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
+                  scores[f.cause].penalised)
+    return fitted, other_fold, scores, skipped
+
+
 def diagnose(config: PlantConfig, day: DayLike, *,
              fit_fraction: float = DEFAULT_FIT_FRACTION,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
@@ -268,23 +297,8 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     sigma = problem.sigma
     summary = summarise(problem)
     timings["baseline"] = time.perf_counter() - t0
-    fitted: dict[str, Fitted] = {}
-    other_fold: dict[str, Fitted] = {}
-    scores: dict[str, Score] = {}
-    skipped: dict[str, str] = {}
-    for i, ext in enumerate(extensions, 1):
-        reason = implausible(ext.cause, summary)
-        if reason is not None:
-            skipped[ext.cause] = reason
-            continue
-        say(f"extension {i} of {len(extensions)}: {ext.cause}")
-        t1 = time.perf_counter()
-        f, b = ext.fit_both(problem)
-        fitted[f.cause], other_fold[f.cause] = f, b
-        scores[f.cause] = score(problem, f, b)
-        timings[f.cause] = time.perf_counter() - t1
-        log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
-                  scores[f.cause].penalised)
+    fitted, other_fold, scores, skipped = _fit_extensions(problem, summary, extensions, say,
+                                                          timings)
     struct = structured(problem)
     v = verdict(list(scores.values()), struct)
     say("probabilities and what this day can show of every cause")

@@ -20,8 +20,8 @@ fouling_drift      ``mult_D`` and ``mult_h`` falling as ``1 - d t / T`` (``t`` f
 input_lag          the ``T_air_in`` the model sees is the measured one with a first-order
                    sensor lag of time constant ``tau`` [min] undone: over a window,
                    ``mean(x + tau dx/dt) = mean(x) + tau (x_end - x_start) / W``
-                   (:attr:`~.day_windows.DayWindows.air_edges`), and in the sub-window bins a lab
-                   sample sees (:func:`~.day_windows.delagged_air`)
+                   (``air_edges`` of :class:`~.day_windows.DayWindows`), and in the sub-window
+                   bins a lab sample sees (:func:`~.day_windows.delagged_air`)
 ambient_heat_loss  outside heat loss scaled by ``1 + beta (283.15 K - T_amb)``, ``beta``
                    [1/K] (model aux ``BETA_AMB``)
 inlet_moisture     the inlet moisture as an estimated disturbance: the UKF of
@@ -465,7 +465,7 @@ class InletMoistureEstimate(Extension):
         with _quiet(ukf_logger):
             nominal = float(problem.config.nominal.moisture_in)
             for k, w in enumerate(problem.windows.windows):
-                v = ukf.tick(w)["moisture_in"]
+                v = ukf.tick(w).moisture_in
                 out[k] = nominal if v is None else float(v)
         return out
 

@@ -58,7 +58,7 @@ INELIGIBLE_PENALTY = 3.0
 #: Temperature of the softmax. Fitted on tuning days, never on fresh ones
 #: (:func:`fit_temperature`: ``benchmarks/diagnosis_temperature.py``, independent plant seed
 #: 11, its normal from 4 clean 16 h days, 16 test days of 16 h, 2 per cause, day seeds 300 to
-#: 315; ``benchmarks/diagnosis_temperature_plant11.json``): the Brier score's minimum is at
+#: 315; ``benchmarks/results/diagnosis_temperature_plant11.json``): the Brier score's minimum is at
 #: 7.96 (0.637; 0.793 at 1, 0.651 at 5, 0.649 at 13). It is that large because 7 of the 16
 #: days were missed with the true cause's log-evidence 3 to 81 nats down: a named ``none``
 #: or ``unexplained`` was right on 5 of 11 days, so a clean day's ``none`` gets about 0.5.

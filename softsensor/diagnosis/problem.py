@@ -41,7 +41,7 @@ import numpy as np
 from softsensor.calibration.chunked_run import lab_values_at, simulate_span, window_start_states
 from softsensor.calibration.dataset import LabPoints
 from softsensor.calibration.open_loop_errors import normal_offsets
-from softsensor.diagnosis.calibration_error import DiscrepancyModel
+from softsensor.diagnosis.calibration_error import CalibrationErrorModel
 from softsensor.diagnosis.day_windows import MODEL_LAB_STD, DayWindows
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.model_error import ModelError, model_error_of
@@ -170,7 +170,7 @@ class Problem:
     lab_noise: float
     sigma: np.ndarray = field(init=False)
     baseline: Prediction = field(init=False)
-    discrepancy: DiscrepancyModel = field(init=False)
+    calibration_error: CalibrationErrorModel = field(init=False)
     normal: np.ndarray = field(init=False)
 
     def __post_init__(self) -> None:
@@ -179,7 +179,7 @@ class Problem:
         self.baseline = self.predict()
         self.sigma = noise_levels(self.residuals(self.baseline), self.split, self.lab_noise,
                                   model_error_of(self.config))
-        self.discrepancy = DiscrepancyModel.from_config(self.config, self.sigma)
+        self.calibration_error = CalibrationErrorModel.from_config(self.config, self.sigma)
 
     def reversed(self) -> Problem:
         """The same problem with the other fold (:meth:`Split.reversed`): extensions fitted on
@@ -251,7 +251,7 @@ class Problem:
 
     def whitened(self, pred: Prediction, part: str = "fit") -> list[np.ndarray]:
         """``pred``'s residuals through the calibration-error alternative
-        (:class:`~.calibration_error.DiscrepancyModel`): the whitened one-step prediction
+        (:class:`~.calibration_error.CalibrationErrorModel`): the whitened one-step prediction
         errors per channel (NaN dropped), over the fit part (``"fit"``, the filter started at
         its first window), the held-out part (``"held"``) or the whole day (``"all"``)."""
         r = self.residuals(pred)
@@ -264,9 +264,9 @@ class Problem:
             w, labs = slice(0, K), np.ones(r.lab.size, bool)
         else:
             raise ValueError(f"part must be fit, held or all, not {part!r}")
-        wT = self.discrepancy.whiten_temperatures(r.T[w])
+        wT = self.calibration_error.whiten_temperatures(r.T[w])
         t_s = (self.windows.lab_time_ns[labs] - self.windows.start_ns) / 1e9
-        wl = self.discrepancy.whiten_labs(r.lab[labs], t_s)
+        wl = self.calibration_error.whiten_labs(r.lab[labs], t_s)
         parts = [wT[:, 0], wT[:, 1], wl]
         return [p[np.isfinite(p)] for p in parts]
 
@@ -278,7 +278,7 @@ class Problem:
         if not np.all(np.isfinite(r[keep])):
             return float("inf")
         t_s = (self.windows.lab_time_ns[keep] - self.windows.start_ns) / 1e9
-        w = self.discrepancy.whiten_labs(r[keep], t_s)
+        w = self.calibration_error.whiten_labs(r[keep], t_s)
         return float(w @ w)
 
     def fit_residual_vector(self, pred: Prediction) -> np.ndarray:

@@ -39,8 +39,8 @@ An extension is *eligible* (:func:`verdict`) when
 
 4. its fix pays under the paper's cost: the cross-fitted ``gain`` (eq. 4, whole day) is
    above 5 % (``MIN_GAIN``). Eq. 4 is mostly the lab RMSE, so this costs a cause seen
-   mainly in the temperatures now and then (on the 32 tuning days one input lag and two ambient heat
-   losses, whose fits left the labs worse), and it keeps an extension that fits the whitened
+   mainly in the temperatures now and then (what it cost on the tuning days:
+   ``docs/explanation/diagnosis.md``), and it keeps an extension that fits the whitened
    temperatures while it moves the labs away from the data from being named.
 
 The cause is the eligible extension with the largest ``P``. Without one the day is

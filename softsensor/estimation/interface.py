@@ -2,7 +2,7 @@
 
 A source (Modbus poller, MCAP replay, virtual plant) publishes scans; the service averages the
 good scans of each window into a :class:`Window` and hands it to an :class:`Estimator`, which
-returns the body of the ``/softsensor/estimate`` message (CONTRACT section 2). Lab results reach
+returns the tick's :class:`~softsensor.estimate.Estimate` (CONTRACT section 2). Lab results reach
 the estimator through :meth:`Estimator.add_lab` whenever they arrive, possibly long after their
 sample time. Estimators are pure: no I/O, no clocks; time is whatever the window says.
 """
@@ -15,6 +15,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from softsensor.errors import EstimationError
+from softsensor.estimate import Estimate
 from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.tick_history import LabBook
 from softsensor.messages import LabResult, Window
@@ -28,12 +29,9 @@ log = logging.getLogger(__name__)
 class Estimator(Protocol):
     """What the estimator service needs from an estimator."""
 
-    def tick(self, window: Window) -> dict[str, Any]:
-        """Advance to ``window.end_ns`` and return the estimate body.
-
-        The body has at least ``moisture_out``, ``moisture_out_std``, ``moisture_in``,
-        ``moisture_in_std``, ``T_dryer_out_model``, ``T_cyclone_out_model`` and ``lab_updated``.
-        """
+    def tick(self, window: Window) -> Estimate:
+        """Advance to ``window.end_ns`` and return the tick's estimate (the service finishes
+        it with the window's facts, :func:`softsensor.service.estimator_service.finish`)."""
         ...
 
     def add_lab(self, lab: LabResult) -> str | None:

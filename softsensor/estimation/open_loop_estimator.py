@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from softsensor.errors import EstimationError, SoftsensorError
+from softsensor.estimate import Estimate, Reason
 from softsensor.estimation.interface import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.tick_history import LabBook
@@ -59,8 +60,8 @@ class OpenLoopEstimator(ModelEstimator):
         self._outputs: list[tuple[int, int, float]] = []
         self._residuals: list[tuple[str, float]] = []
 
-    def tick(self, window: Window) -> dict[str, Any]:
-        """Step the model over ``window`` and return the estimate body."""
+    def tick(self, window: Window) -> Estimate:
+        """Step the model over ``window`` and return the estimate."""
         if self._last_end is not None and window.end_ns <= self._last_end:
             raise EstimationError(f"window ending at {window.end_ns} ns is not after the last "
                                   f"tick ({self._last_end} ns)")
@@ -84,29 +85,22 @@ class OpenLoopEstimator(ModelEstimator):
             self._residual(lab)
         residuals, self._residuals = self._residuals, []
         if window.stale:
-            status, detail = "stale", "stale window: open-loop model stepped on held inputs"
+            reason = Reason("stale", "stale window: open-loop model stepped on held inputs")
         elif detail:
-            status = "degraded"
+            reason = Reason("degraded", detail)
         else:
-            status, detail = "ok", "open-loop model (no feedback); standard deviations are a " \
-                                   "fixed prior"
+            text = "open-loop model (no feedback); standard deviations are a fixed prior"
             if held:
-                detail += f"; holding last value of {', '.join(held)}"
-        return {
-            "moisture_out": finite_or_none(y[_MO]),
-            "moisture_out_std": self.settings.openloop_moisture_out_std,
-            "moisture_in": self.moisture_in,
-            "moisture_in_std": self.settings.openloop_moisture_in_std,
-            "T_dryer_out_model": finite_or_none(y[0]),
-            "T_cyclone_out_model": finite_or_none(y[1]),
-            "lab_updated": False,
-            "lab_residual": {sid: r for sid, r in residuals},
-            "status": status,
-            "detail": detail,
-            "window_start_ns": int(window.start_ns),
-            "window_end_ns": int(window.end_ns),
-            "estimator": self.kind,
-        }
+                text += f"; holding last value of {', '.join(held)}"
+            reason = Reason("ok", text)
+        return Estimate(
+            window_start_ns=int(window.start_ns), window_end_ns=int(window.end_ns),
+            estimator=self.kind, moisture_out=finite_or_none(y[_MO]),
+            moisture_out_std=self.settings.openloop_moisture_out_std,
+            moisture_in=self.moisture_in, moisture_in_std=self.settings.openloop_moisture_in_std,
+            T_dryer_out_model=finite_or_none(y[0]), T_cyclone_out_model=finite_or_none(y[1]),
+            lab_updated=False, reasons=(reason,),
+            lab_residual={sid: r for sid, r in residuals})
 
     def add_lab(self, lab: LabResult) -> str | None:
         """Validate ``lab`` (it never changes the open-loop estimate); reason when refused."""

@@ -41,10 +41,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
 
+from softsensor.estimate import Blend, SourceEstimate
 from softsensor.estimation.interface import LabResult, Window
 from softsensor.estimation.lab_regression import LabRegression
 from softsensor.estimation.publication import fallback_std
@@ -165,58 +167,26 @@ def _log_density(x: float, src: Source, spread: float = 1.0) -> float:
 
 
 def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, Any],
-            window: Window, labs: tuple[LabResult, ...], body: dict[str, Any]
-            ) -> tuple[dict[str, Any], dict[str, Any]]:
+            window: Window, labs: tuple[LabResult, ...],
+            physics: tuple[float | None, float | None]
+            ) -> tuple[dict[str, Any], Blend, tuple[float, float] | None]:
     """One tick: score ``labs`` (sampled in ``window``) against each source as it stood,
-    update the weights and the band's scale, then blend the sources into ``body`` (the
-    filter's published estimate, its guard applied). Returns the new state and the body."""
+    update the weights and the band's scale, then blend the sources with ``physics`` (the
+    filter's published estimate and band sd, its guard applied). Returns the new state, the
+    :class:`~softsensor.estimate.Blend`, and the blend's mean and band sd (None when no source
+    has a weight) [kg/kg]."""
     st = dict(state)
-    log_w = np.array(st["log_w"], float)
-    prior = prior_log_weights(s, reg)
-    log_c = float(st["log_scale"])
-    msz = np.array(st["msz"], float)
     # the window is the same for every lab of the tick: the regression read once
     reg_now = math.nan if reg is None else reg.at_means(window.means)
+    scored = _Scores(np.array(st["log_w"], float), float(st["log_scale"]),
+                     np.array(st["msz"], float))
     phys_prev = _physics_source(s, st["physics"])
     for lab in sorted(labs, key=lambda r: (r.sample_time_ns, r.sample_id)):
-        hold = st["hold"]
-        sources = [phys_prev,
-                   _hold_source(s, None if hold is None else hold[0],
-                                None if hold is None else hold[1], lab.sample_time_ns),
-                   _regression_source(s, reg, st["bias"], reg_now)]
-        ok = np.array([src.ok for src in sources])
-        log_w = s.peer_forgetting * log_w + (1.0 - s.peer_forgetting) * prior
-        if s.peer_blend and ok.sum() >= 2:  # evidence needs two sources to compare
-            w_pred = _normalised(log_w, ok)
-            z2 = np.array([((lab.moisture_out - src.value) / src.predictive) ** 2 if src.ok
-                           else 1.0 for src in sources])
-            # each source scored with its spread as the recent labs found it (never narrower
-            # than it says itself): a band too narrow is not evidence against an estimate
-            # nearer the labs than a wider one
-            spread = np.sqrt(np.maximum(msz, 1.0))
-            ll = np.array([_log_density(lab.moisture_out, src, k) if src.ok else 0.0
-                           for src, k in zip(sources, spread, strict=True)])
-            log_w = log_w + np.where(ok, ll, 0.0)
-            log_w = np.maximum(log_w - np.max(log_w), _LOG_FLOOR)
-            msz = np.where(ok, s.peer_forgetting * msz + (1.0 - s.peer_forgetting) * z2, msz)
-        else:
-            w_pred = np.array([1.0, 0.0, 0.0]) if sources[0].ok else _normalised(log_w, ok)
-        if s.band_conformal and ok.any():
-            mean, band = _mixture(sources, w_pred)
-            half = _Z95 * math.sqrt((math.exp(log_c) * band) ** 2 + s.lab_std**2)
-            miss = abs(lab.moisture_out - mean) > half
-            log_c = min(max(log_c + s.band_step * (float(miss) - _MISS),
-                            math.log(s.band_scale_min)), math.log(s.band_scale_max))
-            st["misses"] = int(st["misses"]) + int(miss)
-        st["labs"] = int(st["labs"]) + 1
-        if hold is None or lab.sample_time_ns >= hold[1]:
-            st["hold"] = [float(lab.moisture_out), int(lab.sample_time_ns)]
-        if reg is not None:
-            st["bias"] = float(lab.moisture_out - reg_now)
-    st["log_w"] = [float(v) for v in log_w]
-    st["log_scale"] = log_c
-    st["msz"] = [float(v) for v in msz]
-    mo, mo_std = body.get("moisture_out"), body.get("moisture_out_std")
+        _score(s, reg, st, scored, lab, phys_prev, reg_now)
+    st["log_w"] = [float(v) for v in scored.log_w]
+    st["log_scale"] = scored.log_c
+    st["msz"] = [float(v) for v in scored.msz]
+    mo, mo_std = physics
     st["physics"] = (None if mo is None or mo_std is None else [float(mo), float(mo_std)])
     hold = st["hold"]
     sources = [_physics_source(s, st["physics"]),
@@ -224,31 +194,75 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
                             None if hold is None else hold[1], window.end_ns),
                _regression_source(s, reg, st["bias"], reg_now)]
     ok = np.array([src.ok for src in sources])
-    w = (_normalised(log_w, ok) if s.peer_blend
+    w = (_normalised(scored.log_w, ok) if s.peer_blend
          else np.array([1.0 if sources[0].ok else 0.0, 0.0, 0.0]))
-    out = dict(body)
+    mixture = None
     if w.sum() > 0:
         mean, band = _mixture(sources, w)
-        band *= math.exp(log_c)
-        clipped = not s.moisture_out_min <= mean <= s.moisture_out_max
-        out["moisture_out"] = min(max(mean, s.moisture_out_min), s.moisture_out_max)
-        out["moisture_out_std"] = band
-        out["clipped"] = bool(out.get("clipped")) or clipped
-    out["moisture_out_physics"] = mo
-    out["moisture_out_physics_std"] = mo_std
-    out["sources"] = {name: {"weight": float(wi),
-                             "moisture_out": src.value if math.isfinite(src.value) else None,
-                             "moisture_out_std": src.band if math.isfinite(src.band) else None}
-                      for name, wi, src in zip(SOURCES, w, sources, strict=True)}
-    out["band_scale"] = math.exp(log_c)
-    out["band_misses"] = [int(st["misses"]), int(st["labs"])]
-    lead = SOURCES[int(np.argmax(w))] if w.sum() > 0 else "physics"
-    out["source"] = lead
-    if lead != "physics":
-        out["detail"] = (f"the lab results favour {lead} over the physics (weights "
-                         + ", ".join(f"{n} {wi:.2f}" for n, wi in zip(SOURCES, w, strict=True))
-                         + f"); {out.get('detail', '')}")
-    return st, out
+        mixture = (mean, band * math.exp(scored.log_c))
+    blend = Blend(
+        moisture_out_physics=mo, moisture_out_physics_std=mo_std,
+        sources=MappingProxyType({name: SourceEstimate(
+            float(wi), src.value if math.isfinite(src.value) else None,
+            src.band if math.isfinite(src.band) else None)
+            for name, wi, src in zip(SOURCES, w, sources, strict=True)}),
+        band_scale=math.exp(scored.log_c), band_misses=(int(st["misses"]), int(st["labs"])),
+        source=SOURCES[int(np.argmax(w))] if w.sum() > 0 else "physics")
+    return st, blend, mixture
+
+
+@dataclass
+class _Scores:
+    """The evidence a tick's lab results move: log weights, the band's log scale and each
+    source's mean squared z (its spread as the recent labs found it)."""
+
+    log_w: np.ndarray
+    log_c: float
+    msz: np.ndarray
+
+
+def _score(s: EstimatorSettings, reg: LabRegression | None, st: dict[str, Any],
+           scored: _Scores, lab: LabResult, phys_prev: Source, reg_now: float) -> None:
+    """Score one lab result against each source as it stood (module docstring): forget
+    towards the prior, add its log likelihood, move the band's scale; then it becomes the
+    hold and sets the regression's bias. Updates ``st`` and ``scored`` in place."""
+    prior = prior_log_weights(s, reg)
+    hold = st["hold"]
+    sources = [phys_prev,
+               _hold_source(s, None if hold is None else hold[0],
+                            None if hold is None else hold[1], lab.sample_time_ns),
+               _regression_source(s, reg, st["bias"], reg_now)]
+    ok = np.array([src.ok for src in sources])
+    log_w = s.peer_forgetting * scored.log_w + (1.0 - s.peer_forgetting) * prior
+    if s.peer_blend and ok.sum() >= 2:  # evidence needs two sources to compare
+        w_pred = _normalised(log_w, ok)
+        z2 = np.array([((lab.moisture_out - src.value) / src.predictive) ** 2 if src.ok
+                       else 1.0 for src in sources])
+        # each source scored with its spread as the recent labs found it (never narrower
+        # than it says itself): a band too narrow is not evidence against an estimate
+        # nearer the labs than a wider one
+        spread = np.sqrt(np.maximum(scored.msz, 1.0))
+        ll = np.array([_log_density(lab.moisture_out, src, k) if src.ok else 0.0
+                       for src, k in zip(sources, spread, strict=True)])
+        log_w = log_w + np.where(ok, ll, 0.0)
+        log_w = np.maximum(log_w - np.max(log_w), _LOG_FLOOR)
+        scored.msz = np.where(ok, s.peer_forgetting * scored.msz
+                              + (1.0 - s.peer_forgetting) * z2, scored.msz)
+    else:
+        w_pred = np.array([1.0, 0.0, 0.0]) if sources[0].ok else _normalised(log_w, ok)
+    scored.log_w = log_w
+    if s.band_conformal and ok.any():
+        mean, band = _mixture(sources, w_pred)
+        half = _Z95 * math.sqrt((math.exp(scored.log_c) * band) ** 2 + s.lab_std**2)
+        miss = abs(lab.moisture_out - mean) > half
+        scored.log_c = min(max(scored.log_c + s.band_step * (float(miss) - _MISS),
+                               math.log(s.band_scale_min)), math.log(s.band_scale_max))
+        st["misses"] = int(st["misses"]) + int(miss)
+    st["labs"] = int(st["labs"]) + 1
+    if hold is None or lab.sample_time_ns >= hold[1]:
+        st["hold"] = [float(lab.moisture_out), int(lab.sample_time_ns)]
+    if reg is not None:
+        st["bias"] = float(lab.moisture_out - reg_now)
 
 
 __all__ = ["SOURCES", "Source", "advance", "check_state", "fresh", "prior_log_weights"]

@@ -1,9 +1,13 @@
-"""From a tick's posterior to the published estimate: health, the guard and its fallback, the
-body of ``/softsensor/estimate`` (CONTRACT section 2).
+"""From a tick's posterior to the published :class:`~softsensor.estimate.Estimate`: the one
+place an estimate is built, and the one pure step that finishes it.
 
-:func:`publish` is pure: it is handed the posterior of :func:`~.ukf_step.step` and what it
-needs of the history (:class:`TickContext`: the tick's window and labs, the innovations of
-the previous ticks, the latest lab result applied so far) and returns the body.
+:func:`physics` is handed the posterior of :func:`~.ukf_step.step` and what it needs of the
+history (:class:`TickContext`: the tick's window and labs, the innovations of the previous
+ticks, the latest lab result applied so far) and returns the filter's estimate with its
+reasons; :func:`blended` puts the peers' blend (:mod:`.peer_blend`) on it; :func:`at_tick`
+adds what only the tick knows (a late lab applied, the notes of the ticks filtered again, a
+streak of refused lab results). The service finishes any estimator's estimate by one pure step
+(:func:`softsensor.service.estimator_service.finish`).
 
 Health: ``stale`` for a stale window (predict only); ``degraded`` when the model failed, when
 the innovations of the last ``estimator.consistency_ticks`` fail the chi-square test of
@@ -24,11 +28,11 @@ of the input-lag, lab-delay and chip-batch days and did worse than the filter th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 
+from softsensor.estimate import Blend, Estimate, FilterTerms, Reason
 from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.interface import LabResult, Window
 from softsensor.estimation.settings import EstimatorSettings
@@ -139,92 +143,128 @@ def fallback_std(s: EstimatorSettings, age_ns: int) -> float:
     return math.sqrt(s.lab_std**2 + s.moisture_out_jitter_std**2 + s.fallback_drift**2 * hours)
 
 
-def health(filt: FilterModel, ctx: TickContext, post: Posterior) -> tuple[str, str]:
-    """Status and detail before the guard: stale, degraded by a failed model, or the
+def verdict(filt: FilterModel, ctx: TickContext, post: Posterior) -> Reason:
+    """The tick's verdict before the guard: stale, degraded by a failed model, or the
     chi-square test of the last ``consistency_ticks`` innovations."""
     w = ctx.window
     if w.stale:
         reasons = "; ".join(f"{key}: {v}" for key, v in w.reasons.items())
-        return "stale", "stale window, predicting without correction" + (
-            f": {reasons}" if reasons else "")
+        return Reason("stale", "stale window, predicting without correction" + (
+            f": {reasons}" if reasons else ""))
     if post.failure:
-        return "degraded", post.failure
-    verdict = chi_square_test([*ctx.recent, post.innovation], filt.settings.consistency_alpha)
-    detail = verdict.detail
+        return Reason("degraded", post.failure)
+    test = chi_square_test([*ctx.recent, post.innovation], filt.settings.consistency_alpha)
+    detail = test.detail
     if ctx.held:
         detail += f"; holding last value of {', '.join(ctx.held)}"
-    return verdict.status, detail
+    return Reason(test.status, detail)
 
 
-def guard(filt: FilterModel, ctx: TickContext, post: Posterior, status: str, detail: str
-          ) -> tuple[float, float, bool, str, str]:
+@dataclass(frozen=True)
+class Guarded:
+    """The physics' published outlet moisture after the guard: value and band sd [kg/kg],
+    whether it is the lab-anchored fallback, and the guard's reasons (first first)."""
+
+    moisture_out: float
+    moisture_out_std: float
+    fallback: bool
+    reasons: tuple[Reason, ...]
+
+
+def guard(filt: FilterModel, ctx: TickContext, post: Posterior) -> Guarded:
     """The published ``moisture_out``, its standard deviation, whether it is the lab-anchored
-    fallback, and status and detail after the guard (module docstring)."""
+    fallback, and what the guard says (module docstring)."""
     jitter = filt.settings.moisture_out_jitter_std
     mo = float(post.y_mean[_MO])
     mo_std = math.sqrt(max(post.y_var[_MO], 0.0) + jitter**2) if math.isfinite(mo) else math.nan
     is_fallback = False
+    reasons = []
     why = "" if ctx.window.stale else lost(filt, post)
     if why or not math.isfinite(mo):
         anchor = fallback(filt, ctx)
         if anchor is not None:
             mo, mo_std, sid = anchor
             is_fallback = True
-            status = "degraded"
-            detail = (f"model lost the plant ({why or 'no model estimate'}): moisture_out "
-                      f"is the last lab result {sid} {mo:.4f} +- {mo_std:.4f} kg/kg; " + detail)
+            reasons.append(Reason("degraded", f"model lost the plant ({why or 'no model estimate'}"
+                                              f"): moisture_out is the last lab result {sid} "
+                                              f"{mo:.4f} +- {mo_std:.4f} kg/kg"))
         elif why:
-            status = "degraded"
-            detail = f"model lost the plant ({why}); no lab result yet; " + detail
+            reasons.append(Reason("degraded", f"model lost the plant ({why}); no lab result yet"))
     bad_sensor = "" if ctx.window.stale else suspect(filt, post.x)
     if bad_sensor:
-        status = "degraded"
-        detail = f"{bad_sensor}; {detail}"
-    return mo, mo_std, is_fallback, status, detail
+        reasons.insert(0, Reason("degraded", bad_sensor))
+    return Guarded(mo, mo_std, is_fallback, tuple(reasons))
 
 
-def publish(filt: FilterModel, ctx: TickContext, post: Posterior, kind: str) -> dict[str, Any]:
-    """The estimate body of one tick (``lab_updated`` and ``notes`` are set by the
-    estimator)."""
+def physics(filt: FilterModel, ctx: TickContext, post: Posterior, kind: str) -> Estimate:
+    """The filter's estimate of one tick: the posterior's outputs after the guard, its
+    states, and its reasons (the guard's, then the verdict)."""
     s = filt.settings
-    status, detail = health(filt, ctx, post)
-    mo, mo_std, is_fallback, status, detail = guard(filt, ctx, post, status, detail)
+    g = guard(filt, ctx, post)
+    mo = g.moisture_out
     clipped = math.isfinite(mo) and not s.moisture_out_min <= mo <= s.moisture_out_max
     if clipped:
         mo = min(max(mo, s.moisture_out_min), s.moisture_out_max)
     x, P = post.x, post.P
     x_in, x_in_std = inlet_moments(filt, x, P)
     inn = post.innovation
-    return {
-        "moisture_out": finite_or_none(mo),
-        "moisture_out_std": finite_or_none(mo_std),
-        "moisture_out_window_std": finite_or_none(math.sqrt(max(post.y_var[_MO], 0.0))),
-        "moisture_in": x_in,
-        "moisture_in_std": x_in_std,
-        "moisture_out_bias": float(x[X_BIAS]),
-        "moisture_out_bias_std": float(math.sqrt(P[X_BIAS, X_BIAS])),
-        "inlet_gain": float(x[X_GAIN]),
-        "T_air_in_offset": float(x[X_HEAT]),
-        "T_offset": float(filt.heat_gain * x[X_HEAT]),
-        "T_dryer_out_offset": float(x[X_TDRY]),
-        "T_cyclone_out_offset": float(x[X_TCYC]),
-        "T_dryer_out_model": finite_or_none(post.y_mean[0]),
-        "T_cyclone_out_model": finite_or_none(post.y_mean[1]),
-        "T_dryer_out_model_raw": finite_or_none(float(post.model_T[0])),
-        "T_cyclone_out_model_raw": finite_or_none(float(post.model_T[1])),
-        "fallback": is_fallback,
-        "clipped": clipped,
-        "nis": inn.nis if inn.dof else None,
-        "nis_dof": inn.dof,
-        "labs_applied": [r.sample_id for r in ctx.labs],
-        "lab_updated": bool(ctx.labs),
-        "status": status,
-        "detail": detail,
-        "discrepancy_priors": filt.priors.source,
-        "window_start_ns": int(ctx.window.start_ns),
-        "window_end_ns": int(ctx.window.end_ns),
-        "estimator": kind,
-    }
+    terms = FilterTerms(
+        moisture_out_window_std=finite_or_none(math.sqrt(max(post.y_var[_MO], 0.0))),
+        moisture_out_bias=finite_or_none(x[X_BIAS]),
+        moisture_out_bias_std=finite_or_none(math.sqrt(P[X_BIAS, X_BIAS])),
+        inlet_gain=finite_or_none(x[X_GAIN]), T_air_in_offset=finite_or_none(x[X_HEAT]),
+        T_offset=finite_or_none(filt.heat_gain * x[X_HEAT]),
+        T_dryer_out_offset=finite_or_none(x[X_TDRY]),
+        T_cyclone_out_offset=finite_or_none(x[X_TCYC]),
+        T_dryer_out_model_raw=finite_or_none(float(post.model_T[0])),
+        T_cyclone_out_model_raw=finite_or_none(float(post.model_T[1])),
+        nis=inn.nis if inn.dof else None, nis_dof=inn.dof, fallback=g.fallback,
+        labs_applied=tuple(r.sample_id for r in ctx.labs),
+        discrepancy_priors=filt.priors.source)
+    return Estimate(
+        window_start_ns=int(ctx.window.start_ns), window_end_ns=int(ctx.window.end_ns),
+        estimator=kind, moisture_out=finite_or_none(mo),
+        moisture_out_std=finite_or_none(g.moisture_out_std),
+        moisture_in=finite_or_none(x_in), moisture_in_std=finite_or_none(x_in_std),
+        T_dryer_out_model=finite_or_none(post.y_mean[0]),
+        T_cyclone_out_model=finite_or_none(post.y_mean[1]),
+        lab_updated=bool(ctx.labs), reasons=(*g.reasons, verdict(filt, ctx, post)),
+        clipped=clipped, notes=tuple(post.notes), filter=terms)
 
 
-__all__ = ["TickContext", "fallback", "guard", "health", "lost", "publish", "suspect"]
+def blended(estimate: Estimate, blend: Blend, mixture: tuple[float, float] | None,
+            s: EstimatorSettings) -> Estimate:
+    """``estimate`` published as the peers' ``mixture`` (mean and band sd [kg/kg], None when
+    no source has a weight), clipped to its range, with the ``blend`` it came from; when a
+    peer leads, the reason why first."""
+    out = replace(estimate, blend=blend)
+    if mixture is not None:
+        mean, band = mixture
+        clipped = not s.moisture_out_min <= mean <= s.moisture_out_max
+        out = replace(out, moisture_out=min(max(mean, s.moisture_out_min), s.moisture_out_max),
+                      moisture_out_std=band, clipped=estimate.clipped or clipped)
+    if blend.source != "physics":
+        weights = ", ".join(f"{n} {src.weight:.2f}" for n, src in blend.sources.items())
+        out = out.judged(Reason("ok", f"the lab results favour {blend.source} over the physics "
+                                      f"(weights {weights})"), first=True)
+    return out
+
+
+def at_tick(estimate: Estimate, *, lab_updated: bool, notes: tuple[str, ...],
+            refused_streak: int) -> Estimate:
+    """The estimate a tick publishes: a lab result applied late counts as an update, the
+    notes of the ticks filtered again come first, and a streak of two or more lab results
+    refused on one side (``refused_streak``, signed by the side) degrades it: the labs and
+    the sensor disagree, which is never said silently."""
+    out = replace(estimate, lab_updated=estimate.lab_updated or lab_updated,
+                  notes=(*notes, *estimate.notes))
+    if abs(refused_streak) >= 2:
+        side = "above" if refused_streak > 0 else "below"
+        out = out.judged(Reason("degraded", f"{abs(refused_streak)} lab results in a row "
+                                            f"refused {side} the estimate (the lab or the "
+                                            f"model is off)"), first=True)
+    return out
+
+
+__all__ = ["Guarded", "TickContext", "at_tick", "blended", "fallback", "fallback_std", "guard",
+           "lost", "physics", "suspect", "verdict"]

@@ -24,7 +24,7 @@ from typing import ClassVar
 from softsensor.configfile import num
 from softsensor.plantconfig import PlantConfig, section_of
 
-#: Estimator kinds the service can build (see :func:`softsensor.estimation.registry.build`).
+#: Estimator kinds the service can build (see :func:`softsensor.service.estimators.make_estimator`).
 ESTIMATOR_KINDS: tuple[str, ...] = ("ukf", "openloop")
 
 

@@ -40,13 +40,11 @@ residuals on data it was not fitted on (PARAMS.toml's ``[discrepancy]``) or from
 offsets and the bias are random walks sized by the history's day-to-day spread and within-day
 wander: one integrating disturbance per measured output, so the filter is offset-free
 (Pannocchia and Rawlings, AIChE J. 49, 2003). ``inlet_gain`` is a random walk from
-``estimator.inlet_gain_std`` and ``inlet_gain_walk``, by default only with a history: on the
-independent plant (three plant seeds, 24 days) it took the pooled outlet-moisture RMSE from
-0.0128 to 0.0083 kg/kg; on the matched plant, which is the model, it costs (0.0059 to 0.0068
-on an inlet-moisture day) and a model nobody has compared with its plant keeps it at zero.
-With it the labs no longer pin the inlet moisture (a temperature offset may pass for an inlet
-moisture whose outlet effect the gain cancels): the temperatures and the history's typical
-level carry it.
+``estimator.inlet_gain_std`` and ``inlet_gain_walk``, by default only with a history (a
+model nobody has compared with its plant keeps it at zero; what it gave is in
+``docs/explanation/estimator.md``). With it the labs no longer pin the inlet moisture (a
+temperature offset may pass for an inlet moisture whose outlet effect the gain cancels): the
+temperatures and the history's typical level carry it.
 
 Adaptive noise (:class:`AdaptiveNoise`): when a channel's normalised innovation squared stays
 above one, the channel's error process gets more process noise until it averages one again

@@ -21,12 +21,13 @@ This module holds what does not depend on the filter:
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from softsensor.errors import IngestError
+from softsensor.estimate import Estimate
 from softsensor.estimation.consistency import Innovation
 from softsensor.jsonable import finite_or_none
 from softsensor.messages import LabResult, Window
@@ -167,29 +168,45 @@ class FilterState:
                    dict(d.get("adapt", {})), dict(d.get("peers", {})))
 
 
-@dataclass
+@dataclass(frozen=True)
 class TickRecord:
-    """One tick of the history: what is needed to re-run it, and what it produced."""
+    """One tick of the history: what is needed to run it again, and what it produced (the
+    estimate, None until it ran, and the innovation). Frozen: attaching a lab result or
+    filtering the tick again makes a new record (:meth:`with_labs`, :meth:`ran`)."""
 
     window: Window
     u: np.ndarray
-    held: list[str]
+    held: tuple[str, ...]
     start: FilterState
-    labs: list[LabResult] = field(default_factory=list)
-    body: dict[str, Any] = field(default_factory=dict)
+    labs: tuple[LabResult, ...] = ()
+    estimate: Estimate | None = None
     innovation: Innovation = field(default_factory=Innovation)
+
+    def with_labs(self, labs: tuple[LabResult, ...]) -> TickRecord:
+        """This tick with the lab results ``labs`` instead of its own."""
+        return replace(self, labs=tuple(labs))
+
+    def ran(self, start: FilterState, estimate: Estimate, innovation: Innovation) -> TickRecord:
+        """This tick filtered from ``start``: what it produced."""
+        return replace(self, start=start, estimate=estimate, innovation=innovation)
 
     def to_json(self) -> dict[str, Any]:
         inn = self.innovation
         return {"window": window_to_json(self.window), "u": self.u.tolist(),
                 "held": list(self.held), "start": self.start.to_json(),
-                "labs": [lab_to_json(r) for r in self.labs], "body": self.body,
+                "labs": [lab_to_json(r) for r in self.labs],
+                "body": {} if self.estimate is None else self.estimate.to_body(),
                 "innovation": {"nis": inn.nis, "dof": inn.dof, "normalised": inn.normalised}}
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> TickRecord:
         inn = d["innovation"]
-        return cls(window_from_json(d["window"]), np.array(d["u"], float), list(d["held"]),
-                   FilterState.from_json(d["start"]), [lab_from_json(r) for r in d["labs"]],
-                   dict(d["body"]), Innovation(float(inn["nis"]), int(inn["dof"]),
-                                               dict(inn["normalised"])))
+        body = d["body"]
+        return cls(window_from_json(d["window"]), np.array(d["u"], float), tuple(d["held"]),
+                   FilterState.from_json(d["start"]), tuple(lab_from_json(r) for r in d["labs"]),
+                   Estimate.from_body(body) if body else None,
+                   Innovation(float(inn["nis"]), int(inn["dof"]), dict(inn["normalised"])))
+
+
+__all__ = ["FilterState", "LabBook", "TickRecord", "lab_from_json", "lab_to_json",
+           "window_from_json", "window_to_json"]

@@ -57,24 +57,8 @@ one to hold a grab sample against), ``moisture_in`` and its standard deviation, 
 states, the model temperatures, ``nis``, and ``status``/``detail``; a lab-anchored fallback
 when the model has lost the plant.
 
-What was tried (measured on the independent plant, ``benchmarks/open_world.py``)
-------------------------------------------------------------------------------------
-Tuning plant seeds 11 to 13, seven 48 h history days each, one test day per cause: the filter
-with only the calibration's error priors and one day of history published 0.0052, 0.0084 and
-0.0067 kg/kg on the clean days against 0.0055, 0.0084 and 0.0061 for holding the last lab
-result; the model's own response to load and set-point moves was the main error (a learned
-slope on ``T_air_in`` and ``m_fiber`` of the lab residual of 0.014 kg/kg per standard
-deviation), and the inlet moisture drifted against the outlet-moisture bias on the
-temperature channels' day offsets. The discrepancy learned from history on all three channels
-with random-walk offsets sized by the history took the clean days to 0.0040, 0.0052 and
-0.0067; on days where the inlet moisture moved, the bias jumped back at every lab because the
-model's outlet moisture follows the inlet moisture several times more than the plant's does,
-which the ``inlet_gain`` state learns from the labs. Pooled over the 24 tuning days
-(``moisture_out`` RMSE against the truth; holding the last lab 0.0141, the lab-bias-updated
-regression 0.0133 kg/kg): without the inlet gain 0.0128, its prior at 0.3 0.0113, at 1.0 with
-the bias's covariance matching at 5 sigma 0.0083; the error states started with the
-history's day-offset correlation 0.0086 (so they start uncorrelated). The numbers of the
-final design on fresh plants are in the README ("Accuracy on the independent plant").
+Why this design, and what else was tried on the independent plant: the documentation's
+explanation of the estimator (``docs/explanation/estimator.md``).
 
 Late lab results
 ----------------
@@ -93,19 +77,20 @@ side is taken: the model is off, not the lab). Its values need no other check: a
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from softsensor.errors import ConfigError, EstimationError, SoftsensorError
+from softsensor.estimate import Estimate
 from softsensor.estimation import peer_blend
 from softsensor.estimation.interface import LabResult, ModelEstimator, Window, WindowModel
 from softsensor.estimation.lab_regression import regression_of
 from softsensor.estimation.model_error import model_error_of
-from softsensor.estimation.publication import TickContext, publish
+from softsensor.estimation.publication import TickContext, at_tick, blended, physics
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.estimation.state_space import (
     STATE_NAMES,
@@ -192,50 +177,42 @@ class UkfEstimator(ModelEstimator):
         return self.filter.heat_gain
 
     # ------------------------------------------------------------------ Estimator protocol
-    def tick(self, window: Window) -> dict[str, Any]:
-        """Advance to ``window.end_ns``: apply late labs, predict, correct; return the body."""
+    def tick(self, window: Window) -> Estimate:
+        """Advance to ``window.end_ns``: apply late labs, predict, correct; the estimate."""
         if self._history and window.end_ns <= self._history[-1].window.end_ns:
             raise EstimationError(f"window ending at {window.end_ns} ns is not after the last "
                                   f"tick ({self._history[-1].window.end_ns} ns)")
-        lab_updated = self._dirty is not None
+        late = self._dirty is not None
         notes = self._apply_late_labs()
         labs = []
-        last_body = self._history[-1].body if self._history else {}
+        last = self._history[-1].estimate if self._history else None
         for lab in self._labs.take_due(window.end_ns):
             if lab.sample_time_ns <= window.start_ns - self.window_s * 1e9:
                 log.warning("lab %r: sample time %d ns falls in a gap before window %d..%d ns; "
                             "skipped", lab.sample_id, lab.sample_time_ns, window.start_ns,
                             window.end_ns)
-            elif not self._screen(lab, last_body):
+            elif not self._screen(lab, last):
                 labs.append(lab)
         if self._dirty is not None:  # a result here withdrew a taken outlier: at once
-            lab_updated = True
+            late = True
             notes += self._apply_late_labs()
         u, held = self._hold.inputs(window)
-        rec = TickRecord(window, u, held, self._state, labs)
-        self._state = self._run(rec, len(self._history))
+        rec = TickRecord(window, u, tuple(held), self._state, tuple(labs))
+        self._state, rec = self._run(rec, len(self._history))
         self._history.append(rec)
         if len(self._history) > self.max_history:
             del self._history[: len(self._history) - self.max_history]
         self._labs.prune(self._history[0].window.start_ns)
-        body = dict(rec.body)
-        body["lab_updated"] = bool(lab_updated or labs)
-        body["notes"] = notes + rec.body["notes"]
-        if abs(self._gate_streak) >= 2:  # the labs and the sensor disagree: never silently
-            side = "above" if self._gate_streak > 0 else "below"
-            body["detail"] = (f"{abs(self._gate_streak)} lab results in a row refused {side} "
-                              f"the estimate (the lab or the model is off); "
-                              f"{body.get('detail', '')}")
-            if body.get("status") == "ok":
-                body["status"] = "degraded"
-        return body
+        assert rec.estimate is not None
+        return at_tick(rec.estimate, lab_updated=late, notes=tuple(notes),
+                       refused_streak=self._gate_streak)
 
     def _apply_late_labs(self) -> list[str]:
         """Re-filter from the earliest tick a late (or withdrawn) lab changed; its notes."""
         if self._dirty is None:
             return []
         self._refilter(self._dirty)
-        notes = [n for r in self._history[self._dirty:] for n in r.body["notes"]]
+        notes = [n for r in self._history[self._dirty:] for n in r.estimate.notes]
         self._dirty = None
         return notes
 
@@ -263,10 +240,10 @@ class UkfEstimator(ModelEstimator):
             reason = f"lab {lab.sample_id!r}: no estimator window covers its sample time"
             log.warning(reason)
             return reason
-        refused = self._screen(lab, rec.body)
+        refused = self._screen(lab, rec.estimate)
         if refused:
             return refused
-        rec.labs.append(lab)
+        self._history[j] = rec.with_labs((*rec.labs, lab))
         self._dirty = j if self._dirty is None else min(self._dirty, j)
         return None
 
@@ -310,9 +287,9 @@ class UkfEstimator(ModelEstimator):
         self._gate_streak, self._taken = streak, taken
 
     # ------------------------------------------------------------------ lab screening
-    def _screen(self, lab: LabResult, body: dict[str, Any]) -> str | None:
-        """Outlier screen of ``lab`` against the estimate ``body`` at its sample time: the
-        reason to refuse it, or None (then the caller attaches it).
+    def _screen(self, lab: LabResult, estimate: Estimate | None) -> str | None:
+        """Outlier screen of ``lab`` against the ``estimate`` at its sample time (None: no
+        tick yet): the reason to refuse it, or None (then the caller attaches it).
 
         A lone outlier is refused. The second in a row on the same side is taken only when
         it agrees with what the temperatures say: the temperatures fix the inlet moisture and
@@ -327,9 +304,9 @@ class UkfEstimator(ModelEstimator):
         nearer the estimate the taken one was judged against than to it) withdraws it: the
         history is filtered again without it at the next tick, and this result is taken.
         """
-        gate, side, z_wide = self._gate(lab, body)
+        gate, side, z_wide = self._gate(lab, estimate)
         taken = self._taken
-        mean = body.get("moisture_out")
+        mean = None if estimate is None else estimate.moisture_out
         if (taken is not None and mean is not None
                 and (lab.moisture_out - mean) * taken["side"] < 0
                 and abs(lab.moisture_out - taken["mean"]) < abs(lab.moisture_out
@@ -348,16 +325,16 @@ class UkfEstimator(ModelEstimator):
         head = gate.split("; rejected")[0]
         # a model the temperatures themselves contradict (degraded: inconsistent
         # innovations, lost, a suspect sensor) vouches for no estimate: the labs lead
-        allowed = z_wide <= self.settings.lab_gate or body.get("status") == "degraded"
+        status = None if estimate is None else estimate.status
+        allowed = z_wide <= self.settings.lab_gate or status == "degraded"
         if side * self._gate_streak > 0 and allowed:
             log.warning("%s, but so was the previous result, on the same side, and the "
                         "temperatures allow it (%.1f sigma with the model's bias spread, "
                         "estimate %s): accepted (the model is off, not the lab)", head, z_wide,
-                        body.get("status"))
+                        status)
             self._gate_streak = 0
             self._taken = {"sample_id": lab.sample_id, "side": side,
-                           "value": float(lab.moisture_out),
-                           "mean": float(body["moisture_out"])}
+                           "value": float(lab.moisture_out), "mean": float(mean)}
             return None
         if side * self._gate_streak > 0:
             gate = (f"{head}, the previous result too, but the temperatures do not allow it "
@@ -372,20 +349,24 @@ class UkfEstimator(ModelEstimator):
         """Take the lab ``sample_id`` out of the history (re-filtered from its tick at the
         next tick); False when it has left the history."""
         for j, rec in enumerate(self._history):
-            for lab in rec.labs:
-                if lab.sample_id == sample_id:
-                    rec.labs.remove(lab)
-                    self._dirty = j if self._dirty is None else min(self._dirty, j)
-                    return True
+            kept = tuple(lab for lab in rec.labs if lab.sample_id != sample_id)
+            if len(kept) < len(rec.labs):
+                self._history[j] = rec.with_labs(kept)
+                self._dirty = j if self._dirty is None else min(self._dirty, j)
+                return True
         return False
 
-    def _gate(self, lab: LabResult, body: dict[str, Any]) -> tuple[str | None, int, float]:
-        """Outlier test of ``lab`` against the estimate ``body`` of its tick: the reason to
-        refuse it (None when it passes), the side it fell on (+1 above, -1 below, 0), and its
+    def _gate(self, lab: LabResult, estimate: Estimate | None
+              ) -> tuple[str | None, int, float]:
+        """Outlier test of ``lab`` against the ``estimate`` of its tick: the reason to refuse
+        it (None when it passes), the side it fell on (+1 above, -1 below, 0), and its
         distance in standard deviations once the model's bias spread is added (what the
         temperatures allow, :meth:`_screen`)."""
-        mean, std = body.get("moisture_out"), body.get("moisture_out_std")
-        if mean is None or std is None or body.get("fallback"):
+        if estimate is None:
+            return None, 0, 0.0
+        mean, std = estimate.moisture_out, estimate.moisture_out_std
+        if mean is None or std is None or (estimate.filter is not None
+                                           and estimate.filter.fallback):
             return None, 0, 0.0
         s = self.settings
         d = lab.moisture_out - mean
@@ -401,35 +382,31 @@ class UkfEstimator(ModelEstimator):
 
     # ------------------------------------------------------------------ the history
     def _refilter(self, j: int) -> None:
-        """Re-run the history from tick ``j`` (a late lab was attached there) to now."""
+        """Run the history again from tick ``j`` (a late lab was attached there) to now."""
         state = self._history[j].start
         for k in range(j, len(self._history)):
-            rec = self._history[k]
-            rec.start = state
-            state = self._run(rec, k)
+            state, self._history[k] = self._run(replace(self._history[k], start=state), k)
         self._state = state
 
-    def _run(self, rec: TickRecord, k: int) -> FilterState:
+    def _run(self, rec: TickRecord, k: int) -> tuple[FilterState, TickRecord]:
         """Filter one tick from ``rec.start`` (tick ``k`` of the history, appended after the
-        last when new); fill ``rec.body``/``rec.innovation``; return the new state."""
-        state, post = step(self.filter, rec.start, TickData(rec.window, rec.u, tuple(rec.labs)))
+        last when new): the new state and the record with what it produced."""
+        state, post = step(self.filter, rec.start, TickData(rec.window, rec.u, rec.labs))
         _check_covariance(post.P, rec.window.end_ns)
         for note in post.notes:
             log.info(note)
-        rec.innovation = post.innovation
         s = self.settings
         recent = tuple(r.innovation for r in
                        self._history[max(0, k - (s.consistency_ticks - 1)):k])
-        rec.body = publish(self.filter, TickContext(rec.window, tuple(rec.held),
-                                                    tuple(rec.labs), recent,
+        estimate = physics(self.filter, TickContext(rec.window, rec.held, rec.labs, recent,
                                                     self._latest_lab(rec, k)), post, self.kind)
         if s.peer_blend or s.band_conformal:
-            peers, rec.body = peer_blend.advance(
+            peers, blend, mixture = peer_blend.advance(
                 s, self.regression, rec.start.peers or peer_blend.fresh(s, self.regression),
-                rec.window, tuple(rec.labs), rec.body)
-            state = dataclasses.replace(state, peers=peers)
-        rec.body["notes"] = list(post.notes)
-        return state
+                rec.window, rec.labs, (estimate.moisture_out, estimate.moisture_out_std))
+            estimate = blended(estimate, blend, mixture, s)
+            state = replace(state, peers=peers)
+        return state, rec.ran(rec.start, estimate, post.innovation)
 
     def _latest_lab(self, rec: TickRecord, k: int) -> LabResult | None:
         """The latest lab result applied at tick ``k`` (``rec``) or before. A tick's results

@@ -194,9 +194,10 @@ def _start_wall(filt: FilterModel, state: FilterState, tick: TickData
         return None, f"model initialisation failed: {exc}"
 
 
-def discrepancy(filt: FilterModel, window: Window) -> tuple[np.ndarray, np.ndarray]:
-    """The learned discrepancy of the three outputs at ``window``'s operating point and its
-    variance (:mod:`.model_error`; zeros without a ``[model_error]``)."""
+def learned_offsets(filt: FilterModel, window: Window) -> tuple[np.ndarray, np.ndarray]:
+    """What the plant's history says the model misses on the three outputs at ``window``'s
+    operating point, and its variance (:mod:`.model_error`, PARAMS.toml's ``[model_error]``;
+    zeros without one)."""
     me = filt.model_error
     if me is None:
         return np.zeros(3), np.zeros(3)
@@ -209,7 +210,7 @@ def _correct(filt: FilterModel, x: np.ndarray, P: np.ndarray, tick: TickData,
              wall: np.ndarray) -> Posterior:
     """Steps 2 to 5 of :mod:`.ukf`'s docstring from the prior ``(x, P)``: the posterior, or
     when the model could not be solved the prior and why."""
-    g, g_var = discrepancy(filt, tick.window)
+    g, g_var = learned_offsets(filt, tick.window)
     meas = measurements(filt, tick, g, g_var)
     times = [r.sample_time_ns for r in tick.labs]
     steps = _LabSteps(sample_inputs(tick.window, tick.u, times, filt.lab_span),
@@ -372,35 +373,60 @@ def _match_covariance(filt: FilterModel, x: np.ndarray, P: np.ndarray, sigmas: n
     return P, "measurements far from the model along the " + ", ".join(parts)
 
 
+@dataclass(frozen=True)
+class JointLayout:
+    """Where each block sits in the joint vector of the unscented update (:func:`_update`):
+    the filter state, the published outputs with their error states (``T_dryer_out``,
+    ``T_cyclone_out``, ``moisture_out``), the model's own outlet temperatures (without the
+    offsets), the wall temperatures, and the predicted measurements."""
+
+    state: slice
+    published: slice
+    model_T: slice
+    wall: slice
+    measured: slice
+
+    @classmethod
+    def of(cls, n_state: int, n_wall: int, n_measured: int) -> JointLayout:
+        bounds = np.cumsum([0, n_state, 3, 2, n_wall, n_measured])
+        return cls(*(slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:],
+                                                             strict=True)))
+
+    @property
+    def size(self) -> int:
+        return self.measured.stop
+
+
 def _update(filt: FilterModel, sigmas: np.ndarray, sig: _Sigma, meas: Measurements
             ) -> Posterior:
     """The unscented update of the state, the outputs and the walls (:mod:`.ukf`, steps 3 and
-    5): filterpy's unscented transform of the joint sigma points, then its Kalman update of
-    that Gaussian by the measured rows."""
+    5): filterpy's unscented transform of the joint sigma points (:class:`JointLayout`), then
+    its Kalman update of that Gaussian by the measured rows."""
     pts = filt.points
-    n, m = sigmas.shape[1], len(meas.rows)
-    # published outputs with their error states (T_d, T_c, moisture_out), the model's own
-    # temperatures (without offsets), the walls, the predicted measurements
-    published = np.column_stack([sig.y[:, 0] + sigmas[:, X_TDRY], sig.y[:, 1] + sigmas[:, X_TCYC],
-                                 _moisture(sig.y[:, 2], sig.y_ref[:, 2], sigmas)])
-    joint = np.hstack([sigmas, published, sig.y[:, :2], sig.wall,
-                       _measurement_sigmas(sigmas, sig, meas.rows)])
+    at = JointLayout.of(sigmas.shape[1], sig.wall.shape[1], len(meas.rows))
+    joint = np.empty((len(sigmas), at.size))
+    joint[:, at.state] = sigmas
+    joint[:, at.published] = np.column_stack([
+        sig.y[:, 0] + sigmas[:, X_TDRY], sig.y[:, 1] + sigmas[:, X_TCYC],
+        _moisture(sig.y[:, 2], sig.y_ref[:, 2], sigmas)])
+    joint[:, at.model_T] = sig.y[:, :2]
+    joint[:, at.wall] = sig.wall
+    joint[:, at.measured] = _measurement_sigmas(sigmas, sig, meas.rows)
     mean, cov = unscented_transform(joint, pts.Wm, pts.Wc)
     innovation, norm = Innovation(), np.zeros(0)
-    if m:
-        nu = meas.z - mean[-m:]
-        S = cov[-m:, -m:] + meas.R
-        H = np.zeros((m, joint.shape[1]))
-        H[:, -m:] = np.eye(m)
+    if meas.rows:
+        m = at.measured
+        nu = meas.z - mean[m]
+        S = cov[m, m] + meas.R
+        H = np.zeros((len(meas.rows), at.size))
+        H[:, m] = np.eye(len(meas.rows))
         mean, cov = kf_update(mean, cov, meas.z, meas.R, H)
         norm = nu / np.sqrt(np.diag(S))
-        innovation = Innovation(float(nu @ np.linalg.solve(S, nu)), m,
+        innovation = Innovation(float(nu @ np.linalg.solve(S, nu)), len(meas.rows),
                                 _per_channel(meas.names, norm))
-    out = slice(n, n + 3)
-    return Posterior(mean[:n].copy(), _symmetric(cov[:n, :n]), mean[out],
-                     np.diag(cov)[out].copy(), mean[n + 3:n + 5],
-                     mean[n + 5:n + 5 + sig.wall.shape[1]], innovation, norm,
-                     list(meas.channels))
+    return Posterior(mean[at.state].copy(), _symmetric(cov[at.state, at.state]),
+                     mean[at.published], np.diag(cov)[at.published].copy(), mean[at.model_T],
+                     mean[at.wall], innovation, norm, list(meas.channels))
 
 
 def _per_channel(names: list[str], norm: np.ndarray) -> dict[str, float]:
@@ -423,5 +449,5 @@ def inlet_moments(filt: FilterModel, x: np.ndarray, P: np.ndarray) -> tuple[floa
     return float(mean[0]), math.sqrt(max(float(var[0, 0]), 0.0))
 
 
-__all__ = ["ROW_OFFSET", "FilterModel", "Measurements", "Posterior", "TickData", "discrepancy",
-           "inlet_moments", "measurements", "step"]
+__all__ = ["ROW_OFFSET", "FilterModel", "JointLayout", "Measurements", "Posterior", "TickData",
+           "inlet_moments", "learned_offsets", "measurements", "step"]

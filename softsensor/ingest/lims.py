@@ -18,6 +18,7 @@ the whole file and quotes nothing of it (anyone may drop a file there, a link to
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -98,6 +99,30 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
     if log_time_ns is None and lab.available_column is None and lab.delay_min is None:
         raise IngestError(f"{where}: {where_key}.available_column or {where_key}.delay_min "
                           "must say when each result became available")
+    cols = _lab_columns(frame, lab, default_zone, where, log_time_ns, echo, where_key)
+    results = _lab_results(cols, lab, where, where_key, echo, arrived=log_time_ns is not None)
+    results.sort(key=lambda r: (r[0].log_time_ns, r[0].sample_time_ns))
+    return LabTable(results=[r for r, _ in results], rows_read=len(frame),
+                    bad=int(np.isnan(cols.raw).sum()),  # empty or bad-quality cells: skipped
+                    raw=[v for _, v in results])
+
+
+class _LabColumns(NamedTuple):
+    """The cells of a LIMS table, one entry per row: sample and available times [ns], the
+    moisture as written (NaN: empty or bad quality) and on a dry basis [kg/kg], the sample
+    ids (None without a sample id column)."""
+
+    sample: np.ndarray
+    avail: np.ndarray
+    raw: np.ndarray
+    dry: np.ndarray
+    ids: pd.Series | None
+
+
+def _lab_columns(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, where: str,
+                 log_time_ns: int | None, echo: bool, where_key: str) -> _LabColumns:
+    """Read and convert the columns the map names (:func:`convert_labs`); a column that is
+    missing or unreadable raises :class:`IngestError` naming its map key."""
     zone = lab.time_zone or default_zone
 
     def times(name: str, key: str) -> np.ndarray:
@@ -114,39 +139,44 @@ def convert_labs(frame: pd.DataFrame, lab: LabMap, default_zone: str | None, whe
     else:
         avail = sample + int(round((lab.delay_min or 0.0) * 60e9))
     bad_strings = frozenset(s.lower() for s in DEFAULT_BAD_VALUES)
-    raw, bad = numbers(column(frame, lab.moisture_column, f"{where_key}.moisture_column",
-                              where, echo),
-                       lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export",
-                       thousands=lab.thousands, echo=echo, table=where_key)
+    raw, _ = numbers(column(frame, lab.moisture_column, f"{where_key}.moisture_column",
+                            where, echo),
+                     lab.moisture_column, bad_strings, lab.decimal, where, "the LIMS export",
+                     thousands=lab.thousands, echo=echo, table=where_key)
     dry = moisture_dry_basis(raw, lab.unit, lab.basis)
     ids = (text_cells(column(frame, lab.sample_id_column, f"{where_key}.sample_id_column",
                              where, echo))
            if lab.sample_id_column else None)
+    return _LabColumns(sample, avail, raw, dry, ids)
+
+
+def _lab_results(cols: _LabColumns, lab: LabMap, where: str, where_key: str, echo: bool,
+                 arrived: bool) -> list[tuple[LabResult, float]]:
+    """A checked result and its moisture as written for every row with a moisture (rows
+    without one are skipped); :class:`IngestError` naming the first row that breaks the
+    lab-result contract, with the map key to check."""
     results: list[tuple[LabResult, float]] = []
-    n_bad = int(np.isnan(raw).sum())  # empty or bad-quality cells: no result, skipped
-    for i in range(len(frame)):
-        if np.isnan(raw[i]):
+    for i in range(len(cols.raw)):
+        if np.isnan(cols.raw[i]):
             continue
         at = f"{where} row {i + 1}"
-        problem = (_moisture_problem(float(raw[i]), float(dry[i]), lab, where_key, echo)
-                   or _time_problem(int(sample[i]), int(avail[i]), lab, where_key,
-                                    arrived=log_time_ns is not None))
+        sample, avail = int(cols.sample[i]), int(cols.avail[i])
+        problem = (_moisture_problem(float(cols.raw[i]), float(cols.dry[i]), lab, where_key,
+                                     echo)
+                   or _time_problem(sample, avail, lab, where_key, arrived=arrived))
         if problem is not None:
             raise IngestError(f"{at}: {problem}")
-        sid = ids.iloc[i] if ids is not None else f"lab-{iso_utc(int(sample[i]))}"
-        if ids is not None and not sid:
+        sid = cols.ids.iloc[i] if cols.ids is not None else f"lab-{iso_utc(sample)}"
+        if cols.ids is not None and not sid:
             raise IngestError(f"{at}: {lab.sample_id_column} is empty")
         try:
-            results.append((make_lab_result(int(sample[i]), float(dry[i]), sid,
-                                            log_time_ns=int(avail[i]), where=at),
-                            float(raw[i])))
+            results.append((make_lab_result(sample, float(cols.dry[i]), sid, log_time_ns=avail,
+                                            where=at), float(cols.raw[i])))
         except IngestError as exc:
             if echo:
                 raise
             raise IngestError(f"{at}: not a usable lab result") from exc
-    results.sort(key=lambda r: (r[0].log_time_ns, r[0].sample_time_ns))
-    return LabTable(results=[r for r, _ in results], rows_read=len(frame), bad=n_bad,
-                    raw=[v for _, v in results])
+    return results
 
 
 __all__ = ["LabTable", "convert_labs"]

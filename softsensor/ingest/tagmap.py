@@ -47,7 +47,8 @@ from softsensor.errors import ConfigError
 from softsensor.ingest.registers import DATA_TYPES, ORDERS, UNITS
 from softsensor.signals import SCAN_SIGNALS
 
-#: The reference tag map, shipped in the package (a copy of config/tagmap_dryer1.toml).
+#: The reference tag map, shipped in the package (the repository's config/tagmap_dryer1.toml
+#: links to it).
 DEFAULT_TAGMAP = Path(__file__).resolve().parents[1] / "data" / "tagmap_dryer1.toml"
 
 #: Modbus limit on registers in one read request (FC 3 / FC 4).

@@ -6,83 +6,39 @@ Compiled into the kernels (:mod:`softsensor.model.kernels`) through
 down the tube by :mod:`softsensor.model.march`, each solved by
 :mod:`softsensor.model.cell_solver`.
 
-Cell balances, per cell (steady state):
-  fibre water   ``m_f (X_in - X) = R``
-  air water     ``m_a (Y - Y_in) = R``
-  fibre energy  ``m_f (h_f,in - h_f) + Q_af - R h_v(T_f) = 0``
-  air energy    ``m_a (h_a,in - h_a) - Q_af - Q_w + R h_v(T_f) = 0``
-with enthalpies from :mod:`humid_air` (temperature-dependent heat capacities) and :mod:`wood`
-(Wood Handbook), so water and energy close to round-off when summed over the cells.
+Cell balances, per cell (steady state)::
 
-Rates (paper eqs. 1 to 3), with the high-flux driving force ``F = ln((1 + Y_s(T_f)) / (1 + Y))``:
-  tube evaporation   ``R = mult_D alpha(X) K_c rho a dx F``                          (eq. 2)
-  tube heat          ``Q_af = mult_h h_af a dx (T_a - T_f)``                         (eq. 2)
-  cyclone evap.      ``R = A_c [hm_cyc (X - X_eq) + mult_C alpha(X) K_c rho F]``     (eq. 3)
-  cyclone heat       ``Q_af = hc_cyc A_c (T_a - T_f)``                               (eq. 3)
-  air to wall        ``Q_w = UA_w (T_a - T_w)``, Gnielinski's film in series with the wall's
+  fibre water   m_f (X_in - X) = R
+  air water     m_a (Y - Y_in) = R
+  fibre energy  m_f (h_f,in - h_f) + Q_af - R h_v(T_f) = 0
+  air energy    m_a (h_a,in - h_a) - Q_af - Q_w + R h_v(T_f) = 0
+
+with enthalpies from :mod:`~softsensor.model.humid_air` (temperature-dependent heat
+capacities) and :mod:`~softsensor.model.wood` (Wood Handbook), so water and energy close to
+round-off when summed over the cells.
+
+Rates (paper eqs. 1 to 3), with the high-flux driving force ``F = ln((1 + Y_s(T_f)) / (1 + Y))``::
+
+  tube evaporation   R = mult_D alpha(X) K_c rho a dx F                          (eq. 2)
+  tube heat          Q_af = mult_h h_af a dx (T_a - T_f)                         (eq. 2)
+  cyclone evap.      R = A_c [hm_cyc (X - X_eq) + mult_C alpha(X) K_c rho F]     (eq. 3)
+  cyclone heat       Q_af = hc_cyc A_c (T_a - T_f)                               (eq. 3)
+  air to wall        Q_w = UA_w (T_a - T_w), Gnielinski's film in series with the wall's
                      inner conduction (tube) or the shell's inner coefficient (cyclone)
-  wall to ambient    ``Q_out = UA_out (T_w - T_amb)``: ``mult_p h_out pi D_out dx``
+  wall to ambient    Q_out = UA_out (T_w - T_amb): mult_p h_out pi D_out dx
                      (Churchill-Bernstein plus natural convection and radiation) in series
-                     with the wall's outer conduction (tube), ``h_out`` scaled by
-                     ``1 + beta (283.15 K - T_amb)`` with ``beta`` the config's
-                     ``environment.ambient_loss_slope`` (0) plus the diagnosis's extension
-  wall conduction    ``mult_k k_w A_cross (T_w,i-1 - 2 T_w,i + T_w,i+1) / dx`` along the tube
-                     (adiabatic ends), and ``mult_k`` on the conduction through it (below)
+                     with the wall's outer conduction (tube), h_out scaled by
+                     1 + beta (283.15 K - T_amb) with beta the config's
+                     environment.ambient_loss_slope (0) plus the diagnosis's extension
+  wall conduction    mult_k k_w A_cross (T_w,i-1 - 2 T_w,i + T_w,i+1) / dx along the tube
+                     (adiabatic ends), and mult_k on the conduction through it
 
-Choices where the paper is garbled or silent:
-* The paper's eq. 2 writes the driving force as ``H_f - H_a`` (a fibre moisture minus an air
-  humidity) and divides by ``Qm_fiber``. We use the vapour flux through a stagnant film, the
-  high-flux (Stefan) form ``n = K_c rho ln((1 - w_a) / (1 - w_s))`` in vapour mass fractions
-  ``w = Y / (1 + Y)`` (Bird, Stewart & Lightfoot 2002, eq. 22.8-14), which is ``ln((1 + Y_s) /
-  (1 + Y))``. Its low-flux limit is the linear ``rho_da (Y_s - Y)``, which overstates the
-  evaporation of hot wet fibre: 2.2-fold at 368 K, where ``Y_s`` is 3. ``K_c rho a dx F`` is a
-  mass flow [kg/s], and so is ``R``.
-* ``a`` is fibre surface per metre of tube: specific surface [m2/kg] times dry fibre per metre
-  ``m_f / v_f``.
-* The cyclone (paper section 2.2; "one consistent reading" of eq. 3): the fibre is separated
-  from the gas and held up for ``tau_hold`` seconds (``cyclone.hold_up_time``, 4 s), so its
-  surface in the cyclone is ``A_c = a_s m_f tau_hold`` (specific surface times hold-up), shared
-  equally by the ``n_c`` cells, not the tube's fibre concentration in the gas volume (which
-  made the cyclone's evaporation ~1e-4 of the tube's). Eq. 3's lumped evaporation is driven
-  towards the equilibrium moisture ``X_eq`` of the cell's air (negative: over-dried fibre
-  re-adsorbs), with ``hm_cyc`` [kg/(m2 s)] over Table 1's 1e-7 to 1e-3; the paper's words
-  under eq. 3 put ``mult_C`` "in place of ``mult_D``" in the eq. 2 form, which is added, with
-  the fibre's own ``K_c``; ``hc_cyc`` [W/(m2 K)] heats the held-up fibre. So each cyclone
-  parameter has its own effect: at the nominal point, across its Table 1 range, ``mult_C``
-  moves ``T_cyclone_out`` by 5 K and ``moisture_out`` by 0.035 kg/kg, ``hm_cyc`` by 2.9 K and
-  0.021 kg/kg, ``hc_cyc`` by 2.3 K and 0.005 kg/kg (tests/model/test_parameter_directions.py).
-* ``mult_k`` ("heat conduction through the steel pipe", paper section 2.1) scales the wall's
-  conductivity wherever it conducts: along the tube (the paper's eq. 2 Laplacian, which a 6 mm
-  wall carries almost nothing through) and through the wall, from the wall node at mid-steel
-  to the inner surface across the fibre deposit every MDF dryer tube carries
-  (``tube.deposit_thickness``/``deposit_conductivity``, 1.5 mm at 0.12 W/(m K)) and to the
-  outer surface. Over Table 1's range it moves the outlet temperatures by 1.3 K; read as axial
-  conduction only, by less than 0.01 K.
-* The drying-rate law is the plant's ``fiber.drying_law`` (:func:`drying_law`): the paper's
-  double sigmoid ``alpha(X)`` (default), Keey's characteristic drying curve (another
-  ``alpha(X)``), or Chen's reaction engineering approach (``alpha = 1`` and a surface vapour
-  below saturation in ``F``); the same in the tube's eq. 2 and in the cyclone's eq. 2 form
-  (:mod:`softsensor.model.structure` lists the alternatives).
-* Over-dried fibre: the drying reduction ``alpha(X)`` is negative below ``X_eq``
-  (:func:`wood.drying_reduction`), and the vapour is then taken up at a rate set by
-  ``|F|``.
-* Spatial accuracy: the balances above hold between a cell's inflow (cell ``i-1``) and its
-  outflow state, while the rates (``R``, ``Q_af``, ``Q_w`` and ``h_v``) see the weighted state
-  ``0.4 s_in + 0.6 s_i`` in the tube (a theta scheme along x). Plain upwind (rates at the
-  outflow state, a series of stirred tanks, theta = 1) is first order, and with the steep
-  drying in the first metres it left n_d = 25 0.7 K and 0.005 kg/kg away from n_d = 100. The
-  box scheme (theta = 1/2) is second order but not damped: the stiff air-to-fibre heat
-  exchange (fibre reaches air temperature within ~0.3 m) made the fibre temperature zig-zag
-  by +-10 K over the first cells. Theta = 0.6 damps that to +-3 K and brings n_d = 25, 50 and
-  100 within 0.08 K and 0.0004 kg/kg of each other (tests/model/test_grid_convergence.py). Cyclone
-  cells stay stirred tanks (the paper's lumped cyclone).
-* ``K_c`` and ``h_af`` are evaluated at that rate state; the slip velocity and the wall-side
-  coefficient at the air entering the cell (they vary slowly). The full method of lines makes
-  the same choices. The air temperature of a cell follows from its energy balance by a
-  Newton iteration (the enthalpy is a cubic in ``T``, :func:`_air_temperature`).
-* The inlet air humidity is not measured: the flaps mix hot gas (``hot_gas`` in the config)
-  with ambient air; the mixing fraction follows from ``T_air_in`` by an enthalpy balance, and
-  the injected steam ``m_steam`` (at ``T_fiber_in``) joins the air at the inlet.
+``a`` is the fibre surface per metre of tube, ``A_c = a_s m_f tau_hold`` the fibre surface
+held up in the cyclone, and the rates see the weighted state ``0.4 s_in + 0.6 s_i`` in the
+tube (a theta scheme along x; cyclone cells are stirred tanks). Why each of these choices,
+where the paper's equations are garbled or silent, and what each measurably does:
+:doc:`/explanation/model` ("Choices where the paper is garbled or silent"); the symbols:
+:doc:`/nomenclature`.
 
 A cell's upstream context
 -------------------------

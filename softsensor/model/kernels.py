@@ -10,8 +10,8 @@ work), so a member's numbers do not depend on which thread runs it or what runs 
 The model they compile is in three modules, each with its notes:
 
 * :mod:`softsensor.model.cell_physics`: a cell's rates, coefficients and balances (paper
-  eqs. 1 to 3 read as ``docs/model.md``'s conservation laws), its upstream context packed in
-  one array;
+  eqs. 1 to 3 read as the conservation laws of :doc:`/explanation/model`), its upstream
+  context packed in one array;
 * :mod:`softsensor.model.cell_solver`: the Newton iterations (and last-resort bisection) for
   a cell's outlet state;
 * :mod:`softsensor.model.march`: the quasi-steady profile marched down tube and cyclone, the

@@ -1,7 +1,8 @@
 """The march down the tube and the wall step: one window of one batch member.
 
-Formulation (see ``docs/model.md`` and the paper's section 2)
-----------------------------------------------------------------
+Formulation
+-----------
+The paper's section 2, read as the conservation laws of :doc:`/explanation/model`.
 The tube is ``n_d`` finite volumes, upwind in the flow direction, followed by ``n_c`` lumped
 cyclone cells in series. Each cell has five states: fibre moisture ``X`` and temperature
 ``T_f``, air humidity ratio ``Y`` and temperature ``T_a``, wall (or cyclone shell)

@@ -24,15 +24,15 @@ the time integration: here every state is dynamic, there the fibre and air sit a
 quasi-steady profile and the wall is stepped by Crank-Nicolson.
 
 Balances of cell ``i`` (inflow from cell ``i-1``, or from the inlet for ``i = 0``), energy in
-enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`:
+enthalpy form with :func:`humid_air.enthalpy` and :func:`wood.enthalpy`::
 
-  fibre water   ``M_f dX/dt   = m_f (X_in - X) - R``
-  air water     ``M_a dY/dt   = m_a (Y_in - Y) + R``
-  fibre energy  ``M_f dh_f/dt = m_f (h_f,in - h_f) + Q_af - R h_v(T_f)``
-  air energy    ``M_a dh_a/dt = m_a (h_a,in - h_a) - Q_af - UA_w (T_a - T_w) + R h_v(T_f)``
-  wall          ``C_w dT_w/dt = UA_w (T_a - T_w) - UA_out (T_w - T_amb)
-                               + G (T_w,i-1 - 2 T_w,i + T_w,i+1)``  (tube, adiabatic ends)
-  shell         ``C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)``  (cyclone)
+  fibre water   M_f dX/dt   = m_f (X_in - X) - R
+  air water     M_a dY/dt   = m_a (Y_in - Y) + R
+  fibre energy  M_f dh_f/dt = m_f (h_f,in - h_f) + Q_af - R h_v(T_f)
+  air energy    M_a dh_a/dt = m_a (h_a,in - h_a) - Q_af - UA_w (T_a - T_w) + R h_v(T_f)
+  wall          C_w dT_w/dt = UA_w (T_a - T_w) - UA_out (T_w - T_amb)
+                               + G (T_w,i-1 - 2 T_w,i + T_w,i+1)  (tube, adiabatic ends)
+  shell         C_sh dT_sh/dt = UA_w (T_a - T_sh) - UA_out (T_sh - T_amb)  (cyclone)
 
 Rates see the weighted state ``w s_i + (1 - w) s_in`` of :func:`cell_physics.space_weight` (a
 theta scheme along the tube, ``w = 0.6``; ``w = 1`` in the stirred cyclone cells), including the air

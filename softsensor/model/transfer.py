@@ -1,19 +1,21 @@
 """Heat- and mass-transfer coefficients and the fibre slip velocity, SI units, vectorised.
 
 Written with numpy arithmetic only, so that :mod:`softsensor.model.kernels` can compile the
-same source with numba.
+same source with numba. Correlations: a cylinder in cross flow [1]_, natural convection from a
+horizontal cylinder [2]_, turbulent pipe flow [3]_, the Chilton-Colburn analogy [4]_ and the
+standard drag curve [5]_.
 
 References
 ----------
-[1] Churchill, S.W., Bernstein, M. (1977), J. Heat Transfer 99, 300-306: cylinder in cross
-    flow, ``Nu = 0.3 + 0.62 Re^1/2 Pr^1/3 / (1 + (0.4/Pr)^2/3)^1/4 (1 + (Re/282000)^5/8)^4/5``.
-[2] Churchill, S.W., Chu, H.H.S. (1975), Int. J. Heat Mass Transfer 18, 1049: natural
-    convection from a horizontal cylinder.
-[3] Gnielinski, V. (1976), Int. Chem. Eng. 16, 359: turbulent pipe flow.
-[4] Chilton-Colburn analogy, the paper's eq. 1: ``K_c = h / (rho c_p) (Sc/Pr)^(-2/3)``. The
-    paper prints the exponent as +2/3; the analogy (Bird et al. 2002, eq. 14.5-5) has -2/3.
-[5] Perry & Green (1984) sect. 6 / Clift, Grace & Weber (1978): standard drag curve
-    ``C_D = 24/Re (1 + 0.15 Re^0.687) + 0.42 / (1 + 42500 Re^-1.16)``.
+.. [1] Churchill, S.W., Bernstein, M. (1977), J. Heat Transfer 99, 300-306: cylinder in
+   cross flow, ``Nu = 0.3 + 0.62 Re^1/2 Pr^1/3 / (1 + (0.4/Pr)^2/3)^1/4 (1 + (Re/282000)^5/8)^4/5``.
+.. [2] Churchill, S.W., Chu, H.H.S. (1975), Int. J. Heat Mass Transfer 18, 1049: natural
+   convection from a horizontal cylinder.
+.. [3] Gnielinski, V. (1976), Int. Chem. Eng. 16, 359: turbulent pipe flow.
+.. [4] Chilton-Colburn analogy, the paper's eq. 1: ``K_c = h / (rho c_p) (Sc/Pr)^(-2/3)``.
+   The paper prints the exponent as +2/3; the analogy (Bird et al. 2002, eq. 14.5-5) has -2/3.
+.. [5] Perry & Green (1984) sect. 6 / Clift, Grace & Weber (1978): standard drag curve
+   ``C_D = 24/Re (1 + 0.15 Re^0.687) + 0.42 / (1 + 42500 Re^-1.16)``.
 """
 
 from __future__ import annotations

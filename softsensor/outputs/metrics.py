@@ -33,6 +33,8 @@ from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_se
 from prometheus_client.core import CounterMetricFamily
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate, Health
+from softsensor.messages import LabResult
 from softsensor.outputs.settings import MetricsSettings
 from softsensor.presentation.display import DisplaySettings, moisture_band, moisture_pct
 
@@ -69,14 +71,20 @@ def _num(v: Any) -> float:
 
 
 class DaemonMetrics:
-    """The daemon's metrics (module docstring). ``counters`` maps a counter's name (without
-    ``_total``) to its help text and a function returning its current value, read at scrape
-    time."""
+    """The daemon's metrics (module docstring), an
+    :class:`~softsensor.outputs.operator_output.OperatorOutput`. ``counters`` maps a
+    counter's name (without ``_total``) to its help text and a function returning its current
+    value, read at scrape time; ``tick_seconds`` returns the wall time the last tick took
+    [s] (None: not known), observed with every estimate."""
+
+    name = "prometheus"
 
     def __init__(self, settings: MetricsSettings,
                  counters: Mapping[str, tuple[str, Callable[[], float]]] | None = None, *,
-                 unit: str = "dryer1", display: DisplaySettings | None = None) -> None:
+                 unit: str = "dryer1", display: DisplaySettings | None = None,
+                 tick_seconds: Callable[[], float | None] | None = None) -> None:
         self.settings = settings
+        self._tick_seconds = tick_seconds
         self.display = display or DisplaySettings()
         self.registry = CollectorRegistry()
         self.labels = {"dryer": unit, "site": settings.site, "unit": unit}
@@ -122,13 +130,14 @@ class DaemonMetrics:
             self.limits.labels(**self.labels, level=level).set(float(moisture_pct(x)))
         for channel, source in _TEMPERATURES:
             self.temperature.labels(**self.labels, channel=channel, source=source).set(math.nan)
-        self.set_health("stale")
+        self._set_health("stale")
         r.register(_Counters(counters or {}, (unit, settings.site, unit)))
         self._server: Any = None
         self.port = settings.port
 
-    def start(self) -> None:
-        """Serve ``/metrics``; a port in use is a one-line error naming the table."""
+    async def start(self) -> str:
+        """Serve ``/metrics``; a port in use is a one-line error naming the table. What it
+        serves: the URL."""
         s = self.settings
         try:
             self._server, _thread = start_http_server(s.port, s.host, registry=self.registry)
@@ -136,10 +145,11 @@ class DaemonMetrics:
             raise ConfigError(f"outputs.prometheus: cannot listen on {s.host}:{s.port}: "
                               f"{exc.strerror or exc}") from exc
         self.port = self._server.server_address[1]
+        return f"http://{s.host}:{self.port}/metrics"
 
-    def publish(self, body: Mapping[str, Any], time_ns: int, duration_s: float | None = None
-                ) -> None:
-        """Set the gauges from an estimate body; ``duration_s``: the tick's wall time."""
+    def on_estimate(self, estimate: Estimate) -> None:
+        """Set the gauges from an estimate, and observe the tick's wall time."""
+        body, time_ns = estimate.to_body(), estimate.time_ns
         lab = self.labels
         for k, g in self.estimate.items():
             g.labels(**lab).set(_num(body.get(k)))
@@ -155,15 +165,22 @@ class DaemonMetrics:
                 _num(body.get(key)) - 273.15)
         self.window_end.labels(**lab).set(time_ns / 1e9)
         self.window_end_old.labels(**lab).set(time_ns / 1e9)
-        self.set_health(str(body.get("status")))
+        self._set_health(estimate.status)
+        duration_s = None if self._tick_seconds is None else self._tick_seconds()
         if duration_s is not None:
             self.tick.labels(**lab).observe(duration_s)
 
-    def set_health(self, status: str) -> None:
+    def on_health(self, health: Health) -> None:
+        self._set_health(health.status)
+
+    def on_lab(self, lab: LabResult) -> None:
+        """Lab results are counted by the service (its counters), not here."""
+
+    def _set_health(self, status: str) -> None:
         for s in HEALTH_STATES:
             self.health.labels(**self.labels, status=s).set(1.0 if s == status else 0.0)
 
-    def stop(self) -> None:
+    async def stop(self) -> None:
         server, self._server = self._server, None
         if server is not None:
             server.shutdown()

@@ -34,6 +34,8 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate, Health
+from softsensor.messages import LabResult
 from softsensor.outputs.settings import ModbusOutputSettings
 from softsensor.presentation.display import DisplaySettings, moisture_pct
 
@@ -120,8 +122,11 @@ def _bind_problem(host: str, port: int, exc: BaseException) -> str:
 
 
 class EstimateModbusServer:
-    """The register server (module docstring); :meth:`publish` may be called from any
-    thread once :meth:`start` has run in the daemon's event loop."""
+    """The register server (module docstring), an
+    :class:`~softsensor.outputs.operator_output.OperatorOutput`: :meth:`on_estimate` may be
+    called from any thread once :meth:`start` has run in the daemon's event loop."""
+
+    name = "modbus"
 
     def __init__(self, settings: ModbusOutputSettings, display: DisplaySettings) -> None:
         self.settings = settings
@@ -154,8 +159,9 @@ class EstimateModbusServer:
         return SimDevice(id=self.settings.unit_id, simdata=(empty, list(empty), holding, block),
                          action=self._action)
 
-    async def start(self) -> None:
-        """Bind and serve; NaN estimates and health 3 until the first estimate."""
+    async def start(self) -> str:
+        """Bind and serve; NaN estimates and health 3 until the first estimate. What it
+        serves: ``modbus://host:port``."""
         s = self.settings
         server = ModbusTcpServer([self._device()], address=(s.host, s.port),
                                  trace_pdu=self._trace)
@@ -173,25 +179,27 @@ class EstimateModbusServer:
             self.port = sockets[0].getsockname()[1]
         await self._store(estimate_registers({}, 0, 0, self.display))
         log.info("estimate registers served on %s:%d", s.host, self.port)
+        return f"modbus://{s.host}:{self.port}"
 
     async def _store(self, words: list[int]) -> None:
         if self._server is not None:
             await self._server.async_setValues(self.settings.unit_id, READ_INPUT_REGISTERS, 0,
                                                words)
 
-    def publish(self, body: Mapping[str, Any], time_ns: int) -> None:
+    def on_estimate(self, estimate: Estimate) -> None:
         """Serve a new estimate (thread-safe: handed to the server's event loop)."""
         if self._loop is None:
             return
         self.counter += 1
-        words = estimate_registers(body, time_ns, self.counter, self.display)
+        words = estimate_registers(estimate.to_body(), estimate.time_ns, self.counter,
+                                   self.display)
         asyncio.run_coroutine_threadsafe(self._store(words), self._loop)
 
-    def health(self, status: str) -> None:
+    def on_health(self, health: Health) -> None:
         """A health change between estimates (e.g. ``stale`` when scans stop): register 14."""
         if self._loop is None:
             return
-        code = HEALTH_CODES.get(status, NO_ESTIMATE)
+        code = HEALTH_CODES.get(health.status, NO_ESTIMATE)
 
         async def _set() -> None:
             if self._server is not None:
@@ -199,6 +207,9 @@ class EstimateModbusServer:
                                                    REGISTERS["health"][0], [code])
 
         asyncio.run_coroutine_threadsafe(_set(), self._loop)
+
+    def on_lab(self, lab: LabResult) -> None:
+        """Lab results are not served as registers."""
 
     async def stop(self) -> None:
         server, self._server = self._server, None

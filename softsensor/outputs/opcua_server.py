@@ -35,6 +35,8 @@ from asyncua import Server, ua
 from asyncua.common.instantiate_util import instantiate
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate, Health
+from softsensor.messages import LabResult
 from softsensor.outputs.settings import OpcUaSettings
 from softsensor.presentation.display import DisplaySettings, moisture_pct
 
@@ -142,8 +144,11 @@ def _data_value(value: Any, vtype: ua.VariantType, status: str,
 
 
 class EstimateOpcUaServer:
-    """The OPC UA server (module docstring); :meth:`publish` may be called from any thread
-    once :meth:`start` has run in the daemon's event loop."""
+    """The OPC UA server (module docstring), an
+    :class:`~softsensor.outputs.operator_output.OperatorOutput`: :meth:`on_estimate` may be
+    called from any thread once :meth:`start` has run in the daemon's event loop."""
+
+    name = "opcua"
 
     def __init__(self, settings: OpcUaSettings, display: DisplaySettings,
                  unit: str = "dryer1") -> None:
@@ -194,7 +199,8 @@ class EstimateOpcUaServer:
         await server.historize_node_data_change([n for n, _ in self._nodes.values()],
                                                 period=None, count=count)
 
-    async def start(self) -> None:
+    async def start(self) -> str:
+        """Serve the variables; what it serves: the endpoint."""
         server = Server()
         await server.init()
         server.set_endpoint(self.endpoint)
@@ -210,6 +216,7 @@ class EstimateOpcUaServer:
         self._server, self._loop = server, asyncio.get_running_loop()
         log.info("estimate served on %s (anonymous, no encryption: keep it on loopback or "
                  "behind the site's OPC UA gateway)", self.endpoint)
+        return self.endpoint
 
     async def _write(self, values: Mapping[str, Any], status: str,
                      when: datetime | None) -> None:
@@ -217,20 +224,24 @@ class EstimateOpcUaServer:
             node, vtype = self._nodes[name]
             await node.write_value(_data_value(value, vtype, status, when))
 
-    def publish(self, body: Mapping[str, Any], time_ns: int) -> None:
+    def on_estimate(self, estimate: Estimate) -> None:
         """Serve a new estimate (thread-safe: handed to the server's event loop), stamped
         with the end of its window."""
         if self._loop is not None:
-            values = opcua_values(body, time_ns, self.display)
+            values = opcua_values(estimate.to_body(), estimate.time_ns, self.display)
             asyncio.run_coroutine_threadsafe(
                 self._write(values, values["health"], values["window_end"]), self._loop)
 
-    def health(self, status: str) -> None:
+    def on_health(self, health: Health) -> None:
         """A health change between estimates (stamped now)."""
+        status = health.status
         if self._loop is not None:
             asyncio.run_coroutine_threadsafe(
                 self._write({"health": status, "health_code": _CODES.get(status, 3)}, status,
                             datetime.now(UTC)), self._loop)
+
+    def on_lab(self, lab: LabResult) -> None:
+        """Lab results are not served as variables."""
 
     async def stop(self) -> None:
         server, self._server = self._server, None

@@ -48,7 +48,9 @@ from urllib.parse import parse_qs, urlsplit
 import numpy as np
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate, Health
 from softsensor.jsonable import dumps
+from softsensor.messages import LabResult
 from softsensor.outputs.deadline_http import DeadlineHTTPServer, Response
 from softsensor.outputs.settings import WebSettings
 from softsensor.outputs.web_charts import Chart, Series, legend, svg
@@ -80,12 +82,17 @@ MIN_SPAN_H = 1.0
 
 
 class LivePage:
-    """The page's history and its HTTP server (module docstring)."""
+    """The page's history and its HTTP server (module docstring), an
+    :class:`~softsensor.outputs.operator_output.OperatorOutput`. ``clock``: the plant's clock
+    [ns] (the daemon's, scaled in demos); ``time_scale``: plant seconds per wall second (an
+    accelerated demo's estimates come that much faster)."""
+
+    name = "web"
 
     def __init__(self, settings: WebSettings, display: DisplaySettings, unit: str = "dryer1",
-                 clock: Callable[[], int] = time.time_ns) -> None:
+                 clock: Callable[[], int] = time.time_ns, time_scale: float = 1.0) -> None:
         self.settings, self.display, self.unit = settings, display, unit
-        self.clock = clock  #: the plant's clock [ns] (the daemon's, scaled in demos)
+        self.clock = clock
         self._lock = threading.Lock()
         self._est: deque[tuple[int, dict[str, Any]]] = deque()
         self._labs: deque[tuple[int, float, str]] = deque()
@@ -95,7 +102,7 @@ class LivePage:
         self._last_arrival: float | None = None
         self._server: DeadlineHTTPServer | None = None
         self.port = settings.port
-        self.time_scale = 1.0  #: plant seconds per wall second (accelerated demos)
+        self.time_scale = float(time_scale)
         self._report_cache: tuple[int, str] | None = None
 
     # -- feeding (estimator thread) --------------------------------------------------------
@@ -106,21 +113,22 @@ class LivePage:
         while self._labs and self._labs[0][0] < keep:
             self._labs.popleft()
 
-    def add_estimate(self, time_ns: int, body: Mapping[str, Any]) -> None:
+    def on_estimate(self, estimate: Estimate) -> None:
         with self._lock:
-            self._est.append((int(time_ns), dict(body)))
+            self._est.append((estimate.time_ns, estimate.to_body()))
             self._last_arrival = time.monotonic()
-            self._trim(int(time_ns))
+            self._trim(estimate.time_ns)
 
-    def add_lab(self, sample_time_ns: int, moisture_out: float, sample_id: str) -> None:
+    def on_lab(self, lab: LabResult) -> None:
         with self._lock:
-            self._labs.append((int(sample_time_ns), float(moisture_out), str(sample_id)))
+            self._labs.append((int(lab.sample_time_ns), float(lab.moisture_out),
+                               str(lab.sample_id)))
             self._labs = deque(sorted(self._labs))
 
-    def set_health(self, body: Mapping[str, Any], time_ns: int | None = None) -> None:
+    def on_health(self, health: Health) -> None:
         with self._lock:
-            self._health = dict(body)
-            self._health_at = time_ns
+            self._health = health.to_body()
+            self._health_at = health.time_ns
 
     def set_diagnosis(self, text: str | None) -> None:
         with self._lock:
@@ -184,7 +192,8 @@ class LivePage:
             return Response(200 if ok else 503, "text/plain", "ok\n" if ok else "stale\n")
         return Response(404, "text/plain", "not found\n")
 
-    def start(self) -> None:
+    async def start(self) -> str:
+        """Serve the page; what it serves: its URL."""
         s = self.settings
         server = DeadlineHTTPServer(s.host, s.port, self.answer, inline=("/healthz",),
                                     workers=s.workers, max_connections=s.workers + s.backlog,
@@ -196,6 +205,7 @@ class LivePage:
                               f"{exc.strerror or exc}") from exc
         self._server = server
         self.port = server.port
+        return f"http://{s.host}:{self.port}/"
 
     @property
     def refused(self) -> int:
@@ -208,7 +218,7 @@ class LivePage:
         """Connections closed because their header missed its deadline."""
         return 0 if self._server is None else self._server.expired
 
-    def stop(self) -> None:
+    async def stop(self) -> None:
         server, self._server = self._server, None
         if server is not None:
             server.stop()

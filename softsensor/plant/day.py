@@ -56,7 +56,7 @@ class SimulatedDay:
 
     def write(self, path: str | Path) -> Path:
         """Write the day as an MCAP file (CONTRACT section 2); returns the path."""
-        from softsensor.recording.mcap_day import DayWriter  # adapter at the edge
+        from softsensor.recording.day_writer import DayWriter  # adapter at the edge
 
         path = Path(path)
         start = int(self.scans.index[0])

@@ -4,26 +4,29 @@ Each effect is one cause of CONTRACT section 5, with a ``--magnitude`` whose mea
 default and detectable range are fixed here (the diagnosis tests draw magnitudes from the
 detectable range). Signs, timing and the affected sensor are drawn from the seed.
 
-=================== ======================================================== ============ =========
-effect              magnitude                                                default      detectable
-=================== ======================================================== ============ =========
-inlet_moisture      peak deviation of the inlet fibre moisture from nominal,  0.15 kg/kg   0.08-0.25
-                    as a step plus a slow drift (clipped to 0.8-1.3 kg/kg)
-sensor_bias         constant offset of one outlet temperature sensor          3.0 K        1.5-6.0
-                    (``T_dryer_out`` or ``T_cyclone_out``, sign random)
-lab_delay           error of the lab's stamped sample time (sign random)      45 min       30-60
-fouling_drift       fractional loss of the tube's heat and mass transfer      0.3          0.2-0.5
-                    (mult_h, mult_D) by the end of the record, linear in time
-input_lag           time constant of a first-order lag of the ``T_air_in``    8 min        5-20
-                    sensor
-ambient_heat_loss   extra outside heat loss per 10 K of ambient below        0.5          0.3-1.0
-                    283.15 K, as a fraction (model aux ``BETA_AMB`` = X/10 1/K)
-unexplained         alternating chip batches: every 1.5 to 3 h the fibre's   0.25         0.15-0.4
-                    drying rate switches between ``1 + X`` and ``1 - X``
-                    times its value (matched plant: ``mult_D``; the
-                    independent plant splits it between kinetics and
-                    specific surface)
-=================== ======================================================== ============ =========
+================= ====================================================== ========== ==========
+effect            magnitude                                              default    detectable
+================= ====================================================== ========== ==========
+inlet_moisture    peak deviation of the inlet fibre moisture from        0.15 kg/kg 0.08-0.25
+                  nominal, as a step plus a slow drift (clipped to
+                  0.8-1.3 kg/kg)
+sensor_bias       constant offset of one outlet temperature sensor       3.0 K      1.5-6.0
+                  (``T_dryer_out`` or ``T_cyclone_out``, sign random)
+lab_delay         error of the lab's stamped sample time (sign random)   45 min     30-60
+fouling_drift     fractional loss of the tube's heat and mass transfer   0.3        0.2-0.5
+                  (mult_h, mult_D) by the end of the record, linear in
+                  time
+input_lag         time constant of a first-order lag of the ``T_air_in`` 8 min      5-20
+                  sensor
+ambient_heat_loss extra outside heat loss per 10 K of ambient below      0.5        0.3-1.0
+                  283.15 K, as a fraction (model aux ``BETA_AMB`` = X/10
+                  1/K)
+unexplained       alternating chip batches: every 1.5 to 3 h the fibre's 0.25       0.15-0.4
+                  drying rate switches between ``1 + X`` and ``1 - X``
+                  times its value (matched plant: ``mult_D``; the
+                  independent plant splits it between kinetics and
+                  specific surface)
+================= ====================================================== ========== ==========
 
 The independent plant (:mod:`softsensor.plant.independent.effects`) gives every magnitude
 the same meaning in its own physics.

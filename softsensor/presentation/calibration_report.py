@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.calibration.calibration_run import CalibrationResult, ValidationResult
+from softsensor.calibration.calibration_run import CalibrationResult
 from softsensor.calibration.cost import Fit, weighted_rmse
 from softsensor.calibration.identifiability import (
     PAPER_CONDITION_NUMBER,
@@ -24,6 +24,7 @@ from softsensor.calibration.identifiability import (
 )
 from softsensor.calibration.structure_search import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
+from softsensor.calibration.validation import ValidationResult
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -224,7 +225,7 @@ def validation_page(result: ValidationResult, config: PlantConfig, directory: st
                     open_loop: Mapping[str, Any], default: ValidationResult | None = None,
                     verdict: str | None = None) -> Path:
     """Fig. 6 and the validation's tables: open loop first (``open_loop``, :func:`~softsensor.
-    calibration.open_loop.open_loop_summary`) with the calibration's held-out error beside,
+    calibration.open_loop_errors.open_loop_summary`) with the calibration's held-out error beside,
     then with the inlet moisture read from the temperatures (``result``); ``default``: the
     config's default parameters on the same data; ``verdict``: the sentence first on the page
     (:func:`~softsensor.presentation.verdicts.validation_verdict`, which the ``validate`` line says

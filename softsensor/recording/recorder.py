@@ -42,7 +42,7 @@ from typing import Any
 
 from softsensor.errors import IngestError, SoftsensorError
 from softsensor.log_throttle import Throttle
-from softsensor.recording.mcap_day import DayWriter
+from softsensor.recording.day_writer import DayWriter
 
 log = logging.getLogger(__name__)
 

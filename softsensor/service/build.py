@@ -11,6 +11,7 @@ config's tables (built once, :mod:`softsensor.plantconfig`): its windowing is th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 from softsensor.estimation.settings import estimator_settings
 from softsensor.ingest.tagmap import load_tagmap
@@ -34,9 +35,11 @@ def service_window(cfg: PlantConfig, settings: ServiceSettings,
 
 
 def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None = None,
-                 scan_period_s: float | None = None) -> EstimatorService:
+                 scan_period_s: float | None = None, *,
+                 time_gate: Callable[[int], str | None] | None = None) -> EstimatorService:
     """The estimator service of ``cfg`` (``kind``: the estimator, None for the config's
-    ``estimator.kind``; the scan period in plant s, see :func:`service_window`)."""
+    ``estimator.kind``; the scan period in plant s, see :func:`service_window`; ``time_gate``:
+    the daemon's refusal of times far from its clock, None in a replay)."""
     window = service_window(cfg, settings, scan_period_s)
     # a gap is ticked window by window up to the past horizon the service accepts data for;
     # longer ones are one "stale since" state (a scan stamped years ahead costs no more)
@@ -49,7 +52,8 @@ def make_service(cfg: PlantConfig, settings: ServiceSettings, kind: str | None =
                             tick_delay_s=settings.tick_delay_s, gap_after_s=settings.gap_after_s,
                             max_gap_windows=max_gap, ranges=ranges,
                             max_lab_silence_s=(settings.max_lab_silence_h * 3600.0
-                                               if settings.max_lab_silence_h > 0 else None))
+                                               if settings.max_lab_silence_h > 0 else None),
+                            time_gate=time_gate)
 
 
 __all__ = ["make_service", "service_window"]

@@ -109,8 +109,8 @@ class ServicePipeline:
         Queue bound, a rate per input kind and message size (drop and count beyond them);
         unbounded by default (a replay feeds a recorded day as fast as it can).
     decorate : callable, optional
-        Called with every :class:`Output` before it is published (the daemon adds what the
-        service cannot know to health: the recorder's state).
+        Called with every :class:`Output` before it is published; what it returns is published
+        (the daemon adds what the service cannot know to health: the recorder's state).
     on_admitted : callable, optional
         Called (on a Zenoh thread) with every input message the limits admitted: the
         daemon's recorder, so it records what the estimator takes and nothing it refused.
@@ -121,7 +121,7 @@ class ServicePipeline:
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
                  limits: InputLimits | None = None,
-                 decorate: Callable[[Output], None] | None = None,
+                 decorate: Callable[[Output], Output] | None = None,
                  on_admitted: Callable[[BusMessage], None] | None = None) -> None:
         self.service = service
         self.on_admitted = on_admitted
@@ -236,8 +236,8 @@ class ServicePipeline:
     def _emit(self, out: Output) -> None:
         """Decorate, publish and hand ``out`` to the hook (holding ``_out_lock``)."""
         if self.decorate is not None:
-            self.decorate(out)
-        self.publisher.put(out.kind, out.body, out.time_ns)
+            out = self.decorate(out)
+        self.publisher.put(out.kind, out.to_body(), out.time_ns)
         self.n_out += 1
         if out.kind == "estimate":
             self._ticks_unsaved += 1

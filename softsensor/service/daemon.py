@@ -18,15 +18,8 @@ are ticked as stale gaps. A checkpoint whose times lie further ahead of the daem
 resumed, it would drop every real scan as late until the clock caught up. Logs are one line
 per event (:mod:`.logs`).
 
-Time: the daemon's clock is a :class:`ScaledClock`. At ``time_scale = 1`` it is the wall
-clock. At ``N > 1`` it runs N times faster from ``clock_start`` (default now; after a restart
-not before the checkpoint's time), the poller polls N times as often and its frozen-value and
-back-off timers run on the same scaled clock, so a daemon follows ``softsensor plant-server
---speed N`` window for window. With ``clock_start = "plc"`` (``--clock-start plc``) the clock
-starts at the PLC's own clock (the tag map's ``[clock]`` registers, which the virtual PLC
-serves from its plant), read once at start and carried forward by the time since: the
-demo's plant and daemon then share one clock, and the lab files the plant drops (stamped on
-its clock) are not "sampled after they arrived" because the daemon started later.
+Time: the daemon's clock (:mod:`.clock`) is the wall clock, a scaled clock for accelerated
+demos, or the PLC's own clock.
 """
 
 from __future__ import annotations
@@ -49,16 +42,15 @@ from softsensor.bus.zenoh_bus import (
     open_session,
 )
 from softsensor.errors import ConfigError, EstimationError, IngestError
+from softsensor.estimate import Estimate, Health, Reason
 from softsensor.estimation.interface import LabResult
 from softsensor.ingest.historian_map import plant_lab_map
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
-from softsensor.messages import iso_utc, lab_body
-from softsensor.outputs.metrics import DaemonMetrics
-from softsensor.outputs.modbus_server import EstimateModbusServer
+from softsensor.messages import lab_body
+from softsensor.outputs.operator_output import OperatorOutput, operator_outputs
 from softsensor.outputs.settings import output_settings
-from softsensor.outputs.web import LivePage
 from softsensor.plantconfig import PlantConfig
 from softsensor.presentation.display import (
     DisplaySettings,
@@ -72,7 +64,7 @@ from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
 from softsensor.service.checkpoint import CheckpointStore, check_fits
-from softsensor.service.day_replay import parse_time
+from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.logs import event
@@ -95,45 +87,6 @@ HOUSEKEEPING_S = 0.1
 #: Longest wait at shutdown for the estimator thread's last checkpoint [s]; a thread stuck
 #: longer is left behind (it is a daemon thread) so SIGTERM is honoured within seconds.
 SHUTDOWN_WAIT_S = 10.0
-
-
-async def _no_sink(*_scan: Any) -> None:
-    """The clock read at start hands no scans on."""
-
-
-class ScaledClock:
-    """Plant time: ``start_ns + (monotonic() - m0) * scale`` [ns since the epoch, UTC].
-
-    With ``scale == 1`` and no ``start_ns`` it is the wall clock itself.
-    """
-
-    def __init__(self, scale: float = 1.0, start_ns: int | None = None, *,
-                 wall_ns: Callable[[], int] = time.time_ns,
-                 monotonic: Callable[[], float] = time.monotonic) -> None:
-        if not scale > 0:
-            raise ConfigError(f"service.time_scale must be > 0, got {scale!r}")
-        self.scale = float(scale)
-        self._wall = wall_ns
-        self._mono = monotonic
-        self._m0 = monotonic()
-        self.start_ns = int(wall_ns() if start_ns is None else start_ns)
-        self.is_wall = scale == 1.0 and start_ns is None
-
-    def now_ns(self) -> int:
-        """Current plant time [ns]."""
-        if self.is_wall:
-            return self._wall()
-        return self.start_ns + int(round((self._mono() - self._m0) * self.scale * 1e9))
-
-    def monotonic(self) -> float:
-        """Scaled monotonic time [plant s] (for the poller's frozen check and back-off)."""
-        return (self._mono() - self._m0) * self.scale
-
-
-#: Longest wait for the PLC's clock at start (``clock_start = "plc"``) [s, wall].
-PLC_CLOCK_WAIT_S = 30.0
-#: A checkpoint's time further than this past the clock start is not trusted [ns].
-MAX_RESUME_JUMP_NS = 30 * 86_400 * 10**9
 
 
 @dataclass
@@ -226,10 +179,10 @@ class Daemon:
         self.display = display_settings(config)
         self.output_settings = output_settings(config)
         self.lab_map = plant_lab_map(config)  # the lab folder's files: [lab], checked now
-        self.modbus_out: EstimateModbusServer | None = None
-        self.metrics: DaemonMetrics | None = None
-        self.web: LivePage | None = None
-        self.opcua: Any = None  #: the OPC UA server when [outputs.opcua] is enabled
+        #: the operator outputs that run, by their table's name (``[outputs.<name>]``)
+        self.outputs: dict[str, OperatorOutput] = {}
+        #: the health last published (the watchdog's and the recorder's news build on it)
+        self.latest_health: Health | None = None
         self.watchdog: Watchdog | None = None
         self.health: HealthQueryable | None = None
         self.resumed = False  #: the service continues from the checkpoint
@@ -237,78 +190,49 @@ class Daemon:
         #: the PLC's clock [ns] and the monotonic time it was read (``clock_start = "plc"``)
         self._plc_clock: tuple[int, float] | None = None
 
-    def _clock(self, saved_at_ns: int | None) -> ScaledClock:
-        s = self.settings
-        if self._plc_clock is not None:  # the PLC's clock, carried forward since it was read
-            plc_ns, read_at = self._plc_clock
-            start = plc_ns + int(round((time.monotonic() - read_at) * s.time_scale * 1e9))
-            return ScaledClock(s.time_scale, start)
-        start = parse_time(s.clock_start, "service.clock_start")
-        if s.time_scale != 1.0:
-            start = time.time_ns() if start is None else start
-            if saved_at_ns is not None and saved_at_ns > start + MAX_RESUME_JUMP_NS:
-                event(log, "checkpoint_time_ignored", logging.WARNING, saved_at_ns=saved_at_ns,
-                      reason="more than 30 days after the clock start")
-            elif saved_at_ns is not None and saved_at_ns > start:
-                start = saved_at_ns  # accelerated time must not run backwards over a restart
-        return ScaledClock(s.time_scale, start)
-
     def _on_output(self, out: Output) -> None:
-        b = out.body
-        if out.kind == "estimate":
+        """Log what went out and hand it to the health queryable and the operator outputs."""
+        if isinstance(out, Estimate):
             # what an operator reads: % moisture on the [display] basis, local clock time
             d = self.display
-            event(log, "tick", window_end=local_clock(out.time_ns, d), status=b.get("status"),
-                  moisture_out=_pct(b.get("moisture_out"), d),
-                  moisture_out_2sd=_pct_band(b.get("moisture_out"), b.get("moisture_out_std"), d),
-                  moisture_in=_pct(b.get("moisture_in"), d),
-                  moisture_in_2sd=_pct_band(b.get("moisture_in"), b.get("moisture_in_std"), d),
-                  unit=d.moisture_unit, lab_updated=b.get("lab_updated"),
-                  n_scans=b.get("n_scans"), window_end_ns=out.time_ns)
-        elif out.kind == "health":
-            event(log, "health", time_ns=out.time_ns, status=b.get("status"),
-                  detail=b.get("detail"))
-            if self.health is not None:
-                self.health.update(b)
-        self._serve(out)
-
-    def _serve(self, out: Output) -> None:
-        """Hand an output to the operator outputs that run ([outputs.*])."""
-        status = str(out.body.get("status"))
-        if self.web is not None and out.kind == "estimate":
-            self.web.add_estimate(out.time_ns, out.body)
-        elif self.web is not None:
-            self.web.set_health(out.body)
-        for server in (self.modbus_out, self.opcua):
-            if server is not None and out.kind == "estimate":
-                server.publish(out.body, out.time_ns)
-            elif server is not None:
-                server.health(status)
-        if out.kind == "estimate":
-            if self.metrics is not None:
-                tick_s = None if self.pipeline is None else self.pipeline.last_tick_s
-                self.metrics.publish(out.body, out.time_ns, tick_s)
-        elif out.kind == "health" and self.metrics is not None:
-            self.metrics.set_health(status)
+            event(log, "tick", window_end=local_clock(out.time_ns, d), status=out.status,
+                  moisture_out=_pct(out.moisture_out, d),
+                  moisture_out_2sd=_pct_band(out.moisture_out, out.moisture_out_std, d),
+                  moisture_in=_pct(out.moisture_in, d),
+                  moisture_in_2sd=_pct_band(out.moisture_in, out.moisture_in_std, d),
+                  unit=d.moisture_unit, lab_updated=out.lab_updated,
+                  n_scans=None if out.window is None else out.window.n_scans,
+                  window_end_ns=out.time_ns)
+            for output in self.outputs.values():
+                output.on_estimate(out)
+            return
+        event(log, "health", time_ns=out.time_ns, status=out.status, detail=out.detail)
+        self.latest_health = out
+        if self.health is not None:
+            self.health.update(out.to_body())
+        for output in self.outputs.values():
+            output.on_health(out)
 
     async def run(self, stop: asyncio.Event,
                   ready: Callable[[DaemonInfo], None] | None = None) -> None:
         """Run until ``stop`` is set, then shut down cleanly (checkpoint, finished files)."""
         s = self.settings
         if s.clock_start == PLC_CLOCK:
-            self._plc_clock = await self._read_plc_clock()
+            self._plc_clock = await read_plc_clock(self.tagmap, s.time_scale)
         doc = self._not_from_the_future(self._load_checkpoint())
         scan_period_s = self.tagmap.modbus.poll_period_s * s.time_scale
-        service = self._service(doc, scan_period_s)
+        # times far from the daemon's clock are refused (the clock starts below, before any
+        # message can arrive: the gate reads it when one does)
+        gate = TimeGate(self._now_ns, s.max_future_s, s.max_past_s)
+        service = self._service(doc, scan_period_s, gate)
         # compile the estimator's kernels now, not in the first live tick (which would hold
         # the estimator thread, and every scan behind it, for tens of seconds on a cold cache)
         warm = await asyncio.to_thread(
             warm_up, lambda: make_service(self.config, s, self.kind, scan_period_s), self.config)
         event(log, "warmed_up", seconds=round(warm.seconds, 2),
               ticks=None if warm.stats is None else warm.stats.ticks, error=warm.error)
-        self.clock = clock = self._clock(doc["saved_at_ns"] if self.resumed else None)
-        gate = TimeGate(clock.now_ns, s.max_future_s, s.max_past_s)
-        service.time_gate = gate
+        saved = doc["saved_at_ns"] if self.resumed else None
+        self.clock = clock = daemon_clock(s, self._plc_clock, saved)
         async with contextlib.AsyncExitStack() as stack:
             listen = resolve_listen(s.listen)
             session = open_session(mode=s.zenoh_mode, listen=listen,
@@ -345,18 +269,6 @@ class Daemon:
         event(log, "stopped", ticks=service.stats.ticks, stale_ticks=service.stats.stale_ticks,
               scans=service.stats.scans, checkpoints=self.store.n_saved)
 
-    async def _read_plc_clock(self) -> tuple[int, float]:
-        """The PLC's clock [ns] and when it was read [monotonic s] (module docstring)."""
-        poller = ModbusPoller(self.tagmap, _no_sink)
-        try:
-            ns = await poller.read_clock(PLC_CLOCK_WAIT_S)
-        except IngestError as exc:
-            raise ConfigError(f"service.clock_start = \"plc\": {exc}") from exc
-        finally:
-            poller.close()
-        event(log, "plc_clock", plc_time=iso_utc(ns), time_scale=self.settings.time_scale)
-        return ns, time.monotonic()
-
     def _load_checkpoint(self) -> dict | None:
         """The checkpoint to resume from: None without one, with ``resume`` off, or when it
         fails its checks (then moved aside, see :meth:`_reject_checkpoint`)."""
@@ -376,7 +288,7 @@ class Daemon:
         times = [doc["saved_at_ns"]] + [state.get(k) for k in ("now_ns", "ticked_end_ns",
                                                                "closed_end_ns")]
         latest = max(t for t in times if isinstance(t, int) and not isinstance(t, bool))
-        now = self._clock(doc["saved_at_ns"]).now_ns()
+        now = daemon_clock(self.settings, self._plc_clock, doc["saved_at_ns"]).now_ns()
         ahead_s = (latest - now) / 1e9
         if ahead_s <= self.settings.max_future_s:
             return doc
@@ -394,9 +306,17 @@ class Daemon:
         event(log, "checkpoint_rejected", logging.ERROR, reason=reason,
               moved_to=None if moved is None else str(moved), action="fresh start")
 
-    def _service(self, doc: dict | None, scan_period_s: float) -> EstimatorService:
-        """A fresh estimator service, restored from the checkpoint ``doc`` when it fits."""
-        service = make_service(self.config, self.settings, self.kind, scan_period_s)
+    def _now_ns(self) -> int:
+        """The daemon's clock [ns] (started before the first message arrives)."""
+        assert self.clock is not None
+        return self.clock.now_ns()
+
+    def _service(self, doc: dict | None, scan_period_s: float,
+                 gate: TimeGate | None = None) -> EstimatorService:
+        """A fresh estimator service, restored from the checkpoint ``doc`` when it fits
+        (``gate``: refuses times far from the daemon's clock)."""
+        service = make_service(self.config, self.settings, self.kind, scan_period_s,
+                               time_gate=gate)
         if doc is None:
             return service
         # a checkpoint of another unit or estimator is a configuration question, not damage:
@@ -406,7 +326,8 @@ class Daemon:
             service.restore(doc["service"], where=str(self.store.path))
         except EstimationError as exc:
             self._reject_checkpoint(f"{self.store.path}: {exc}")
-            return make_service(self.config, self.settings, self.kind, scan_period_s)
+            return make_service(self.config, self.settings, self.kind, scan_period_s,
+                                time_gate=gate)
         self.resumed = True
         event(log, "resumed", checkpoint=str(self.store.path),
               ticked_end_ns=service.ticked_end_ns, ticks=service.stats.ticks)
@@ -434,8 +355,8 @@ class Daemon:
 
         def _lab_sink(lab: LabResult) -> None:
             publisher.put("lab", lab_body(lab), lab.log_time_ns)
-            if self.web is not None:
-                self.web.add_lab(lab.sample_time_ns, lab.moisture_out, lab.sample_id)
+            for output in self.outputs.values():
+                output.on_lab(lab)
             d = self.display  # as a tick line: the plant's clock, % on the display basis
             event(log, "lab", sample_id=lab.sample_id,
                   sample_time=local_clock(lab.sample_time_ns, d),
@@ -468,33 +389,16 @@ class Daemon:
 
     async def _start_outputs(self, stack: contextlib.AsyncExitStack) -> tuple[str, ...]:
         """Start the enabled operator outputs, stopped with ``stack``; what they serve."""
-        o, served = self.output_settings, []
-        if o.modbus.enabled:
-            self.modbus_out = EstimateModbusServer(o.modbus, self.display)
-            await self.modbus_out.start()
-            stack.push_async_callback(self.modbus_out.stop)
-            served.append(f"modbus://{o.modbus.host}:{self.modbus_out.port}")
-        if o.prometheus.enabled:
-            self.metrics = DaemonMetrics(o.prometheus, self._counters(), unit=self.unit,
-                                         display=self.display)
-            self.metrics.start()
-            stack.callback(self.metrics.stop)
-            served.append(f"http://{o.prometheus.host}:{self.metrics.port}/metrics")
-        if o.opcua.enabled:
-            # asyncua takes a second to import: only a daemon that serves OPC UA pays it
-            from softsensor.outputs.opcua_server import EstimateOpcUaServer
-
-            self.opcua = EstimateOpcUaServer(o.opcua, self.display, self.unit)
-            await self.opcua.start()
-            stack.push_async_callback(self.opcua.stop)
-            served.append(self.opcua.endpoint)
-        if o.web.enabled:
-            self.web = LivePage(o.web, self.display, self.unit,
-                                clock=self.clock.now_ns if self.clock else time.time_ns)
-            self.web.time_scale = self.settings.time_scale
-            self.web.start()
-            stack.callback(self.web.stop)
-            served.append(f"http://{o.web.host}:{self.web.port}/")
+        served = []
+        for output in operator_outputs(
+                self.output_settings, self.display, self.unit,
+                clock=self.clock.now_ns if self.clock else time.time_ns,
+                time_scale=self.settings.time_scale, counters=self._counters(),
+                tick_seconds=lambda: None if self.pipeline is None
+                else self.pipeline.last_tick_s):
+            served.append(await output.start())
+            stack.push_async_callback(output.stop)
+            self.outputs[output.name] = output
         return tuple(served)
 
     def _counters(self) -> dict[str, tuple[str, Callable[[], float]]]:
@@ -573,32 +477,28 @@ class Daemon:
                     f"{', '.join(sorted(b.capped))}")
         return "ok"
 
-    def _decorate(self, out: Output) -> None:
-        """Health says when recording is paused (estimates go on without it)."""
-        if out.kind != "health":
-            return
-        state = self._recording()
-        out.body["recording"] = state
-        if self.pipeline is not None:  # what the limits dropped, recorded as counts
-            out.body["inputs_dropped"] = dict(self.pipeline.dropped)
-        if self.bus_recorder is not None and self.bus_recorder.capped:
-            out.body["recording_capped"] = dict(self.bus_recorder.capped)
-        if state not in (None, "ok") and "recording:" not in str(out.body.get("detail")):
-            out.body["detail"] = f"{out.body.get('detail')}; recording: {state}"
+    def _decorate(self, out: Output) -> Output:
+        """Health says when recording is paused (estimates go on without it) and what the
+        input limits dropped."""
+        if not isinstance(out, Health):
+            return out
+        capped = None if self.bus_recorder is None or not self.bus_recorder.capped \
+            else dict(self.bus_recorder.capped)
+        return out.at(out.time_ns, recording=self._recording(),
+                      inputs_dropped=None if self.pipeline is None
+                      else dict(self.pipeline.dropped), recording_capped=capped)
 
     def _recording_changed(self) -> None:
         """Publish health at once when recording pauses or resumes (not only at the next
         tick): the one health line an operator sees for a full disk."""
         state = self._recording()
-        if state == self._recording_said or self.health is None or self.pipeline is None \
-                or self.clock is None:
+        if state == self._recording_said or self.latest_health is None \
+                or self.pipeline is None or self.clock is None:
             return
         self._recording_said = state
-        body = dict(self.health.latest)
-        body["detail"] = str(body.get("detail", "")).split("; recording:")[0]
         event(log, "recording", logging.ERROR if state != "ok" else logging.INFO,
               state=state, lost=None if self.recorder is None else self.recorder.n_lost)
-        self.pipeline.publish_aside(Output("health", body, self.clock.now_ns()))
+        self.pipeline.publish_aside(self.latest_health.at(self.clock.now_ns()))
 
     def _health_extra(self) -> dict[str, Any]:
         """What a health query adds to the last health body: the watchdog and the inputs."""
@@ -615,11 +515,15 @@ class Daemon:
         assert self.pipeline is not None and self.clock is not None
         if self.watchdog is None:
             return
-        body = self.watchdog.check()
-        if body is None:
+        stall = self.watchdog.check()
+        if stall is None:
             return
-        body.update(unit=self.unit, estimator=self.pipeline.service.kind)
-        self.pipeline.publish_aside(Output("health", body, self.clock.now_ns()))
+        now = self.clock.now_ns()
+        base = self.latest_health or Health(
+            now, self.unit, self.pipeline.service.kind,
+            tick=Reason("stale", "waiting for the first complete window"),
+            input=Reason("stale", "no scan received yet"), lab=Reason("ok", ""))
+        self.pipeline.publish_aside(base.at(now, stall=stall))
 
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.pipeline is not None and self.clock is not None

@@ -1,16 +1,18 @@
-"""The estimator service, sans I/O: scans and lab results in, estimate and health bodies out.
+"""The estimator service, sans I/O: scans and lab results in, estimates and health out.
 
 :class:`EstimatorService` owns a :class:`~softsensor.windows.accumulator.WindowAccumulator`
 and an :class:`~softsensor.estimation.interface.Estimator`. It never touches a socket, a file or a
 clock: time is whatever the messages say, so the daemon (Zenoh, live), the ``replay`` verb
 (Zenoh, offline) and the tests drive the very same object and get the very same estimates.
 
-Events and what they return (a list of :class:`Output`, in publishing order):
+Events and what they return (a list of :class:`Output`: typed, frozen
+:class:`~softsensor.estimate.Estimate` and :class:`~softsensor.estimate.Health`, in publishing
+order):
 
 * :meth:`on_scan` (``/plant/scan`` body, time [ns]): adds the scan to its 600 s window; once a
   scan ``tick_delay_s`` past a window's end has arrived the window is *ticked*: the lab results
   logged up to the window's end are handed to the estimator, the estimator steps over the window
-  and an ``estimate`` and a ``health`` body are emitted, both stamped with the window's end.
+  and an estimate and a health are emitted, both stamped with the window's end.
   Waiting ``tick_delay_s`` makes the order of lab results and ticks a function of the log
   times alone, so a replay of a recorded day reproduces the live estimates exactly.
 * :meth:`on_lab` (``/plant/lab`` body, log time): checked against the lab-result contract
@@ -23,9 +25,11 @@ Events and what they return (a list of :class:`Output`, in publishing order):
 * :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
 
 Scan values are judged before a window sums them (:mod:`softsensor.windows.plausibility`,
-inside the accumulator); an estimate body is judged before it goes out: one with a value
-outside its physical range (:func:`~softsensor.windows.plausibility.estimate_problems`) is
-never ``ok``; it is published ``degraded`` with the reason first in its ``detail``.
+inside the accumulator); every estimator's estimate is finished by one pure step before it goes
+out (:func:`finish`): the window's facts added, a stale window's estimate ``stale``, one with a
+value outside its physical range
+(:func:`~softsensor.windows.plausibility.estimate_problems`) never ``ok`` (published
+``degraded`` with the reason first in its ``detail``), the refused inputs said.
 
 Health (CONTRACT section 2) is emitted at every tick, whenever the input state changes
 between ticks, and at once when a lab result or a lab file is refused. Its ``status`` is the
@@ -49,10 +53,11 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from softsensor.errors import EstimationError, IngestError, SoftsensorError
+from softsensor.estimate import CONTRACT_FIELDS, Estimate, Health, Reason, WindowFacts, worst
 from softsensor.estimation.interface import Estimator, LabResult, Window
 from softsensor.estimation.tick_history import (
     lab_from_json,
@@ -60,7 +65,7 @@ from softsensor.estimation.tick_history import (
     window_from_json,
     window_to_json,
 )
-from softsensor.jsonable import jsonable
+from softsensor.jsonable import finite_or_none
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.messages import SCAN_EXTRA_FIELDS, iso_utc, lab_from_body
 from softsensor.service.estimators import estimator_kind
@@ -74,18 +79,12 @@ log = logging.getLogger(__name__)
 _KEPT: frozenset[str] = frozenset(SCAN_SIGNALS) | SCAN_EXTRA_FIELDS
 
 NS = 10**9
-#: Health states from best to worst (CONTRACT section 2).
-SEVERITY: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
 _CHECKPOINT_VERSION = 1
 
 
-@dataclass(frozen=True)
-class Output:
-    """A message to publish: key kind (``estimate`` or ``health``), body, time [ns]."""
-
-    kind: str
-    body: dict[str, Any]
-    time_ns: int
+#: What the service says: an estimate or a health, each with its ``kind``, ``time_ns`` and
+#: ``to_body()`` (:mod:`softsensor.estimate`).
+Output = Estimate | Health
 
 
 @dataclass
@@ -107,8 +106,34 @@ class ServiceStats:
     unphysical_ticks: int = 0  #: estimates with a value outside its physical range
 
 
-def _worst(a: str, b: str) -> str:
-    return a if SEVERITY[a] >= SEVERITY[b] else b
+def finish(estimate: Estimate, window: Window, ranges: EstimateRanges, unit: str
+           ) -> tuple[Estimate, list[str]]:
+    """The service's last, pure step before an estimate goes out: the window's facts added, a
+    stale window's estimate ``stale``, a value outside its physical range never ``ok`` (the
+    reason first), the inputs the plausibility limits refused said last. Returns the estimate
+    and the fields that were not physical (empty when all were)."""
+    out = replace(estimate, window=WindowFacts(
+        unit=unit, n_scans=window.n_scans, stale=window.stale,
+        T_dryer_out_measured=_measured(window.means, "T_dryer_out"),
+        T_cyclone_out_measured=_measured(window.means, "T_cyclone_out"),
+        inputs_refused=dict(window.refused),
+        inputs_refused_why={name: window.reasons[name] for name in window.refused
+                            if name in window.reasons}))
+    if window.stale and out.status != "stale":
+        out = out.judged(Reason("stale", "stale window"))
+    problems = estimate_problems({k: getattr(out, k) for k in CONTRACT_FIELDS}, ranges)
+    if problems:
+        # whatever the estimator says, a value no dryer can have is not an ok estimate
+        out = out.judged(Reason("degraded", "not physical: " + ", ".join(problems)), first=True)
+    if window.refused:
+        out = out.judged(Reason("ok", "implausible inputs refused: " + ", ".join(
+            f"{name} {n}" for name, n in sorted(window.refused.items()))))
+    return out, problems
+
+
+def _measured(means: Mapping[str, float | None], name: str) -> float | None:
+    v = means.get(name)
+    return None if v is None else finite_or_none(v)
 
 
 class EstimatorService:
@@ -134,13 +159,20 @@ class EstimatorService:
     max_lab_silence_s : float, optional
         Health is ``degraded`` once no lab result was accepted for this long [plant s];
         None: never (module docstring).
+    time_gate : callable, optional
+        Refuses message times far from the service's clock: the reason, or None (the daemon
+        passes a :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock).
+    max_pending_labs : int
+        Lab results that may wait for one tick; more are refused (a flood).
     """
 
     def __init__(self, estimator: Estimator, window: WindowSettings | None = None, *,
                  unit: str = "dryer1", tick_delay_s: float = 10.0,
                  gap_after_s: float = 60.0, max_gap_windows: int = 36,
                  ranges: EstimateRanges | None = None,
-                 max_lab_silence_s: float | None = None) -> None:
+                 max_lab_silence_s: float | None = None,
+                 time_gate: Callable[[int], str | None] | None = None,
+                 max_pending_labs: int = 50) -> None:
         self.estimator = estimator
         self.max_lab_silence_ns = (None if max_lab_silence_s is None
                                    else int(round(max_lab_silence_s * NS)))
@@ -160,8 +192,8 @@ class EstimatorService:
         self._ticked_end: int | None = None
         self._last_scan: int | None = None
         self._now: int | None = None
-        self._tick_status: tuple[str, str] | None = None
-        self._input_status: tuple[str, str] = ("stale", "no scan received yet")
+        self._tick_status: Reason | None = None
+        self._input_status = Reason("stale", "no scan received yet")
         self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
@@ -170,11 +202,8 @@ class EstimatorService:
         self._lab_since: int | None = None
         self._stale_since: int | None = None  # start of the last gap cut short
         self._skipped_seen = 0  # gap windows of self._acc already counted in the stats
-        #: refuses message times far from the service clock (the daemon sets a
-        #: :class:`~softsensor.service.time_gate.TimeGate`; a replay has no clock)
-        self.time_gate: Callable[[int], str | None] | None = None
-        #: lab results that may wait for one tick; more are refused (a flood)
-        self.max_pending_labs = 50
+        self.time_gate = time_gate
+        self.max_pending_labs = int(max_pending_labs)
         self._throttle = Throttle()  # bad scans from a broken peer: a few lines, counted
 
     # ------------------------------------------------------------------ events
@@ -326,48 +355,23 @@ class EstimatorService:
                 self._refuse(reason, window.end_ns)
         self._ticked_end = window.end_ns
         try:
-            # the body as JSON carries it (NaN as null), once, before anything judges it
-            body = jsonable(self.estimator.tick(window))
+            estimate = self.estimator.tick(window)
         except (SoftsensorError, ArithmeticError, ValueError) as exc:
             self.stats.failed_ticks += 1
             detail = f"estimator failed at the window ending {window.end_ns} ns: {exc}"
             log.error("%s", detail)
-            self._tick_status = ("degraded", detail)
+            self._tick_status = Reason("degraded", detail)
             return [self._health(window.end_ns)]
+        estimate, problems = finish(estimate, window, self.ranges, self.unit)
         self.stats.ticks += 1
-        status = str(body.get("status") or ("stale" if window.stale else "ok"))
-        if status not in SEVERITY:
-            status = "degraded"
         if window.stale:
             self.stats.stale_ticks += 1
-            status = "stale"
-        if body.get("lab_updated"):
+        if estimate.lab_updated:
             self.stats.lab_updates += 1
-        detail = str(body.get("detail") or status)
-        problems = estimate_problems(body, self.ranges)
         if problems:
-            # whatever the estimator says, a value no dryer can have is not an ok estimate
             self.stats.unphysical_ticks += 1
-            if status == "ok":
-                status = "degraded"
-            detail = "not physical: " + ", ".join(problems) + "; " + detail
-        if window.refused:
-            body["inputs_refused"] = dict(window.refused)
-            # why, per signal (the first value refused and the limits): what a replay that
-            # estimated nothing must say, rather than guess at the scan period
-            body["inputs_refused_why"] = {name: window.reasons[name] for name in window.refused
-                                          if name in window.reasons}
-            detail += "; implausible inputs refused: " + ", ".join(
-                f"{name} {n}" for name, n in sorted(window.refused.items()))
-        body.update(status=status, detail=detail)
-        self._tick_status = (status, detail)
-        body.update(unit=self.unit, n_scans=window.n_scans, stale=window.stale)
-        for name in ("T_dryer_out", "T_cyclone_out"):  # measured beside model, for operators
-            body.setdefault(f"{name}_measured", window.means.get(name))
-        body.setdefault("estimator", self.kind)
-        body.setdefault("window_start_ns", window.start_ns)
-        body.setdefault("window_end_ns", window.end_ns)
-        return [Output("estimate", body, window.end_ns), self._health(window.end_ns)]
+        self._tick_status = Reason(estimate.status, estimate.detail)
+        return [estimate, self._health(window.end_ns)]
 
     def _refuse(self, reason: str, time_ns: int | None) -> None:
         reason = outside_text(reason)  # a sample id or a value from outside, cut short
@@ -393,30 +397,29 @@ class EstimatorService:
         return "degraded", "no good value of " + ", ".join(parts), tuple(missing)
 
     def _set_input(self, status: str, detail: str, key: tuple[str, ...]) -> None:
-        self._input_status = (status, detail)
+        self._input_status = Reason(status, detail)
         self._input_key = (status, key)
 
-    def _lab_status(self, now_ns: int | None) -> tuple[str, str]:
+    def _lab_status(self, now_ns: int | None) -> Reason:
         """``degraded`` when no lab result was accepted for ``max_lab_silence_s`` by
         ``now_ns`` (module docstring), with the hours and the last refusal; else ``ok``."""
         if self.max_lab_silence_ns is None or self._lab_since is None or now_ns is None:
-            return "ok", ""
+            return Reason("ok", "")
         silent = now_ns - self._lab_since
         if silent <= self.max_lab_silence_ns:
-            return "ok", ""
+            return Reason("ok", "")
         since = "the first scan" if self.stats.labs_accepted == 0 else "the last one"
         detail = (f"lab: no lab result accepted for {silent / 3600 / NS:.1f} h since {since} "
                   f"(service.max_lab_silence_h {self.max_lab_silence_ns / 3600 / NS:g}): the "
                   f"estimate is uncorrected")
         if self._last_refusal is not None:
             detail += f"; last lab refusal: {self._last_refusal}"
-        return "degraded", detail
+        return Reason("degraded", detail)
 
     def _state_key(self) -> tuple[str, tuple[str, ...]]:
-        tick = self._tick_status[0] if self._tick_status else "stale"
-        lab = self._lab_status(self._now)[0]
-        return (_worst(_worst(tick, self._input_key[0]), lab),
-                (tick, lab, *self._input_key[1]))
+        tick = self._tick_status.status if self._tick_status else "stale"
+        lab = self._lab_status(self._now).status
+        return (worst(tick, self._input_key[0], lab), (tick, lab, *self._input_key[1]))
 
     def _with_health_change(self, out: list[Output], time_ns: int) -> list[Output]:
         """Append a health body when the state changed since the last one published."""
@@ -427,34 +430,18 @@ class EstimatorService:
             return out  # nothing to say before the first scan
         return [*out, self._health(time_ns)]
 
-    def _health(self, time_ns: int) -> Output:
-        tick_status, tick_detail = self._tick_status or ("stale", "waiting for the first "
-                                                                  "complete window")
-        in_status, in_detail = self._input_status
-        lab_status, lab_detail = self._lab_status(max(int(time_ns), self._now or 0))
-        status = _worst(_worst(tick_status, in_status), lab_status)
-        if status == "ok":
-            detail = tick_detail
-        else:
-            parts = [tick_detail] if tick_status != "ok" else []
-            if in_status != "ok":
-                parts.append(f"input: {in_detail}")
-            if lab_status != "ok":
-                parts.append(lab_detail)
-            detail = "; ".join(parts)
+    def _health(self, time_ns: int) -> Health:
         self._published = self._state_key()
-        body: dict[str, Any] = {
-            "status": status, "detail": detail, "tick_status": tick_status,
-            "input_status": in_status, "lab_status": lab_status, "estimator": self.kind,
-            "unit": self.unit, "window_end_ns": self._ticked_end,
-            "last_scan_ns": self._last_scan, "labs_waiting": len(self._labs),
-            "last_lab_refusal": self._last_refusal,
-            "last_lab_refusal_ns": self._last_refusal_ns,
-            "last_lab_accepted_ns": self._lab_since if self.stats.labs_accepted else None,
-            "stale_since_ns": self._stale_since,
-            **dataclasses.asdict(self.stats),
-        }
-        return Output("health", body, int(time_ns))
+        return Health(
+            time_ns=int(time_ns), unit=self.unit, estimator=self.kind,
+            tick=self._tick_status or Reason("stale", "waiting for the first complete window"),
+            input=self._input_status,
+            lab=self._lab_status(max(int(time_ns), self._now or 0)),
+            counters=dataclasses.asdict(self.stats), window_end_ns=self._ticked_end,
+            last_scan_ns=self._last_scan, labs_waiting=len(self._labs),
+            last_lab_refusal=self._last_refusal, last_lab_refusal_ns=self._last_refusal_ns,
+            last_lab_accepted_ns=self._lab_since if self.stats.labs_accepted else None,
+            stale_since_ns=self._stale_since)
 
     # ------------------------------------------------------------------ checkpoints
     def checkpoint(self) -> dict[str, Any]:
@@ -467,7 +454,8 @@ class EstimatorService:
             "window_scans": [[t, b] for t, b in self._window_scans],
             "judge": self._acc.judge_state_at_window_start,
             "labs": [lab_to_json(r) for r in self._labs],
-            "tick_status": list(self._tick_status) if self._tick_status else None,
+            "tick_status": ([self._tick_status.status, self._tick_status.text]
+                            if self._tick_status else None),
             "stats": dataclasses.asdict(self.stats),
             "lab_since_ns": self._lab_since, "last_lab_refusal": self._last_refusal,
             "last_lab_refusal_ns": self._last_refusal_ns,
@@ -500,7 +488,7 @@ class EstimatorService:
             self._window_scans = [(int(t), dict(b)) for t, b in snapshot["window_scans"]]
             self._labs = [lab_from_json(r) for r in snapshot["labs"]]
             tick = snapshot["tick_status"]
-            self._tick_status = None if tick is None else (str(tick[0]), str(tick[1]))
+            self._tick_status = None if tick is None else Reason(str(tick[0]), str(tick[1]))
             self.stats = ServiceStats(**{k: int(v) for k, v in snapshot["stats"].items()})
             # (absent from the checkpoints of earlier daemons: the lab clock starts again)
             since = snapshot.get("lab_since_ns")
@@ -545,4 +533,4 @@ class EstimatorService:
         return self._acc.n_late
 
 
-__all__ = ["SEVERITY", "EstimatorService", "Output", "ServiceStats"]
+__all__ = ["EstimatorService", "Output", "ServiceStats"]

@@ -56,7 +56,8 @@ from softsensor.errors import ConfigError, EstimationError, IngestError, Softsen
 from softsensor.files import atomic_path
 from softsensor.messages import iso_utc
 from softsensor.plantconfig import PlantConfig
-from softsensor.recording.mcap_day import DEFAULT_CHUNK_SIZE, DayWriter, iter_messages
+from softsensor.recording.day_writer import DEFAULT_CHUNK_SIZE, DayWriter
+from softsensor.recording.mcap_day import iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import INPUT_KINDS, ServicePipeline
@@ -75,7 +76,7 @@ STALL_TIMEOUT_S = 60.0
 
 
 class FileRecorder:
-    """One MCAP file for a :class:`~softsensor.recording.recorder.BusRecorder` (no rotation).
+    """One MCAP file for a :class:`~softsensor.service.bus_recorder.BusRecorder` (no rotation).
 
     Thread-safe ``write(topic, log_time_ns, body)``; ``tick`` does nothing (the file is
     finished by :meth:`close`).
@@ -403,7 +404,7 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
 
         def _keep(o: Output) -> None:
             if o.kind == "estimate":
-                summary.estimates.append((o.time_ns, o.body))
+                summary.estimates.append((o.time_ns, o.to_body()))
                 if progress is not None:
                     progress(o.time_ns, len(summary.estimates))
 

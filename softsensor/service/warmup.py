@@ -83,7 +83,7 @@ def warm_up(make: Callable[[], EstimatorService], cfg: PlantConfig) -> WarmUp:
         while t <= end:
             for out in service.on_scan(t, _scan(cfg, last)):
                 if out.kind == "estimate":
-                    last = out.body
+                    last = out.to_body()
             k = (t - start) // period_ns  # windows completed before t
             mo = (last or {}).get("moisture_out")
             if k >= 2 and not lab_sent and isinstance(mo, float) and math.isfinite(mo):

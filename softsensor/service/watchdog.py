@@ -34,6 +34,7 @@ from typing import Any
 
 import zenoh
 
+from softsensor.estimate import Stall
 from softsensor.service.logs import event
 
 log = logging.getLogger(__name__)
@@ -67,8 +68,8 @@ class Watchdog:
         self.n_stalls = 0
         self._announced: float | None = None
 
-    def check(self, now: float | None = None) -> dict[str, Any] | None:
-        """A ``stalled`` health body when one is due now, else None."""
+    def check(self, now: float | None = None) -> Stall | None:
+        """The stall to say when one is due now, else None."""
         now = time.monotonic() if now is None else now
         late = now - self._last_tick_at()
         if late <= self.limit_s:
@@ -81,12 +82,9 @@ class Watchdog:
         if not self.stalled:
             self.n_stalls += 1
         self.stalled, self._announced = True, now
-        detail = (f"stalled: no estimate for {late:.0f} s (one is due every "
-                  f"{self.window_wall_s:.0f} s); {self._pending()} input messages waiting")
-        event(log, "estimator_stalled", logging.ERROR, late_s=round(late, 1),
-              pending=self._pending())
-        return {"status": "stale", "detail": detail, "stalled": True,
-                "tick_late_s": round(late, 1), "pending": self._pending()}
+        pending = self._pending()
+        event(log, "estimator_stalled", logging.ERROR, late_s=round(late, 1), pending=pending)
+        return Stall(late, pending, self.window_wall_s)
 
 
 class HealthQueryable:

@@ -105,21 +105,13 @@ class Plausibility:
     hold_s: float = HOLD_S
 
 
-@dataclass(frozen=True)
-class LimitsChange:
-    """A ``[plausibility.<signal>]`` table: the keys it sets replace the default's."""
-
-    low: float | None = None
-    high: float | None = None
-    max_rate: float | None = num(None, ge=0)
-    max_step: float | None = num(None, ge=0)
-
-
-#: The ``[plausibility]`` table: ``hold_s`` and one :class:`LimitsChange` per scan signal.
+#: The ``[plausibility]`` table: ``hold_s`` and one ``[plausibility.<signal>]`` sub-table per
+#: scan signal, kept as read: its keys replace the default's and the result is built and
+#: checked as one :class:`SignalLimits` (:func:`plausibility_from_config`).
 PlausibilityTable = dataclasses.make_dataclass(
     "PlausibilityTable",
     [("hold_s", float, num(HOLD_S, gt=0, le=86_400)),
-     *((name, LimitsChange | None, field(default=None)) for name in SCAN_SIGNALS)],
+     *((name, dict[str, Any] | None, field(default=None)) for name in SCAN_SIGNALS)],
     frozen=True)
 
 
@@ -137,8 +129,7 @@ def _plausibility(cfg: PlantConfig) -> Plausibility:
     for name in SCAN_SIGNALS:
         change = getattr(table, name)
         if change is not None:
-            given = {k: v for k, v in dataclasses.asdict(change).items() if v is not None}
-            merged = {**dataclasses.asdict(limits[name]), **given}
+            merged = {**dataclasses.asdict(limits[name]), **change}
             limits[name] = build_section(SignalLimits, merged, f"plausibility.{name}",
                                          cfg.source)
     return Plausibility(limits, table.hold_s)

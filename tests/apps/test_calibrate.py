@@ -12,9 +12,10 @@ nothing; the user's next command failed on the missing file). With ``--force`` i
 "wrote ... New parameters NOT written"; it now says that it wrote the calibrated ones
 because ``--force`` asked. ``validate`` shows the config's default parameters beside the
 ones validated, and its line is the validation page's sentence
-(:func:`~softsensor.presentation.verdicts.validation_verdict`). The README's exit-code table names
-every verb once; ``--windows-per-day`` on one day fits that many windows (it was parsed and then
-ignored). ``calibrate`` and ``validate`` refuse bad input in one line with exit 2.
+(:func:`~softsensor.presentation.verdicts.validation_verdict`). The exit-code table
+(docs/user-guide/commands.md) names every verb once; ``--windows-per-day`` on one day fits that
+many windows (it was parsed and then ignored). ``calibrate`` and ``validate`` refuse bad input in
+one line with exit 2.
 """
 
 from __future__ import annotations
@@ -139,7 +140,7 @@ def test_the_readme_exit_codes_table_names_every_verb():
 
     sub = next(a for a in build_parser()._actions if a.dest == "verb")
     verbs = set(sub.choices)
-    text = (REPO / "README.md").read_text()
+    text = (REPO / "docs" / "user-guide" / "commands.md").read_text()
     table = text[text.index("Exit codes ("):].split("\n\n")[1]
     rows = [line for line in table.splitlines() if line.startswith("| `")]
     named = [v for row in rows for v in re.findall(r"`([a-z-]+)`", row.split("|")[1])]

@@ -120,6 +120,36 @@ def test_resume_and_data_fingerprint(tmp_path, model, segment, config, eq4):
         f"sqlite:///{db}"))] == ["kept"]
 
 
+def test_a_study_is_not_resumed_under_another_structure(tmp_path, segment, config):
+    """The fingerprint hashed the data, the bounds and the objective but not the plant's
+    structure: a study resumed under a PARAMS.toml's ``[structure]`` (a longer cyclone
+    hold-up, another drying law) took the trials of another model as its own (issue 37).
+    Every key of the structural library now changes it, and such a study is refused."""
+    from softsensor.model.structure import structure_space
+
+    fp = data_fingerprint([segment], config)
+    assert data_fingerprint([segment], config.with_keys({"unit.name": "dryer2"})) == fp
+    changed = []
+    for alt in structure_space():
+        keys = {**alt.sets, **{r.key: r.high for r in alt.free}}
+        for key, value in keys.items():
+            section, name = key.split(".")
+            if getattr(getattr(config, section), name) == value:
+                continue
+            other = config.with_keys({key: value})
+            assert other.bounds().tolist() == config.bounds().tolist()
+            assert data_fingerprint([segment], other) != fp, key
+            changed.append(key)
+    assert {"cyclone.hold_up_time", "fiber.drying_law", "fiber.bound_fraction",
+            "environment.ambient_loss_slope"} <= set(changed)
+    settings = StudySettings(n_trials=1, storage=f"journal:{tmp_path / 'study.log'}",
+                             progress=False, study_name="s")
+    open_study(settings, config, fp)
+    longer = config.with_keys({"cyclone.hold_up_time": 12.0})
+    with pytest.raises(ConfigError, match="made on other data, bounds or plant structure"):
+        open_study(settings, longer, data_fingerprint([segment], longer))
+
+
 def test_two_workers_share_one_journal_study(tmp_path, day6_file):
     """Two processes join one study through a journal file; they start together, split the
     trials, and the trials add up to the study's target."""

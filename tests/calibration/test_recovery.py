@@ -29,15 +29,12 @@ import pytest
 from synthetic_days import TRUTH
 
 from softsensor.apps.calibrate import load_segment, load_segments
-from softsensor.calibration.calibration_run import (
-    DataSelection,
-    objective_spec,
-    split_holdout,
-    validate,
-)
+from softsensor.calibration.calibration_run import objective_spec
 from softsensor.calibration.chunked_run import evaluate_parameters
 from softsensor.calibration.params_file import read_fit
+from softsensor.calibration.selection import DataSelection
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import split_holdout, validate
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
 from softsensor.model import DryerModel

@@ -31,7 +31,7 @@ def day():
 def test_outputs_are_the_model_run_on_window_means_with_nominal_inlet_moisture(day):
     d, windows = day
     est = OpenLoopEstimator(CFG)
-    bodies = [est.tick(w) for w in windows]
+    bodies = [est.tick(w).to_body() for w in windows]
     U = np.array([[w.means[n] for n in INPUT_NAMES[:-1]] + [CFG.nominal.moisture_in]
                   for w in windows])
     Y, _ = DryerModel(CFG).simulate(U)
@@ -48,7 +48,7 @@ def test_reported_std_is_the_configured_prior(day):
     _, windows = day
     cfg = dataclasses.replace(CFG, extra={"estimator": {"openloop_moisture_out_std": 0.07,
                                                         "openloop_moisture_in_std": 0.2}})
-    body = OpenLoopEstimator(cfg).tick(windows[0])
+    body = OpenLoopEstimator(cfg).tick(windows[0]).to_body()
     assert body["moisture_out_std"] == 0.07 and body["moisture_in_std"] == 0.2
     assert "fixed prior" in body["detail"]
 
@@ -56,14 +56,14 @@ def test_reported_std_is_the_configured_prior(day):
 def test_labs_leave_the_estimate_alone_and_report_the_residual(day):
     d, windows = day
     with_labs, without = OpenLoopEstimator(CFG), OpenLoopEstimator(CFG)
-    a = [without.tick(w) for w in windows[:20]]
-    b = [with_labs.tick(w) for w in windows[:10]]
+    a = [without.tick(w).to_body() for w in windows[:20]]
+    b = [with_labs.tick(w).to_body() for w in windows[:10]]
     lab = LabResult(windows[4].end_ns - 60 * 10**9, 0.123, "S1", windows[9].end_ns)
     assert with_labs.add_lab(lab) is None
     assert "duplicate" in with_labs.add_lab(lab)
     with pytest.raises(IngestError, match="outside the plausible range"):  # the contract's
         dataclasses.replace(lab, sample_id="S2", moisture_out=2.5)
-    b += [with_labs.tick(w) for w in windows[10:20]]
+    b += [with_labs.tick(w).to_body() for w in windows[10:20]]
     assert b[10]["lab_residual"] == {"S1": pytest.approx(0.123 - a[4]["moisture_out"])}
     assert not b[10]["lab_updated"]
     strip = [{k: v for k, v in x.items() if k != "lab_residual"} for x in b]
@@ -73,15 +73,15 @@ def test_labs_leave_the_estimate_alone_and_report_the_residual(day):
 def test_stale_window_and_restart(day):
     _, windows = day
     straight = OpenLoopEstimator(CFG)
-    ref = [straight.tick(w) for w in windows[:30]]
+    ref = [straight.tick(w).to_body() for w in windows[:30]]
     first = OpenLoopEstimator(CFG)
     for w in windows[:15]:
         first.tick(w)
     second = OpenLoopEstimator(CFG)
     second.restore(json.loads(json.dumps(first.checkpoint(), allow_nan=False)))
-    assert [second.tick(w) for w in windows[15:30]] == ref[15:]
+    assert [second.tick(w).to_body() for w in windows[15:30]] == ref[15:]
     stale = dataclasses.replace(windows[30], stale=True)
-    assert second.tick(stale)["status"] == "stale"
+    assert second.tick(stale).to_body()["status"] == "stale"
     with pytest.raises(EstimationError, match="not after the last tick"):
         second.tick(windows[3])
     with pytest.raises(EstimationError, match="kind 'ukf'"):

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate
 from softsensor.estimation.lab_regression import (
     REGRESSION_SIGNALS,
     LabRegression,
@@ -23,6 +24,7 @@ from softsensor.estimation.lab_regression import (
     regression_of,
 )
 from softsensor.estimation.peer_blend import advance, check_state, fresh
+from softsensor.estimation.publication import blended
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.messages import LabResult, Window
 from softsensor.plantconfig import load_plant_config, with_table
@@ -37,6 +39,14 @@ def window(k: int, means: dict[str, float] | None = None) -> Window:
                   n_scans=60, n_good={}, stale=False, reasons={})
 
 
+def published(s: EstimatorSettings, reg, state, w: Window, labs, mo: float, sd: float):
+    """One tick of the peers beside a physics estimate ``mo +- sd``: the new state and the
+    published estimate's body (:func:`~softsensor.estimation.publication.blended`)."""
+    state, blend, mixture = advance(s, reg, state, w, labs, (mo, sd))
+    physics = Estimate(w.start_ns, w.end_ns, "ukf", mo, sd, None, None, None, None)
+    return state, blended(physics, blend, mixture, s).to_body()
+
+
 def run_band(s: EstimatorSettings, offsets: list[float], state=None):
     """Ticks with the physics at 0.10 +- 0.005 and a lab every third tick at 0.10 + offset;
     the band scale after each lab."""
@@ -48,8 +58,7 @@ def run_band(s: EstimatorSettings, offsets: list[float], state=None):
             w = window(t)
             labs = ((LabResult(w.end_ns - W // 2, 0.10 + off, f"L{t}", w.end_ns),)
                     if k == 2 else ())
-            state, body = advance(s, None, state, w, labs,
-                                  {"moisture_out": 0.10, "moisture_out_std": 0.005})
+            state, body = published(s, None, state, w, labs, 0.10, 0.005)
         scales.append(body["band_scale"])
     return state, body, scales
 
@@ -163,7 +172,7 @@ def run_plant(cfg, day, **settings):
         while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
             est.add_lab(labs[j])
             j += 1
-        bodies.append(est.tick(w))
+        bodies.append(est.tick(w).to_body())
         truth.append(float(day.truth.moisture_out.to_numpy()[np.searchsorted(t, w.end_ns,
                                                                             "right") - 1]))
     return bodies, np.array(truth)
@@ -203,7 +212,7 @@ def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
 
     import pandas as pd
 
-    from softsensor.apps.calibrate import _lab_regression
+    from softsensor.calibration.history_calibration import history_regression
 
     rng = np.random.default_rng(5)
     t = (np.arange(1, 8641) * 10 + 1_767_571_200) * 10**9  # 24 h of 10 s scans
@@ -217,13 +226,13 @@ def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
         value = 0.1 + 0.01 * (mean - 300)
         days.append(SimpleNamespace(scans=scans, labs=pd.DataFrame(
             {"sample_time_ns": sample, "moisture_out": value.to_numpy()})))
-    reg, why = _lab_regression(days)
+    reg, why = history_regression(days)
     assert why is None
     assert "flap_cmd" not in reg.signals and len(reg.signals) == len(REGRESSION_SIGNALS) - 1
     assert reg.n_labs == 22
     assert np.all(np.isfinite(reg.coef)) and reg.step_sd > 0
     short = SimpleNamespace(scans=days[0].scans, labs=days[0].labs.iloc[:9])
-    reg, why = _lab_regression([short])
+    reg, why = history_regression([short])
     assert reg is None  # 9 results for 11 coefficients
     assert why == ("the regression peer needs at least 11 lab results with every signal "
                    "scanned, the history holds 9")
@@ -239,11 +248,9 @@ def test_the_regression_source_is_the_regression_at_the_window_plus_the_last_lab
     state = fresh(s, reg)
     w_lab, w_next = window(0, {"T_air_in": 490.0}), window(1, {"T_air_in": 470.0})
     lab = LabResult(w_lab.end_ns - W // 2, 0.125, "L0", w_lab.end_ns)
-    state, _ = advance(s, reg, state, w_lab, (lab,),
-                       {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    state, _ = published(s, reg, state, w_lab, (lab,), 0.11, 0.005)
     assert state["bias"] == pytest.approx(0.125 - reg.at_means(w_lab.means))  # 0.125 - 0.11
-    state, body = advance(s, reg, state, w_next, (),
-                          {"moisture_out": 0.11, "moisture_out_std": 0.005})
+    state, body = published(s, reg, state, w_next, (), 0.11, 0.005)
     want = reg.at_means(w_next.means) + (0.125 - 0.11)  # 0.09 + 0.015
     assert body["sources"]["regression"]["moisture_out"] == pytest.approx(want, abs=1e-12)
     assert want == pytest.approx(0.105)

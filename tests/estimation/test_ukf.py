@@ -165,7 +165,7 @@ def test_ukf_equals_linear_kalman_filter_on_a_linear_plant():
     for k, w in enumerate(wins):
         if k in labs:
             est.add_lab(labs[k])            # sampled in this window: applied at its tick
-        body = est.tick(w)
+        body = est.tick(w).to_body()
         x, P = F @ x + (np.eye(6) - F) @ x_nom, F @ P @ F.T + Q
         u = np.array([w.means["T_air_in"], 82, 6, 370, 0.5, 283.15, 0.006,
                       CFG.nominal.moisture_in])
@@ -225,7 +225,7 @@ def test_tick_equals_filterpys_unscented_kalman_filter_with_the_model_in_hx():
     wins, truth = synthetic_day(1, seed=5, plant=model)
     result = lab(0, truth[0, 1] + 0.01, "L1")
     assert est.add_lab(result) is None
-    body = est.tick(wins[0])
+    body = est.tick(wins[0]).to_body()
     assert body["labs_applied"] == ["L1"] and body["nis_dof"] == 3
     # the same prior, by filterpy's linear predict
     pri = ErrorPriors.from_config(CFG, s, est.heat_gain)
@@ -281,10 +281,10 @@ def test_filter_tracks_the_inlet_moisture_of_a_linear_plant():
     error would move both temperatures too)."""
     wins, truth = synthetic_day(150, seed=1)
     est = make(**CALIBRATED)
-    errs = [est.tick(w)["moisture_in"] - t for w, t in zip(wins, truth[:, 0], strict=True)]
+    errs = [est.tick(w).moisture_in - t for w, t in zip(wins, truth[:, 0], strict=True)]
     assert np.sqrt(np.mean(np.square(errs[10:]))) < 0.01
     est = make(moisture_in_walk=0.01)
-    errs = [est.tick(w)["moisture_in"] - t for w, t in zip(wins, truth[:, 0], strict=True)]
+    errs = [est.tick(w).moisture_in - t for w, t in zip(wins, truth[:, 0], strict=True)]
     assert np.sqrt(np.mean(np.square(errs[10:]))) < 0.02
 
 
@@ -313,7 +313,7 @@ def run(est: UkfEstimator, wins, deliveries: dict[int, list[LabResult]]) -> list
     for k, w in enumerate(wins):
         for r in deliveries.get(k, []):
             est.add_lab(r)
-        out.append(est.tick(w))
+        out.append(est.tick(w).to_body())
     return out
 
 
@@ -445,7 +445,7 @@ def test_a_lone_outlier_is_refused_and_a_second_the_temperatures_allow_taken():
     r1 = est.add_lab(lab(12, truth[12, 1] + 0.05, "O1"))
     assert r1 is not None and "outlier" in r1
     assert est.add_lab(lab(16, truth[16, 1] + 0.05, "O2")) is None
-    body = est.tick(wins[20])
+    body = est.tick(wins[20]).to_body()
     assert body["moisture_out_bias"] > 0.03                  # covariance matching took it
     assert any("bias" in n for n in body["notes"])
 
@@ -491,12 +491,12 @@ def test_a_copied_typo_inside_the_envelope_is_refused_and_said():
         assert reason is not None and "rejected as an outlier" in reason
         if i:
             assert "the temperatures do not allow it" in reason
-    body, plain = est.tick(wins[20]), ref.tick(wins[20])
+    body, plain = est.tick(wins[20]).to_body(), ref.tick(wins[20]).to_body()
     assert body["moisture_out"] == plain["moisture_out"]
     assert body["status"] == "degraded" and plain["status"] == "ok"
     assert "6 lab results in a row refused above the estimate" in body["detail"]
     assert est.add_lab(lab(17, truth[17, 1], "OK")) is None  # a good one ends the streak
-    assert est.tick(wins[21])["status"] == "ok"
+    assert est.tick(wins[21]).to_body()["status"] == "ok"
 
 
 def test_a_taken_outlier_contradicted_by_later_labs_is_withdrawn_within_a_tick():
@@ -508,12 +508,12 @@ def test_a_taken_outlier_contradicted_by_later_labs_is_withdrawn_within_a_tick()
     assert est.add_lab(lab(11, truth[11, 1] + 0.05, "D1")) is not None
     assert est.add_lab(lab(13, truth[13, 1] + 0.05, "D2")) is None  # taken
     for w in wins[20:24]:
-        pulled = est.tick(w)
+        pulled = est.tick(w).to_body()
         ref.tick(w)
     assert pulled["moisture_out"] - truth[23, 1] > 0.02
     good = lab(22, truth[22, 1], "GOOD")
     assert est.add_lab(good) is None and ref.add_lab(good) is None
-    body, plain = est.tick(wins[24]), ref.tick(wins[24])
+    body, plain = est.tick(wins[24]).to_body(), ref.tick(wins[24]).to_body()
     assert body["lab_updated"]
     assert body["moisture_out"] == pytest.approx(plain["moisture_out"], abs=1e-9)
     assert abs(body["moisture_out"] - truth[24, 1]) < 0.01
@@ -539,7 +539,7 @@ def test_stale_window_predicts_without_update():
     est = make()
     before = run(est, wins[:10], {})[-1]
     stale = dataclasses.replace(wins[10], stale=True, reasons={"scans": "12 scans"})
-    body = est.tick(stale)
+    body = est.tick(stale).to_body()
     assert body["status"] == "stale" and "12 scans" in body["detail"]
     assert body["nis"] is None and body["nis_dof"] == 0
     s = EstimatorSettings()
@@ -550,7 +550,7 @@ def test_stale_window_predicts_without_update():
     q = s.walk_per_window(s.moisture_in_walk, 600.0) ** 2 * (1 - math.exp(-2 * r)) / (2 * r)
     assert body["moisture_in_std"] == pytest.approx(
         math.sqrt(before["moisture_in_std"] ** 2 * math.exp(-2 * r) + q))
-    assert est.tick(wins[11])["status"] == "ok"
+    assert est.tick(wins[11]).to_body()["status"] == "ok"
 
 
 def test_missing_temperature_and_input_are_handled():
@@ -558,7 +558,7 @@ def test_missing_temperature_and_input_are_handled():
     est = make()
     run(est, wins[:8], {})
     w = window(8, 485.0, None, T_dryer_out=347.8, m_fiber=None)
-    body = est.tick(w)
+    body = est.tick(w).to_body()
     assert body["nis_dof"] == 1                       # only T_dryer_out
     assert "holding last value of m_fiber" in body["detail"]
 
@@ -584,7 +584,7 @@ def test_covariance_stays_symmetric_positive_definite_over_30_days():
     for k, w in enumerate(wins):
         for r in deliveries.get(k, []):
             est.add_lab(r)
-        body = est.tick(w)
+        body = est.tick(w).to_body()
         P = est._state.P
         assert np.array_equal(P, P.T)
         worst = min(worst, float(np.linalg.eigvalsh(P)[0]))

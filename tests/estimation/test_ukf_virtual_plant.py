@@ -49,7 +49,7 @@ def run_day(est, day, deliver_at: str = "log_time_ns", start: int = 0, stop: int
             when = getattr(r, deliver_at)
             if (i == 0 or w.start_ns < when) and when <= w.end_ns:
                 est.add_lab(r)
-        body = est.tick(w)
+        body = est.tick(w).to_body()
         sel = (t > w.start_ns) & (t <= w.end_ns)
         truth = day.truth[sel]
         rows.append({**body, "end": w.end_ns,
@@ -145,7 +145,7 @@ def test_thirty_days_keep_the_covariance_positive_definite():
         while j < len(labs) and labs[j].log_time_ns <= w.end_ns:
             est.add_lab(labs[j])
             j += 1
-        body = est.tick(w)
+        body = est.tick(w).to_body()
         P = est._state.P
         assert np.array_equal(P, P.T) and np.linalg.eigvalsh(P)[0] > 0
         errors.append(body["moisture_out"] - day.truth.moisture_out.loc[:w.end_ns].iloc[-1])

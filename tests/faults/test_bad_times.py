@@ -119,7 +119,7 @@ def test_a_scan_thirty_days_ahead_costs_a_bounded_number_of_ticks():
     horizon = int(settings.max_past_s // 600)
     assert 1 <= ticks <= horizon + 8, ticks
     assert service.stats.skipped_windows > 4000, service.stats.skipped_windows
-    health = [o.body for o in out if o.kind == "health"][-1]
+    health = [o.to_body() for o in out if o.kind == "health"][-1]
     assert health["stale_since_ns"] is not None and health["status"] == "stale"
     assert health["stale_since_ns"] < t0 + DAY_NS
     assert time.perf_counter() - start < 60.0

@@ -17,7 +17,8 @@ from pathlib import Path
 import pytest
 from paths import REPO
 
-from softsensor.ingest.lab_input import MAX_BYTES, MAX_ROWS, LabFolderWatcher, LabInput
+from softsensor.ingest.lab_files import MAX_BYTES, MAX_ROWS
+from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
 
 NOW_NS = 1_750_000_000 * 10**9
 SECRET = "root:x:0:0:the-secret-first-line"

@@ -101,8 +101,9 @@ def test_the_watchdog_waits_one_window_past_the_latest_tick_time():
 
     w = Watchdog(600.0, 70.0, lambda: t["tick"], lambda: 3)
     assert w.check(now=1269.0) is None and not w.stalled  # 2 windows + grace not yet over
-    body = w.check(now=1271.0)
-    assert body is not None and body["stalled"] and body["pending"] == 3 and w.stalled
+    stall = w.check(now=1271.0)
+    assert stall is not None and stall.pending == 3 and stall.late_s == 1271.0 and w.stalled
+    assert stall.reason.status == "stale" and "stalled" in stall.reason.text
     assert w.check(now=1300.0) is None  # announced once per window while it lasts
     assert w.check(now=1872.0) is not None
     t["tick"] = 1900.0

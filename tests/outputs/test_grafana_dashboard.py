@@ -6,6 +6,7 @@ to anyone reading metrics), and the variables are read from a metric that exists
 
 from __future__ import annotations
 
+import asyncio
 import json
 import re
 import urllib.request
@@ -13,6 +14,7 @@ import urllib.request
 from paths import REPO
 from prometheus_client.parser import text_string_to_metric_families
 
+from softsensor.estimate import Estimate
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.settings import MetricsSettings
 from softsensor.plantconfig import load_plant_config
@@ -33,14 +35,14 @@ def _exported() -> set[str]:
     names = Daemon(cfg, service_settings(cfg))._counters()
     counters = {name: (doc, lambda: 1.0) for name, (doc, _fn) in names.items()}
     m = DaemonMetrics(MetricsSettings(enabled=True, port=0), counters, unit="dryer1",
-                      display=DisplaySettings())
-    m.start()
+                      display=DisplaySettings(), tick_seconds=lambda: 0.1)
+    asyncio.run(m.start())
     try:
-        m.publish(BODY, 1_767_607_800 * 10**9, duration_s=0.1)
+        m.on_estimate(Estimate.from_body({**BODY, "window_end_ns": 1_767_607_800 * 10**9}))
         text = urllib.request.urlopen(f"http://127.0.0.1:{m.port}/metrics",
                                       timeout=5).read().decode()
     finally:
-        m.stop()
+        asyncio.run(m.stop())
     return {s.name for fam in text_string_to_metric_families(text) for s in fam.samples}
 
 

@@ -4,6 +4,7 @@ dashboard keeps, the band clipped at bone dry, and a busy port refused in one li
 
 from __future__ import annotations
 
+import asyncio
 import math
 import urllib.request
 
@@ -12,6 +13,7 @@ from clients import scrape_metrics
 from sample_estimate import BODY, T_NS
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate
 from softsensor.outputs.metrics import DaemonMetrics
 from softsensor.outputs.settings import MetricsSettings
 from softsensor.presentation.display import DisplaySettings
@@ -29,14 +31,15 @@ def test_prometheus_names_a_ratio_and_a_timestamp_keeps_the_old_and_clips_the_ba
 
     m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill"),
                       {"softsensor_ticks": ("ticks", lambda: 3)}, unit="dryer2")
-    m.start()
+    asyncio.run(m.start())
     try:
-        m.publish({"moisture_out": 0.03, "moisture_out_std": 0.03, "moisture_in": 1.0,
-                   "moisture_in_std": 0.02, "status": "ok"}, 1_767_607_800 * 10**9)
+        m.on_estimate(Estimate.from_body({
+            "moisture_out": 0.03, "moisture_out_std": 0.03, "moisture_in": 1.0,
+            "moisture_in_std": 0.02, "status": "ok", "window_end_ns": 1_767_607_800 * 10**9}))
         text = urllib.request.urlopen(f"http://127.0.0.1:{m.port}/metrics",
                                       timeout=5).read().decode()
     finally:
-        m.stop()
+        asyncio.run(m.stop())
     samples = {}
     for fam in text_string_to_metric_families(text):
         for s in fam.samples:
@@ -57,13 +60,13 @@ def test_metrics_parse_with_prometheus_client_and_read_the_counters_live():
     ticks = [3]
     m = DaemonMetrics(MetricsSettings(enabled=True, port=0, site="mill-north"),
                       {"softsensor_ticks": ("ticks", lambda: ticks[0])}, unit="dryer2",
-                      display=DisplaySettings(moisture_basis="dry"))
-    m.start()
+                      display=DisplaySettings(moisture_basis="dry"), tick_seconds=lambda: 0.04)
+    asyncio.run(m.start())
     try:
         first = scrape_metrics(m.port, "dryer2", "mill-north")
         assert math.isnan(first["softsensor_moisture_out_kg_per_kg"])
         body = {**BODY, "T_dryer_out_measured": 348.65, "T_dryer_out_model": 348.15}
-        m.publish(body, T_NS, duration_s=0.04)
+        m.on_estimate(Estimate.from_body({**body, "window_end_ns": T_NS}))
         ticks[0] = 4
         got = scrape_metrics(m.port, "dryer2", "mill-north")
         # % wet basis whatever the display basis (what a lab and an operator read)
@@ -91,7 +94,7 @@ def test_metrics_parse_with_prometheus_client_and_read_the_counters_live():
         assert got["softsensor_tick_duration_seconds_count"] == 1.0
         assert got["softsensor_tick_duration_seconds_sum"] == pytest.approx(0.04)
     finally:
-        m.stop()
+        asyncio.run(m.stop())
 
 
 def test_a_port_in_use_is_a_one_line_error():
@@ -104,4 +107,4 @@ def test_a_port_in_use_is_a_one_line_error():
         m = DaemonMetrics(MetricsSettings(enabled=True, port=port))
         with pytest.raises(ConfigError, match=rf"outputs\.prometheus: cannot listen on "
                                               rf"127\.0\.0\.1:{port}"):
-            m.start()
+            asyncio.run(m.start())

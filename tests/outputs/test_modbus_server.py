@@ -21,8 +21,9 @@ import pytest
 from clients import modbus_read
 from clients import register_float as f32
 from paths import REPO
-from sample_estimate import BODY, T_NS
+from sample_estimate import BODY, ESTIMATE, T_NS
 
+from softsensor.estimate import Health
 from softsensor.outputs.modbus_server import (
     N_REGISTERS,
     EstimateModbusServer,
@@ -76,7 +77,7 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_refuses_writes():
         try:
             before, _, _ = lp.run(modbus_read(server.port))
             assert before[14] == 3 and math.isnan(f32(before, "moisture_out"))
-            server.publish(BODY, T_NS)  # from this (another) thread, as the estimator's
+            server.on_estimate(ESTIMATE)  # from this (another) thread, as the estimator's
             words = None
             for _ in range(100):  # bounded: the store is handed to the server's loop
                 words, wr, hr = lp.run(modbus_read(server.port, write=True))
@@ -86,7 +87,7 @@ def test_modbus_server_serves_the_estimate_to_pymodbus_and_refuses_writes():
             assert f32(words, "moisture_out") == np.float32(BODY["moisture_out"])
             assert f32(words, "moisture_in_pct") == np.float32(moisture_pct(1.0312, "dry"))
             assert server.refused >= 2
-            server.health("stale")
+            server.on_health(Health.from_body({"status": "stale"}, T_NS))
             for _ in range(100):
                 words, _, _ = lp.run(modbus_read(server.port))
                 if words[14] == 2:
@@ -105,7 +106,7 @@ def _serving(basis: str):
     with _Loop() as lp:
         lp.run(server.start())
         try:
-            server.publish(BODY, T_NS)
+            server.on_estimate(ESTIMATE)
             for _ in range(100):  # bounded: the store is handed to the server's loop
                 words, _, _ = lp.run(modbus_read(server.port))
                 if words[15] == 1:
@@ -134,11 +135,12 @@ def test_mbpoll_reads_the_estimate_the_server_serves():
 
 
 # ---------------------------------------------------------------------------------------------
-# The ``mbpoll`` command lines the README and docs/interface.md give a plant engineer, run as
+# The ``mbpoll`` command lines the user guide (docs/user-guide/operator-screens.md) and
+# docs/interface.md give a plant engineer, run as
 # written (only the port and host replaced by the test's) against the Modbus output (issue 24,
 # item 4: the documented command asked for 24 registers where 17 exist).
 
-DOCS = (REPO / "README.md", REPO / "docs" / "interface.md")
+DOCS = (REPO / "docs" / "user-guide" / "operator-screens.md", REPO / "docs" / "interface.md")
 
 
 def documented_commands(path: Path) -> list[str]:

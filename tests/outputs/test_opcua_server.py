@@ -16,6 +16,7 @@ import pytest
 from asyncua import ua
 from clients import opcua_read
 
+from softsensor.estimate import Estimate
 from softsensor.outputs.opcua_server import EstimateOpcUaServer
 from softsensor.outputs.settings import OpcUaSettings
 from softsensor.presentation.display import DisplaySettings
@@ -58,7 +59,8 @@ def test_an_asyncua_client_reads_analog_items_with_source_times_and_history():
             ua.StatusCodes.BadWaitingForInitialData
         # three windows, published from this thread as the estimator's, 10 min apart
         for k, x in enumerate((0.101, 0.102, 0.1034)):
-            server.publish({**BODY, "moisture_out": x}, T_NS + k * W_NS)
+            server.on_estimate(Estimate.from_body({**BODY, "moisture_out": x,
+                                                   "window_end_ns": T_NS + k * W_NS}))
             run(asyncio.sleep(0.1))
         got = before
         for _ in range(100):  # bounded: the writes are handed to the server's loop

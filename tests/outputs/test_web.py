@@ -9,6 +9,7 @@ the last diagnosis. And the server's threads stay bounded under a thousand slow 
 
 from __future__ import annotations
 
+import asyncio
 import http.client
 import json
 import os
@@ -28,6 +29,8 @@ from clients import chromium, chromium_dom
 from matplotlib.image import imread
 from paths import REPO
 
+from softsensor.estimate import Estimate, Health
+from softsensor.messages import LabResult
 from softsensor.outputs.settings import WebSettings
 from softsensor.outputs.web import BAND, LAB, LINE, MEASURED, MODEL, LivePage
 from softsensor.outputs.web_charts import LIMIT_BAND, TARGET, TIME_STEPS_MIN
@@ -54,15 +57,16 @@ def _page(tmp_path: Path, history: bool = True, diagnosis: bool = True, **web) -
     if history:
         for k in range(N_TICKS):
             x = 0.10 + 0.01 * np.sin(k / 3)
-            page.add_estimate(T0 + (k + 1) * W_NS, {
-                "moisture_out": x, "moisture_out_std": 0.004, "moisture_in": 1.0,
-                "moisture_in_std": 0.03, "status": "ok", "lab_updated": k == 9,
+            page.on_estimate(Estimate.from_body({
+                "window_end_ns": T0 + (k + 1) * W_NS, "moisture_out": x,
+                "moisture_out_std": 0.004, "moisture_in": 1.0, "moisture_in_std": 0.03,
+                "status": "ok", "lab_updated": k == 9,
                 "T_dryer_out_model": 348.15, "T_cyclone_out_model": 345.65,
                 "T_dryer_out_measured": 348.65 + 0.3 * np.sin(k),
-                "T_cyclone_out_measured": 345.15})
+                "T_cyclone_out_measured": 345.15}))
         for k in (3, 9, 15):
-            page.add_lab(T0 + k * W_NS, 0.103 + 0.01 * np.sin(k / 3), f"L{k}")
-    page.set_health(DEGRADED)
+            page.on_lab(LabResult(T0 + k * W_NS, 0.103 + 0.01 * np.sin(k / 3), f"L{k}"))
+    page.on_health(Health.from_body(DEGRADED, NOW))
     return page
 
 
@@ -76,15 +80,15 @@ def _get(url: str) -> tuple[int, str]:
 
 def test_page_and_api_over_http(tmp_path):
     empty = _page(tmp_path, history=False, diagnosis=False)
-    empty.start()
+    asyncio.run(empty.start())
     try:
         assert _get(f"http://127.0.0.1:{empty.port}/healthz")[0] == 503
         text = _get(f"http://127.0.0.1:{empty.port}/")[1]
         assert "No estimate yet" in text and "Last diagnosis" not in text  # no report: none
     finally:
-        empty.stop()
+        asyncio.run(empty.stop())
     page = _page(tmp_path)
-    page.start()
+    asyncio.run(page.start())
     try:
         base = f"http://127.0.0.1:{page.port}"
         code, text = _get(base + "/")
@@ -109,7 +113,7 @@ def test_page_and_api_over_http(tmp_path):
         assert r.read() == b""
         conn.close()
     finally:
-        page.stop()
+        asyncio.run(page.stop())
 
 
 def _attr(dom: str, element: str, name: str) -> str:
@@ -125,13 +129,13 @@ def _svg(dom: str, element: str) -> str:
 @pytest.mark.chromium
 def test_chromium_dom_shows_a_faceplate(tmp_path):
     page = _page(tmp_path)
-    page.start()
+    asyncio.run(page.start())
     try:
         base = f"http://127.0.0.1:{page.port}/"
         dom = chromium_dom(base)
         dom8 = _get(base + "?range=8h")[1]  # no script on the page: the HTML is its DOM
     finally:
-        page.stop()
+        asyncio.run(page.stop())
     # the axis fits the three hours of data (not 48 h); ?range=8h spans 8 h
     t0, t1 = int(_attr(dom, "outlet", "data-t0")), int(_attr(dom, "outlet", "data-t1"))
     assert (t0, t1) == (T0 + W_NS, T0 + N_TICKS * W_NS), (t0, t1)
@@ -185,13 +189,13 @@ def _pixels(png: np.ndarray, colour: str) -> np.ndarray:
 @pytest.mark.chromium
 def test_chromium_screenshot_shows_the_fitted_trend_target_band_and_temperatures(tmp_path):
     page = _page(tmp_path)
-    page.start()
+    asyncio.run(page.start())
     try:
         shot = tmp_path / "page.png"
         r = chromium(f"http://127.0.0.1:{page.port}/", f"--screenshot={shot}")
         assert shot.is_file(), r.stderr[-2000:]
     finally:
-        page.stop()
+        asyncio.run(page.stop())
     png = imread(shot)
     line = _pixels(png, LINE)
     cols = np.flatnonzero(line.any(axis=0))
@@ -230,7 +234,7 @@ def test_a_thousand_slow_clients_hold_no_more_threads_than_workers(tmp_path):
     page = _page(tmp_path, workers=4, backlog=16, timeout_s=5.0)
     fds_before = len(os.listdir("/proc/self/fd"))
     threads_before = threading.active_count()
-    page.start()
+    asyncio.run(page.start())
     child = subprocess.Popen([sys.executable, "-c", _SLOW_CLIENTS, str(page.port), "1000",
                               "8"], stdout=subprocess.PIPE, text=True)
     try:
@@ -255,7 +259,7 @@ def test_a_thousand_slow_clients_hold_no_more_threads_than_workers(tmp_path):
         child.kill()
         child.wait(10)
         child.stdout.close()
-        page.stop()
+        asyncio.run(page.stop())
 
 
 _TRICKLERS = """
@@ -298,7 +302,7 @@ def test_clients_trickling_their_header_byte_by_byte_cannot_silence_healthz(tmp_
     timeout. Now the whole header has a deadline (``timeout_s`` from the connection) and
     ``/healthz`` and the page answer while the tricklers hold their connections."""
     page = _page(tmp_path, timeout_s=3.0)  # the default 8 workers, as in the issue
-    page.start()
+    asyncio.run(page.start())
     child = subprocess.Popen([sys.executable, "-c", _TRICKLERS, str(page.port), "8", "1.0",
                               "12"], stdout=subprocess.PIPE, text=True)
     try:
@@ -321,7 +325,7 @@ def test_clients_trickling_their_header_byte_by_byte_cannot_silence_healthz(tmp_
         child.kill()
         child.wait(10)
         child.stdout.close()
-        page.stop()
+        asyncio.run(page.stop())
     # each was closed at its header's deadline although it sent a byte every second
     assert len(lives) == 8 and all(2.5 < x < 4.5 for x in lives), lives
     assert expired == 8
@@ -377,16 +381,17 @@ def test_the_pages_outlet_axis_stops_at_zero_for_a_wide_start_up_band(tmp_path):
     page = LivePage(WebSettings(enabled=True, port=0), DisplaySettings(moisture_basis="wet"),
                     clock=lambda: t0 + 13 * 600 * 10**9)
     for k in range(12):
-        page.add_estimate(t0 + (k + 1) * 600 * 10**9, {
+        page.on_estimate(Estimate.from_body({
+            "window_end_ns": t0 + (k + 1) * 600 * 10**9,
             "moisture_out": 0.03, "moisture_out_std": 0.03 - 0.002 * k, "moisture_in": 1.0,
             "moisture_in_std": 0.05, "status": "ok", "T_dryer_out_model": 348.0,
             "T_dryer_out_measured": 348.2, "T_cyclone_out_model": 345.0,
-            "T_cyclone_out_measured": 345.1})
-    page.start()
+            "T_cyclone_out_measured": 345.1}))
+    asyncio.run(page.start())
     try:
         dom = chromium_dom(f"http://127.0.0.1:{page.port}/")
     finally:
-        page.stop()
+        asyncio.run(page.stop())
     outlet = re.search(r"<svg[^>]*id=\"outlet\".*?</svg>", dom, re.S).group(0)
     ticks = [float(v) for v in re.findall(r"class=\"tick-y\"[^>]*>([^<]+)<", outlet)]
     assert ticks and min(ticks) >= 0.0, ticks

@@ -18,10 +18,11 @@ import optuna
 import pytest
 from synthetic_days import TRUTH
 
-from softsensor.calibration.calibration_run import calibrate, objective_spec, validate
+from softsensor.calibration.calibration_run import calibrate, objective_spec
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.validation import validate
 from softsensor.plant.simulator import simulate_day
 from softsensor.presentation.calibration_figures import markdown_table, trajectory_plot, write_page
 from softsensor.presentation.display import DisplaySettings

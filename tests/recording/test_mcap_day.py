@@ -1,4 +1,4 @@
-"""Recorded days: write real MCAP files, read them back, and break them."""
+"""Reading recorded days: real MCAP files read back, and broken."""
 
 from __future__ import annotations
 
@@ -9,46 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mcap.reader import make_reader
+from recorded_days import PERIOD, T0, scan
 
 from softsensor.errors import IngestError
-from softsensor.messages import encode_body
-from softsensor.recording.mcap_day import (
-    DayWriter,
-    iter_messages,
-    read_day,
-    scan_values,
-)
-from softsensor.signals import SCAN_SIGNALS, TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
-
-T0 = 1_750_000_000 * 10**9  # 2025-06-15, ns since epoch
-PERIOD = 10 * 10**9
-
-
-def _scan(i: int) -> dict:
-    body = {name: 300.0 + k + 0.01 * i for k, name in enumerate(SCAN_SIGNALS)}
-    body["time_ns"] = T0 + i * PERIOD
-    return body
-
-
-def _write_day(path: Path, n: int = 600, chunk_size: int = 4096) -> None:
-    with DayWriter(path, chunk_size=chunk_size) as w:
-        for i in range(n):
-            w.write(TOPIC_SCAN, T0 + i * PERIOD, _scan(i))
-            if i % 200 == 100:
-                w.write(TOPIC_LAB, T0 + i * PERIOD + 1,
-                        {"sample_time_ns": T0 + (i - 180) * PERIOD, "moisture_out": 0.1 + i / 1e4,
-                         "sample_id": f"L{i}"})
-            if i % 60 == 0:
-                w.write(TOPIC_HEALTH, T0 + i * PERIOD, {"status": "ok", "detail": "fine"})
-        w.write("/truth/plant", T0, {"moisture_in": 1.0, "note": "x", "T_wall": None})
-        w.write("/truth/plant", T0 + 600 * 10**9, {"moisture_in": 1.1})
-
-
-@pytest.fixture
-def day(tmp_path: Path) -> Path:
-    path = tmp_path / "day.mcap"
-    _write_day(path)
-    return path
+from softsensor.messages import encode_body, scan_values
+from softsensor.recording.day_writer import DayWriter
+from softsensor.recording.mcap_day import iter_messages, read_day
+from softsensor.signals import SCAN_SIGNALS, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 
 def test_round_trip(day: Path) -> None:
@@ -81,45 +48,9 @@ def test_topic_selection_and_no_truth(day: Path) -> None:
     assert d.topics == [TOPIC_SCAN]
 
 
-def test_nan_and_null(tmp_path: Path) -> None:
-    path = tmp_path / "nan.mcap"
-    with DayWriter(path) as w:
-        w.write(TOPIC_SCAN, T0, {"T_air_in": math.nan, "m_air": None, "T_amb": np.float64(280.0)})
-        w.write(TOPIC_ESTIMATE, T0, {"moisture_out": float("inf"), "x": [1.0, math.nan],
-                                     "n": np.int64(3), "lab_updated": np.bool_(True)})
-    d = read_day(path)
-    row = d.scans.iloc[0]
-    assert math.isnan(row["T_air_in"]) and math.isnan(row["m_air"])
-    assert math.isnan(row["T_dryer_out"])  # missing key
-    assert row["T_amb"] == 280.0
-    (_, est), = d.topic(TOPIC_ESTIMATE)
-    assert est == {"moisture_out": None, "x": [1.0, None], "n": 3, "lab_updated": True}
-    # the raw bytes are strict JSON: null, never NaN
-    with open(path, "rb") as f:
-        raw = [m.data for _, _, m in make_reader(f).iter_messages()]
-    assert b"NaN" not in b"".join(raw) and b"null" in raw[0]
-
-
 def test_encode_body_is_strict_json() -> None:
     assert json.loads(encode_body({"a": math.nan, "b": {"c": -math.inf}})) == {
         "a": None, "b": {"c": None}}
-
-
-def test_plain_mcap_reader_sees_jsonschema_and_json(day: Path) -> None:
-    with open(day, "rb") as f:
-        reader = make_reader(f)
-        summary = reader.get_summary()
-        assert summary is not None and summary.statistics.message_count > 600
-        assert all(c.compression == "zstd" for c in summary.chunk_indexes)
-        assert len(summary.chunk_indexes) > 5  # small chunks
-        topics = set()
-        for schema, channel, msg in reader.iter_messages():
-            assert schema is not None and schema.encoding == "jsonschema"
-            assert channel.message_encoding == "json"
-            assert json.loads(schema.data)["type"] == "object"
-            json.loads(msg.data)
-            topics.add(channel.topic)
-    assert topics == {TOPIC_SCAN, TOPIC_LAB, TOPIC_HEALTH, "/truth/plant"}
 
 
 def test_iter_messages_in_log_time_order(tmp_path: Path) -> None:
@@ -244,7 +175,7 @@ def test_refused_lab_bodies_are_reported_and_skipped(tmp_path: Path, caplog) -> 
     path = tmp_path / "lab.mcap"
     good = {"sample_time_ns": T0, "moisture_out": 0.1, "sample_id": "ok"}
     with DayWriter(path) as w:
-        w.write(TOPIC_SCAN, T0, _scan(0))
+        w.write(TOPIC_SCAN, T0, scan(0))
         w.write(TOPIC_LAB, T0 + 1, {"sample_time_ns": "yesterday", "moisture_out": 0.1,
                                     "sample_id": "a"})
         w.write(TOPIC_LAB, T0 + 2, {"sample_time_ns": T0, "moisture_out": None,
@@ -253,7 +184,7 @@ def test_refused_lab_bodies_are_reported_and_skipped(tmp_path: Path, caplog) -> 
         w.write(TOPIC_LAB, T0 + 4, {"sample_time_ns": T0, "moisture_out": math.inf,
                                     "sample_id": "d"})  # written as null
         w.write(TOPIC_LAB, T0 + 5, good)
-        w.write(TOPIC_SCAN, T0 + PERIOD, _scan(1))
+        w.write(TOPIC_SCAN, T0 + PERIOD, scan(1))
     with caplog.at_level("WARNING", logger="softsensor.recording.mcap_day"):
         d = read_day(path)
     # never NaN: only the good result is kept, and nothing else is lost
@@ -272,25 +203,3 @@ def test_refused_lab_bodies_are_reported_and_skipped(tmp_path: Path, caplog) -> 
         got = [(topic, t) for topic, t, _ in iter_messages(path)]
     assert got == [(TOPIC_SCAN, T0), (TOPIC_LAB, T0 + 5), (TOPIC_SCAN, T0 + PERIOD)]
     assert caplog.text.count("lab result skipped") == 4
-
-
-def test_writer_flush_makes_data_readable_before_close(tmp_path: Path) -> None:
-    path = tmp_path / "open.mcap"
-    w = DayWriter(path)
-    try:
-        for i in range(10):
-            w.write(TOPIC_SCAN, T0 + i * PERIOD, _scan(i))
-        w.flush()
-        d = read_day(path, allow_truncated=True)
-        assert d.truncated and len(d.scans) == 10
-    finally:
-        w.close()
-    assert not read_day(path).truncated
-    w.close()  # idempotent
-    with pytest.raises(ValueError):
-        w.write(TOPIC_SCAN, T0, {})
-
-
-def test_write_error_names_file(tmp_path: Path) -> None:
-    with pytest.raises(IngestError, match="nodir"):
-        DayWriter(tmp_path / "nodir" / "x.mcap")

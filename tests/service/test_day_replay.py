@@ -18,7 +18,7 @@ from softsensor.bus.zenoh_bus import (
     wait_for_peers,
 )
 from softsensor.errors import ConfigError, IngestError
-from softsensor.recording.mcap_day import DayWriter
+from softsensor.recording.day_writer import DayWriter
 from softsensor.service.day_replay import parse_rate, parse_time, replay_day
 from softsensor.signals import TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 

@@ -11,11 +11,12 @@ import pytest
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError, EstimationError
+from softsensor.estimate import Estimate
 from softsensor.estimation.interface import LabResult, Window
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config, plant_config_from_dict
 from softsensor.service.checkpoint import CheckpointStore
-from softsensor.service.daemon import ScaledClock
+from softsensor.service.clock import ScaledClock
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import make_estimator
 from softsensor.service.logs import JsonFormatter, KeyValueFormatter, event
@@ -41,15 +42,18 @@ class FakeEstimator:
         self.fail_at = fail_at
         self._lab = False
 
-    def tick(self, window: Window) -> dict[str, Any]:
+    def tick(self, window: Window) -> Estimate:
         if self.fail_at is not None and window.end_ns == self.fail_at:
             raise EstimationError("covariance lost definiteness")
         self.events.append(("tick", window.end_ns, window.stale, window.n_scans))
         lab, self._lab = self._lab, False
-        return {"moisture_out": 0.1, "moisture_out_std": 0.01, "moisture_in": 1.0,
-                "moisture_in_std": 0.1, "T_dryer_out_model": 348.0,
-                "T_cyclone_out_model": math.nan, "nis": math.nan, "lab_updated": lab,
-                "status": "stale" if window.stale else "ok", "detail": "fake"}
+        return Estimate.from_body({
+            "moisture_out": 0.1, "moisture_out_std": 0.01, "moisture_in": 1.0,
+            "moisture_in_std": 0.1, "T_dryer_out_model": 348.0,
+            "T_cyclone_out_model": math.nan, "nis": math.nan, "nis_dof": 0, "lab_updated": lab,
+            "status": "stale" if window.stale else "ok", "detail": "fake",
+            "window_start_ns": window.start_ns, "window_end_ns": window.end_ns,
+            "estimator": self.kind})
 
     def add_lab(self, lab: LabResult) -> str | None:
         self.events.append(("lab", lab.sample_id))
@@ -94,13 +98,13 @@ def test_a_window_is_ticked_once_a_scan_tick_delay_past_its_end_arrives() -> Non
     out = feed(svc, [("scan", T0 + 630 * S, GOOD)])
     assert ticks(out) == [600]
     est = next(o for o in out if o.kind == "estimate")
-    assert est.time_ns == T0 + 600 * S and est.body["n_scans"] == 60
-    assert est.body["stale"] is False and est.body["unit"] == "dryer1"
+    assert est.time_ns == T0 + 600 * S and est.to_body()["n_scans"] == 60
+    assert est.to_body()["stale"] is False and est.to_body()["unit"] == "dryer1"
     # NaN never reaches the bus nor the operator outputs: the body is made JSON-able once,
     # every field (not a list of six), before anything judges or serves it
-    assert est.body["T_cyclone_out_model"] is None and est.body["nis"] is None
+    assert est.to_body()["T_cyclone_out_model"] is None and est.to_body()["nis"] is None
     assert [o.kind for o in out] == ["estimate", "health"]
-    assert out[1].body["status"] == "ok" and out[1].time_ns == est.time_ns
+    assert out[1].to_body()["status"] == "ok" and out[1].time_ns == est.time_ns
 
 
 def test_gaps_and_sparse_windows_are_stale() -> None:
@@ -130,7 +134,7 @@ def test_lab_results_reach_the_estimator_by_log_time_whatever_the_arrival_order(
         fake = FakeEstimator()
         svc = EstimatorService(fake, tick_delay_s=30.0)
         outs = feed(svc, msgs)
-        results.append((fake.events, [o.body for o in outs if o.kind == "estimate"]))
+        results.append((fake.events, [o.to_body() for o in outs if o.kind == "estimate"]))
         assert svc.stats.labs_accepted == 2 and svc.stats.labs_refused == 1
     assert results[0] == results[1]
     events = results[0][0]
@@ -145,12 +149,12 @@ def test_malformed_scans_and_labs_are_counted_not_fatal() -> None:
     assert svc.stats.bad_scans == 1 and svc.stats.scans == 0
     # a refused lab result is told in health at once, not at the next tick
     (h,) = svc.on_lab({"moisture_out": 0.1, "sample_id": "X"}, T0)
-    assert h.kind == "health" and "sample_time_ns" in h.body["last_lab_refusal"]
+    assert h.kind == "health" and "sample_time_ns" in h.to_body()["last_lab_refusal"]
     (h,) = svc.on_lab(lab("Y", 10, value=math.inf), T0 + 20 * S)
-    assert h.body["labs_refused"] == 2 and h.body["last_lab_refusal_ns"] == T0 + 20 * S
+    assert h.to_body()["labs_refused"] == 2 and h.to_body()["last_lab_refusal_ns"] == T0 + 20 * S
     assert svc.stats.labs_refused == 2
     svc.on_scan(T0 + 20 * S, GOOD)
-    health = svc._health(T0 + 20 * S).body
+    health = svc._health(T0 + 20 * S).to_body()
     assert "not finite" in health["last_lab_refusal"] and health["labs_refused"] == 2
 
 
@@ -158,7 +162,7 @@ def test_a_failing_estimator_degrades_health_and_the_service_goes_on() -> None:
     svc = EstimatorService(FakeEstimator(fail_at=T0 + 1200 * S), tick_delay_s=0.0)
     out = feed(svc, (("scan", t, b) for t, b in scans(10, 1810)))
     assert ticks(out) == [600, 1800]
-    failed = [o.body for o in out if o.kind == "health" and o.time_ns == T0 + 1200 * S]
+    failed = [o.to_body() for o in out if o.kind == "health" and o.time_ns == T0 + 1200 * S]
     assert failed[0]["status"] == "degraded" and "covariance" in failed[0]["detail"]
     assert svc.stats.failed_ticks == 1
 
@@ -169,20 +173,20 @@ def test_a_failing_estimator_degrades_health_and_the_service_goes_on() -> None:
 def test_health_on_every_tick_and_on_input_changes_only() -> None:
     svc = EstimatorService(FakeEstimator(), tick_delay_s=0.0)
     first = svc.on_scan(T0 + 10 * S, GOOD)
-    assert [o.body["status"] for o in first] == ["stale"]  # no window yet
-    assert "first complete window" in first[0].body["detail"]
+    assert [o.to_body()["status"] for o in first] == ["stale"]  # no window yet
+    assert "first complete window" in first[0].to_body()["detail"]
     assert feed(svc, (("scan", t, b) for t, b in scans(20, 600))) == []  # nothing changed
     out = svc.on_scan(T0 + 610 * S, GOOD)
-    assert [(o.kind, o.body.get("status")) for o in out] == [("estimate", "ok"), ("health", "ok")]
+    assert [(o.kind, o.status) for o in out] == [("estimate", "ok"), ("health", "ok")]
     quality = {"T_air_in": "not_connected: no connection to 127.0.0.1:502"}
     out = svc.on_scan(T0 + 620 * S, dict(GOOD, T_air_in=None, quality=quality))
     (h,) = out
-    assert h.kind == "health" and h.body["status"] == "degraded"
-    assert h.body["input_status"] == "degraded" and h.body["tick_status"] == "ok"
-    assert "T_air_in (not_connected: no connection" in h.body["detail"]
+    assert h.kind == "health" and h.to_body()["status"] == "degraded"
+    assert h.to_body()["input_status"] == "degraded" and h.to_body()["tick_status"] == "ok"
+    assert "T_air_in (not_connected: no connection" in h.to_body()["detail"]
     assert svc.on_scan(T0 + 630 * S, dict(GOOD, T_air_in=None)) == []  # same state
     (h,) = svc.on_scan(T0 + 640 * S, GOOD)
-    assert h.body["status"] == "ok"
+    assert h.to_body()["status"] == "ok"
 
 
 def test_silence_turns_health_stale_and_closes_gap_windows() -> None:
@@ -190,10 +194,10 @@ def test_silence_turns_health_stale_and_closes_gap_windows() -> None:
     feed(svc, (("scan", t, b) for t, b in scans(10, 650)))
     assert svc.advance(T0 + 700 * S) == []  # 50 s of silence: not yet
     (h,) = svc.advance(T0 + 720 * S)
-    assert h.body["status"] == "stale" and "no scans for 70 s" in h.body["detail"]
+    assert h.to_body()["status"] == "stale" and "no scans for 70 s" in h.to_body()["detail"]
     out = svc.advance(T0 + 1900 * S)
     assert ticks(out) == [1200, 1800]
-    stale = [o.body for o in out if o.kind == "estimate"]
+    stale = [o.to_body() for o in out if o.kind == "estimate"]
     assert all(b["stale"] for b in stale) and [b["n_scans"] for b in stale] == [5, 0]
     assert svc.advance(T0 + 1900 * S) == []
 
@@ -207,38 +211,38 @@ def test_refused_lab_files_count_and_lab_silence_degrades_health() -> None:
     feed(svc, (("scan", t, b) for t, b in scans(10, 1200)))
     (h,) = svc.lab_file_refused("lims.csv row 2: column 'Moisture' holds no number", T0 + 1205 * S)
     assert h.kind == "health" and h.time_ns == T0 + 1205 * S
-    assert h.body["labs_refused"] == 1 and h.body["lab_files_refused"] == 1
-    assert h.body["last_lab_refusal"] == ("lab file refused: lims.csv row 2: column 'Moisture' "
-                                          "holds no number")
-    assert h.body["status"] == "ok" and h.body["lab_status"] == "ok"  # not silent for long yet
+    assert h.to_body()["labs_refused"] == 1 and h.to_body()["lab_files_refused"] == 1
+    assert h.last_lab_refusal == ("lab file refused: lims.csv row 2: column 'Moisture' "
+                                  "holds no number")
+    assert h.status == "ok" and h.lab.status == "ok"  # not silent for long yet
     out = feed(svc, (("scan", t, b) for t, b in scans(1210, 3610)))
-    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"  # 3600 s: not yet
+    assert [o.to_body()["status"] for o in out if o.kind == "health"][-1] == "ok"  # 3600 s: not yet
     (h,) = svc.on_scan(T0 + 3620 * S, GOOD)  # said when it happens, not at the next tick
-    assert h.body["status"] == "degraded" and h.body["lab_status"] == "degraded"
+    assert h.to_body()["status"] == "degraded" and h.to_body()["lab_status"] == "degraded"
     out = feed(svc, (("scan", t, b) for t, b in scans(3630, 4210)))
     est, h = out[-2:]
-    assert est.kind == "estimate" and est.body["status"] == "ok"  # the estimator's verdict
-    assert h.body["status"] == "degraded" and h.body["lab_status"] == "degraded"
+    assert est.kind == "estimate" and est.to_body()["status"] == "ok"  # the estimator's verdict
+    assert h.to_body()["status"] == "degraded" and h.to_body()["lab_status"] == "degraded"
     assert "no lab result accepted for 1.2 h since the first scan (service.max_lab_silence_h " \
-           "1)" in h.body["detail"]
-    assert "last lab refusal: lab file refused: lims.csv row 2" in h.body["detail"]
+           "1)" in h.to_body()["detail"]
+    assert "last lab refusal: lab file refused: lims.csv row 2" in h.to_body()["detail"]
     # a checkpoint carries the lab clock and the last refusal
     again = EstimatorService(FakeEstimator(), tick_delay_s=0.0, max_lab_silence_s=3600.0)
     again.restore(json.loads(json.dumps(svc.checkpoint())))
-    assert h.body["detail"] in again._health(T0 + 4200 * S).body["detail"]
+    assert h.to_body()["detail"] in again._health(T0 + 4200 * S).to_body()["detail"]
     # an accepted result: ok again, and the silence counts from it
     out = feed(again, [("lab", T0 + 4300 * S, lab("A", 4000)),
                        *(("scan", t, b) for t, b in scans(4210, 4810))])
-    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"
+    assert [o.to_body()["status"] for o in out if o.kind == "health"][-1] == "ok"
     assert again.stats.labs_accepted == 1
     out = feed(again, (("scan", t, b) for t, b in scans(4820, 8500)))
-    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "degraded"
-    assert "since the last one" in out[-1].body["detail"]
+    assert [o.to_body()["status"] for o in out if o.kind == "health"][-1] == "degraded"
+    assert "since the last one" in out[-1].to_body()["detail"]
     # off (None): never degraded for want of labs
     quiet = EstimatorService(FakeEstimator(), tick_delay_s=0.0)
     out = feed(quiet, (("scan", t, b) for t, b in scans(10, 8000)))
-    assert [o.body["status"] for o in out if o.kind == "health"][-1] == "ok"
-    assert {o.body["lab_status"] for o in out if o.kind == "health"} == {"ok"}
+    assert [o.to_body()["status"] for o in out if o.kind == "health"][-1] == "ok"
+    assert {o.to_body()["lab_status"] for o in out if o.kind == "health"} == {"ok"}
 
 
 # --- checkpoints ----------------------------------------------------------------------------
@@ -277,8 +281,8 @@ def test_a_restored_ukf_service_continues_bit_for_bit(short_day, tmp_path) -> No
     second = EstimatorService(make_estimator("ukf", cfg))
     second.restore(doc["service"], where=str(store.path))
     got += feed(second, msgs[cut:]) + second.flush()
-    assert [(o.kind, o.time_ns, o.body) for o in got if o.kind == "estimate"] == \
-        [(o.kind, o.time_ns, o.body) for o in expected if o.kind == "estimate"]
+    assert [(o.kind, o.time_ns, o.to_body()) for o in got if o.kind == "estimate"] == \
+        [(o.kind, o.time_ns, o.to_body()) for o in expected if o.kind == "estimate"]
     assert second.stats.ticks == whole.stats.ticks
 
     other = EstimatorService(make_estimator("openloop", cfg))

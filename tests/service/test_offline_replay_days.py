@@ -21,7 +21,8 @@ import pytest
 from softsensor.cli import main as cli_main
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
-from softsensor.recording.mcap_day import DayWriter, iter_messages
+from softsensor.recording.day_writer import DayWriter
+from softsensor.recording.mcap_day import iter_messages
 from softsensor.signals import TOPIC_ESTIMATE
 
 H = 3600 * 10**9

@@ -68,18 +68,21 @@ def test_a_refused_lab_file_reaches_health_metrics_page_and_status_line(tmp_path
                 lab_dir.mkdir(exist_ok=True)
                 (lab_dir / "lims-0800.csv").write_text(
                     "sample_time,moisture_out,sample_id\n2026-01-05T08:00:00Z,\"0,104\",L1\n")
-                while not any(h.body.get("last_lab_refusal") for h in health):
+                while not any(h.to_body().get("last_lab_refusal") for h in health):
                     assert loop.time() < deadline and not task.done()
                     await asyncio.sleep(0.05)
-                got["refused"] = next(h.body for h in health if h.body.get("last_lab_refusal"))
-                while not (health[-1].body["lab_status"] == "degraded"
-                           and daemon.web is not None and daemon.web.snapshot()[0]):
+                got["refused"] = next(h.to_body() for h in health
+                                      if h.to_body().get("last_lab_refusal"))
+                while not (health[-1].to_body()["lab_status"] == "degraded"
+                           and "web" in daemon.outputs and daemon.outputs["web"].snapshot()[0]):
                     assert loop.time() < deadline and not task.done()
                     await asyncio.sleep(0.05)
-                got["degraded"] = health[-1].body
+                got["degraded"] = health[-1].to_body()
                 await asyncio.sleep(0.4)  # a status line after the refusal
-                got["metrics"] = await asyncio.to_thread(scrape_metrics, daemon.metrics.port)
-                base = f"http://127.0.0.1:{daemon.web.port}/"
+                outputs = daemon.outputs
+                got["metrics"] = await asyncio.to_thread(scrape_metrics,
+                                                         outputs["prometheus"].port)
+                base = f"http://127.0.0.1:{outputs['web'].port}/"
                 got["latest"] = json.loads(await asyncio.to_thread(
                     lambda: urllib.request.urlopen(base + "api/latest.json", timeout=5).read()))
                 got["dom"] = await asyncio.to_thread(chromium_dom, base)

@@ -4,10 +4,11 @@ suite where an engine answers ``docker info``, built and run.
 Checked: a slim Python base that satisfies ``requires-python``; a non-root user; the package
 installed from the copied sources; every COPY source exists and is not excluded by
 ``.dockerignore``; the entry point is a ``[project.scripts]`` command and, with CMD, parses as
-a ``softsensor run`` command line; the config file CMD names is shipped by the repository (via
-a COPY) and loads; ``NUMBA_CACHE_DIR`` is set and created for the user; /config and /data are
-volumes. The build test builds FROM a local Debian base when Docker Hub is out of reach
-(the Dockerfile's BASE argument) and skips, saying why, where no engine or base is there.
+a ``softsensor run`` command line; the config file CMD names is the reference plant (the
+package's copy, which ``config/`` links to, via a COPY) and loads; ``NUMBA_CACHE_DIR`` is set
+and created for the user; /config and /data are volumes. The build test builds FROM a local
+Debian base when Docker Hub is out of reach (the Dockerfile's BASE argument) and skips,
+saying why, where no engine or base is there.
 """
 
 from __future__ import annotations
@@ -189,7 +190,8 @@ def test_entry_point_and_cmd_are_a_valid_softsensor_run_command() -> None:
     assert args.verb == "run"
     repo_config = container_to_repo(args.config)
     assert repo_config is not None, f"no COPY puts a file at {args.config}"
-    assert repo_config.relative_to(ROOT).parts[0] == "config"
+    # the reference plant: the one copy, the package's, that the repository's config/ links to
+    assert repo_config.resolve() == (ROOT / "config" / "dryer1.toml").resolve()
     assert load_plant_config(repo_config).unit.name == "dryer1"
 
 

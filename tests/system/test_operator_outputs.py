@@ -50,11 +50,13 @@ def test_the_daemon_serves_its_estimates_on_every_output(tmp_path):
                     assert asyncio.get_running_loop().time() < deadline and not task.done()
                     await asyncio.sleep(0.05)
                 got["info"] = up[0]
-                got["registers"], _, _ = await modbus_read(daemon.modbus_out.port)
-                got["metrics"] = await asyncio.to_thread(scrape_metrics, daemon.metrics.port)
-                got["opcua"] = await opcua_read(daemon.opcua.endpoint,
+                outputs = daemon.outputs
+                got["registers"], _, _ = await modbus_read(outputs["modbus"].port)
+                got["metrics"] = await asyncio.to_thread(scrape_metrics,
+                                                         outputs["prometheus"].port)
+                got["opcua"] = await opcua_read(outputs["opcua"].endpoint,
                                                 ["moisture_out", "health"])
-                url = f"http://127.0.0.1:{daemon.web.port}/api/latest.json"
+                url = f"http://127.0.0.1:{outputs['web'].port}/api/latest.json"
                 got["web"] = json.loads(await asyncio.to_thread(
                     lambda: urllib.request.urlopen(url, timeout=5).read()))
                 got["last"] = estimates[-1]
@@ -70,7 +72,7 @@ def test_the_daemon_serves_its_estimates_on_every_output(tmp_path):
     # the registers hold an estimate the daemon published (the last one, or one tick before)
     assert w[15] >= 3 and (w[12] << 16 | w[13]) * 10**9 <= last.time_ns
     if (w[12] << 16 | w[13]) * 10**9 == last.time_ns:
-        assert register_float(w, "moisture_out") == np.float32(last.body["moisture_out"])
+        assert register_float(w, "moisture_out") == np.float32(last.moisture_out)
     assert 0.0 < register_float(w, "moisture_out") < 1.0 and w[14] in (0, 1)
     assert m["softsensor_ticks_total"] >= 3 and m["softsensor_scans_total"] > 0
     assert m["softsensor_poller_read_failures_total"] == 0

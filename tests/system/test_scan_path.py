@@ -198,6 +198,7 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
     not through the worker's queue, since the watchdog speaks when the worker is stuck."""
     import threading
 
+    from softsensor.estimate import Health
     from softsensor.service.bus_worker import ServicePipeline, _Call
     from softsensor.service.estimator_service import Output
 
@@ -209,13 +210,13 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
             inside[0] += 1
             most[0] = max(most[0], inside[0])
         time.sleep(0.001)  # long enough for the other thread to come in, were it let
-        seen.append(out.body["n"])
+        seen.append(out.time_ns)
         with lock:
             inside[0] -= 1
 
     class Talking:
         def advance(self, now_ns):
-            return [Output("health", {"status": "ok", "n": now_ns}, now_ns)]
+            return [Health.from_body({"status": "ok"}, now_ns)]
 
     stuck = threading.Event()
     with open_session(port=None) as session:
@@ -224,13 +225,13 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
             for k in range(200):
                 pipe.advance(k)
             for k in range(200):
-                assert pipe.publish_aside(Output("health", {"status": "stale", "n": -k}, 0))
+                assert pipe.publish_aside(Health.from_body({"status": "stale"}, -k))
             pipe.sync(timeout=DEADLINE)
             assert most[0] == 1 and len(seen) == 400, (most, len(seen))
             # a worker stuck inside the estimator does not silence the aside path
             pipe._q.put(_Call(lambda: stuck.wait(30)))
             t0 = time.monotonic()
-            assert pipe.publish_aside(Output("health", {"status": "stale", "n": -999}, 0))
+            assert pipe.publish_aside(Health.from_body({"status": "stale"}, -999))
             assert seen[-1] == -999 and time.monotonic() - t0 < 1.0
         finally:
             stuck.set()

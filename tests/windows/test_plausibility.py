@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 
 from softsensor.errors import ConfigError
+from softsensor.estimate import Estimate
 from softsensor.messages import Window
 from softsensor.plantconfig import load_plant_config, plant_config_from_dict
 from softsensor.service.estimator_service import EstimatorService
@@ -86,6 +87,16 @@ def test_a_plausibility_table_changes_a_limit_and_is_checked():
     unknown = plant_config_from_dict({**raw, "plausibility": {"T_foo": {}}}, "site.toml")
     with pytest.raises(ConfigError, match=r"plausibility\.T_foo is not a known key \(known: h"):
         plausibility_from_config(unknown)
+    # a signal's table is read as the one SignalLimits it becomes (no second dataclass of the
+    # same keys): its errors name the dotted key
+    for table, match in [({"hihg": 700.0}, r"plausibility\.T_air_in\.hihg is not a known key "
+                                           r"\(known: low, high, max_rate, max_step\)"),
+                         (5, r"\[plausibility\.T_air_in\] must be a table, got int"),
+                         ({"max_rate": -1.0}, r"plausibility\.T_air_in\.max_rate must be >= 0"),
+                         ({"low": "x"}, r"plausibility\.T_air_in\.low must be a number")]:
+        wrong = plant_config_from_dict({**raw, "plausibility": {"T_air_in": table}}, "site.toml")
+        with pytest.raises(ConfigError, match=match):
+            plausibility_from_config(wrong)
 
 
 def _raw_config(cfg) -> dict[str, Any]:
@@ -103,8 +114,10 @@ class _Says:
     def __init__(self, body: dict[str, Any]) -> None:
         self.body = body
 
-    def tick(self, window: Window) -> dict[str, Any]:
-        return dict(self.body, status="stale" if window.stale else "ok", detail="fine")
+    def tick(self, window: Window) -> Estimate:
+        return Estimate.from_body(dict(self.body, status="stale" if window.stale else "ok",
+                                       detail="fine", window_start_ns=window.start_ns,
+                                       window_end_ns=window.end_ns, estimator=self.kind))
 
     def add_lab(self, lab) -> None:
         return None
@@ -134,7 +147,7 @@ def test_an_unphysical_estimate_is_never_ok(change, why):
                                                   (0.3, 2.5)))
     out = [o for t in range(10, 640, 10) for o in svc.on_scan(T0 + t * S, dict(GOOD))]
     i = next(i for i, o in enumerate(out) if o.kind == "estimate")
-    est, health = out[i].body, out[i + 1].body  # the health published with the tick
+    est, health = out[i].to_body(), out[i + 1].to_body()  # the health published with the tick
     assert est["status"] == health["status"] == "degraded"
     assert est["detail"].startswith("not physical: " + why), est["detail"]
     assert svc.stats.unphysical_ticks == 1

@@ -6,12 +6,12 @@ here only; Python code fills ``p`` by name through :func:`new_parameters`.
 
 March state (per kg of dry fibre or dry gas):
 
-======= =================================================================== ==============
+======= ================================================================== ===============
 ``IX``  fibre moisture, dry basis                                          kg/kg
 ``IE``  fibre enthalpy (solid + water + sorption term)                     J/kg dry fibre
 ``IU``  fibre (floc) velocity; constant in the cyclone                     m/s
 ``IQ``  heat given to the wall or shell since the stream's start           J/kg dry gas
-======= =================================================================== ==============
+======= ================================================================== ===============
 
 The gas humidity and enthalpy are not integrated: they follow from the conserved totals
 (``Y = Y0 - r (X - X0)``, ``e_g = E0 - r e_f - q`` with ``r = m_fiber / m_gas``), so water and

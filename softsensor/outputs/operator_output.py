@@ -1,0 +1,76 @@
+"""Where operators look: one interface for the web page, Modbus, OPC UA and Prometheus.
+
+The daemon hands every estimate, health and lab result it publishes to each running
+:class:`OperatorOutput`, in the order it publishes them, on the estimator's thread (an output
+hands the work to its own server's thread or loop and returns at once). :func:`operator_outputs`
+builds the ones the ``[outputs.*]`` tables enable, each with its settings given to its
+constructor; the daemon starts them, fans out to them in one loop and stops them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from typing import Protocol
+
+from softsensor.estimate import Estimate, Health
+from softsensor.messages import LabResult
+from softsensor.outputs.metrics import DaemonMetrics
+from softsensor.outputs.modbus_server import EstimateModbusServer
+from softsensor.outputs.settings import OutputSettings
+from softsensor.outputs.web import LivePage
+from softsensor.presentation.display import DisplaySettings
+
+
+class OperatorOutput(Protocol):
+    """What the daemon needs of an operator output (module docstring)."""
+
+    #: The ``[outputs.<name>]`` table it serves.
+    name: str
+
+    async def start(self) -> str:
+        """Start serving (in the daemon's event loop); what it serves (a URL). A port in use
+        is a one-line :class:`~softsensor.errors.ConfigError` naming the table."""
+        ...
+
+    async def stop(self) -> None:
+        """Stop serving (idempotent)."""
+        ...
+
+    def on_estimate(self, estimate: Estimate) -> None:
+        """Serve a new estimate (from any thread)."""
+        ...
+
+    def on_health(self, health: Health) -> None:
+        """A new health (between estimates too)."""
+        ...
+
+    def on_lab(self, lab: LabResult) -> None:
+        """A lab result the daemon published."""
+        ...
+
+
+def operator_outputs(settings: OutputSettings, display: DisplaySettings, unit: str, *,
+                     clock: Callable[[], int], time_scale: float,
+                     counters: Mapping[str, tuple[str, Callable[[], float]]],
+                     tick_seconds: Callable[[], float | None]) -> list[OperatorOutput]:
+    """The outputs the tables enable, in the order they start: Modbus, Prometheus, OPC UA,
+    the web page. ``clock``: the plant's clock [ns]; ``time_scale``: plant seconds per wall
+    second; ``counters``: the daemon's counters for Prometheus (name -> help, reader);
+    ``tick_seconds``: the wall time of the last tick [s]."""
+    out: list[OperatorOutput] = []
+    if settings.modbus.enabled:
+        out.append(EstimateModbusServer(settings.modbus, display))
+    if settings.prometheus.enabled:
+        out.append(DaemonMetrics(settings.prometheus, counters, unit=unit, display=display,
+                                 tick_seconds=tick_seconds))
+    if settings.opcua.enabled:
+        # asyncua takes a second to import: only a daemon that serves OPC UA pays it
+        from softsensor.outputs.opcua_server import EstimateOpcUaServer
+
+        out.append(EstimateOpcUaServer(settings.opcua, display, unit))
+    if settings.web.enabled:
+        out.append(LivePage(settings.web, display, unit, clock=clock, time_scale=time_scale))
+    return out
+
+
+__all__ = ["OperatorOutput", "operator_outputs"]
