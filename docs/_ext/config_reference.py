@@ -95,8 +95,9 @@ FILES: tuple[ConfigFile, ...] = (
          Table("plausibility", "softsensor.windows.plausibility.PlausibilityTable",
                "``hold_s`` and one sub-table per scan signal, whose keys replace that "
                "signal's default limits (the table below).", subtables=False),
-         Table("plausibility.<signal>", "softsensor.windows.plausibility.LimitsChange",
-               also=("softsensor.windows.plausibility.SignalLimits",)),
+         Table("plausibility.<signal>", "softsensor.windows.plausibility.SignalLimits",
+               "Every key is optional here: each one given replaces that signal's default "
+               "(the defaults table below), and the result is checked as one table."),
          Table("lab", "softsensor.ingest.historian_map.LabMap",
                "The LIMS file's layout for the daemon's lab folder: the same table as a "
                "historian map's ``[lab]``."),

@@ -152,7 +152,7 @@ def _replay(args: argparse.Namespace) -> int:
                              allow_truncated=args.allow_truncated, settings=settings,
                              progress=None if args.quiet else _every(5.0),
                              checkpoint_in=args.checkpoint_in,
-                             checkpoint_out=args.checkpoint_out)
+                             checkpoint_out=args.checkpoint_out, via_zenoh=args.via_zenoh)
     print(summary.line(), file=sys.stderr, flush=True)
     problem = summary.problem()
     if problem is not None and problem[0] == "error":
@@ -185,8 +185,8 @@ def _every(seconds: float) -> Callable[[int, int], None]:
 def _add_replay(sub: argparse._SubParsersAction) -> None:
     from softsensor.estimation.settings import ESTIMATOR_KINDS
 
-    p = sub.add_parser("replay", help="replay recorded days through Zenoh and the estimator "
-                                      "into one MCAP file")
+    p = sub.add_parser("replay", help="replay recorded days through the estimator into one "
+                                      "MCAP file")
     p.add_argument("days", nargs="+", metavar="DAY.mcap",
                    help="recorded day(s), in time order: several run as one stream, the "
                         "estimator's state carried across them as the daemon does")
@@ -208,6 +208,9 @@ def _add_replay(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint-out", default=None, metavar="FILE",
                    help="leave the estimator's checkpoint here (before the last partial "
                         "window is flushed): the next day's replay starts from it")
+    p.add_argument("--via-zenoh", action="store_true",
+                   help="go over two Zenoh sessions on loopback, as the daemon's bus does, "
+                        "instead of in memory (the same estimates, slower)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     p.set_defaults(func=_replay)
 

@@ -7,10 +7,13 @@ bodies of the matching MCAP topics plus ``time_ns``, the event time [ns since ep
 Sessions are configured explicitly (:func:`make_config`): peer mode by default, listening on
 ``127.0.0.1`` only, multicast scouting off, optional ``connect`` endpoints (e.g. a router).
 Zenoh runs subscriber callbacks on its own threads; :func:`subscribe` decodes there and calls
-the user's callback (which must not block: hand the message on, as the estimator service's
-pipeline queues it for its worker thread). Nothing uses a FIFO channel that could fill up and
-stall the session. Always close sessions (``with open_session(...) as s:``): a session left
-open keeps the process alive.
+the user's callback (which must not block: hand the message on, as the estimator's worker
+queues it for its thread). Nothing uses a FIFO channel that could fill up and stall the
+session. Always close sessions (``with open_session(...) as s:``): a session left open keeps
+the process alive.
+
+:class:`ZenohInput` and :class:`Publisher` are the estimator worker's input and output sides
+on Zenoh (:mod:`softsensor.bus.transport`, where the message type and the key kinds live).
 """
 
 from __future__ import annotations
@@ -22,26 +25,16 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import zenoh
 
+from softsensor.bus.transport import INPUT_KINDS, KINDS, BusMessage, Receive, encode_payload
 from softsensor.errors import ConfigError, IngestError
 from softsensor.log_throttle import Throttle, outside_text
-from softsensor.messages import encode_body
-from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN, zenoh_key
+from softsensor.signals import zenoh_key
 
 log = logging.getLogger(__name__)
-
-#: Zenoh key kinds (CONTRACT section 3) and the MCAP topic each one is recorded under.
-KIND_TOPIC: dict[str, str] = {
-    "scan": TOPIC_SCAN,
-    "lab": TOPIC_LAB,
-    "estimate": TOPIC_ESTIMATE,
-    "health": TOPIC_HEALTH,
-}
-TOPIC_KIND: dict[str, str] = {topic: kind for kind, topic in KIND_TOPIC.items()}
-KINDS: tuple[str, ...] = tuple(KIND_TOPIC)
 
 MODES: tuple[str, ...] = ("peer", "client", "router")
 DEFAULT_HOST = "127.0.0.1"
@@ -241,11 +234,6 @@ def wait_for_peers(session: zenoh.Session, n: int = 1, timeout: float = 5.0,
 # Payloads (pure)
 
 
-def encode_payload(body: dict[str, Any], time_ns: int) -> bytes:
-    """JSON payload of a bus message: ``body`` plus ``time_ns`` [ns since epoch]; NaN -> null."""
-    return encode_body({**body, "time_ns": int(time_ns)})
-
-
 def decode_payload(data: bytes, key: str = "payload") -> dict[str, Any]:
     """Decode a bus payload into a dict; :class:`IngestError` naming ``key`` if it is not one."""
     try:
@@ -266,22 +254,6 @@ def kind_of_key(key: str, unit: str = "dryer1") -> str:
     raise IngestError(f"{outside_text(key)}: not a softsensor key of unit {unit!r}")
 
 
-class BusMessage(NamedTuple):
-    """A decoded bus message. ``time_ns`` is the body's event time [ns] (None if absent);
-    ``nbytes`` the size of its payload (what a queue of messages is bounded by)."""
-
-    kind: str
-    key: str
-    body: dict[str, Any]
-    time_ns: int | None
-    nbytes: int = 0
-
-    @property
-    def topic(self) -> str:
-        """MCAP topic this message is recorded under."""
-        return KIND_TOPIC[self.kind]
-
-
 def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
     """Decode a sample's key and payload (pure; :class:`IngestError` if malformed)."""
     kind = kind_of_key(key, unit)
@@ -298,7 +270,8 @@ def to_message(key: str, data: bytes, unit: str = "dryer1") -> BusMessage:
 
 
 class Publisher:
-    """Publishes JSON bodies on the CONTRACT keys of one unit.
+    """Publishes JSON bodies on the CONTRACT keys of one unit (also a worker's output side on
+    Zenoh, :class:`~softsensor.bus.transport.OutputSide`).
 
     ``put(kind, body, time_ns)`` adds ``time_ns`` (the event time [ns since epoch]; the wall
     clock when omitted) and sends the body on ``zenoh_key(kind, unit)``. Close it (or use it as
@@ -452,16 +425,73 @@ def subscribe(session: zenoh.Session, callback: Callable[[BusMessage], None], *,
     return subscription
 
 
+class ZenohInput:
+    """A worker's input side on a Zenoh session
+    (:class:`~softsensor.bus.transport.InputSide`): one subscriber on ``plant/<unit>/*``
+    delivering decoded scan and lab messages.
+
+    A single subscriber, rather than one per key, keeps the messages of one publishing session
+    in the order they were put: Zenoh runs the callbacks of different subscribers on different
+    threads, which can let a lab result overtake (or fall behind) the scans around it.
+    Malformed payloads and other keys are logged and counted in ``n_errors``; a payload over
+    ``max_bytes`` is refused before it is decoded (a 5 MB "scan" must not cost a JSON parse).
+    ``receive`` runs on Zenoh's thread.
+    """
+
+    def __init__(self, session: zenoh.Session, unit: str = "dryer1") -> None:
+        self.session = session
+        self.unit = unit
+        self.n_received = 0
+        self.n_errors = 0
+        self.max_bytes: int | None = None
+        self._on_too_large: Callable[[], None] | None = None
+        self._throttle = Throttle()
+        self._receive: Receive | None = None
+        self._sub: zenoh.Subscriber[None] | None = None
+
+    def open(self, receive: Receive, *, max_bytes: int | None = None,
+             on_too_large: Callable[[], None] | None = None, sized: bool = False) -> None:
+        """Declare the subscriber (``sized`` costs nothing here: a payload has a length)."""
+        if self._receive is not None:
+            raise RuntimeError("this input side is open already")
+        self.max_bytes, self._on_too_large = max_bytes, on_too_large
+        self._receive = receive
+        self._sub = self.session.declare_subscriber(f"plant/{self.unit}/*", self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        if self.max_bytes is not None and len(sample.payload) > self.max_bytes:
+            if self._on_too_large is not None:
+                self._on_too_large()
+            return
+        assert self._receive is not None  # (declared by open, after it is set)
+        try:
+            message = to_message(key, sample.payload.to_bytes(), self.unit)
+            if message.kind not in INPUT_KINDS:
+                raise IngestError(f"{outside_text(key)}: not an input key")
+            self._receive(message)
+        except Exception as exc:  # noqa: BLE001 - must not escape into zenoh's thread
+            self.n_errors += 1  # (a flood of them is a few lines, with counts)
+            self._throttle.log(log, "bad input", logging.WARNING, "%s", outside_text(exc))
+            return
+        self.n_received += 1
+
+    def close(self) -> None:
+        """Undeclare the subscriber (idempotent)."""
+        sub, self._sub = self._sub, None
+        if sub is not None:
+            try:
+                sub.undeclare()
+            except zenoh.ZError:  # session already closed
+                pass
+
+
 __all__ = [
     "output_guard_acl",
-    "KINDS",
-    "KIND_TOPIC",
-    "TOPIC_KIND",
-    "BusMessage",
     "Publisher",
     "Subscription",
+    "ZenohInput",
     "decode_payload",
-    "encode_payload",
     "free_port",
     "kind_of_key",
     "listening_endpoints",

@@ -8,7 +8,7 @@ runs one until SIGTERM or SIGINT, then closes its files cleanly.
 
 In the daemon the recorder keeps to the estimator's input limits (issue 31 item 1: a peer's
 60 kB scans, 1,171 of 1,294 dropped by the rate limiter, were all recorded, 35 MB in 10 s): it
-subscribes to the outputs only, and the inputs reach it from the pipeline once admitted
+subscribes to the outputs only, and the inputs reach it from the worker once admitted
 (:meth:`BusRecorder.record`); what the limits drop is recorded as counts in health
 (``inputs_dropped``), not as bodies. And however the peers share those limits, each topic
 grows a day file by at most ``max_topic_bytes_per_day``: beyond it messages of that topic are
@@ -28,7 +28,9 @@ from collections.abc import Callable, Iterable, Sequence
 
 import zenoh
 
-from softsensor.bus.zenoh_bus import KINDS, BusMessage, open_session, subscribe
+from softsensor.bus.memory import MemoryBus, MemorySubscription
+from softsensor.bus.transport import KINDS, BusMessage
+from softsensor.bus.zenoh_bus import Subscription, open_session, subscribe
 from softsensor.errors import SoftsensorError
 from softsensor.jsonable import dumps
 from softsensor.log_throttle import Throttle
@@ -39,7 +41,8 @@ log = logging.getLogger(__name__)
 
 
 class BusRecorder:
-    """Records the CONTRACT keys of ``unit`` from a Zenoh session into a :class:`Recorder`.
+    """Records the CONTRACT keys of ``unit`` from a bus into a :class:`Recorder`: a Zenoh
+    session, or a :class:`~softsensor.bus.memory.MemoryBus` (``replay``; its own unit).
 
     Each message is written under its MCAP topic with its ``time_ns`` as the log time (the
     receive time when absent), ``time_ns`` itself removed from the body. A background thread
@@ -52,7 +55,8 @@ class BusRecorder:
     file (None: no bound).
     """
 
-    def __init__(self, session: zenoh.Session, recorder: Recorder, *, unit: str = "dryer1",
+    def __init__(self, session: zenoh.Session | MemoryBus, recorder: Recorder, *,
+                 unit: str = "dryer1",
                  kinds: Iterable[str] = KINDS, tick_s: float = 1.0,
                  gate: Callable[[int], str | None] | None = None,
                  max_topic_bytes_per_day: int | None = None) -> None:
@@ -61,20 +65,22 @@ class BusRecorder:
         self.capped: dict[str, int] = {}  #: messages not recorded today, per topic (the cap)
         self._day = -1
         self._day_bytes: dict[str, int] = {}
-        self._count_lock = threading.Lock()  # Zenoh's threads and the pipeline's record
+        self._count_lock = threading.Lock()  # Zenoh's threads and the worker's record
         # messages stamped impossibly (before 2000; far from the daemon's clock when it has
         # one) are not recorded: a day file named by a peer's bad clock, or a chunk broken by
         # a negative time, would lose what is real
         self.gate = gate or TimeGate(None)
         self.refused = 0
         self._stop = threading.Event()
-        self.subscription = subscribe(session, self._on_message, unit=unit, kinds=kinds)
+        self.subscription: Subscription | MemorySubscription = (
+            session.subscribe(self._on_message, kinds) if isinstance(session, MemoryBus)
+            else subscribe(session, self._on_message, unit=unit, kinds=kinds))
         self._ticker = threading.Thread(target=self._tick_loop, args=(tick_s,),
                                         name="recorder-tick", daemon=True)
         self._ticker.start()
 
     def record(self, message: BusMessage) -> None:
-        """Record ``message`` as if it had come on the bus (the pipeline's admitted inputs)."""
+        """Record ``message`` as if it had come on the bus (the worker's admitted inputs)."""
         self._on_message(message)
 
     def _within_cap(self, topic: str, file_ns: int, body: dict) -> bool:
@@ -136,7 +142,7 @@ class BusRecorder:
 
     def close(self) -> None:
         """Stop recording (idempotent)."""
-        self.subscription.close()  # (what the pipeline hands on after this is still written)
+        self.subscription.close()  # (what the worker hands on after this is still written)
         self._stop.set()
         self._ticker.join(timeout=5.0)
 

@@ -1,20 +1,25 @@
-"""Zenoh wiring of the estimator service: subscribe, step on one thread, publish.
+"""The estimator's worker: take input messages from a bus, step on one thread, send outputs.
 
-:class:`ServicePipeline` subscribes to ``plant/<unit>/scan`` and ``plant/<unit>/lab`` (one
-subscriber, :class:`InputSubscription`, so one source's messages keep their order) and hands
-every message, in arrival order, to an :class:`~softsensor.service.estimator_service.
-EstimatorService` running on one worker thread (Zenoh's callback threads only enqueue; a tick
-of the filter takes tens of milliseconds and must not hold them up). What the service returns is
-published on ``softsensor/<unit>/estimate`` and ``softsensor/<unit>/health``; after every
+:class:`BusWorker` hands every scan and lab message its input side delivers, in arrival order,
+to an :class:`~softsensor.service.estimator_service.EstimatorService`, and sends what the
+service returns through its output side (``estimate`` and ``health``); after every
 ``checkpoint_every`` ticks the service state is written through a
-:class:`~softsensor.service.checkpoint.CheckpointStore`. The daemon and the ``replay`` verb
-both use this class, so they run the same path.
+:class:`~softsensor.service.checkpoint.CheckpointStore`. The sides are the interfaces of
+:mod:`softsensor.bus.transport`: on Zenoh (:func:`zenoh_sides`: the daemon, ``replay
+--via-zenoh``) or in memory (:mod:`softsensor.bus.memory`: ``replay``, tests), so the daemon
+and the replay run the same worker.
+
+On Zenoh the service runs on the worker's own thread: Zenoh's callback threads only enqueue (a
+tick of the filter takes tens of milliseconds and must not hold them up), within the input
+limits (:class:`InputLimits`). Behind a memory input the worker can run each message on the
+thread that puts it (``thread=False``): the sender has nothing else to do, and nothing is
+queued, handed between threads or waited for.
 
 One path feeds the bus and the outputs: the worker's results, and what the daemon says from
 its own thread (the watchdog's ``stalled`` health, the recorder's state) through
-:meth:`ServicePipeline.publish_aside`, one message at a time with the worker's, so an
-operator's screen never shows an older state after a newer one. (Not through the worker's
-queue: the watchdog speaks when the worker is stuck.)
+:meth:`BusWorker.publish_aside`, one message at a time with the worker's, so an operator's
+screen never shows an older state after a newer one. (Not through the worker's queue: the
+watchdog speaks when the worker is stuck.)
 """
 
 from __future__ import annotations
@@ -29,17 +34,15 @@ from typing import Any
 
 import zenoh
 
-from softsensor.bus.zenoh_bus import BusMessage, Publisher, to_message
-from softsensor.errors import IngestError, SoftsensorError
+from softsensor.bus.transport import OUTPUT_KINDS, BusMessage, InputSide, OutputSide
+from softsensor.bus.zenoh_bus import Publisher, ZenohInput
+from softsensor.errors import SoftsensorError
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
 
 log = logging.getLogger(__name__)
-
-INPUT_KINDS: tuple[str, ...] = ("scan", "lab")
-OUTPUT_KINDS: tuple[str, ...] = ("estimate", "health")
 
 
 class _Call:
@@ -88,41 +91,49 @@ class _Bucket:
         return True
 
 
-class ServicePipeline:
-    """Runs an :class:`EstimatorService` behind Zenoh (module docstring).
+class BusWorker:
+    """Runs an :class:`EstimatorService` between an input and an output side (module
+    docstring).
 
     Parameters
     ----------
-    session : zenoh.Session
-        Open session; the pipeline declares its subscribers and publishers on it.
     service : EstimatorService
         The sans-I/O core (already restored from a checkpoint if resuming).
+    inputs : InputSide
+        Where the scan and lab messages come from; the worker opens it, with its limits.
+    outputs : OutputSide
+        Where the estimate and health messages go.
     unit : str
-        Unit of the keys.
+        Unit of the checkpoints.
     checkpoints : CheckpointStore, optional
         Where to write the service state; None = never.
     checkpoint_every : int
         Ticks between checkpoints.
     on_output : callable, optional
-        Called on the worker thread with every :class:`Output` after it was published.
+        Called on the worker thread with every :class:`Output` after it was sent.
     limits : InputLimits, optional
         Queue bound, a rate per input kind and message size (drop and count beyond them);
         unbounded by default (a replay feeds a recorded day as fast as it can).
     decorate : callable, optional
-        Called with every :class:`Output` before it is published; what it returns is published
-        (the daemon adds what the service cannot know to health: the recorder's state).
+        Called with every :class:`Output` before it is sent; what it returns is sent (the
+        daemon adds what the service cannot know to health: the recorder's state).
     on_admitted : callable, optional
-        Called (on a Zenoh thread) with every input message the limits admitted: the
+        Called (on the input side's thread) with every input message the limits admitted: the
         daemon's recorder, so it records what the estimator takes and nothing it refused.
+    thread : bool
+        Run the service on the worker's own thread (default). False: on the thread that
+        delivers each message or calls the worker, nothing queued (a memory input, module
+        docstring; never on Zenoh, whose threads must not wait for a tick).
     """
 
-    def __init__(self, session: zenoh.Session, service: EstimatorService, *,
+    def __init__(self, service: EstimatorService, inputs: InputSide, outputs: OutputSide, *,
                  unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
                  limits: InputLimits | None = None,
                  decorate: Callable[[Output], Output] | None = None,
-                 on_admitted: Callable[[BusMessage], None] | None = None) -> None:
+                 on_admitted: Callable[[BusMessage], None] | None = None,
+                 thread: bool = True) -> None:
         self.service = service
         self.on_admitted = on_admitted
         self.decorate = decorate
@@ -130,10 +141,9 @@ class ServicePipeline:
         self.checkpoints = checkpoints
         self.checkpoint_every = max(1, int(checkpoint_every))
         self.on_output = on_output
-        self.publisher = Publisher(session, unit)
-        self.publisher.declare(OUTPUT_KINDS)
+        self.publisher = outputs  #: the output side
         self.n_in = 0  #: scan and lab messages processed
-        self.n_out = 0  #: estimate and health messages published
+        self.n_out = 0  #: estimate and health messages sent
         self.n_errors = 0  #: messages whose processing raised
         self.last_tick_s: float | None = None  #: wall time of the last message that ticked
         self.last_tick_at: float = time.monotonic()  #: when the last estimate went out
@@ -144,7 +154,7 @@ class ServicePipeline:
         self._abandoned = False
         self._pending = 0  # input messages queued and not yet processed
         self._pending_bytes = 0  # and their payload bytes
-        self._pending_lock = threading.Lock()  # Zenoh's threads add, the worker removes
+        self._pending_lock = threading.Lock()  # the input's threads add, the worker removes
         self._buckets = {kind: _Bucket(rate, self.limits.burst)
                          for kind, rate in self.limits.rates_per_s.items()}
         self._drop_logged = 0.0
@@ -152,17 +162,21 @@ class ServicePipeline:
         self._ticks_unsaved = 0
         self._out_lock = threading.Lock()  # one message at a time to the bus and outputs
         self._q: queue.SimpleQueue[Any] = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
-        self._thread.start()
+        self._thread: threading.Thread | None = None
+        if thread:
+            self._thread = threading.Thread(target=self._loop, name="estimator", daemon=True)
+            self._thread.start()
         self.n_labs_received = 0  #: lab messages received (enqueued) so far
-        self.subscription = InputSubscription(session, self._enqueue, unit,
-                                              max_bytes=self.limits.max_bytes,
-                                              on_too_large=lambda: self._drop("too_large"))
+        self.subscription = inputs  #: the input side
+        inputs.open(self._enqueue, max_bytes=self.limits.max_bytes,
+                    on_too_large=lambda: self._drop("too_large"),
+                    sized=self.limits.max_queue_bytes is not None)
         self._closed = False
 
     def _enqueue(self, message: BusMessage) -> None:
-        """Zenoh callback: queue the message for the worker thread, or drop and count it when
-        its source is over its rate or the queue is full (the thread must never starve)."""
+        """The input side's callback: queue the message for the worker thread (or run it,
+        without one), or drop and count it when its source is over its rate or the queue is
+        full (the thread must never starve)."""
         if message.kind == "lab":
             self.n_labs_received += 1
         bucket = self._buckets.get(message.kind)
@@ -181,7 +195,14 @@ class ServicePipeline:
             return
         if self.on_admitted is not None:
             self.on_admitted(message)  # before the worker can make an output of it
-        self._q.put(message)
+        self._hand(message)
+
+    def _hand(self, item: Any) -> None:
+        """Queue ``item`` for the worker's thread; without one, run it now."""
+        if self._thread is None:
+            self._run(item)
+        else:
+            self._q.put(item)
 
     def _drop(self, reason: str) -> None:
         self.dropped[reason] += 1
@@ -201,30 +222,34 @@ class ServicePipeline:
             item = self._q.get()
             if item is _STOP or self._abandoned:  # abandoned: the session is gone
                 return
-            if isinstance(item, _Call):
-                try:
-                    item.result = item.fn()
-                except BaseException as exc:  # noqa: BLE001 - handed to the caller
-                    item.error = exc
-                item.done.set()
-                continue
-            with self._pending_lock:
-                self._pending -= 1
-                self._pending_bytes -= item.nbytes
-            if self._skip_inputs:
-                self.dropped["shutdown"] += 1
-                continue
+            self._run(item)
+
+    def _run(self, item: _Call | BusMessage) -> None:
+        """Run a call, or hand a message to the service and send its outputs."""
+        if isinstance(item, _Call):
             try:
-                t0 = time.perf_counter()
-                outputs = self.service.on_message(item.kind, item.body, item.time_ns)
-                if any(o.kind == "estimate" for o in outputs):
-                    self.last_tick_s = time.perf_counter() - t0
-                self._publish(outputs)
-            except Exception:  # noqa: BLE001 - one bad message must not stop the service
-                self.n_errors += 1
-                self._throttle.log(log, "processing", logging.ERROR,
-                                   "processing %s message failed", item.kind, exc_info=True)
-            self.n_in += 1
+                item.result = item.fn()
+            except BaseException as exc:  # noqa: BLE001 - handed to the caller
+                item.error = exc
+            item.done.set()
+            return
+        with self._pending_lock:
+            self._pending -= 1
+            self._pending_bytes -= item.nbytes
+        if self._skip_inputs:
+            self.dropped["shutdown"] += 1
+            return
+        try:
+            t0 = time.perf_counter()
+            outputs = self.service.on_message(item.kind, item.body, item.time_ns)
+            if any(o.kind == "estimate" for o in outputs):
+                self.last_tick_s = time.perf_counter() - t0
+            self._publish(outputs)
+        except Exception:  # noqa: BLE001 - one bad message must not stop the service
+            self.n_errors += 1
+            self._throttle.log(log, "processing", logging.ERROR,
+                               "processing %s message failed", item.kind, exc_info=True)
+        self.n_in += 1
 
     def _publish(self, outputs: list[Output]) -> None:
         with self._out_lock:
@@ -234,7 +259,7 @@ class ServicePipeline:
             self._save()
 
     def _emit(self, out: Output) -> None:
-        """Decorate, publish and hand ``out`` to the hook (holding ``_out_lock``)."""
+        """Decorate, send and hand ``out`` to the hook (holding ``_out_lock``)."""
         if self.decorate is not None:
             out = self.decorate(out)
         self.publisher.put(out.kind, out.to_body(), out.time_ns)
@@ -269,7 +294,7 @@ class ServicePipeline:
 
     # ------------------------------------------------------------------ public API
     def publish_aside(self, out: Output, timeout: float = 1.0) -> bool:
-        """Publish ``out`` from another thread than the worker (the daemon's watchdog and
+        """Send ``out`` from another thread than the worker (the daemon's watchdog and
         recorder news) through the worker's path (decorated, on the bus, to the hook), one
         message at a time with the worker's (module docstring). False, and nothing
         published, when the worker held the path for ``timeout`` seconds."""
@@ -286,7 +311,7 @@ class ServicePipeline:
     def call(self, fn: Callable[[], Any], timeout: float = 60.0) -> Any:
         """Run ``fn`` on the worker thread after every message queued so far; its result."""
         c = _Call(fn)
-        self._q.put(c)
+        self._hand(c)
         if not c.done.wait(timeout):
             raise TimeoutError(f"estimator thread did not answer within {timeout:g} s")
         if c.error is not None:
@@ -307,7 +332,7 @@ class ServicePipeline:
                                    "advancing the estimator to %d failed", now_ns,
                                    exc_info=True)
 
-        self._q.put(_Call(run))
+        self._hand(_Call(run))
 
     def lab_file_refused(self, reason: str, time_ns: int) -> None:
         """Queue the news of a lab file refused by the daemon's folder (``reason``, at
@@ -321,14 +346,14 @@ class ServicePipeline:
                 self._throttle.log(log, "lab file", logging.ERROR,
                                    "telling a refused lab file failed", exc_info=True)
 
-        self._q.put(_Call(run))
+        self._hand(_Call(run))
 
     def sync(self, timeout: float = 60.0) -> None:
         """Wait until every message queued so far has been processed."""
         self.call(lambda: None, timeout)
 
     def flush(self, timeout: float = 60.0) -> None:
-        """Tick every window left (end of a recorded day) and publish the results."""
+        """Tick every window left (end of a recorded day) and send the results."""
         self.call(lambda: self._publish(self.service.flush()), timeout)
 
     def save_checkpoint(self, timeout: float = 60.0) -> None:
@@ -358,66 +383,24 @@ class ServicePipeline:
             event(log, "estimator_abandoned", logging.ERROR, waited_s=timeout,
                   pending=self.pending)
         finally:
-            self._q.put(_STOP)
-            self._thread.join(0 if stuck else timeout)
+            if self._thread is not None:
+                self._q.put(_STOP)
+                self._thread.join(0 if stuck else timeout)
             self.publisher.close()
 
-    def __enter__(self) -> ServicePipeline:
+    def __enter__(self) -> BusWorker:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
 
 
-class InputSubscription:
-    """One Zenoh subscriber on ``plant/<unit>/*`` delivering decoded scan and lab messages.
-
-    A single subscriber, rather than one per key, keeps the messages of one publishing session
-    in the order they were put: Zenoh runs the callbacks of different subscribers on different
-    threads, which can let a lab result overtake (or fall behind) the scans around it.
-    Malformed payloads and other keys are logged and counted in ``n_errors``.
-    """
-
-    def __init__(self, session: zenoh.Session, callback: Callable[[BusMessage], None],
-                 unit: str, *, max_bytes: int | None = None,
-                 on_too_large: Callable[[], None] | None = None) -> None:
-        self.unit = unit
-        self.n_received = 0
-        self.n_errors = 0
-        self.max_bytes = max_bytes
-        self._on_too_large = on_too_large
-        self._throttle = Throttle()
-        self._callback = callback
-        self._sub: zenoh.Subscriber[None] | None = session.declare_subscriber(
-            f"plant/{unit}/*", self._on_sample)
-
-    def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = str(sample.key_expr)
-        if self.max_bytes is not None and len(sample.payload) > self.max_bytes:
-            # refused before decoding: a 5 MB "scan" must not cost a JSON parse
-            if self._on_too_large is not None:
-                self._on_too_large()
-            return
-        try:
-            message = to_message(key, sample.payload.to_bytes(), self.unit)
-            if message.kind not in INPUT_KINDS:
-                raise IngestError(f"{outside_text(key)}: not an input key")
-            self._callback(message)
-        except Exception as exc:  # noqa: BLE001 - must not escape into zenoh's thread
-            self.n_errors += 1  # (a flood of them is a few lines, with counts)
-            self._throttle.log(log, "bad input", logging.WARNING, "%s", outside_text(exc))
-            return
-        self.n_received += 1
-
-    def close(self) -> None:
-        """Undeclare the subscriber (idempotent)."""
-        sub, self._sub = self._sub, None
-        if sub is not None:
-            try:
-                sub.undeclare()
-            except zenoh.ZError:  # session already closed
-                pass
+def zenoh_sides(session: zenoh.Session, unit: str = "dryer1") -> tuple[ZenohInput, Publisher]:
+    """A worker's input and output sides on ``session`` for ``unit``; the output keys are
+    declared at once, so that subscribers (the recorder, a peer) are matched early."""
+    publisher = Publisher(session, unit)
+    publisher.declare(OUTPUT_KINDS)
+    return ZenohInput(session, unit), publisher
 
 
-__all__ = ["INPUT_KINDS", "OUTPUT_KINDS", "BusMessage", "InputLimits", "InputSubscription",
-           "ServicePipeline"]
+__all__ = ["BusWorker", "InputLimits", "zenoh_sides"]

@@ -5,7 +5,7 @@
 else). Inside one process, around one embedded Zenoh session (peer on ``127.0.0.1`` by
 default, optionally connected to a router)::
 
-    ModbusPoller --ScanPublisher--> plant/<unit>/scan ---+--> ServicePipeline (estimator thread)
+    ModbusPoller --ScanPublisher--> plant/<unit>/scan ---+--> BusWorker (estimator thread)
     LabFolderWatcher --LabInput---> plant/<unit>/lab  ---+      | estimate, health
     (other publishers, e.g. a LIMS) plant/<unit>/lab  ---+      v
                                     softsensor/<unit>/{estimate,health}
@@ -35,6 +35,7 @@ from typing import Any
 
 import zenoh
 
+from softsensor.bus.transport import INPUT_KINDS, OUTPUT_KINDS
 from softsensor.bus.zenoh_bus import (
     Publisher,
     free_port,
@@ -62,7 +63,7 @@ from softsensor.presentation.display import (
 from softsensor.recording.recorder import Recorder
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.bus_worker import INPUT_KINDS, OUTPUT_KINDS, InputLimits, ServicePipeline
+from softsensor.service.bus_worker import BusWorker, InputLimits, zenoh_sides
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
 from softsensor.service.estimator_service import EstimatorService, Output
@@ -169,7 +170,7 @@ class Daemon:
         self.tagmap = daemon_tagmap(settings, tagmap)
         self.resume = resume
         self.store = CheckpointStore(settings.checkpoint)
-        self.pipeline: ServicePipeline | None = None
+        self.pipeline: BusWorker | None = None
         self.poller: ModbusPoller | None = None
         self.lab_input: LabInput | None = None
         self.recorder: Recorder | None = None
@@ -444,21 +445,22 @@ class Daemon:
         stack.push_async_callback(_stop_poller)
         return poll_task
 
-    def _pipeline(self, session: zenoh.Session, service: EstimatorService) -> ServicePipeline:
-        """The estimator thread behind the bus, with the input limits of ``[service]`` (rates
-        in plant time, so per wall second they scale with ``time_scale``) and its watchdog."""
+    def _pipeline(self, session: zenoh.Session, service: EstimatorService) -> BusWorker:
+        """The estimator's worker on the Zenoh session, with the input limits of ``[service]``
+        (rates in plant time, so per wall second they scale with ``time_scale``) and its
+        watchdog."""
         s = self.settings
         limits = InputLimits(
             max_queue=s.max_queue, max_queue_bytes=s.max_queue_bytes,
             max_bytes=s.max_message_bytes,
             rates_per_s={"scan": s.max_scan_rate_hz * s.time_scale,
                          "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
-        pipeline = ServicePipeline(session, service, unit=self.unit, checkpoints=self.store,
-                                   checkpoint_every=s.checkpoint_every,
-                                   on_output=self._on_output, limits=limits,
-                                   decorate=self._decorate,
-                                   on_admitted=None if self.bus_recorder is None
-                                   else self.bus_recorder.record)
+        pipeline = BusWorker(service, *zenoh_sides(session, self.unit), unit=self.unit,
+                             checkpoints=self.store, checkpoint_every=s.checkpoint_every,
+                             on_output=self._on_output, limits=limits,
+                             decorate=self._decorate,
+                             on_admitted=None if self.bus_recorder is None
+                             else self.bus_recorder.record)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,

@@ -10,7 +10,8 @@ time, ``60`` = one hour per minute) or ``"max"`` (as fast as the sink takes them
 :func:`replay_day` is bounded (by the day, ``end`` and ``max_messages``) and stoppable (a
 :class:`threading.Event`; from asyncio run it in ``asyncio.to_thread`` and set the event).
 It publishes through any ``sink(kind, body, time_ns)``, e.g. :meth:`Publisher.put
-<softsensor.bus.zenoh_bus.Publisher.put>`, so tests need no network.
+<softsensor.bus.zenoh_bus.Publisher.put>` or :meth:`MemoryBus.put
+<softsensor.bus.memory.MemoryBus.put>`, so tests need no network.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-from softsensor.bus.zenoh_bus import TOPIC_KIND
+from softsensor.bus.transport import TOPIC_KIND
 from softsensor.errors import ConfigError
 from softsensor.recording.mcap_day import iter_messages
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN

@@ -1,21 +1,31 @@
-"""The streaming path, offline: a recorded day through Zenoh into one estimates file.
+"""The streaming path, offline: a recorded day through the estimator into one estimates file.
 
-``softsensor replay DAY.mcap --out EST.mcap`` (CONTRACT section 4) runs::
+``softsensor replay DAY.mcap --out EST.mcap`` (CONTRACT section 4) runs, in one thread::
 
-    replay_day(DAY) -> plant session --Zenoh/TCP loopback--> service session
-        -> ServicePipeline (EstimatorService + estimator) -> estimate, health on Zenoh
-        -> BusRecorder -> EST.mcap (the replayed scans and labs, the estimates, the health)
+    DayStream(DAY) -> replay_messages -> MemoryBus -> BusRecorder -> EST.mcap
+                                  scan, lab |  ^ estimate, health
+                                            v  |
+                              BusWorker (EstimatorService + estimator)
 
-Two Zenoh sessions on 127.0.0.1 (free ports, scouting off) stand for the plant side and the
-daemon, so the bytes cross a real Zenoh link. Estimates are a function of the day alone: the
+The bus is in memory (:mod:`softsensor.bus.memory`): each scan or lab result is recorded and
+then stepped through the service, whose estimates and health are recorded, before the next
+message is read. Nothing is queued, nothing crosses a thread, nothing is waited for, so the
+messages reach the service in log-time order. Estimates are a function of the day alone: the
 service orders lab results and ticks by log time (see :mod:`.estimator_service`), provided
-each lab result reaches it before the scans logged after it. At rate ``max`` that cannot be
-left to Zenoh's threads, so after publishing a lab result the replayer waits until the
-pipeline has queued it (a few per day, microseconds each). Replaying the same day twice, or
+each lab result reaches it before the scans logged after it. Replaying the same day twice, or
 replaying what the daemon recorded live, gives the same estimates.
 
-Several days (``softsensor replay day1.mcap day2.mcap ...``) go through the same two sessions
-and the same estimator as one stream, as the daemon lives them: the state carries across the
+``--via-zenoh`` (``via_zenoh=True``) keeps the real wire: two Zenoh sessions on 127.0.0.1
+(free ports, scouting off) stand for the plant side and the daemon, the worker runs on its own
+thread behind the service session's subscriber as in the daemon, and the recorder subscribes
+to all four keys. At rate ``max`` the lab order cannot be left to Zenoh's threads, so after
+publishing a lab result the replayer waits until the worker has received it (a few per day,
+microseconds each), and at the end until everything is recorded. Both paths give the same
+estimates and record the same messages (the conformance test in
+``tests/service/test_offline_replay.py``).
+
+Several days (``softsensor replay day1.mcap day2.mcap ...``) go through the same bus and the
+same estimator as one stream, as the daemon lives them: the state carries across the
 boundaries, and the hours between two days are a gap in the scans, which the service handles
 as it does live (:mod:`.estimator_service`). The days must follow each other in time
 (:func:`check_order`). ``checkpoint_in`` starts the estimator from a checkpoint in the daemon's
@@ -40,12 +50,11 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
+from softsensor.bus.memory import MemoryBus, MemoryInput, MemoryOutput
+from softsensor.bus.transport import INPUT_KINDS
 from softsensor.bus.zenoh_bus import (
     Publisher,
     listening_endpoints,
@@ -60,10 +69,11 @@ from softsensor.recording.day_writer import DEFAULT_CHUNK_SIZE, DayWriter
 from softsensor.recording.mcap_day import iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.bus_worker import INPUT_KINDS, ServicePipeline
+from softsensor.service.bus_worker import BusWorker, zenoh_sides
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
+from softsensor.service.replay_summary import DayPart, ReplaySummary
 from softsensor.service.settings import ServiceSettings, service_settings
 from softsensor.service.warmup import warm_up
 from softsensor.signals import TOPIC_LAB, TOPIC_SCAN, TOPIC_TRUTH
@@ -99,116 +109,6 @@ class FileRecorder:
     def close(self) -> None:
         with self._lock:
             self._writer.close()
-
-
-@dataclass
-class ReplaySummary:
-    """What a replay did. Times in ns since the epoch, durations in seconds.
-
-    ``wall_s`` is the streaming alone; ``warmup_s`` the estimator's warm-up before it
-    (:mod:`.warmup`: numba compiling or loading its kernels).
-    """
-
-    day: Path
-    out: Path
-    estimator: str
-    scan_period_s: float = math.nan
-    min_good: int = 0
-    expected_scans: int = 0
-    n_replayed: int = 0
-    n_recorded: int = 0
-    ticks: int = 0
-    stale_ticks: int = 0
-    lab_updates: int = 0
-    labs_accepted: int = 0
-    labs_refused: int = 0
-    span_s: float = 0.0
-    wall_s: float = 0.0
-    warmup_s: float = 0.0
-    rmse: dict[str, float] | None = None
-    #: values per signal the plausibility limits refused, over the whole day
-    inputs_refused: dict[str, int] = field(default_factory=dict)
-    #: per signal, the first window's reason (the first value refused and the limits)
-    inputs_refused_why: dict[str, str] = field(default_factory=dict)
-    estimates: list[tuple[int, dict[str, Any]]] = field(default_factory=list, repr=False)
-    parts: list[DayPart] = field(default_factory=list)
-
-    @property
-    def speedup(self) -> float:
-        """Recorded time span over wall time [-]."""
-        return self.span_s / self.wall_s if self.wall_s > 0 else math.inf
-
-    def problem(self) -> tuple[str, str] | None:
-        """``("error", why)`` when no tick was estimated from data (every window stale),
-        ``("warning", why)`` when more than half were stale, else None."""
-        if self.ticks == 0:
-            return "error", f"{self.day}: no window was ticked (is the day shorter than one?)"
-        share = self.stale_ticks / self.ticks
-        if share < 0.5:
-            return None
-        refused = self._refused_inputs()
-        if refused:
-            why = f"{self.stale_ticks} of {self.ticks} windows stale: {refused}"
-        else:
-            why = (f"{self.stale_ticks} of {self.ticks} windows stale: a window needs "
-                   f"{self.min_good} good scans of every model input out of the "
-                   f"{self.expected_scans} expected at the scan period {self.scan_period_s:g} "
-                   f"s (set solver.scan_period if that is not the day's)")
-        if self.stale_ticks == self.ticks:
-            return "error", f"{self.day}: nothing estimated from data, {why}"
-        return "warning", f"{self.day}: {why}"
-
-    def _refused_inputs(self) -> str | None:
-        """The inputs the plausibility limits refused in more than half the scans of the day
-        expected (what made its windows stale), with why; None when none was."""
-        n_scans = self.ticks * self.expected_scans
-        many = {k: n for k, n in self.inputs_refused.items() if n > 0.5 * n_scans}
-        if not many:
-            return None
-        parts = "; ".join(f"{k}: {n} values refused ({self.inputs_refused_why.get(k, '')})"
-                          for k, n in sorted(many.items(), key=lambda kv: -kv[1]))
-        first = max(many, key=many.__getitem__)
-        return (f"the plausibility limits refused the inputs: {parts} (is the unit of {first} "
-                f"right? softsensor import --preview holds an export against the limits; if "
-                f"the plant runs there, set [plausibility.{first}] in the plant config)")
-
-    def line(self) -> str:
-        """The one-paragraph summary the verb prints."""
-        text = (f"replayed {self.day}: {self.n_replayed} messages over {self.span_s / 3600:.1f} "
-                f"h (scan period {self.scan_period_s:g} s) in {self.wall_s:.1f} s "
-                f"({self.speedup:,.0f}x real time, after a "
-                f"{self.warmup_s:.1f} s warm-up); {self.estimator}: "
-                f"{self.ticks} ticks ({self.stale_ticks} stale), {self.lab_updates} lab "
-                f"updates ({self.labs_accepted} lab results accepted, {self.labs_refused} "
-                f"refused); wrote {self.out} ({self.n_recorded} messages)")
-        if self.rmse:
-            parts = ", ".join(f"{k} {v:.4f}" for k, v in self.rmse.items())
-            text += f"; RMSE against /truth/plant (reporting only): {parts} kg/kg"
-        if len(self.parts) > 1:
-            text += "; per day: " + "; ".join(p.line() for p in self.parts)
-        return text
-
-
-@dataclass
-class DayPart:
-    """One day of a several-day replay: its messages, their log-time span, the estimates
-    whose window ends fall in it (up to the next day's first message) and their RMSE against
-    the day's ``/truth/plant``."""
-
-    day: Path
-    n_replayed: int = 0
-    first_ns: int | None = None
-    last_ns: int | None = None
-    ticks: int = 0
-    rmse: dict[str, float] | None = None
-
-    def line(self) -> str:
-        hours = 0.0 if self.first_ns is None or self.last_ns is None \
-            else (self.last_ns - self.first_ns) / 3.6e12
-        text = f"{self.day}: {self.n_replayed} messages over {hours:.1f} h, {self.ticks} ticks"
-        if self.rmse:
-            text += " (RMSE " + ", ".join(f"{k} {v:.4f}" for k, v in self.rmse.items()) + ")"
-        return text
 
 
 def _wait(cond: Callable[[], bool], progress: Callable[[], int], what: str) -> None:
@@ -300,34 +200,6 @@ def check_order(days: list[Path], allow_truncated: bool = False) -> None:
                               f".. {iso_utc(a1)}): give the days in time order, without overlap")
 
 
-def truth_rmse(truth: list[tuple[int, float, float]],
-               estimates: list[tuple[int, dict[str, Any]]],
-               max_age_s: float = 60.0) -> dict[str, float] | None:
-    """RMSE of ``moisture_out`` and ``moisture_in`` estimates against the ``/truth/plant``
-    values ``(time, moisture_out, moisture_in)`` (:attr:`DayStream.truth`).
-
-    Each estimate (window end ``t``) is compared with the last truth value at or before ``t``
-    no older than ``max_age_s``. None when the day has no truth. For reporting only.
-    """
-    if not truth:
-        return None
-    tt = np.asarray([t for t, _, _ in truth], dtype=np.int64)
-    values = np.asarray([(mo, mi) for _, mo, mi in truth], dtype=float)
-    out: dict[str, float] = {}
-    for j, name in enumerate(("moisture_out", "moisture_in")):
-        err = []
-        for t, body in estimates:
-            v = body.get(name)
-            i = int(np.searchsorted(tt, t, side="right")) - 1
-            if v is None or i < 0 or t - tt[i] > max_age_s * 1e9 \
-                    or not math.isfinite(values[i, j]):
-                continue
-            err.append(float(v) - values[i, j])
-        if err:
-            out[name] = float(np.sqrt(np.mean(np.square(err))))
-    return out or None
-
-
 def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
                    out: str | os.PathLike[str], cfg: PlantConfig,
                    *, estimator: str | None = None, rate: float | str = "max",
@@ -336,31 +208,80 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
                    report_truth: bool = True,
                    progress: Callable[[int, int], None] | None = None,
                    checkpoint_in: str | os.PathLike[str] | None = None,
-                   checkpoint_out: str | os.PathLike[str] | None = None) -> ReplaySummary:
-    """Replay ``day`` (one recorded day, or several in time order as one stream) through
-    Zenoh and the estimator service into ``out`` (module docstring), starting from the
-    checkpoint ``checkpoint_in`` and leaving one at ``checkpoint_out`` when given.
+                   checkpoint_out: str | os.PathLike[str] | None = None,
+                   via_zenoh: bool = False) -> ReplaySummary:
+    """Replay ``day`` (one recorded day, or several in time order as one stream) through the
+    estimator service into ``out`` (module docstring): in memory, or over two Zenoh sessions
+    on loopback with ``via_zenoh``; starting from the checkpoint ``checkpoint_in`` and leaving
+    one at ``checkpoint_out`` when given.
 
-    ``progress(window_end_ns, ticks)`` is called after every estimate (on the estimator's
-    thread): a long day shows how far it is.
+    ``progress(window_end_ns, ticks)`` is called after every estimate (on the thread that
+    runs the estimator): a long day shows how far it is.
 
     Raises :class:`~softsensor.errors.IngestError` naming the file for a missing, corrupt or
     (without ``allow_truncated``) truncated day, or days out of order;
     :class:`~softsensor.errors.ConfigError` for a checkpoint that cannot be used; ``out`` is
     then not left behind.
     """
+    days, out = _days(day, out, allow_truncated)
+    doc, store_out = _checkpoints(days, out, checkpoint_in, checkpoint_out)
+    settings = settings or service_settings(cfg)
+    start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
+    horizon = int(round(cfg.solver.window * 1e9))
+
+    def stream(d: Path) -> DayStream:
+        return DayStream(d, start_ns, end_ns, allow_truncated=allow_truncated,
+                         truth=report_truth, horizon_ns=horizon)
+
+    reads = [stream(days[0])]
+    try:
+        service = _service(cfg, settings, estimator, reads[0].scan_period_s, doc,
+                           checkpoint_in)
+        before = dataclasses.replace(service.stats)
+        summary = _new_summary(service, days, out)
+        # compile every kernel a tick calls before the first message goes out: a first tick
+        # that compiles holds the estimator for tens of seconds (which the Zenoh path's wait
+        # would call a stall), and the replay's speed is the streaming's
+        summary.warmup_s = warm_up(
+            lambda: make_service(cfg, settings, estimator, reads[0].scan_period_s),
+            cfg).seconds
+        t0 = time.monotonic()
+        stats, n_recorded = _record(
+            _day_messages(summary.parts, reads, stream), out, settings.chunk_size, service,
+            _keeper(summary, progress), rate=rate, checkpoint=store_out, via_zenoh=via_zenoh)
+    finally:
+        for r in reads:
+            r.close()
+    summary.wall_s = time.monotonic() - t0
+    summary.tally(service.stats, before, stats, n_recorded)
+    summary.score({r.day: r.truth for r in reads} if report_truth else {})
+    return summary
+
+
+def _days(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+          out: str | os.PathLike[str], allow_truncated: bool) -> tuple[list[Path], Path]:
+    """The days to replay, each once and in time order, and the output path, checked
+    before anything starts (IngestError naming the file)."""
     days = ([Path(day)] if isinstance(day, (str, os.PathLike))
             else [Path(d) for d in day])
     if not days:
         raise IngestError("no recorded day to replay")
     out = Path(out)
-    start_ns, end_ns = parse_time(start, "--start"), parse_time(end, "--end")
     for d in days:
         _check_paths(d, out)
     if len(set(d.resolve() for d in days)) < len(days):
         raise IngestError("a day is given twice: each day is replayed once, in time order")
     if len(days) > 1:
         check_order(days, allow_truncated)
+    return days, out
+
+
+def _checkpoints(days: list[Path], out: Path,
+                 checkpoint_in: str | os.PathLike[str] | None,
+                 checkpoint_out: str | os.PathLike[str] | None
+                 ) -> tuple[dict | None, CheckpointStore | None]:
+    """The checkpoint document to start from and the store to leave one in (each None when
+    not asked for); ConfigError for a missing one, or one that would overwrite a file."""
     store_out = None
     if checkpoint_out is not None:
         store_out = CheckpointStore(checkpoint_out)
@@ -372,103 +293,81 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
         doc = CheckpointStore(checkpoint_in).load()
         if doc is None:
             raise ConfigError(f"--checkpoint-in {checkpoint_in}: no such file")
-    settings = settings or service_settings(cfg)
-    horizon = int(round(cfg.solver.window * 1e9))
-
-    def stream(d: Path) -> DayStream:
-        return DayStream(d, start_ns, end_ns, allow_truncated=allow_truncated,
-                         truth=report_truth, horizon_ns=horizon)
-
-    reads = [stream(days[0])]
-    try:
-        service = make_service(cfg, settings, estimator, reads[0].scan_period_s)
-        if doc is not None:
-            where = str(checkpoint_in)
-            check_fits(doc, service.unit, service.kind, where)
-            try:
-                service.restore(doc["service"], where=where)
-            except EstimationError as exc:
-                raise ConfigError(str(exc)) from exc
-        before = dataclasses.replace(service.stats)
-        summary = ReplaySummary(day=days[0], out=out, estimator=service.kind,
-                                scan_period_s=service.window.scan_period_s,
-                                min_good=service.window.min_good,
-                                expected_scans=service.window.expected_scans,
-                                parts=[DayPart(d) for d in days])
-        # compile every kernel a tick calls before the first message goes out: a first tick
-        # that compiles holds the estimator thread for tens of seconds, which _wait would call
-        # a stall
-        summary.warmup_s = warm_up(
-            lambda: make_service(cfg, settings, estimator, reads[0].scan_period_s),
-            cfg).seconds
-
-        def _keep(o: Output) -> None:
-            if o.kind == "estimate":
-                summary.estimates.append((o.time_ns, o.to_body()))
-                if progress is not None:
-                    progress(o.time_ns, len(summary.estimates))
-
-        def messages() -> Iterator[tuple[str, int, dict[str, Any]]]:
-            for i, part in enumerate(summary.parts):
-                if i:
-                    try:
-                        reads.append(stream(part.day))
-                    except IngestError as exc:
-                        log.warning("%s", exc)  # nothing of this day in --start .. --end
-                        continue
-                for m in reads[-1].messages():
-                    part.n_replayed += 1
-                    if part.first_ns is None:
-                        part.first_ns = m[1]
-                    part.last_ns = m[1]
-                    yield m
-
-        t0 = time.monotonic()
-        # an interrupted replay (SIGTERM, a corrupt day) leaves an earlier ``out`` as it was
-        with atomic_path(out) as partial:
-            recorder = FileRecorder(partial, chunk_size=settings.chunk_size)
-            try:
-                stats = _stream(messages(), recorder, service, _keep, rate=rate,
-                                checkpoint=store_out)
-            finally:
-                recorder.close()
-    finally:
-        for r in reads:
-            r.close()
-    summary.wall_s = time.monotonic() - t0
-    s = service.stats
-    summary.n_replayed = stats.n_published
-    summary.n_recorded = recorder.n_written
-    summary.ticks, summary.stale_ticks = s.ticks - before.ticks, s.stale_ticks - before.stale_ticks
-    summary.lab_updates = s.lab_updates - before.lab_updates
-    summary.labs_accepted = s.labs_accepted - before.labs_accepted
-    summary.labs_refused = s.labs_refused - before.labs_refused
-    for _t, body in summary.estimates:
-        for name, n in (body.get("inputs_refused") or {}).items():
-            summary.inputs_refused[name] = summary.inputs_refused.get(name, 0) + int(n)
-        for name, why in (body.get("inputs_refused_why") or {}).items():
-            summary.inputs_refused_why.setdefault(name, str(why))
-    if stats.first_ns is not None and stats.last_ns is not None:
-        summary.span_s = (stats.last_ns - stats.first_ns) / 1e9
-    truth = [x for r in reads for x in r.truth]
-    if report_truth:
-        summary.rmse = truth_rmse(truth, summary.estimates)
-    _per_day(summary, reads if report_truth else [])
-    return summary
+    return doc, store_out
 
 
-def _per_day(summary: ReplaySummary, reads: list[DayStream]) -> None:
-    """Each day's estimates (window ends from its first message to the next day's) and, with
-    the days' truth, their RMSE."""
-    parts = [p for p in summary.parts if p.first_ns is not None]
-    truths = {r.day: r.truth for r in reads}
+def _service(cfg: PlantConfig, settings: ServiceSettings, estimator: str | None,
+             scan_period_s: float, doc: dict | None,
+             where: str | os.PathLike[str] | None) -> EstimatorService:
+    """The estimator service of the replay, restored from the checkpoint ``doc`` (read from
+    ``where``) when given; ConfigError when it does not fit."""
+    service = make_service(cfg, settings, estimator, scan_period_s)
+    if doc is not None:
+        check_fits(doc, service.unit, service.kind, str(where))
+        try:
+            service.restore(doc["service"], where=str(where))
+        except EstimationError as exc:
+            raise ConfigError(str(exc)) from exc
+    return service
+
+
+def _new_summary(service: EstimatorService, days: list[Path], out: Path) -> ReplaySummary:
+    """The summary of replaying ``days`` into ``out`` with ``service``, before it starts."""
+    return ReplaySummary(day=days[0], out=out, estimator=service.kind,
+                         scan_period_s=service.window.scan_period_s,
+                         min_good=service.window.min_good,
+                         expected_scans=service.window.expected_scans,
+                         parts=[DayPart(d) for d in days])
+
+
+def _keeper(summary: ReplaySummary,
+            progress: Callable[[int, int], None] | None) -> Callable[[Output], None]:
+    """The worker's output hook: keeps each estimate in ``summary`` and tells ``progress``."""
+    def keep(o: Output) -> None:
+        if o.kind == "estimate":
+            summary.estimates.append((o.time_ns, o.to_body()))
+            if progress is not None:
+                progress(o.time_ns, len(summary.estimates))
+
+    return keep
+
+
+def _day_messages(parts: list[DayPart], reads: list[DayStream],
+                  stream: Callable[[Path], DayStream]
+                  ) -> Iterator[tuple[str, int, dict[str, Any]]]:
+    """The messages of every day in turn, counted in its part; each day after the first is
+    opened when the one before is done (and added to ``reads``)."""
     for i, part in enumerate(parts):
-        lo = part.first_ns
-        hi = parts[i + 1].first_ns if i + 1 < len(parts) else None
-        mine = [(t, b) for t, b in summary.estimates if t > lo and (hi is None or t <= hi)]
-        part.ticks = len(mine)
-        if part.day in truths:
-            part.rmse = truth_rmse(truths[part.day], mine)
+        if i:
+            try:
+                reads.append(stream(part.day))
+            except IngestError as exc:
+                log.warning("%s", exc)  # nothing of this day in --start .. --end
+                continue
+        for m in reads[-1].messages():
+            part.n_replayed += 1
+            if part.first_ns is None:
+                part.first_ns = m[1]
+            part.last_ns = m[1]
+            yield m
+
+
+def _record(messages: Iterator[tuple[str, int, dict[str, Any]]], out: Path, chunk_size: int,
+            service: EstimatorService, on_output: Callable[[Output], None], *,
+            rate: float | str, checkpoint: CheckpointStore | None,
+            via_zenoh: bool) -> tuple[ReplayStats, int]:
+    """Stream ``messages`` through the service into the file ``out``: what was replayed, and
+    the messages written. An interrupted replay (SIGTERM, a corrupt day) leaves an earlier
+    ``out`` as it was."""
+    path = _stream_zenoh if via_zenoh else _stream_memory
+    with atomic_path(out) as partial:
+        recorder = FileRecorder(partial, chunk_size=chunk_size)
+        try:
+            stats = path(messages, recorder, service, on_output, rate=rate,
+                         checkpoint=checkpoint)
+        finally:
+            recorder.close()
+    return stats, recorder.n_written
 
 
 def _check_paths(day: Path, out: Path) -> None:
@@ -482,9 +381,43 @@ def _check_paths(day: Path, out: Path) -> None:
         raise IngestError(f"{day}: no such file")
 
 
-def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileRecorder,
-            service: EstimatorService, on_output: Callable[[Output], None],
-            rate: float | str, checkpoint: CheckpointStore | None = None) -> ReplayStats:
+def _stream_memory(messages: Iterator[tuple[str, int, dict[str, Any]]],
+                   recorder: FileRecorder, service: EstimatorService,
+                   on_output: Callable[[Output], None], *, rate: float | str,
+                   checkpoint: CheckpointStore | None = None) -> ReplayStats:
+    """One in-process bus (:class:`~softsensor.bus.memory.MemoryBus`): each message put at
+    ``rate`` is recorded, then run through the service on this thread, whose outputs are
+    recorded before the next message is put. Nothing is queued or waited for, so the messages
+    reach the service in log-time order by construction. ``checkpoint`` as
+    :func:`_stream_zenoh`."""
+    unit = service.unit
+    bus = MemoryBus(unit)
+    with BusRecorder(bus, recorder, unit=unit):  # subscribed first: an input, then its outputs
+        worker = BusWorker(service, MemoryInput(bus), MemoryOutput(bus), unit=unit,
+                           on_output=on_output, thread=False)
+        try:
+            stats = replay_messages(messages, bus.put, rate=rate)
+            _finish(worker, checkpoint, stats.last_ns)
+        finally:
+            worker.close(checkpoint=False)
+    return stats
+
+
+def _finish(worker: BusWorker, checkpoint: CheckpointStore | None, last_ns: int | None) -> None:
+    """After the last message: the service state to ``checkpoint`` (when given), then the
+    end-of-record flush of the partly filled last window (module docstring)."""
+    service = worker.service
+    if checkpoint is not None:
+        worker.call(lambda: checkpoint.save(
+            service.checkpoint(), saved_at_ns=service.now_ns or last_ns or 1,
+            unit=service.unit))
+    worker.flush()
+
+
+def _stream_zenoh(messages: Iterator[tuple[str, int, dict[str, Any]]],
+                  recorder: FileRecorder, service: EstimatorService,
+                  on_output: Callable[[Output], None], *, rate: float | str,
+                  checkpoint: CheckpointStore | None = None) -> ReplayStats:
     """Two Zenoh sessions on loopback, the plant's publishing ``messages`` at ``rate`` and the
     service's estimating and recording; returns once every message and estimate is
     recorded. ``checkpoint``: where the service state is saved after the last message, before
@@ -499,7 +432,8 @@ def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileR
                 raise SoftsensorError("replay: the Zenoh sessions did not connect on "
                                       "loopback within 10 s")
             bus = BusRecorder(svc_session, recorder, unit=unit)
-            pipeline = ServicePipeline(svc_session, service, unit=unit, on_output=on_output)
+            worker = BusWorker(service, *zenoh_sides(svc_session, unit), unit=unit,
+                               on_output=on_output)
             publisher = Publisher(plant_session, unit)
             try:
                 publisher.declare(INPUT_KINDS)
@@ -509,29 +443,23 @@ def _stream(messages: Iterator[tuple[str, int, dict[str, Any]]], recorder: FileR
 
                 def _sink(kind: str, body: dict[str, Any], time_ns: int) -> None:
                     publisher.put(kind, body, time_ns)
-                    if kind == "lab":  # the next scan must not overtake it (see below)
+                    if kind == "lab":  # the next scan must not overtake it (module docstring)
                         labs_sent[0] += 1
-                        _wait(lambda: pipeline.n_labs_received >= labs_sent[0],
-                              lambda: pipeline.n_labs_received, "a lab result")
+                        _wait(lambda: worker.n_labs_received >= labs_sent[0],
+                              lambda: worker.n_labs_received, "a lab result")
 
                 stats = replay_messages(messages, _sink, rate=rate)
                 n = stats.n_published
-                _wait(lambda: pipeline.n_in >= n and bus.n_received >= n,
-                      lambda: pipeline.n_in + bus.n_received, "the replayed messages")
-                if checkpoint is not None:
-                    last = stats.last_ns
-                    pipeline.call(lambda: checkpoint.save(
-                        service.checkpoint(), saved_at_ns=service.now_ns or last or 1,
-                        unit=unit))
-                pipeline.flush()
-                _wait(lambda: bus.n_received >= n + pipeline.n_out,
+                _wait(lambda: worker.n_in >= n and bus.n_received >= n,
+                      lambda: worker.n_in + bus.n_received, "the replayed messages")
+                _finish(worker, checkpoint, stats.last_ns)
+                _wait(lambda: bus.n_received >= n + worker.n_out,
                       lambda: bus.n_received, "the estimates to be recorded")
             finally:
                 publisher.close()
-                pipeline.close(checkpoint=False)
+                worker.close(checkpoint=False)
                 bus.close()
     return stats
 
 
-__all__ = ["DayPart", "DayStream", "FileRecorder", "ReplaySummary", "check_order", "day_span",
-           "replay_to_file", "truth_rmse"]
+__all__ = ["DayStream", "FileRecorder", "check_order", "day_span", "replay_to_file"]

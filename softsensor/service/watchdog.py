@@ -7,7 +7,7 @@ thread), sees no estimate for more than one window past the latest a tick can co
 has health published: ``status = "stale"`` (CONTRACT section 2 keeps to ``ok``,
 ``degraded``, ``stale``) with ``stalled = true`` and a detail saying how late and how many
 messages wait; again every window while it lasts. The daemon puts it through the pipeline's
-one path to the bus and the outputs (:meth:`~softsensor.service.bus_worker.ServicePipeline.
+one path to the bus and the outputs (:meth:`~softsensor.service.bus_worker.BusWorker.
 publish_aside`), one message at a time with the estimator thread's.
 
 :class:`HealthQueryable` answers a Zenoh ``get`` on ``softsensor/<unit>/health`` at any time

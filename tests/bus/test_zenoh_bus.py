@@ -13,14 +13,11 @@ from collections.abc import Callable, Iterable, Iterator
 import pytest
 import zenoh
 
+from softsensor.bus.transport import KIND_TOPIC, KINDS, BusMessage, encode_payload
 from softsensor.bus.zenoh_bus import (
-    KIND_TOPIC,
-    KINDS,
-    BusMessage,
     Publisher,
     Subscription,
     decode_payload,
-    encode_payload,
     kind_of_key,
     listening_endpoints,
     make_config,

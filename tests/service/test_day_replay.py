@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from softsensor.bus.transport import BusMessage
 from softsensor.bus.zenoh_bus import (
-    BusMessage,
     Publisher,
     listening_endpoints,
     open_session,

@@ -15,7 +15,7 @@ from paths import REPO
 from softsensor.cli import main as cli_main
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config
-from softsensor.recording.mcap_day import read_day
+from softsensor.recording.mcap_day import iter_messages, read_day
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 H = 3600 * 10**9
@@ -200,14 +200,22 @@ def test_the_readme_quick_start_prints_the_demo_figures(demo_replay) -> None:
     assert got.groupdict() == claimed.groupdict(), (out, claimed.groupdict())
 
 
-def test_the_demo_estimates_are_bit_identical_to_the_stored_digest(demo_replay) -> None:
+@pytest.fixture(scope="module")
+def demo_replay_zenoh(tmp_path_factory) -> tuple[str, Path]:
+    """The same, ``--via-zenoh``: over two Zenoh sessions on loopback."""
+    out = tmp_path_factory.mktemp("demo-zenoh") / "estimates.mcap"
+    return ed.replay_demo(out, "--via-zenoh"), out
+
+
+@pytest.mark.parametrize("path", ["demo_replay", "demo_replay_zenoh"])
+def test_the_demo_estimates_are_bit_identical_to_the_stored_digest(path, request) -> None:
     """Every number of every estimate of the demo day, bit for bit
-    (``tests/support/estimate_digest.py``):
-    a change of the service's wiring, its config or its lab handling must not move one. When
-    the estimator changes on purpose, regenerate with ``python tests/support/estimate_digest.py
-    --write`` and say in the commit why the numbers moved."""
+    (``tests/support/estimate_digest.py``), in memory and over Zenoh:
+    a change of the service's wiring, its transport, its config or its lab handling must not
+    move one. When the estimator changes on purpose, regenerate with ``python
+    tests/support/estimate_digest.py --write`` and say in the commit why the numbers moved."""
     stored = json.loads(ed.STORED.read_text())
-    messages = ed.estimates(demo_replay[1])
+    messages = ed.estimates(request.getfixturevalue(path)[1])
     now = ed.samples(messages)
     moved = {k: float(abs(np.subtract(now[k], v)) / max(abs(v), 1e-300))
              for k, v in stored["samples"].items() if isinstance(v, float) and now[k] is not None}
@@ -215,3 +223,42 @@ def test_the_demo_estimates_are_bit_identical_to_the_stored_digest(demo_replay) 
     assert ed.digest(messages) == stored["sha256"], (
         f"the demo day's estimates changed (relative change of the last one's fields: {moved}); "
         "if on purpose, run `python tests/support/estimate_digest.py --write`")
+
+
+def _recorded(path: Path) -> dict[str, list[tuple[int, dict]]]:
+    """Each topic's messages in ``path``, in the order the file gives them."""
+    out: dict[str, list[tuple[int, dict]]] = {}
+    for topic, t, body in iter_messages(path):
+        out.setdefault(topic, []).append((t, body))
+    return out
+
+
+def test_memory_and_zenoh_give_the_same_estimates_and_recording(day_file, tmp_path) -> None:
+    """The transport conformance test: one recorded day (4 h, lab results within it) through
+    the in-process memory pair and through the Zenoh pair on loopback gives the same
+    estimates, bit for bit, the same summary counts, the same checkpoint after the last
+    message, and records the same messages under every topic (scans and labs as replayed,
+    every estimate and health), each topic in the same order."""
+    from softsensor.service.offline_replay import replay_to_file
+
+    cfg = load_plant_config()
+    got = {}
+    for via_zenoh in (False, True):
+        name = "zenoh" if via_zenoh else "memory"
+        got[name] = replay_to_file(day_file, tmp_path / f"{name}.mcap", cfg,
+                                   checkpoint_out=tmp_path / f"{name}.ckpt",
+                                   via_zenoh=via_zenoh)
+    memory, zenoh = got["memory"], got["zenoh"]
+    assert memory.ticks == 25 and memory.lab_updates >= 1, memory.line()
+    assert ed.digest(memory.estimates) == ed.digest(zenoh.estimates)
+    assert memory.estimates == zenoh.estimates
+    counts = ("n_replayed", "n_recorded", "ticks", "stale_ticks", "lab_updates",
+              "labs_accepted", "labs_refused", "span_s", "rmse")
+    assert {k: getattr(memory, k) for k in counts} == {k: getattr(zenoh, k) for k in counts}
+    a, b = _recorded(tmp_path / "memory.mcap"), _recorded(tmp_path / "zenoh.mcap")
+    assert set(a) == {TOPIC_SCAN, TOPIC_LAB, TOPIC_ESTIMATE, TOPIC_HEALTH}
+    assert a == b
+    assert sum(len(v) for v in a.values()) == memory.n_recorded
+    ckpt_a = json.loads((tmp_path / "memory.ckpt").read_text())
+    ckpt_b = json.loads((tmp_path / "zenoh.ckpt").read_text())
+    assert ckpt_a["service"] == ckpt_b["service"]

@@ -1,7 +1,8 @@
 """A SHA-256 of the demo day's estimates: a refactoring of the service must leave them as they are.
 
 ``softsensor replay replay/demo-day.mcap`` streams the recorded demo day (48 h, 16 lab
-results) through Zenoh and the estimator service; :func:`digest` hashes every number of every
+results) through the estimator service (in memory; ``--via-zenoh`` over Zenoh, the same
+digest); :func:`digest` hashes every number of every
 ``/softsensor/estimate`` body it records, in order: each body's numeric leaves (nested tables
 flattened to dotted keys; ``null`` kept, since a number that became null is a change), each as
 its exact bits (``float.hex``), under the message's log time. Text (``detail``, ``notes``) and
@@ -39,13 +40,14 @@ SAMPLED = ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
            "T_dryer_out_model", "T_cyclone_out_model")
 
 
-def replay_demo(out: Path) -> str:
-    """Run ``softsensor replay`` on the demo day into ``out``; its summary line (stderr)."""
+def replay_demo(out: Path, *options: str) -> str:
+    """Run ``softsensor replay`` on the demo day into ``out`` (with ``options``, e.g.
+    ``--via-zenoh``); its summary line (stderr)."""
     from softsensor.cli import main as cli_main
 
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
-        rc = cli_main(["replay", str(DEMO), "--out", str(out), "--quiet"])
+        rc = cli_main(["replay", str(DEMO), "--out", str(out), "--quiet", *options])
     if rc != 0:
         raise RuntimeError(f"replay of the demo day failed: {err.getvalue()}")
     return err.getvalue()

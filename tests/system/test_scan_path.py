@@ -15,6 +15,7 @@ import pytest
 
 from softsensor.bus.zenoh_bus import (
     Publisher,
+    ZenohInput,
     listening_endpoints,
     open_session,
     subscribe,
@@ -27,7 +28,6 @@ from softsensor.plant.plc_server import NOMINAL_VALUES, PlcServer, constant_valu
 from softsensor.recording.mcap_day import read_day
 from softsensor.recording.recorder import Recorder
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.bus_worker import InputSubscription
 from softsensor.service.scan_publisher import ScanPublisher
 
 DEADLINE = 10.0
@@ -156,7 +156,8 @@ def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
         endpoint = listening_endpoints(rx)
         with open_session(port=None, connect=endpoint) as tx:
             assert wait_for_peers(tx, timeout=DEADLINE)
-            sub = InputSubscription(rx, got.append, "dryer1")
+            sub = ZenohInput(rx, "dryer1")
+            sub.open(got.append)
             with Publisher(tx) as pub:
                 assert pub.wait_matched(("scan", "lab"), timeout=DEADLINE)
                 for kind, t, body in sent:
@@ -170,7 +171,7 @@ def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
 def test_a_failing_advance_is_counted_and_the_worker_goes_on():
     """advance() has no caller waiting on it: its failure is counted and logged, and the
     next call is still served."""
-    from softsensor.service.bus_worker import ServicePipeline
+    from softsensor.service.bus_worker import BusWorker, zenoh_sides
 
     class Failing:
         calls = 0
@@ -180,7 +181,7 @@ def test_a_failing_advance_is_counted_and_the_worker_goes_on():
             raise RuntimeError("estimator broke")
 
     with open_session(port=None) as session:
-        pipe = ServicePipeline(session, Failing())  # type: ignore[arg-type]
+        pipe = BusWorker(Failing(), *zenoh_sides(session))  # type: ignore[arg-type]
         try:
             pipe.advance(1)
             pipe.advance(2)
@@ -199,7 +200,7 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
     import threading
 
     from softsensor.estimate import Health
-    from softsensor.service.bus_worker import ServicePipeline, _Call
+    from softsensor.service.bus_worker import BusWorker, _Call, zenoh_sides
     from softsensor.service.estimator_service import Output
 
     inside, most, seen = [0], [0], []
@@ -220,7 +221,8 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
 
     stuck = threading.Event()
     with open_session(port=None) as session:
-        pipe = ServicePipeline(session, Talking(), on_output=hook)  # type: ignore[arg-type]
+        pipe = BusWorker(Talking(), *zenoh_sides(session),  # type: ignore[arg-type]
+                         on_output=hook)
         try:
             for k in range(200):
                 pipe.advance(k)
