@@ -30,8 +30,42 @@ def config():
 
 
 @pytest.fixture(scope="session")
+def cfg(config):
+    """The reference plant under the short name the model, plant, diagnosis and design tests
+    give it."""
+    return config
+
+
+@pytest.fixture(scope="session")
 def model(config):
     """The model of the reference plant (files that need another grid define their own)."""
     from softsensor.model import DryerModel
 
     return DryerModel(config)
+
+
+@pytest.fixture(scope="session")
+def clean_14h_day(config):
+    """A clean 14 h virtual-plant day of the reference plant (seed 5): the diagnosis tests'
+    day (``tests/diagnosis/conftest.py``), simulated once per worker; the tests copy what they
+    change."""
+    from softsensor.plant.simulator import simulate_day
+
+    return simulate_day(config, 14.0, seed=5)
+
+
+@pytest.fixture(scope="session")
+def offset_diagnosis(config, clean_14h_day):
+    """The diagnosis of that day with a +3 K offset on the dryer outlet thermometer, two
+    extensions tried (a sensor offset, a lab time shift): the report's numbers
+    (``tests/diagnosis/test_diagnose_day.py``) and the report page's evidence table
+    (``tests/presentation/test_diagnosis_report.py``) read the same one."""
+    from softsensor.diagnosis.diagnose_day import diagnose
+    from softsensor.diagnosis.extensions import LabTimeShift, SensorOffset
+    from softsensor.plant.simulator import SimulatedDay
+
+    day = clean_14h_day
+    scans = day.scans.copy()
+    scans["T_dryer_out"] += 3.0
+    return diagnose(config, SimulatedDay(scans, day.labs, day.truth),
+                    extensions=(SensorOffset(), LabTimeShift()))

@@ -14,7 +14,8 @@ because ``--force`` asked. ``validate`` shows the config's default parameters be
 ones validated, and its line is the validation page's sentence
 (:func:`~softsensor.presentation.verdicts.validation_verdict`). The exit-code table
 (docs/user-guide/commands.md) names every verb once; ``--windows-per-day`` on one day fits that
-many windows (it was parsed and then ignored).
+many windows (it was parsed and then ignored). ``calibrate`` and ``validate`` refuse bad input in
+one line with exit 2.
 """
 
 from __future__ import annotations
@@ -26,11 +27,12 @@ from pathlib import Path
 
 import pytest
 from paths import REPO
+from synthetic_days import TRUTH, truth_days
 
-from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
 from softsensor.estimation.lab_regression import regression_of
+from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
 from softsensor.presentation.calibration_report import lab_reference
 from softsensor.presentation.display import moisture_pct_points
@@ -38,8 +40,6 @@ from softsensor.presentation.verdicts import validation_verdict
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_LAB
 
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 #: A calibration that cannot reach the truth: 3 trials, no polish, one 6 h window fitted
 #: (the rest of both 16 h days validates).
 WEAK = ["--trials", "3", "--no-polish", "--no-identify", "--window-hours", "6",
@@ -48,15 +48,7 @@ WEAK = ["--trials", "3", "--no-polish", "--no-identify", "--window-hours", "6",
 
 @pytest.fixture(scope="module")
 def days(tmp_path_factory) -> tuple[str, str, str]:
-    d = tmp_path_factory.mktemp("refusal")
-    true = write_params(d / "true.toml", params_document(load_plant_config(), TRUTH, {}))
-    out = []
-    for seed in (1, 2):
-        day = d / f"day{seed}.mcap"
-        assert cli_main(["simulate", "--plant", "model", "--params", str(true), "--hours",
-                         "16", "--seed", str(seed), "--out", str(day)]) == 0
-        out.append(str(day))
-    return out[0], out[1], str(true)
+    return truth_days(tmp_path_factory.mktemp("refusal"), (1, 2))
 
 
 def _last_line(capsys) -> str:
@@ -167,3 +159,28 @@ def test_windows_per_day_picks_that_many_windows_of_one_day(days, tmp_path, caps
     windows = json.loads(summary.read_text())["windows"]
     assert len(windows) == 2, windows
     assert len(read_toml(out)["fit"]["windows"]) == 2
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys, config):
+    day = simulate_day(config, 1.5, seed=1)
+    nolab = day.labs.iloc[:0]
+    from softsensor.plant.simulator import SimulatedDay
+
+    path = SimulatedDay(day.scans, nolab, day.truth, day.effect).write(tmp_path / "nolab.mcap")
+    out = tmp_path / "P.toml"
+    cases = [
+        (["calibrate", str(path), "--trials", "3", "--out", str(out)], "too short"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(out), "--window-hours",
+          "1"], "0 lab sample"),
+        (["calibrate", str(tmp_path / "missing.mcap"), "--trials", "3", "--out", str(out)],
+         "missing.mcap"),
+        (["calibrate", str(path), "--trials", "0", "--out", str(out)], "--trials must be"),
+        (["calibrate", str(path), "--trials", "3", "--out", str(tmp_path / "x" / "P.toml")],
+         "does not exist"),
+        (["validate", str(path), "--params", str(tmp_path / "none.toml")], "none.toml"),
+    ]
+    for argv, words in cases:
+        assert cli_main(argv) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
+    assert not out.exists()

@@ -1,5 +1,7 @@
-"""The Optuna study: chunked runs, pruning, failed solves, bounds, resume, two workers on
-one journal file, the polish, the command line's errors."""
+"""The Optuna study (``softsensor/calibration/optimize.py``): pruning, failed solves, bounds,
+resume, two workers on one journal file; the search model's substeps. The chunked runs it
+prunes on: ``test_chunked_run.py``; the polish after it: ``test_refine.py``; ``calibrate``'s
+one-line errors: ``tests/apps/test_calibrate.py``."""
 
 from __future__ import annotations
 
@@ -16,10 +18,9 @@ import optuna
 import pytest
 from optuna.trial import TrialState
 from paths import REPO
+from synthetic_days import TRUTH
 
-from softsensor.calibration.chunked_run import ChunkedRun, chunk_bounds, simulate_segments
 from softsensor.calibration.dataset import segment_from_day
-from softsensor.calibration.objective import ObjectiveSpec
 from softsensor.calibration.optimize import (
     FAILED_COST,
     StudySettings,
@@ -31,76 +32,15 @@ from softsensor.calibration.optimize import (
     run_trials,
     search_space,
 )
-from softsensor.calibration.refine import refine
-from softsensor.cli import main as cli_main
 from softsensor.errors import ConfigError
-from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import PARAMETER_NAMES
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
-
-
-@pytest.fixture(scope="module")
-def day6(config):
-    """A 6 h virtual-plant day with known (non-default) parameters."""
-    return simulate_day(config.with_parameters(TRUTH), 6.0, seed=3)
-
-
-@pytest.fixture(scope="module")
-def segment(day6, config):
-    return segment_from_day(day6, config, source="day6")
-
-
-@pytest.fixture(scope="module")
-def eq4(config):
-    """The paper's objective: eq. 4, nominal inlet moisture, no prior."""
-    return ObjectiveSpec(cost="eq4", weights=config.cost.weights())
 
 
 @pytest.fixture(scope="module")
 def day6_file(day6, tmp_path_factory):
     return day6.write(tmp_path_factory.mktemp("days") / "day6.mcap")
-
-
-def test_chunked_run_continues_the_state_exactly(model, segment, eq4):
-    """Four chunks with the state passed on give the same outputs as one run; the partial
-    cost after the last chunk is the full cost."""
-    theta = np.stack([model.theta0, np.array(list(TRUTH.values()))])
-    run = ChunkedRun(model, [segment], theta, eq4, n_chunks=4)
-    assert list(run.bounds[0]) == list(chunk_bounds(segment.n_windows, 4))
-    costs = []
-    while not run.done:
-        costs.append(run.advance())
-    full = simulate_segments(model, [segment], theta)[0]
-    np.testing.assert_allclose(run.runs[0].Y, full.Y, rtol=1e-10, atol=1e-9)
-    np.testing.assert_allclose(run.runs[0].lab, full.lab, rtol=1e-10, atol=1e-12)
-    assert full.lab.shape == (2, len(segment.lab_value)) and np.isfinite(full.lab).all()
-    final = run.run()
-    assert [f.objective for f in final] == pytest.approx([costs[-1][0].objective,
-                                                          costs[-1][1].objective])
-    assert final[0].objective == final[0].fit.cost  # eq. 4 without a prior
-    assert len(costs) == 4 and costs[0][0].fit.n["T_dryer_out"] == run.bounds[0][1] == 9
-    assert final[0].fit.n["T_dryer_out"] == segment.n_windows == 36
-    assert list(chunk_bounds(3, 4)) == [0, 1, 2, 3]
-
-
-def test_chunked_run_over_two_segments_of_different_length(model, segment, eq4):
-    """Several days or windows: each segment starts from its own steady state; the pooled
-    cost equals eq. 4 over the concatenated residuals."""
-    a, b = segment.slice(0, 20), segment.slice(20, 36)
-    theta = np.array(list(TRUTH.values()))
-    run = ChunkedRun(model, [a, b], theta[None], eq4, n_chunks=3)
-    fit = run.run()[0].fit
-    sep = simulate_segments(model, [a, b], theta)
-    np.testing.assert_allclose(run.runs[1].Y, sep[1].Y, rtol=1e-10)
-    assert fit.n["T_dryer_out"] == 36 and fit.n["moisture_out"] == len(segment.lab_value)
-    one = simulate_segments(model, [segment], theta)[0]
-    # the second segment restarts from a steady state: its first windows differ from the
-    # continuous run, later ones converge as the wall forgets its start
-    d = np.abs(sep[1].Y[0, :, 0] - one.Y[0, 20:, 0])
-    assert d[-1] < d[0] or d[0] < 1e-6
 
 
 def test_study_prunes_keeps_bounds_and_starts_from_the_config(model, segment, config, eq4):
@@ -255,41 +195,6 @@ def test_two_workers_share_one_journal_study(tmp_path, day6_file):
     # the two workers proposed different trials (different sampler seeds)
     params = [tuple(sorted(t.params.items())) for t in study.get_trials()]
     assert len(set(params)) == len(params)
-
-
-def test_polish_lowers_the_cost_within_bounds(model, segment, config, eq4):
-    start = np.array([0.3, 0.5, 3.0, 1.0, 4.0, 1e-5, 30.0])
-    bounds = config.bounds()
-    bounds[4, 1] = 4.5  # a tight upper bound on mult_p: the polish must respect it
-    r = refine(model, [segment], start, bounds, eq4)
-    assert r.improved and r.evaluation.fit.cost < 0.6 * r.start.fit.cost
-    assert np.all(r.theta >= bounds[:, 0]) and np.all(r.theta <= bounds[:, 1])
-    assert r.simulations <= 100  # two passes of at most 6 evaluations of 1 + 7 members
-
-
-def test_cli_errors_are_one_line(tmp_path, capsys, config):
-    day = simulate_day(config, 1.5, seed=1)
-    nolab = day.labs.iloc[:0]
-    from softsensor.plant.simulator import SimulatedDay
-
-    path = SimulatedDay(day.scans, nolab, day.truth, day.effect).write(tmp_path / "nolab.mcap")
-    out = tmp_path / "P.toml"
-    cases = [
-        (["calibrate", str(path), "--trials", "3", "--out", str(out)], "too short"),
-        (["calibrate", str(path), "--trials", "3", "--out", str(out), "--window-hours",
-          "1"], "0 lab sample"),
-        (["calibrate", str(tmp_path / "missing.mcap"), "--trials", "3", "--out", str(out)],
-         "missing.mcap"),
-        (["calibrate", str(path), "--trials", "0", "--out", str(out)], "--trials must be"),
-        (["calibrate", str(path), "--trials", "3", "--out", str(tmp_path / "x" / "P.toml")],
-         "does not exist"),
-        (["validate", str(path), "--params", str(tmp_path / "none.toml")], "none.toml"),
-    ]
-    for argv, words in cases:
-        assert cli_main(argv) == 2, argv
-        err = capsys.readouterr().err.strip()
-        assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
-    assert not out.exists()
 
 
 def test_search_model_with_one_wall_substep_keeps_the_settings_claim():

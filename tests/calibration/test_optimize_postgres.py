@@ -8,7 +8,8 @@ within TPE's own noise (measured here: single-worker studies of three seeds).
 
 Skipped, with the reason, where the server binaries (``apt install postgresql``) or the
 driver (``psycopg[binary]``, in the ``test`` extra: SQLAlchemy 2.1, under Optuna's RDB
-storage, reads ``postgresql://`` as psycopg 3) are missing.
+storage, reads ``postgresql://`` as psycopg 3) are missing; marked ``postgresql``, so CI runs it
+by name after the default suite.
 """
 
 from __future__ import annotations
@@ -28,6 +29,8 @@ import pytest
 
 from softsensor.bus.zenoh_bus import free_port
 from softsensor.cli import main
+
+pytestmark = pytest.mark.postgresql
 
 TRIALS = 40  # the shared budget (and each single worker's)
 SOFTSENSOR = [sys.executable, "-m", "softsensor.cli"]

@@ -26,6 +26,7 @@ import json
 
 import numpy as np
 import pytest
+from synthetic_days import TRUTH
 
 from softsensor.apps.calibrate import load_segment, load_segments
 from softsensor.calibration.calibration_run import objective_spec
@@ -40,8 +41,6 @@ from softsensor.model import DryerModel
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
 
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 #: What the analysis must call at least weakly identifiable, and recover within 15 %, on these
 #: days (module docstring): the tube's evaporation multiplier, which every channel sees. With
 #: the polish of 2 passes of 6 it stopped at a likelihood of -89.08 and was "identifiable"

@@ -14,14 +14,11 @@ import json
 
 import numpy as np
 import pytest
+from synthetic_days import truth_days
 
-from softsensor.calibration.params_file import params_document, write_params
 from softsensor.calibration.trade_off import FrontPoint, TradeOff, pareto_indices, spread
 from softsensor.cli import main as cli_main
-from softsensor.plantconfig import load_plant_config
 
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 WEAK = ["--trials", "3", "--no-polish", "--no-identify", "--window-hours", "6",
         "--fit-hours", "6", "--quiet", "--no-structure"]
 
@@ -57,15 +54,7 @@ def test_verdict_names_the_points_that_fit_both_or_the_closest():
 
 @pytest.fixture(scope="module")
 def days(tmp_path_factory) -> tuple[str, str, str]:
-    d = tmp_path_factory.mktemp("front")
-    true = write_params(d / "true.toml", params_document(load_plant_config(), TRUTH, {}))
-    out = []
-    for seed in (3, 4):
-        day = d / f"day{seed}.mcap"
-        assert cli_main(["simulate", "--plant", "model", "--params", str(true), "--hours",
-                         "16", "--seed", str(seed), "--out", str(day)]) == 0
-        out.append(str(day))
-    return out[0], out[1], str(true)
+    return truth_days(tmp_path_factory.mktemp("front"), (3, 4))
 
 
 def _calibrate(args, tmp_path, capsys):

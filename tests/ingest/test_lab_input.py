@@ -320,3 +320,29 @@ def test_a_lab_file_written_with_a_pause_loses_no_row(tmp_path: Path) -> None:
     assert [lab.moisture_out for lab in got] == [0.100, 0.110, 0.120]
     assert (tmp_path / "processed" / "p.csv").read_text().count("\n") == 4
     assert (tmp_path / ".seen-ids").read_text().split() == ['"P1"', '"P2"', '"P3"']
+
+
+def test_the_lab_folder_reads_its_lab_tables_delimiter_and_names_it(tmp_path):
+    """The daemon's lab folder split every CSV at ',' whatever [lab] delimiter said; a ';'
+    file is read with delimiter ';', and without it refused naming lab.delimiter."""
+    from softsensor.ingest.historian_map import LabMap
+    from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
+
+    got: list = []
+    body = ("sample_time;moisture;sample_id\n2026-01-05T08:00:00Z;9,957;L1\n")
+    for delimiter in (";", ","):
+        folder = tmp_path / f"lab{delimiter == ';'}"
+        folder.mkdir()
+        (folder / "lims.csv").write_text(body)
+        lab = LabMap(sample_time_column="sample_time", moisture_column="moisture", unit="%",
+                     basis="wet", sample_id_column="sample_id", delimiter=delimiter,
+                     decimal=",")
+        clock = lambda: 1_767_603_600 * 10**9  # noqa: E731 - 2026-01-05T09:00Z
+        w = LabFolderWatcher(folder, LabInput(got.append, clock=clock), lab_map=lab,
+                             settle_s=0.0)
+        report = w.poll_once(now=2e9)
+        if delimiter == ";":
+            assert [r.sample_id for r in report.accepted] == ["L1"], report.reasons
+            assert got[0].moisture_out == pytest.approx(0.09957 / (1 - 0.09957))
+        else:
+            assert "set lab.delimiter = ';'" in report.reasons[0], report.reasons

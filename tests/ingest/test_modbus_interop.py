@@ -5,7 +5,8 @@
 (b) The ``mbpoll`` command-line client reads our simulated PLC and must see the expected
     values; its write attempt must be refused and counted.
 
-Needs the Debian packages ``gcc``, ``libmodbus-dev`` and ``mbpoll``; each test is skipped
+Needs the Debian packages ``gcc``, ``libmodbus-dev`` and ``mbpoll``; each test is marked by what
+it needs (``libmodbus``, ``mbpoll``: CI runs them by name after the default suite) and skipped
 with the reason when its tool is missing. Every subprocess runs under a timeout.
 """
 
@@ -64,6 +65,7 @@ def c_server_binary(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.libmodbus
 def test_poller_reads_a_libmodbus_server(c_server_binary):
     specs = [f"{u}:{t}:{a}=" + ",".join(f"0x{w:04X}" for w in words)
              for u, t, a, words, _s, _v in C_SERVER_WORDS]
@@ -126,6 +128,7 @@ def _values(out: str) -> dict[int, str]:
     return {int(a): v for a, v in re.findall(r"^\[(\d+)\]:\s+(\S+)\s*$", out, re.M)}
 
 
+@pytest.mark.mbpoll
 @pytest.mark.skipif(shutil.which("mbpoll") is None,
                     reason="mbpoll not installed (apt-get install mbpoll)")
 def test_mbpoll_reads_the_simulated_plc():

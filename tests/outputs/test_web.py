@@ -126,6 +126,7 @@ def _svg(dom: str, element: str) -> str:
     return re.search(rf"<svg[^>]*id=\"{element}\".*?</svg>", dom, re.S).group(0)
 
 
+@pytest.mark.chromium
 def test_chromium_dom_shows_a_faceplate(tmp_path):
     page = _page(tmp_path)
     asyncio.run(page.start())
@@ -185,6 +186,7 @@ def _pixels(png: np.ndarray, colour: str) -> np.ndarray:
     return np.all(np.abs(png[..., :3] - rgb) < 0.02, axis=-1)
 
 
+@pytest.mark.chromium
 def test_chromium_screenshot_shows_the_fitted_trend_target_band_and_temperatures(tmp_path):
     page = _page(tmp_path)
     asyncio.run(page.start())
@@ -366,3 +368,30 @@ def test_the_daemon_refuses_a_busy_web_port_in_one_line(tmp_path):
     assert re.fullmatch(rf"softsensor: outputs\.web: cannot listen on 127\.0\.0\.1:{port}: "
                         r"Address already in use.*", last), r.stderr[-2000:]
     assert "Traceback" not in r.stderr and "AttributeError" not in r.stderr
+
+
+@pytest.mark.chromium
+def test_the_pages_outlet_axis_stops_at_zero_for_a_wide_start_up_band(tmp_path):
+    """Headless Chromium reads the page of a start-up (an outlet moisture of 0.03 kg/kg with
+    a standard deviation as large): the band and the axis stop at 0 %, not below."""
+    from softsensor.outputs.settings import WebSettings
+    from softsensor.outputs.web import LivePage
+
+    t0 = 1_767_571_200 * 10**9
+    page = LivePage(WebSettings(enabled=True, port=0), DisplaySettings(moisture_basis="wet"),
+                    clock=lambda: t0 + 13 * 600 * 10**9)
+    for k in range(12):
+        page.on_estimate(Estimate.from_body({
+            "window_end_ns": t0 + (k + 1) * 600 * 10**9,
+            "moisture_out": 0.03, "moisture_out_std": 0.03 - 0.002 * k, "moisture_in": 1.0,
+            "moisture_in_std": 0.05, "status": "ok", "T_dryer_out_model": 348.0,
+            "T_dryer_out_measured": 348.2, "T_cyclone_out_model": 345.0,
+            "T_cyclone_out_measured": 345.1}))
+    asyncio.run(page.start())
+    try:
+        dom = chromium_dom(f"http://127.0.0.1:{page.port}/")
+    finally:
+        asyncio.run(page.stop())
+    outlet = re.search(r"<svg[^>]*id=\"outlet\".*?</svg>", dom, re.S).group(0)
+    ticks = [float(v) for v in re.findall(r"class=\"tick-y\"[^>]*>([^<]+)<", outlet)]
+    assert ticks and min(ticks) >= 0.0, ticks

@@ -5,14 +5,18 @@ inlet moisture fitted (the calibration's nuisance trajectory, :mod:`softsensor.c
 objective`), while the figure drew the model at the nominal inlet moisture (open loop). The
 figure now draws the scored model solid and the open loop dashed beside it; here the RMSE of
 each drawn line against the drawn measurements is the table's number (to rounding: the same
-arrays, in °C instead of K and in % dry basis instead of kg/kg)."""
+arrays, in °C instead of K and in % dry basis instead of kg/kg). The report page they go into
+is one file, its figures inside and its text escaped."""
 
 from __future__ import annotations
+
+import base64
 
 import matplotlib.pyplot as plt
 import numpy as np
 import optuna
 import pytest
+from synthetic_days import TRUTH
 
 from softsensor.calibration.calibration_run import calibrate, objective_spec
 from softsensor.calibration.dataset import segment_from_day
@@ -20,12 +24,10 @@ from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.settings import calibration_settings
 from softsensor.calibration.validation import validate
 from softsensor.plant.simulator import simulate_day
-from softsensor.presentation.calibration_figures import trajectory_plot
+from softsensor.presentation.calibration_figures import markdown_table, trajectory_plot, write_page
 from softsensor.presentation.display import DisplaySettings
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
-TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1.8,
-         "hm_cyc": 3e-4, "hc_cyc": 50.0}
 #: The moisture drawn in % of the dry mass: 100 X, so the drawn lab errors are 100 x kg/kg.
 DRY = DisplaySettings(moisture_basis="dry")
 
@@ -78,3 +80,19 @@ def test_the_validation_figure_draws_the_model_its_table_scores(result, config, 
     spec = objective_spec(model, [seg], config, calibration_settings(config))
     val = validate([seg], config, spec, result.theta, model=model)
     _check_lines(val.segments, val.runs, val.fit, val.evaluation.open_fit)
+
+
+def test_page_is_one_file_with_figures_inside_and_text_escaped(tmp_path):
+    png = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk"
+                           "YPhfDwAChwGA60e6kgAAAABJRU5ErkJggg==")
+    (tmp_path / "fig.png").write_bytes(png)
+    page = write_page(tmp_path, "Day <script>x</script>", [
+        ("Table", markdown_table(["a", "b"], [[1, "<b>2</b>"]])),
+        ("Figure", "![](fig.png)")], verdict="Check the <thermometer> & wiring")
+    html = page.read_text()
+    assert page.name == "index.html"
+    assert "<script>" not in html and "&lt;script&gt;" in html
+    assert "&lt;thermometer&gt; &amp; wiring" in html and "<b>2</b>" not in html
+    assert html.index('class="verdict"') < html.index("<h2>")
+    assert "<table>" in html and "<td>1</td>" in html
+    assert 'src="data:image/png;base64,' + base64.b64encode(png).decode() + '"' in html

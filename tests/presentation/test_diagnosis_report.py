@@ -1,7 +1,8 @@
 """The diagnosis page's evidence is a table a plant engineer reads (issue 22, item 4).
 
 A real, small diagnosis (a 14 h virtual-plant day with a +3 K offset on the dryer outlet
-thermometer, two extensions, as in ``tests/diagnosis/test_parts.py``) is written as the
+thermometer, two extensions: ``offset_diagnosis`` of ``tests/conftest.py``, the one whose
+numbers ``tests/diagnosis/test_diagnose_day.py`` checks) is written as the
 ``--report`` page; its "Evidence" section must be a table with one row per fitted extension
 and channel, in the ranking's order, with the numbers of the extension's
 :class:`~softsensor.diagnosis.verdict.Score` in plant units, and the prose evidence must still
@@ -17,11 +18,7 @@ import numpy as np
 import pytest
 
 from softsensor.calibration.cost import Fit
-from softsensor.diagnosis.diagnose_day import diagnose
-from softsensor.diagnosis.extensions import LabTimeShift, SensorOffset
 from softsensor.diagnosis.verdict import Score
-from softsensor.plant.simulator import SimulatedDay, simulate_day
-from softsensor.plantconfig import load_plant_config
 from softsensor.presentation.diagnosis_report import why_not_short, write_report
 from softsensor.presentation.display import display_settings, plant_error
 from softsensor.signals import OUTPUT_NAMES
@@ -31,13 +28,8 @@ HEADER = ["cause", "channel", "unit", "before", "after", "change", "log-lik. gai
 
 
 @pytest.fixture(scope="module")
-def diagnosis():
-    cfg = load_plant_config()
-    day = simulate_day(cfg, 14.0, seed=5)
-    scans = day.scans.copy()
-    scans["T_dryer_out"] += 3.0
-    return diagnose(cfg, SimulatedDay(scans, day.labs, day.truth),
-                    extensions=(SensorOffset(), LabTimeShift()))
+def diagnosis(offset_diagnosis):
+    return offset_diagnosis
 
 
 @pytest.fixture(scope="module")

@@ -18,6 +18,7 @@ from softsensor.presentation.display import (  # noqa: E402
     display_settings,
     local_times,
     moisture_pct,
+    moisture_pct_points,
 )
 
 
@@ -66,3 +67,13 @@ def test_figure_axis_shows_the_plant_clock():
     plt.close(fig)
     assert "05:00" in labels or "06:00" in labels, labels  # 10:00 UTC is 05:00 EST
     assert "10:00" not in labels, labels
+
+
+def test_moisture_in_percent_on_either_basis():
+    assert moisture_pct(0.1, "dry") == pytest.approx(10.0)
+    assert moisture_pct(0.1, "wet") == pytest.approx(100 * 0.1 / 1.1)
+    assert moisture_pct(1.0, "wet") == pytest.approx(50.0)
+    assert moisture_pct_points(0.01, 0.1, "dry") == pytest.approx(1.0)
+    assert moisture_pct_points(0.01, 0.1, "wet") == pytest.approx(100 * (0.11 / 1.11 - 0.1 / 1.1))
+    with pytest.raises(ValueError, match="basis"):
+        moisture_pct(0.1, "as received")

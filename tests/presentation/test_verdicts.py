@@ -1,14 +1,11 @@
-"""Plain-language verdicts and the self-contained report page (issue 13, reports a plant
-engineer reads)."""
+"""Plain-language verdicts (``softsensor/presentation/verdicts.py``, issue 13): the diagnosis'
+and the calibration's sentences in plant units. The page they head:
+``test_calibration_figures.py``."""
 
 from __future__ import annotations
 
-import base64
-
 import pytest
 
-from softsensor.presentation.calibration_figures import markdown_table, write_page
-from softsensor.presentation.display import moisture_pct, moisture_pct_points
 from softsensor.presentation.verdicts import calibration_verdict, diagnosis_verdict
 
 
@@ -16,16 +13,6 @@ def _doc(cause: str, params: dict, channel: str | None = None, gain: float = 0.4
     return {"cause": cause, "channel": channel, "gain": gain,
             "ranking": [{"cause": "none", "params": None},
                         {"cause": cause, "params": params}]}
-
-
-def test_moisture_in_percent_on_either_basis():
-    assert moisture_pct(0.1, "dry") == pytest.approx(10.0)
-    assert moisture_pct(0.1, "wet") == pytest.approx(100 * 0.1 / 1.1)
-    assert moisture_pct(1.0, "wet") == pytest.approx(50.0)
-    assert moisture_pct_points(0.01, 0.1, "dry") == pytest.approx(1.0)
-    assert moisture_pct_points(0.01, 0.1, "wet") == pytest.approx(100 * (0.11 / 1.11 - 0.1 / 1.1))
-    with pytest.raises(ValueError, match="basis"):
-        moisture_pct(0.1, "as received")
 
 
 @pytest.mark.parametrize(("offset", "word"), [(2.9, "high"), (-1.6, "low")])
@@ -65,17 +52,3 @@ def test_calibration_verdict_in_celsius_and_moisture_points():
     assert calibration_verdict(new, old, False, [], 0.1).startswith("New parameters NOT")
 
 
-def test_page_is_one_file_with_figures_inside_and_text_escaped(tmp_path):
-    png = base64.b64decode("iVBORw0KGgoAAAANSUhEUgAAAAEAAAABCAYAAAAfFcSJAAAADUlEQVR42mNk"
-                           "YPhfDwAChwGA60e6kgAAAABJRU5ErkJggg==")
-    (tmp_path / "fig.png").write_bytes(png)
-    page = write_page(tmp_path, "Day <script>x</script>", [
-        ("Table", markdown_table(["a", "b"], [[1, "<b>2</b>"]])),
-        ("Figure", "![](fig.png)")], verdict="Check the <thermometer> & wiring")
-    html = page.read_text()
-    assert page.name == "index.html"
-    assert "<script>" not in html and "&lt;script&gt;" in html
-    assert "&lt;thermometer&gt; &amp; wiring" in html and "<b>2</b>" not in html
-    assert html.index('class="verdict"') < html.index("<h2>")
-    assert "<table>" in html and "<td>1</td>" in html
-    assert 'src="data:image/png;base64,' + base64.b64encode(png).decode() + '"' in html

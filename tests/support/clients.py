@@ -1,10 +1,11 @@
 """Real clients for the daemon's servers, shared by the tests that read them: Prometheus'
-own text parser for ``/metrics``, a headless Chromium for the live page and an asyncua client
-for the OPC UA server."""
+own text parser for ``/metrics``, a headless Chromium for the live page, an asyncua client
+for the OPC UA server and a pymodbus client for the Modbus registers."""
 
 from __future__ import annotations
 
 import shutil
+import struct
 import subprocess
 import urllib.request
 from datetime import UTC, datetime, timedelta
@@ -12,7 +13,9 @@ from datetime import UTC, datetime, timedelta
 import pytest
 from asyncua import Client, ua
 from prometheus_client.parser import text_string_to_metric_families
+from pymodbus.client import AsyncModbusTcpClient
 
+from softsensor.outputs.modbus_server import N_REGISTERS, REGISTERS
 from softsensor.outputs.opcua_server import NAMESPACE
 
 
@@ -99,4 +102,27 @@ async def opcua_read(endpoint: str, names: list[str], history_end: datetime | No
         return out
 
 
-__all__ = ["CHROMIUM_FLAGS", "browser", "chromium", "chromium_dom", "opcua_read", "scrape_metrics"]
+async def modbus_read(port: int, write: bool = False):
+    """The estimate's input registers read by pymodbus from ``127.0.0.1:port``; with ``write``
+    also the answers to a register write and a holding-register read (both must be refused):
+    ``(registers, write answer, holding answer)``."""
+    client = AsyncModbusTcpClient("127.0.0.1", port=port, timeout=3, retries=0)
+    await client.connect()
+    try:
+        rr = await client.read_input_registers(0, count=N_REGISTERS, device_id=1)
+        assert not rr.isError(), rr
+        wr = await client.write_register(0, 5, device_id=1) if write else None
+        hr = await client.read_holding_registers(0, count=1, device_id=1) if write else None
+        return rr.registers, wr, hr
+    finally:
+        client.close()
+
+
+def register_float(words: list[int], name: str) -> float:
+    """The float32 at register ``name`` of the estimate's layout, high word first."""
+    a = REGISTERS[name][0]
+    return struct.unpack(">f", struct.pack(">HH", *words[a:a + 2]))[0]
+
+
+__all__ = ["CHROMIUM_FLAGS", "browser", "chromium", "chromium_dom", "modbus_read", "opcua_read",
+           "register_float", "scrape_metrics"]

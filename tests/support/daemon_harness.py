@@ -1,4 +1,6 @@
-"""A real daemon polling the simulated PLC, for the fault tests that need one running."""
+"""A real daemon polling the simulated PLC, for the fault tests that need one running, and its
+parts for the system tests that start their own: the simulated PLC serving a day, the
+daemon's settings with every file in the test's folder, what the daemon publishes."""
 
 from __future__ import annotations
 
@@ -8,7 +10,7 @@ from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from softsensor.ingest.tagmap import load_tagmap
+from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.plant.plc_feed import PlantFeed
 from softsensor.plant.plc_server import PlcServer
 from softsensor.plant.simulator import simulate_day
@@ -25,6 +27,37 @@ class Running:
     stop: asyncio.Event
     task: asyncio.Task
     endpoint: str  #: where the daemon's Zenoh session listens
+
+
+@contextlib.asynccontextmanager
+async def serving_plc(day, *, clock: bool = False) -> AsyncIterator[tuple[PlantFeed, TagMap]]:
+    """The simulated PLC serving ``day`` in a loop, :data:`SCALE` times the plant's pace (with
+    ``clock``, the plant's time of the values in its clock registers); yields the feed and the
+    tag map pointed at the server; the server stops on exit."""
+    feed = PlantFeed(day, loop=True)
+    tm = load_tagmap()
+    plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE,
+                    clock=(lambda: feed.plant_time_ns) if clock else None)
+    await plc.start()
+    try:
+        yield feed, tm.with_endpoint("127.0.0.1", plc.port)
+    finally:
+        await plc.stop()
+
+
+def published(daemon: Daemon, kind: str) -> list:
+    """The outputs of ``kind`` (``"estimate"``, ``"health"``) that ``daemon`` publishes from now
+    on, in order (its output hook wrapped: call it before the daemon runs)."""
+    seen: list = []
+    hook = daemon._on_output
+
+    def spy(out):
+        hook(out)
+        if out.kind == kind:
+            seen.append(out)
+
+    daemon._on_output = spy
+    return seen
 
 
 def daemon_settings(tmp_path: Path, start_ns: int, cfg=None, **changes) -> ServiceSettings:

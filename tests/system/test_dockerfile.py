@@ -267,6 +267,7 @@ def _image_benchmark() -> ModuleType:
     return mod
 
 
+@pytest.mark.docker
 @pytest.mark.slow
 def test_image_builds_runs_healthy_read_only_stops_cleanly_and_replays(tmp_path: Path) -> None:
     """Build the image from the Dockerfile as it stands (only BASE changed), then: at most

@@ -1,10 +1,10 @@
-"""The estimator's parts outside the filter itself, each against a property it must have:
-the error processes' noise keeps their prior (discrepancy), a lab sample finds its window and
-the inputs of the minutes before it (lab alignment), the chi-square test of the innovations
-(consistency). The filter's own tests (``tests/test_ukf*.py``) drive these through the UKF;
-here each is pinned on its own so that a changed sign or factor shows (``tests/
-mutation_check.py``).
-"""
+"""The filter's state space outside the filter itself (``softsensor/estimation/state_space.py``),
+each part against a property it must have: the error processes' noise keeps their prior, the
+random walks grow by their walk, the inlet walk reverts to its mean, the heat-input prior
+scales with the gain, the inlet transform clips smoothly, the adaptive noise integrates the
+normalised innovations. The filter's own tests (``tests/estimation/test_ukf*.py``) drive these
+through the UKF; here each is pinned on its own so that a changed sign or factor shows
+(``tests/support/mutation_check.py``)."""
 
 from __future__ import annotations
 
@@ -12,9 +12,7 @@ import math
 
 import numpy as np
 import pytest
-from scipy.stats import chi2
 
-from softsensor.estimation.consistency import Innovation, chi_square_test
 from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.state_space import (
     AdaptiveNoise,
@@ -23,14 +21,7 @@ from softsensor.estimation.state_space import (
     process_noise,
     transition,
 )
-from softsensor.windows.lab_alignment import (
-    MIN_OFFSET_S,
-    sample_inputs_from_bins,
-    sample_offset,
-    window_index,
-)
 
-NS = 10**9
 PRIORS = ErrorPriors(sigma=np.array([0.5, 1.0, 2.0, 0.01, 0.8]),
                      tau=np.array([6.0, 12.0, 24.0, 48.0, 36.0]) * 3600.0, source="test")
 #: The same with the last two states random walks (a history's channel offsets; the gain).
@@ -38,7 +29,6 @@ WALKS = ErrorPriors(sigma=PRIORS.sigma, tau=np.r_[PRIORS.tau[:3], np.inf, np.inf
                     source="test", walk=np.array([0.0, 0.0, 0.0, 2e-5, 1e-3]))
 
 
-# ----------------------------------------------------------------------------- discrepancy
 @pytest.mark.parametrize("window_s", [60.0, 600.0, 7200.0])
 def test_error_states_keep_their_prior_variance_over_any_window(window_s):
     # P = F P F + Q with P = diag(sigma^2): an Ornstein-Uhlenbeck process discretised exactly
@@ -112,46 +102,3 @@ def test_adaptive_noise_integrates_the_normalised_innovations():
     assert a.factor[1] == 25.0  # never above the limit
     a.factor[:] = [2.0, 3.0, 4.0]
     np.testing.assert_array_equal(a.inflation(), [2.0, 2.0, 3.0, 4.0, 4.0])
-
-
-# --------------------------------------------------------------------------- lab alignment
-def test_a_sample_belongs_to_the_window_that_ends_at_or_after_it():
-    start, period = 1_000 * NS, 600 * NS
-    t = np.array([start + 1, start + period, start + period + 1, start + 3 * period])
-    np.testing.assert_array_equal(window_index(start, period, t), [0, 0, 1, 2])
-    off = sample_offset(np.array([start, start]), np.array([start + 90 * NS, start]))
-    np.testing.assert_array_equal(off, [90.0, MIN_OFFSET_S])
-
-
-def test_sample_inputs_average_the_bins_of_the_span_before_the_sample():
-    n_bins, bin_ns = 10, 60 * NS
-    bins = np.tile(np.arange(n_bins, dtype=float)[:, None], (1, 7))  # bin k holds k
-    bins[4, 1] = np.nan  # a bad value is left out of the mean
-    u = np.full(8, -1.0)
-    # a sample at 300 s with a 180 s span sees the bins (120, 300]: 2, 3 and 4
-    got = sample_inputs_from_bins(bins, 0, bin_ns, u, 300 * NS, 180 * NS)
-    assert got[0] == pytest.approx(3.0)
-    assert got[1] == pytest.approx(2.5)
-    assert got[7] == -1.0  # the unmeasured inlet moisture is the window's
-    # a sample on a bin boundary does not see the bin after it
-    assert sample_inputs_from_bins(bins, 0, bin_ns, u, 60 * NS, 60 * NS)[0] == 0.0
-    # no bins: the window's inputs
-    np.testing.assert_array_equal(
-        sample_inputs_from_bins(np.empty((0, 7)), 0, bin_ns, u, 300 * NS, 180 * NS), u)
-
-
-# ----------------------------------------------------------------------------- consistency
-def test_chi_square_test_at_its_limit():
-    alpha = 0.01
-    limit = -2.0 * math.log(alpha)  # chi-square with two degrees of freedom, closed form
-    ticks = [Innovation(nis=0.5 * limit - 1e-9, dof=1, normalised={"T_dryer_out": 1.0}),
-             Innovation(nis=0.5 * limit, dof=1, normalised={"T_dryer_out": 3.0}),
-             Innovation()]  # a tick without update adds nothing
-    ok = chi_square_test(ticks, alpha)
-    assert ok.status == "ok" and ok.dof == 2 and ok.limit == pytest.approx(limit)
-    bad = chi_square_test([*ticks[:1], Innovation(nis=0.5 * limit + 1e-6, dof=1,
-                                                  normalised={"T_dryer_out": 3.0})], alpha)
-    assert bad.status == "degraded" and "T_dryer_out +2.0" in bad.detail
-    assert chi_square_test([Innovation()], alpha).status == "ok"
-    assert chi_square_test([Innovation(nis=30.0, dof=10)], alpha).limit == pytest.approx(
-        chi2.isf(alpha, 10))
