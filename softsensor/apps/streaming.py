@@ -60,7 +60,7 @@ def run_settings(args: argparse.Namespace
 
 
 def _run(args: argparse.Namespace) -> int:
-    from softsensor.service.memory import limit_arenas
+    from softsensor.service.heap import limit_arenas
 
     limit_arenas()  # before any thread of the daemon's libraries is started
     from softsensor.ingest.tagmap import DEFAULT_TAGMAP

@@ -68,8 +68,8 @@ from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
+from softsensor.service.heap import TRIM_EVERY_S, trim
 from softsensor.service.logs import event
-from softsensor.service.memory import TRIM_EVERY_S, trim
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import (
     PLC_CLOCK,
