@@ -65,6 +65,7 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import peers  # noqa: E402  (benchmarks/peers.py, beside this file)
+import provenance  # noqa: E402
 
 from softsensor.apps.calibrate import (  # noqa: E402
     HISTORY_FIT_HOURS,
@@ -769,7 +770,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     book = SeedBook(base_seed)
     kinds = ["independent"] + (["model"] if args.matched else [])
     out: dict[str, Any] = {"benchmark": "open_world", "seed": base_seed,
-                           "seed_source": seed_source,
+                           "seed_source": seed_source, "commit": provenance.commit(),
+                           "machine": provenance.machine(),
                            "argv": list(sys.argv[1:] if argv is None else argv),
                            "settings": {k: getattr(args, k) for k in (
                                "plants", "plant_seeds", "history", "hours", "trials", "cost",

@@ -56,7 +56,10 @@ from pathlib import Path
 
 import zenoh
 
-from softsensor.bus.zenoh_bus import (
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import provenance  # noqa: E402  (benchmarks/provenance.py, beside this file)
+
+from softsensor.bus.zenoh_bus import (  # noqa: E402
     Publisher,
     listening_endpoints,
     open_session,
@@ -200,19 +203,6 @@ def bench_zenoh(n: int) -> dict:
             "scan_json_decoded_msgs_per_s": round(_rate(n // 4, scans, decode=True))}
 
 
-def _commit() -> str | None:
-    """The checkout's commit (with ``+`` when it has changes), for dating the result."""
-    here = Path(__file__).resolve().parent
-    try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=here,
-                              capture_output=True, text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
-                               cwd=here, capture_output=True, text=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return None
-    return head + ("+" if dirty else "")
-
-
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -293,7 +283,7 @@ def main() -> None:
     p.add_argument("--out", default=None, help="also write the JSON here")
     args = p.parse_args()
     result: dict = {"load_average": list(os.getloadavg()), "cpus": os.cpu_count(),
-                    "commit": _commit()}
+                    "commit": provenance.commit()}
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         if "replay" in args.parts:

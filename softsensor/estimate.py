@@ -62,6 +62,17 @@ def _num(v: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _none_for_nan(obj: Any) -> None:
+    """Each ``float | None`` field of the frozen dataclass ``obj`` that holds NaN or an
+    infinity set to None (JSON has neither): what no estimator could give is None, whoever
+    built the object."""
+    for f in fields(obj):
+        if f.type == "float | None":
+            v = getattr(obj, f.name)
+            if v is not None and not math.isfinite(v):
+                object.__setattr__(obj, f.name, None)
+
+
 def _frozen_map(m: Mapping[str, Any] | None) -> Mapping[str, Any]:
     return MappingProxyType(dict(m or {}))
 
@@ -74,6 +85,9 @@ class SourceEstimate:
     weight: float
     moisture_out: float | None
     moisture_out_std: float | None
+
+    def __post_init__(self) -> None:
+        _none_for_nan(self)
 
     def to_body(self) -> dict[str, Any]:
         return {"weight": self.weight, "moisture_out": self.moisture_out,
@@ -92,6 +106,9 @@ class Blend:
     band_scale: float
     band_misses: tuple[int, int]
     source: str
+
+    def __post_init__(self) -> None:
+        _none_for_nan(self)
 
     def to_body(self) -> dict[str, Any]:
         return {"moisture_out_physics": self.moisture_out_physics,
@@ -162,6 +179,9 @@ class FilterTerms:
     labs_applied: tuple[str, ...]
     discrepancy_priors: str
 
+    def __post_init__(self) -> None:
+        _none_for_nan(self)
+
     def to_body(self) -> dict[str, Any]:
         out = {f.name: getattr(self, f.name) for f in fields(self)}
         out["labs_applied"] = list(self.labs_applied)
@@ -193,6 +213,9 @@ class WindowFacts:
     T_cyclone_out_measured: float | None
     inputs_refused: Mapping[str, int] = field(default_factory=dict)
     inputs_refused_why: Mapping[str, str] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        _none_for_nan(self)
 
     def to_body(self) -> dict[str, Any]:
         out: dict[str, Any] = {"unit": self.unit, "n_scans": self.n_scans, "stale": self.stale,
@@ -276,6 +299,9 @@ class Estimate:
     window: WindowFacts | None = None
     lab_residual: Mapping[str, float] | None = None
 
+    def __post_init__(self) -> None:
+        _none_for_nan(self)
+
     @property
     def time_ns(self) -> int:
         """When the estimate holds: its window's end [ns]."""
@@ -349,6 +375,11 @@ class Stall:
         return Reason("stale", f"stalled: no estimate for {self.late_s:.0f} s (one is due "
                                f"every {self.window_s:.0f} s); {self.pending} input messages "
                                f"waiting")
+
+
+#: The tick's verdict before the first window was ticked, and the inputs' before any scan.
+WAITING_FOR_WINDOW = Reason("stale", "waiting for the first complete window")
+NO_SCAN_YET = Reason("stale", "no scan received yet")
 
 
 @dataclass(frozen=True)
@@ -425,6 +456,12 @@ class Health:
         if self.recording not in (None, "ok"):
             parts.append(f"recording: {self.recording}")
         return "; ".join(parts)
+
+    @classmethod
+    def initial(cls, time_ns: int, unit: str, estimator: str) -> Health:
+        """The health before any scan or window: ``stale``, waiting for both."""
+        return cls(int(time_ns), unit, estimator, tick=WAITING_FOR_WINDOW, input=NO_SCAN_YET,
+                   lab=Reason("ok", ""))
 
     def at(self, time_ns: int, **changes: Any) -> Health:
         """This health said again at ``time_ns`` with ``changes`` (the daemon's news)."""

@@ -29,7 +29,14 @@ from typing import Any
 
 import zenoh
 
-from softsensor.bus.transport import INPUT_KINDS, KINDS, BusMessage, Receive, encode_payload
+from softsensor.bus.transport import (
+    INPUT_KINDS,
+    KINDS,
+    OUTPUT_KINDS,
+    BusMessage,
+    Receive,
+    encode_payload,
+)
 from softsensor.errors import ConfigError, IngestError
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.signals import zenoh_key
@@ -486,6 +493,14 @@ class ZenohInput:
                 pass
 
 
+def zenoh_sides(session: zenoh.Session, unit: str = "dryer1") -> tuple[ZenohInput, Publisher]:
+    """A worker's input and output sides on ``session`` for ``unit``; the output keys are
+    declared at once, so that subscribers (the recorder, a peer) are matched early."""
+    publisher = Publisher(session, unit)
+    publisher.declare(OUTPUT_KINDS)
+    return ZenohInput(session, unit), publisher
+
+
 __all__ = [
     "output_guard_acl",
     "Publisher",
@@ -500,4 +515,5 @@ __all__ = [
     "subscribe",
     "to_message",
     "wait_for_peers",
+    "zenoh_sides",
 ]

@@ -1,8 +1,10 @@
 """Where operators look: one interface for the web page, Modbus, OPC UA and Prometheus.
 
 The daemon hands every estimate, health and lab result it publishes to each running
-:class:`OperatorOutput`, in the order it publishes them, on the estimator's thread (an output
-hands the work to its own server's thread or loop and returns at once). :func:`operator_outputs`
+:class:`OperatorOutput`, in the order it publishes them: estimates and health from the
+estimator's thread (or, for the watchdog's and the recorder's news, the daemon's loop, one at a
+time with the estimator's), lab results from the lab input's. An output hands the work to its
+own server's thread or loop and returns at once. :func:`operator_outputs`
 builds the ones the ``[outputs.*]`` tables enable, each with its settings given to its
 constructor; the daemon starts them, fans out to them in one loop and stops them.
 """

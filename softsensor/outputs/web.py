@@ -26,7 +26,7 @@ request's header on one loop thread with a deadline of ``timeout_s`` for the who
 at most ``workers + backlog`` connections (a new one closes the oldest still sending its header)
 and draws pages on ``workers`` threads; ``/healthz`` is answered on the loop thread, so it never
 waits behind a slow client or a page being drawn. The history is fed from the
-daemon's estimator thread (:meth:`LivePage.add_estimate`, :meth:`add_lab`, :meth:`set_health`)
+daemon (:meth:`LivePage.on_estimate`, :meth:`~LivePage.on_lab`, :meth:`~LivePage.on_health`)
 and read by the server's threads under one lock; it is bounded by ``history_h``. Every string
 that reaches the page is escaped.
 """
@@ -97,7 +97,6 @@ class LivePage:
         self._est: deque[tuple[int, dict[str, Any]]] = deque()
         self._labs: deque[tuple[int, float, str]] = deque()
         self._health: dict[str, Any] = {"status": "stale", "detail": "no estimate yet"}
-        self._health_at: int | None = None
         self._diagnosis: str | None = None
         self._last_arrival: float | None = None
         self._server: DeadlineHTTPServer | None = None
@@ -128,7 +127,6 @@ class LivePage:
     def on_health(self, health: Health) -> None:
         with self._lock:
             self._health = health.to_body()
-            self._health_at = health.time_ns
 
     def set_diagnosis(self, text: str | None) -> None:
         with self._lock:

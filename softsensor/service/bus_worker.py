@@ -5,9 +5,9 @@ to an :class:`~softsensor.service.estimator_service.EstimatorService`, and sends
 service returns through its output side (``estimate`` and ``health``); after every
 ``checkpoint_every`` ticks the service state is written through a
 :class:`~softsensor.service.checkpoint.CheckpointStore`. The sides are the interfaces of
-:mod:`softsensor.bus.transport`: on Zenoh (:func:`zenoh_sides`: the daemon, ``replay
---via-zenoh``) or in memory (:mod:`softsensor.bus.memory`: ``replay``, tests), so the daemon
-and the replay run the same worker.
+:mod:`softsensor.bus.transport`: on Zenoh (:func:`~softsensor.bus.zenoh_bus.zenoh_sides`: the
+daemon, ``replay --via-zenoh``) or in memory (:mod:`softsensor.bus.memory`: ``replay``,
+tests), so the daemon and the replay run the same worker.
 
 On Zenoh the service runs on the worker's own thread: Zenoh's callback threads only enqueue (a
 tick of the filter takes tens of milliseconds and must not hold them up), within the input
@@ -32,10 +32,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import zenoh
-
-from softsensor.bus.transport import OUTPUT_KINDS, BusMessage, InputSide, OutputSide
-from softsensor.bus.zenoh_bus import Publisher, ZenohInput
+from softsensor.bus.transport import BusMessage, InputSide, OutputSide
 from softsensor.errors import SoftsensorError
 from softsensor.log_throttle import Throttle, outside_text
 from softsensor.service.checkpoint import CheckpointStore
@@ -103,8 +100,6 @@ class BusWorker:
         Where the scan and lab messages come from; the worker opens it, with its limits.
     outputs : OutputSide
         Where the estimate and health messages go.
-    unit : str
-        Unit of the checkpoints.
     checkpoints : CheckpointStore, optional
         Where to write the service state; None = never.
     checkpoint_every : int
@@ -127,7 +122,7 @@ class BusWorker:
     """
 
     def __init__(self, service: EstimatorService, inputs: InputSide, outputs: OutputSide, *,
-                 unit: str = "dryer1", checkpoints: CheckpointStore | None = None,
+                 checkpoints: CheckpointStore | None = None,
                  checkpoint_every: int = 1,
                  on_output: Callable[[Output], None] | None = None,
                  limits: InputLimits | None = None,
@@ -137,7 +132,6 @@ class BusWorker:
         self.service = service
         self.on_admitted = on_admitted
         self.decorate = decorate
-        self.unit = unit
         self.checkpoints = checkpoints
         self.checkpoint_every = max(1, int(checkpoint_every))
         self.on_output = on_output
@@ -281,7 +275,7 @@ class BusWorker:
         try:
             self.checkpoints.save(self.service.checkpoint(),
                                   saved_at_ns=self.service.now_ns or time.time_ns(),
-                                  unit=self.unit)
+                                  unit=self.service.unit)
             self._ticks_unsaved = 0
         except SoftsensorError as exc:
             # tried again at the next tick, not at every message until then; and every tick
@@ -395,12 +389,4 @@ class BusWorker:
         self.close()
 
 
-def zenoh_sides(session: zenoh.Session, unit: str = "dryer1") -> tuple[ZenohInput, Publisher]:
-    """A worker's input and output sides on ``session`` for ``unit``; the output keys are
-    declared at once, so that subscribers (the recorder, a peer) are matched early."""
-    publisher = Publisher(session, unit)
-    publisher.declare(OUTPUT_KINDS)
-    return ZenohInput(session, unit), publisher
-
-
-__all__ = ["BusWorker", "InputLimits", "zenoh_sides"]
+__all__ = ["BusWorker", "InputLimits"]

@@ -41,9 +41,10 @@ from softsensor.bus.zenoh_bus import (
     free_port,
     listening_endpoints,
     open_session,
+    zenoh_sides,
 )
 from softsensor.errors import ConfigError, EstimationError, IngestError
-from softsensor.estimate import Estimate, Health, Reason
+from softsensor.estimate import Estimate, Health
 from softsensor.estimation.interface import LabResult
 from softsensor.ingest.historian_map import plant_lab_map
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
@@ -63,7 +64,7 @@ from softsensor.presentation.display import (
 from softsensor.recording.recorder import Recorder
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.bus_worker import BusWorker, InputLimits, zenoh_sides
+from softsensor.service.bus_worker import BusWorker, InputLimits
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
 from softsensor.service.estimator_service import EstimatorService, Output
@@ -170,7 +171,7 @@ class Daemon:
         self.tagmap = daemon_tagmap(settings, tagmap)
         self.resume = resume
         self.store = CheckpointStore(settings.checkpoint)
-        self.pipeline: BusWorker | None = None
+        self.worker: BusWorker | None = None
         self.poller: ModbusPoller | None = None
         self.lab_input: LabInput | None = None
         self.recorder: Recorder | None = None
@@ -209,8 +210,6 @@ class Daemon:
             return
         event(log, "health", time_ns=out.time_ns, status=out.status, detail=out.detail)
         self.latest_health = out
-        if self.health is not None:
-            self.health.update(out.to_body())
         for output in self.outputs.values():
             output.on_health(out)
 
@@ -241,11 +240,11 @@ class Daemon:
             stack.callback(session.close)
             if s.record:
                 self._record(stack, session, gate)
-            self.pipeline = pipeline = self._pipeline(session, service)
+            self.worker = worker = self._worker(session, service)
             # stopping must not wait for a backlog: the queued inputs are recorded already
             stack.push_async_callback(asyncio.to_thread, functools.partial(
-                pipeline.close, timeout=SHUTDOWN_WAIT_S, drain=False))
-            self.health = HealthQueryable(session, self.unit, self._health_extra)
+                worker.close, timeout=SHUTDOWN_WAIT_S, drain=False))
+            self.health = HealthQueryable(session, self.unit, self._health_answer)
             stack.callback(self.health.close)
             publisher = Publisher(session, self.unit, clock=clock.now_ns)
             publisher.declare(INPUT_KINDS)
@@ -343,7 +342,7 @@ class Daemon:
                                  reserve_bytes=s.record_reserve_bytes)
         self._recording_said = "ok"
         stack.callback(self.recorder.close)
-        # the outputs from the bus; the inputs from the pipeline once its limits admit them
+        # the outputs from the bus; the inputs from the worker once its limits admit them
         self.bus_recorder = bus_rec = BusRecorder(
             session, self.recorder, unit=self.unit, kinds=OUTPUT_KINDS, gate=gate,
             max_topic_bytes_per_day=s.record_topic_bytes_per_day)
@@ -380,33 +379,36 @@ class Daemon:
     def _lab_file_rejected(self, reason: str) -> None:
         """A file the lab folder rejected: counted and told in health like a refused result
         (the estimator thread's counters, in order with the bus messages)."""
-        if self.pipeline is not None and self.clock is not None:
-            self.pipeline.lab_file_refused(reason, self.clock.now_ns())
+        if self.worker is not None and self.clock is not None:
+            self.worker.lab_file_refused(reason, self.clock.now_ns())
 
     def _window_s(self) -> float:
         """The estimator's window [s, plant time]."""
-        assert self.pipeline is not None
-        return float(self.pipeline.service.window.period_s)
+        assert self.worker is not None
+        return float(self.worker.service.window.period_s)
 
     async def _start_outputs(self, stack: contextlib.AsyncExitStack) -> tuple[str, ...]:
         """Start the enabled operator outputs, stopped with ``stack``; what they serve."""
-        served = []
+        served, outputs = [], {}
         for output in operator_outputs(
                 self.output_settings, self.display, self.unit,
                 clock=self.clock.now_ns if self.clock else time.time_ns,
                 time_scale=self.settings.time_scale, counters=self._counters(),
-                tick_seconds=lambda: None if self.pipeline is None
-                else self.pipeline.last_tick_s):
+                tick_seconds=lambda: None if self.worker is None
+                else self.worker.last_tick_s):
             served.append(await output.start())
             stack.push_async_callback(output.stop)
-            self.outputs[output.name] = output
+            outputs[output.name] = output
+        # handed over whole: the estimator thread may already loop over them (a peer's scans
+        # arrive while OPC UA takes its second to start)
+        self.outputs = outputs
         return tuple(served)
 
     def _counters(self) -> dict[str, tuple[str, Callable[[], float]]]:
         """The daemon's counters for Prometheus, read from its parts at scrape time."""
         def stats():
-            assert self.pipeline is not None
-            return self.pipeline.service.stats
+            assert self.worker is not None
+            return self.worker.service.stats
 
         def poll():
             assert self.poller is not None
@@ -445,7 +447,7 @@ class Daemon:
         stack.push_async_callback(_stop_poller)
         return poll_task
 
-    def _pipeline(self, session: zenoh.Session, service: EstimatorService) -> BusWorker:
+    def _worker(self, session: zenoh.Session, service: EstimatorService) -> BusWorker:
         """The estimator's worker on the Zenoh session, with the input limits of ``[service]``
         (rates in plant time, so per wall second they scale with ``time_scale``) and its
         watchdog."""
@@ -455,7 +457,7 @@ class Daemon:
             max_bytes=s.max_message_bytes,
             rates_per_s={"scan": s.max_scan_rate_hz * s.time_scale,
                          "lab": s.max_lab_rate_per_h / 3600.0 * s.time_scale})
-        pipeline = BusWorker(service, *zenoh_sides(session, self.unit), unit=self.unit,
+        worker = BusWorker(service, *zenoh_sides(session, self.unit),
                              checkpoints=self.store, checkpoint_every=s.checkpoint_every,
                              on_output=self._on_output, limits=limits,
                              decorate=self._decorate,
@@ -463,9 +465,9 @@ class Daemon:
                              else self.bus_recorder.record)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
-        self.watchdog = Watchdog(window_wall, grace, lambda: pipeline.last_tick_at,
-                                 lambda: pipeline.pending)
-        return pipeline
+        self.watchdog = Watchdog(window_wall, grace, lambda: worker.last_tick_at,
+                                 lambda: worker.pending)
+        return worker
 
     def _recording(self) -> str | None:
         """The recorder's state for health: ``ok``, why it is paused, or None (not recording)."""
@@ -487,25 +489,29 @@ class Daemon:
         capped = None if self.bus_recorder is None or not self.bus_recorder.capped \
             else dict(self.bus_recorder.capped)
         return out.at(out.time_ns, recording=self._recording(),
-                      inputs_dropped=None if self.pipeline is None
-                      else dict(self.pipeline.dropped), recording_capped=capped)
+                      inputs_dropped=None if self.worker is None
+                      else dict(self.worker.dropped), recording_capped=capped)
 
     def _recording_changed(self) -> None:
         """Publish health at once when recording pauses or resumes (not only at the next
         tick): the one health line an operator sees for a full disk."""
         state = self._recording()
         if state == self._recording_said or self.latest_health is None \
-                or self.pipeline is None or self.clock is None:
+                or self.worker is None or self.clock is None:
             return
         self._recording_said = state
         event(log, "recording", logging.ERROR if state != "ok" else logging.INFO,
               state=state, lost=None if self.recorder is None else self.recorder.n_lost)
-        self.pipeline.publish_aside(self.latest_health.at(self.clock.now_ns()))
+        self.worker.publish_aside(self.latest_health.at(self.clock.now_ns()))
 
-    def _health_extra(self) -> dict[str, Any]:
-        """What a health query adds to the last health body: the watchdog and the inputs."""
-        p, w = self.pipeline, self.watchdog
-        return {"stalled": bool(w is not None and w.stalled), "recording": self._recording(),
+    def _health_answer(self) -> dict[str, Any]:
+        """A health query's answer: the last health body, with the watchdog's verdict and the
+        inputs' counters now."""
+        latest = self.latest_health
+        doc = ({"status": "stale", "detail": "no estimate yet", "unit": self.unit}
+               if latest is None else latest.to_body())
+        p, w = self.worker, self.watchdog
+        return {**doc, "stalled": bool(w is not None and w.stalled), "recording": self._recording(),
                 "last_tick_age_s": None if p is None
                 else round(time.monotonic() - p.last_tick_at, 1),
                 "pending": None if p is None else p.pending,
@@ -513,22 +519,19 @@ class Daemon:
 
     def _watch(self) -> None:
         """Publish ``stalled`` health when the estimator thread is late (:class:`Watchdog`),
-        through the pipeline's one path to the bus and the outputs."""
-        assert self.pipeline is not None and self.clock is not None
+        through the worker's one path to the bus and the outputs."""
+        assert self.worker is not None and self.clock is not None
         if self.watchdog is None:
             return
         stall = self.watchdog.check()
         if stall is None:
             return
         now = self.clock.now_ns()
-        base = self.latest_health or Health(
-            now, self.unit, self.pipeline.service.kind,
-            tick=Reason("stale", "waiting for the first complete window"),
-            input=Reason("stale", "no scan received yet"), lab=Reason("ok", ""))
-        self.pipeline.publish_aside(base.at(now, stall=stall))
+        base = self.latest_health or Health.initial(now, self.unit, self.worker.service.kind)
+        self.worker.publish_aside(base.at(now, stall=stall))
 
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
-        assert self.pipeline is not None and self.clock is not None
+        assert self.worker is not None and self.clock is not None
         next_status = time.monotonic() + self.settings.status_every_s
         next_trim = time.monotonic() + TRIM_EVERY_S
         while not stop.is_set():
@@ -537,7 +540,7 @@ class Daemon:
             if poll_task.done():
                 exc = poll_task.exception()
                 raise IngestError(f"the Modbus poller stopped: {exc!r}")
-            self.pipeline.advance(self.clock.now_ns())
+            self.worker.advance(self.clock.now_ns())
             self._watch()
             self._recording_changed()
             if time.monotonic() >= next_status:
@@ -548,17 +551,17 @@ class Daemon:
                 trim()
 
     def _status(self) -> None:
-        assert self.pipeline is not None and self.poller is not None
-        st = self.pipeline.service.stats
+        assert self.worker is not None and self.poller is not None
+        st = self.worker.service.stats
         p = self.poller.stats
         event(log, "status", plc_connected=self.poller.connected, polls=p.scans,
               read_failures=p.read_failures, scans=st.scans, ticks=st.ticks,
               stale_ticks=st.stale_ticks, labs_accepted=st.labs_accepted,
               labs_refused=st.labs_refused, lab_files_refused=st.lab_files_refused,
-              last_lab_refusal=self.pipeline.service.last_lab_refusal,
+              last_lab_refusal=self.worker.service.last_lab_refusal,
               checkpoints=self.store.n_saved,
               recorded=None if self.recorder is None else self.recorder.n_written,
               recording=self._recording())
 
 
-__all__ = ["Daemon", "DaemonInfo", "ScaledClock", "daemon_tagmap"]
+__all__ = ["Daemon", "DaemonInfo", "daemon_tagmap"]

@@ -3,7 +3,8 @@
 :class:`EstimatorService` owns a :class:`~softsensor.windows.accumulator.WindowAccumulator`
 and an :class:`~softsensor.estimation.interface.Estimator`. It never touches a socket, a file or a
 clock: time is whatever the messages say, so the daemon (Zenoh, live), the ``replay`` verb
-(Zenoh, offline) and the tests drive the very same object and get the very same estimates.
+(offline, in memory or over Zenoh) and the tests drive the very same object and get the very same
+estimates.
 
 Events and what they return (a list of :class:`Output`: typed, frozen
 :class:`~softsensor.estimate.Estimate` and :class:`~softsensor.estimate.Health`, in publishing
@@ -57,7 +58,16 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from softsensor.errors import EstimationError, IngestError, SoftsensorError
-from softsensor.estimate import CONTRACT_FIELDS, Estimate, Health, Reason, WindowFacts, worst
+from softsensor.estimate import (
+    CONTRACT_FIELDS,
+    NO_SCAN_YET,
+    WAITING_FOR_WINDOW,
+    Estimate,
+    Health,
+    Reason,
+    WindowFacts,
+    worst,
+)
 from softsensor.estimation.interface import Estimator, LabResult, Window
 from softsensor.estimation.tick_history import (
     lab_from_json,
@@ -112,13 +122,14 @@ def finish(estimate: Estimate, window: Window, ranges: EstimateRanges, unit: str
     stale window's estimate ``stale``, a value outside its physical range never ``ok`` (the
     reason first), the inputs the plausibility limits refused said last. Returns the estimate
     and the fields that were not physical (empty when all were)."""
-    out = replace(estimate, window=WindowFacts(
+    facts = WindowFacts(
         unit=unit, n_scans=window.n_scans, stale=window.stale,
-        T_dryer_out_measured=_measured(window.means, "T_dryer_out"),
-        T_cyclone_out_measured=_measured(window.means, "T_cyclone_out"),
+        T_dryer_out_measured=_finite(window.means.get("T_dryer_out")),
+        T_cyclone_out_measured=_finite(window.means.get("T_cyclone_out")),
         inputs_refused=dict(window.refused),
         inputs_refused_why={name: window.reasons[name] for name in window.refused
-                            if name in window.reasons}))
+                            if name in window.reasons})
+    out = replace(estimate, window=facts)
     if window.stale and out.status != "stale":
         out = out.judged(Reason("stale", "stale window"))
     problems = estimate_problems({k: getattr(out, k) for k in CONTRACT_FIELDS}, ranges)
@@ -131,8 +142,7 @@ def finish(estimate: Estimate, window: Window, ranges: EstimateRanges, unit: str
     return out, problems
 
 
-def _measured(means: Mapping[str, float | None], name: str) -> float | None:
-    v = means.get(name)
+def _finite(v: float | None) -> float | None:
     return None if v is None else finite_or_none(v)
 
 
@@ -193,7 +203,7 @@ class EstimatorService:
         self._last_scan: int | None = None
         self._now: int | None = None
         self._tick_status: Reason | None = None
-        self._input_status = Reason("stale", "no scan received yet")
+        self._input_status = NO_SCAN_YET
         self._input_key: tuple[str, tuple[str, ...]] = ("stale", ())
         self._published: tuple[str, tuple[str, ...]] | None = None
         self._last_refusal: str | None = None
@@ -434,7 +444,7 @@ class EstimatorService:
         self._published = self._state_key()
         return Health(
             time_ns=int(time_ns), unit=self.unit, estimator=self.kind,
-            tick=self._tick_status or Reason("stale", "waiting for the first complete window"),
+            tick=self._tick_status or WAITING_FOR_WINDOW,
             input=self._input_status,
             lab=self._lab_status(max(int(time_ns), self._now or 0)),
             counters=dataclasses.asdict(self.stats), window_end_ns=self._ticked_end,

@@ -60,6 +60,7 @@ from softsensor.bus.zenoh_bus import (
     listening_endpoints,
     open_session,
     wait_for_peers,
+    zenoh_sides,
 )
 from softsensor.errors import ConfigError, EstimationError, IngestError, SoftsensorError
 from softsensor.files import atomic_path
@@ -69,7 +70,7 @@ from softsensor.recording.day_writer import DEFAULT_CHUNK_SIZE, DayWriter
 from softsensor.recording.mcap_day import iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
-from softsensor.service.bus_worker import BusWorker, zenoh_sides
+from softsensor.service.bus_worker import BusWorker
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
@@ -393,7 +394,7 @@ def _stream_memory(messages: Iterator[tuple[str, int, dict[str, Any]]],
     unit = service.unit
     bus = MemoryBus(unit)
     with BusRecorder(bus, recorder, unit=unit):  # subscribed first: an input, then its outputs
-        worker = BusWorker(service, MemoryInput(bus), MemoryOutput(bus), unit=unit,
+        worker = BusWorker(service, MemoryInput(bus), MemoryOutput(bus),
                            on_output=on_output, thread=False)
         try:
             stats = replay_messages(messages, bus.put, rate=rate)
@@ -432,7 +433,7 @@ def _stream_zenoh(messages: Iterator[tuple[str, int, dict[str, Any]]],
                 raise SoftsensorError("replay: the Zenoh sessions did not connect on "
                                       "loopback within 10 s")
             bus = BusRecorder(svc_session, recorder, unit=unit)
-            worker = BusWorker(service, *zenoh_sides(svc_session, unit), unit=unit,
+            worker = BusWorker(service, *zenoh_sides(svc_session, unit),
                                on_output=on_output)
             publisher = Publisher(plant_session, unit)
             try:

@@ -6,7 +6,7 @@ starved misses that. :class:`Watchdog`, run from the daemon's housekeeping loop 
 thread), sees no estimate for more than one window past the latest a tick can come, and then
 has health published: ``status = "stale"`` (CONTRACT section 2 keeps to ``ok``,
 ``degraded``, ``stale``) with ``stalled = true`` and a detail saying how late and how many
-messages wait; again every window while it lasts. The daemon puts it through the pipeline's
+messages wait; again every window while it lasts. The daemon puts it through the worker's
 one path to the bus and the outputs (:meth:`~softsensor.service.bus_worker.BusWorker.
 publish_aside`), one message at a time with the estimator thread's.
 
@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import json
 import logging
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -88,33 +87,19 @@ class Watchdog:
 
 
 class HealthQueryable:
-    """Answers ``get softsensor/<unit>/health`` with the latest health (module docstring)."""
+    """Answers ``get softsensor/<unit>/health`` with what ``answer`` returns at the time of the
+    query (the daemon's latest health with the watchdog's verdict and the input counters;
+    module docstring)."""
 
     def __init__(self, session: zenoh.Session, unit: str,
-                 extra: Callable[[], dict[str, Any]]) -> None:
+                 answer: Callable[[], dict[str, Any]]) -> None:
         self.key = f"softsensor/{unit}/health"
-        self._lock = threading.Lock()
-        self._latest: dict[str, Any] = {"status": "stale", "detail": "no estimate yet",
-                                        "unit": unit}
-        self._extra = extra
+        self._answer_now = answer
         self._queryable = session.declare_queryable(self.key, self._answer)
-
-    def update(self, body: dict[str, Any]) -> None:
-        """Keep ``body`` (a health body just published) as the answer."""
-        with self._lock:
-            self._latest = dict(body)
-
-    @property
-    def latest(self) -> dict[str, Any]:
-        """A copy of the health body last published."""
-        with self._lock:
-            return dict(self._latest)
 
     def _answer(self, query: zenoh.Query) -> None:
         try:
-            with self._lock:
-                doc = dict(self._latest)
-            doc.update(self._extra())
+            doc = dict(self._answer_now())
             doc["answered_ns"] = time.time_ns()
             query.reply(self.key, json.dumps(doc, allow_nan=False, default=str).encode())
         except Exception:  # noqa: BLE001 - must not escape into zenoh's thread

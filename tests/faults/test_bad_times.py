@@ -47,7 +47,7 @@ def test_far_future_and_negative_scans_are_refused_and_estimation_goes_on(tmp_pa
     async def main() -> None:
         async with running_daemon(tmp_path, ticks=2) as r:
             loop = asyncio.get_running_loop()
-            stats = r.daemon.pipeline.service.stats
+            stats = r.daemon.worker.service.stats
             got["start"] = r.daemon.clock.start_ns
             await asyncio.to_thread(_inject, r.endpoint, r.daemon.clock.now_ns())
             t0, deadline = stats.ticks, loop.time() + 60

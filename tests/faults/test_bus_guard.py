@@ -72,7 +72,7 @@ def test_only_authenticated_peers_get_in_and_nobody_speaks_for_the_daemon(tmp_pa
 
     async def run() -> None:
         async with running_daemon(tmp_path, zenoh_users_file=str(users)) as r:
-            stats, now = r.daemon.pipeline.service.stats, r.daemon.clock.now_ns
+            stats, now = r.daemon.worker.service.stats, r.daemon.clock.now_ns
             ep = r.endpoint
             await asyncio.to_thread(_peer_puts, ep, None, None, now(), "anonymous")
             await asyncio.to_thread(_peer_puts, ep, "plc", "wrong", now(), "wrong-password")

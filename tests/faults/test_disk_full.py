@@ -82,17 +82,17 @@ def test_a_full_disk_pauses_recording_without_litter_and_it_resumes(tmp_path: Pa
                                   record_reserve_bytes=64 * 1024) as r:
             rec, clock = r.daemon.recorder, r.daemon.clock
             filler = _fill(tmp_path / "rec")
-            ticks = r.daemon.pipeline.service.stats.ticks
+            ticks = r.daemon.worker.service.stats.ticks
             # across the day change and its 600 s grace, still full
             await wait(lambda: clock.now_ns() > MIDNIGHT + 900 * S, "the day change", r)
             got["files_full"] = sorted(p.name for p in (tmp_path / "rec").glob("*.mcap"))
             got["health"] = await asyncio.to_thread(_health, r.endpoint)
-            got["ticks_while_full"] = r.daemon.pipeline.service.stats.ticks - ticks
+            got["ticks_while_full"] = r.daemon.worker.service.stats.ticks - ticks
             filler.unlink()
             got["freed_ns"] = clock.now_ns()
             await wait(lambda: getattr(rec, "failure", None) is None, "recording to resume", r)
-            ticks = r.daemon.pipeline.service.stats.ticks
-            await wait(lambda: r.daemon.pipeline.service.stats.ticks >= ticks + 2,
+            ticks = r.daemon.worker.service.stats.ticks
+            await wait(lambda: r.daemon.worker.service.stats.ticks >= ticks + 2,
                        "two more ticks", r)
 
     with small_disk(tmp_path / "rec"):

@@ -29,18 +29,18 @@ def test_a_checkpoint_from_a_clock_a_day_ahead_does_not_silence_a_real_time_daem
     async def main() -> None:
         ahead = time.time_ns() + DAY_NS
         async with running_daemon(tmp_path, ticks=3, clock_start=str(ahead)) as r:
-            got["ahead_end"] = r.daemon.pipeline.service.ticked_end_ns
+            got["ahead_end"] = r.daemon.worker.service.ticked_end_ns
         assert got["ahead_end"] > time.time_ns() + DAY_NS // 2
         # the same checkpoint, now on the wall clock (time scale 1, no clock start)
         async with running_daemon(tmp_path, ticks=0, time_scale=1.0, clock_start=None,
                                   poll_period_s=0.5) as r:
             loop = asyncio.get_running_loop()
-            service = r.daemon.pipeline.service
+            service = r.daemon.worker.service
             deadline, first = loop.time() + 20, service.stats.scans  # (restored, if resumed)
             while service.stats.scans < first + 6:
                 assert loop.time() < deadline and not r.task.done(), service.stats
                 await asyncio.sleep(0.1)
-            await asyncio.to_thread(r.daemon.pipeline.sync)
+            await asyncio.to_thread(r.daemon.worker.sync)
             got.update(resumed=r.daemon.info.resumed, late=service.late_scans,
                        ticked=service.ticked_end_ns)
 

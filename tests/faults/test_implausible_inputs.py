@@ -37,11 +37,11 @@ def _put_scans(endpoint: str, bodies: list[dict], times_ns: list[int]) -> None:
 
 async def _more_ticks(r, n: int, timeout: float = 60.0) -> None:
     loop = asyncio.get_running_loop()
-    stats = r.daemon.pipeline.service.stats
+    stats = r.daemon.worker.service.stats
     t0, deadline = stats.ticks, loop.time() + timeout
     while stats.ticks < t0 + n:
         assert loop.time() < deadline and not r.task.done(), (
-            f"ticks stopped at {stats.ticks} (errors: {r.daemon.pipeline.n_errors})")
+            f"ticks stopped at {stats.ticks} (errors: {r.daemon.worker.n_errors})")
         await asyncio.sleep(0.05)
 
 
@@ -55,15 +55,15 @@ def test_huge_values_from_a_peer_neither_stall_the_estimator_nor_poison_its_chec
             now = r.daemon.clock.now_ns()
             await asyncio.to_thread(_put_scans, r.endpoint, [huge, huge], [now, now + 10**9])
             await _more_ticks(r, 3)  # the window with them closes, and two more
-            assert r.daemon.pipeline.n_errors == 0
+            assert r.daemon.worker.n_errors == 0
             # again, and stop while their window is open: the last checkpoint holds them
             now = r.daemon.clock.now_ns()
             await asyncio.to_thread(_put_scans, r.endpoint, [huge, huge], [now, now + 10**9])
-            await asyncio.to_thread(r.daemon.pipeline.sync)
+            await asyncio.to_thread(r.daemon.worker.sync)
         async with running_daemon(tmp_path, ticks=1) as r:
             assert r.daemon.info.resumed
             await _more_ticks(r, 3)
-            assert r.daemon.pipeline.n_errors == 0
+            assert r.daemon.worker.n_errors == 0
 
     asyncio.run(asyncio.wait_for(main(), 240))
     text = "\n".join(r.getMessage() for r in caplog.records)
@@ -99,7 +99,7 @@ def test_an_implausible_input_inside_the_tag_range_never_makes_an_ok_estimate(tm
             got["t600"] = r.daemon.clock.now_ns()
             tc.start(600.0, 20)  # a spike of 120 K in one 10 s scan
             await _more_ticks(r, 5)
-            got["refused"] = r.daemon.pipeline.service.stats
+            got["refused"] = r.daemon.worker.service.stats
 
     asyncio.run(asyncio.wait_for(main(), 240))
     (path,) = sorted((tmp_path / "rec").glob("*.mcap"))

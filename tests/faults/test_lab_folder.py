@@ -247,13 +247,13 @@ def test_the_daemon_reads_the_lims_file_and_applies_every_result_of_a_flood(tmp_
                 (lab_dir / f"flood-{i:03d}.csv").write_text(
                     "Sample ID,Sample Time,Result Time,Moisture\n"
                     f"F-{i},{local(base - i * 10**9)},{local(base)},9.{i % 10}\n")
-            stats = d.pipeline.service.stats
+            stats = d.worker.service.stats
             deadline = loop.time() + 90
             while stats.labs_accepted + stats.labs_refused < 1 + n_flood:
-                assert loop.time() < deadline, (stats, d.pipeline.dropped)
+                assert loop.time() < deadline, (stats, d.worker.dropped)
                 await asyncio.sleep(0.1)
             got["stats"] = (stats.labs_accepted, stats.labs_refused)
-            got["dropped"] = dict(d.pipeline.dropped)
+            got["dropped"] = dict(d.worker.dropped)
             got["left"] = sorted(p.name for p in lab_dir.glob("*.csv"))
             got["rejected"] = sorted(p.name for p in (lab_dir / "rejected").iterdir())
             got["seen"] = (lab_dir / ".seen-ids").read_text().splitlines()

@@ -45,14 +45,14 @@ def test_floods_of_bad_messages_are_a_few_short_lines(tmp_path: Path, caplog):
 
     async def run() -> None:
         async with running_daemon(tmp_path, ticks=1) as r:
-            await asyncio.to_thread(r.daemon.pipeline.sync)
+            await asyncio.to_thread(r.daemon.worker.sync)
             caplog.clear()
             caplog.set_level(logging.INFO)
             await asyncio.to_thread(_flood, r.endpoint, r.daemon.clock.now_ns())
-            await asyncio.to_thread(r.daemon.pipeline.sync)
+            await asyncio.to_thread(r.daemon.worker.sync)
             got["records"] = list(caplog.records)
-            got["bad"] = r.daemon.pipeline.service.stats.bad_scans
-            got["dropped"] = dict(r.daemon.pipeline.dropped)  # said when it fails
+            got["bad"] = r.daemon.worker.service.stats.bad_scans
+            got["dropped"] = dict(r.daemon.worker.dropped)  # said when it fails
 
     asyncio.run(asyncio.wait_for(run(), 150))
     noisy = [r for r in got["records"] if r.levelno >= logging.WARNING]
@@ -74,7 +74,7 @@ def test_a_checkpoint_that_cannot_be_written_is_said_once_in_a_while(tmp_path: P
 
     async def run() -> None:
         async with running_daemon(tmp_path, ticks=5, checkpoint=str(ckpt)) as r:
-            assert r.daemon.pipeline.service.stats.ticks >= 5
+            assert r.daemon.worker.service.stats.ticks >= 5
 
     asyncio.run(asyncio.wait_for(run(), 150))
     failed = [r for r in caplog.records if r.getMessage() == "checkpoint_failed"]

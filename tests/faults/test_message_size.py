@@ -37,12 +37,12 @@ def test_an_oversized_message_is_dropped_and_counted(tmp_path: Path):
 
     async def run() -> None:
         async with running_daemon(tmp_path, ticks=0) as r:
-            p = r.daemon.pipeline
+            p = r.daemon.worker
             await asyncio.to_thread(_send, r.endpoint, r.daemon.clock.now_ns(),
                                     [100_000, 200_000])
             await asyncio.to_thread(p.sync)
             got.update(dropped=dict(p.dropped), labs=p.n_labs_received,
-                       health=r.daemon._health_extra()["dropped"])
+                       health=r.daemon._health_answer()["dropped"])
 
     asyncio.run(asyncio.wait_for(run(), 120))
     assert got["dropped"]["too_large"] == 2, got  # each counted, neither decoded

@@ -52,7 +52,7 @@ def test_the_recording_keeps_to_the_input_limits_and_a_daily_cap(tmp_path: Path)
         # 0.25 scans a plant second: 60 a wall second at 240x, so most of the flood is dropped
         async with running_daemon(tmp_path, ticks=1, max_scan_rate_hz=0.25,
                                   record_topic_bytes_per_day=CAP) as r:
-            p, rec = r.daemon.pipeline, r.daemon.bus_recorder
+            p, rec = r.daemon.worker, r.daemon.bus_recorder
             await asyncio.to_thread(_flood, r.endpoint, r.daemon.clock.now_ns(), 600)
             await asyncio.sleep(0.5)
             got["recording"] = r.daemon._recording()

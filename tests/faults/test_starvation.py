@@ -44,7 +44,7 @@ def test_a_scan_flood_is_rate_limited_and_estimation_goes_on(tmp_path: Path):
 
     async def run() -> None:
         async with running_daemon(tmp_path, ticks=2) as r:
-            p = r.daemon.pipeline
+            p = r.daemon.worker
             t0 = p.service.stats.ticks
             got["took"] = await asyncio.to_thread(_flood, r.endpoint, r.daemon.clock.now_ns(),
                                                   30_000)
@@ -68,7 +68,7 @@ def test_a_stuck_estimator_is_reported_stalled_and_stop_is_still_prompt(tmp_path
 
     async def run() -> None:
         async with running_daemon(tmp_path, ticks=1) as r:
-            p, w = r.daemon.pipeline, r.daemon.watchdog
+            p, w = r.daemon.worker, r.daemon.watchdog
             with open_session(port=None, connect=[r.endpoint]) as s, \
                     subscribe(s, lambda m: got["health"].append(m.body), kinds=("health",)):
                 p._q.put(_Call(lambda: release.wait(120)))  # the thread is stuck from now

@@ -8,7 +8,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import math
-import socket
 import threading
 from datetime import UTC, datetime
 
@@ -16,6 +15,7 @@ import pytest
 from asyncua import ua
 from clients import opcua_read
 
+from softsensor.bus.zenoh_bus import free_port
 from softsensor.estimate import Estimate
 from softsensor.outputs.opcua_server import EstimateOpcUaServer
 from softsensor.outputs.settings import OpcUaSettings
@@ -28,10 +28,6 @@ T_NS = 1_767_607_800 * 10**9
 W_NS = 600 * 10**9
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _utc(ns: int) -> datetime:
@@ -39,7 +35,7 @@ def _utc(ns: int) -> datetime:
 
 
 def test_an_asyncua_client_reads_analog_items_with_source_times_and_history():
-    server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=_free_port()),
+    server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=free_port()),
                                  DisplaySettings(moisture_basis="wet"))
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_forever, daemon=True)
@@ -100,7 +96,7 @@ def test_the_opcua_server_starts_without_forty_warning_lines(caplog):
     from softsensor.outputs.settings import OpcUaSettings
 
     async def main():
-        server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=_free_port()),
+        server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=free_port()),
                                      DisplaySettings(), "dryer1")
         await server.start()
         try:

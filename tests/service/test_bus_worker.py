@@ -13,10 +13,16 @@ import time
 
 from softsensor.bus.memory import MemoryBus, MemoryInput, MemoryOutput
 from softsensor.bus.transport import OUTPUT_KINDS, BusMessage
-from softsensor.bus.zenoh_bus import Publisher, listening_endpoints, open_session, wait_for_peers
+from softsensor.bus.zenoh_bus import (
+    Publisher,
+    listening_endpoints,
+    open_session,
+    wait_for_peers,
+    zenoh_sides,
+)
 from softsensor.plantconfig import load_plant_config
 from softsensor.service.build import make_service
-from softsensor.service.bus_worker import BusWorker, InputLimits, zenoh_sides
+from softsensor.service.bus_worker import BusWorker, InputLimits
 from softsensor.service.settings import ServiceSettings
 
 PAD = "x" * 60_000  # a 60 kB scan

@@ -79,7 +79,7 @@ def test_daemon_estimates_survives_a_plc_outage_and_replays_identically(day, tmp
             with open_session(port=None, connect=info.endpoints) as outside:
                 assert wait_for_peers(outside, timeout=5)
                 sub = subscribe(outside, seen.append, kinds=("estimate", "health", "lab"))
-                svc = daemon.pipeline.service
+                svc = daemon.worker.service
                 await until(lambda: svc.stats.ticks >= 2, 30, "two ticks")
 
                 # a lab result dropped into the folder, sampled 15 plant-minutes ago
@@ -106,7 +106,7 @@ def test_daemon_estimates_survives_a_plc_outage_and_replays_identically(day, tmp
         finally:
             stop.set()
             await asyncio.wait_for(task, 30)
-            outcome["stats"] = daemon.pipeline.service.stats
+            outcome["stats"] = daemon.worker.service.stats
             await plc.stop()
             outcome["writes"] = plc.write_requests
 
@@ -175,7 +175,7 @@ def test_daemon_as_a_router_client_without_a_plc(tmp_path):
             stop = asyncio.Event()
             task = asyncio.create_task(daemon.run(stop))
             try:
-                await until(lambda: daemon.pipeline is not None or task.done(), 20, "start")
+                await until(lambda: daemon.worker is not None or task.done(), 20, "start")
                 assert daemon.info is not None and daemon.info.endpoints == []
                 sub = subscribe(lims, seen.append, kinds=("health",))
                 await until(lambda: any("not_connected" in m.body["detail"] for m in seen),
@@ -185,7 +185,7 @@ def test_daemon_as_a_router_client_without_a_plc(tmp_path):
                     sample = daemon.clock.now_ns() - 600 * 10**9
                     pub.put("lab", {"sample_time_ns": sample, "moisture_out": 0.11,
                                     "sample_id": "LIMS-1"}, daemon.clock.now_ns())
-                    await until(lambda: daemon.pipeline.service.stats.labs_received == 1, 10,
+                    await until(lambda: daemon.worker.service.stats.labs_received == 1, 10,
                                 "the lab result")
                 sub.close()
             finally:

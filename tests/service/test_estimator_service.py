@@ -11,7 +11,7 @@ import pytest
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError, EstimationError
-from softsensor.estimate import Estimate
+from softsensor.estimate import Estimate, FilterTerms, Reason
 from softsensor.estimation.interface import LabResult, Window
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import load_plant_config, plant_config_from_dict
@@ -47,13 +47,12 @@ class FakeEstimator:
             raise EstimationError("covariance lost definiteness")
         self.events.append(("tick", window.end_ns, window.stale, window.n_scans))
         lab, self._lab = self._lab, False
-        return Estimate.from_body({
-            "moisture_out": 0.1, "moisture_out_std": 0.01, "moisture_in": 1.0,
-            "moisture_in_std": 0.1, "T_dryer_out_model": 348.0,
-            "T_cyclone_out_model": math.nan, "nis": math.nan, "nis_dof": 0, "lab_updated": lab,
-            "status": "stale" if window.stale else "ok", "detail": "fake",
-            "window_start_ns": window.start_ns, "window_end_ns": window.end_ns,
-            "estimator": self.kind})
+        # NaN where a value could not be given, as a model that failed one output returns it
+        terms = FilterTerms(*[math.nan] * 10, nis=math.nan, nis_dof=0, fallback=False,
+                            labs_applied=(), discrepancy_priors="fake")
+        return Estimate(window.start_ns, window.end_ns, self.kind, 0.1, 0.01, 1.0, 0.1, 348.0,
+                        math.nan, lab_updated=lab, filter=terms, reasons=(
+                            Reason("stale" if window.stale else "ok", "fake"),))
 
     def add_lab(self, lab: LabResult) -> str | None:
         self.events.append(("lab", lab.sample_id))
@@ -100,8 +99,8 @@ def test_a_window_is_ticked_once_a_scan_tick_delay_past_its_end_arrives() -> Non
     est = next(o for o in out if o.kind == "estimate")
     assert est.time_ns == T0 + 600 * S and est.to_body()["n_scans"] == 60
     assert est.to_body()["stale"] is False and est.to_body()["unit"] == "dryer1"
-    # NaN never reaches the bus nor the operator outputs: the body is made JSON-able once,
-    # every field (not a list of six), before anything judges or serves it
+    # NaN never reaches the bus nor the operator outputs: an estimate holds None for what
+    # could not be given, every field (not a list of six), whoever built it
     assert est.to_body()["T_cyclone_out_model"] is None and est.to_body()["nis"] is None
     assert [o.kind for o in out] == ["estimate", "health"]
     assert out[1].to_body()["status"] == "ok" and out[1].time_ns == est.time_ns

@@ -103,7 +103,7 @@ async def running_daemon(tmp_path: Path, *, ticks: int = 1,
     loop = asyncio.get_running_loop()
     try:
         deadline = loop.time() + 60
-        while not up or daemon.pipeline.service.stats.ticks < ticks:
+        while not up or daemon.worker.service.stats.ticks < ticks:
             assert loop.time() < deadline and not task.done(), "the daemon did not tick"
             await asyncio.sleep(0.05)
         yield Running(daemon, stop, task, up[0].endpoints[0])

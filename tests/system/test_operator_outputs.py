@@ -11,17 +11,10 @@ import numpy as np
 from clients import modbus_read, opcua_read, register_float, scrape_metrics
 from daemon_harness import daemon_settings, published, serving_plc
 
+from softsensor.bus.zenoh_bus import free_port
 from softsensor.plant.simulator import simulate_day
 from softsensor.plantconfig import default_config_path, load_plant_config
 from softsensor.service.daemon import Daemon
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def test_the_daemon_serves_its_estimates_on_every_output(tmp_path):
@@ -33,7 +26,7 @@ def test_the_daemon_serves_its_estimates_on_every_output(tmp_path):
     p.write_text(default_config_path().read_text() + "\n[outputs.modbus]\nenabled = true\n"
                  "port = 0\n[outputs.prometheus]\nenabled = true\nport = 0\n"
                  "[outputs.web]\nenabled = true\nport = 0\n"
-                 f"[outputs.opcua]\nenabled = true\nport = {_free_port()}\n")
+                 f"[outputs.opcua]\nenabled = true\nport = {free_port()}\n")
     cfg = load_plant_config(p)
     settings = daemon_settings(tmp_path, int(day.scans.index[0]), cfg, record=False)
     got: dict = {}

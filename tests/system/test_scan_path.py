@@ -171,7 +171,8 @@ def test_the_service_input_keeps_one_sources_order_across_keys() -> None:
 def test_a_failing_advance_is_counted_and_the_worker_goes_on():
     """advance() has no caller waiting on it: its failure is counted and logged, and the
     next call is still served."""
-    from softsensor.service.bus_worker import BusWorker, zenoh_sides
+    from softsensor.bus.zenoh_bus import zenoh_sides
+    from softsensor.service.bus_worker import BusWorker
 
     class Failing:
         calls = 0
@@ -199,8 +200,9 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
     not through the worker's queue, since the watchdog speaks when the worker is stuck."""
     import threading
 
+    from softsensor.bus.zenoh_bus import zenoh_sides
     from softsensor.estimate import Health
-    from softsensor.service.bus_worker import BusWorker, _Call, zenoh_sides
+    from softsensor.service.bus_worker import BusWorker, _Call
     from softsensor.service.estimator_service import Output
 
     inside, most, seen = [0], [0], []
