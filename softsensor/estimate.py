@@ -2,11 +2,12 @@
 
 What the soft sensor says every tick is an :class:`Estimate` (``/softsensor/estimate``,
 CONTRACT section 2) and a :class:`Health` (``/softsensor/health``). Both are frozen: the
-estimator builds an estimate in one place (:mod:`softsensor.estimation.publication`), the
-service finishes it with the window's facts by one pure step
-(:func:`softsensor.service.estimator_service.finish`) and says its health; the daemon adds what
-only it knows (the recorder's state, what the input limits dropped, a stalled estimator thread)
-as fields of a new :class:`Health`, never by editing text. Every sink (the bus, the recording,
+estimator builds its estimate (the filter's in one place,
+:mod:`softsensor.estimation.publication`), the service finishes any estimator's with the
+window's facts by one pure step (:func:`softsensor.service.estimator_service.finish`) and says
+its health; the daemon adds what only it knows (the recorder's state, what the input limits
+dropped, a stalled estimator thread) as fields of a new :class:`Health`, never by editing
+text. Every sink (the bus, the recording,
 the operator outputs) gets these objects; :meth:`Estimate.to_body` and :meth:`Health.to_body`
 are the one place their JSON bodies are written, :meth:`~Estimate.from_body` the one place a
 body read back (a checkpoint, a recorded day) becomes one again.
@@ -27,6 +28,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from types import MappingProxyType
 from typing import Any, ClassVar
+
+from softsensor.jsonable import finite_or_none
 
 #: Health states from best to worst (CONTRACT section 2).
 SEVERITY: Mapping[str, int] = MappingProxyType({"ok": 0, "degraded": 1, "stale": 2})
@@ -52,14 +55,8 @@ class Reason:
 
 
 def _num(v: Any) -> float | None:
-    """A finite float, or None (JSON has no NaN)."""
-    if v is None or isinstance(v, bool):
-        return None
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        return None
-    return x if math.isfinite(x) else None
+    """A body's number as a finite float, or None (JSON's null; it has no NaN)."""
+    return None if v is None else finite_or_none(v)
 
 
 def _none_for_nan(obj: Any) -> None:
@@ -472,6 +469,8 @@ class Health:
         body: dict[str, Any] = {
             "status": self.status, "detail": self.detail, "tick_status": self.tick.status,
             "input_status": self.input.status, "lab_status": self.lab.status,
+            "tick_detail": self.tick.text, "input_detail": self.input.text,
+            "lab_detail": self.lab.text,
             "estimator": self.estimator, "unit": self.unit, "window_end_ns": self.window_end_ns,
             "last_scan_ns": self.last_scan_ns, "labs_waiting": self.labs_waiting,
             "last_lab_refusal": self.last_lab_refusal,
@@ -486,24 +485,21 @@ class Health:
             body["recording_capped"] = dict(self.recording_capped)
         if self.stall is not None:
             body.update(stalled=True, tick_late_s=round(self.stall.late_s, 1),
-                        pending=self.stall.pending)
+                        pending=self.stall.pending, tick_every_s=self.stall.window_s)
         return body
 
     @classmethod
     def from_body(cls, body: Mapping[str, Any], time_ns: int) -> Health:
-        """The health a body said at ``time_ns`` (its detail kept as the tick's verdict when
-        the tick was what was wrong or nothing was; else on the first part not ``ok``)."""
+        """The health a body said at ``time_ns``: its parts from their statuses and details. A
+        body that gives only ``status`` and ``detail`` (another program's) reads as the
+        tick's verdict."""
         b = dict(body)
-        status = {k: str(b.get(f"{k}_status") or "ok") for k in ("tick", "input", "lab")}
-        said_status = b.get("status")
-        if said_status is not None and worst(*status.values()) != worst(str(said_status)):
-            status["tick"] = str(said_status)  # a body without its parts: the tick's verdict
-        detail = str(b.get("detail") or "")
-        recording = b.get("recording")
-        if recording not in (None, "ok"):  # said again by to_body
-            detail = detail.removesuffix(f"; recording: {recording}")
-        said = next((k for k in ("tick", "input", "lab") if status[k] != "ok"), "tick")
-        parts = {k: Reason(status[k], detail if k == said else "") for k in status}
+        parts = {k: Reason(str(b.get(f"{k}_status") or "ok"), str(b.get(f"{k}_detail") or ""))
+                 for k in ("tick", "input", "lab")}
+        if not any(f"{k}_detail" in b for k in parts):
+            said = str(b.get("status") or "ok")
+            parts["tick"] = Reason(worst(said, *(r.status for r in parts.values())),
+                                   str(b.get("detail") or ""))
         counters = {k: int(v) for k, v in b.items()
                     if k not in _HEALTH_FIELDS and isinstance(v, int) and not isinstance(v, bool)}
 
@@ -511,7 +507,10 @@ class Health:
             v = b.get(k)
             return None if v is None else int(v)
 
-        dropped, capped = b.get("inputs_dropped"), b.get("recording_capped")
+        dropped, capped, recording = (b.get(k) for k in ("inputs_dropped", "recording_capped",
+                                                          "recording"))
+        stall = (Stall(float(b["tick_late_s"]), int(b["pending"]), float(b["tick_every_s"]))
+                 if b.get("stalled") else None)
         return cls(int(time_ns), str(b.get("unit", "")), str(b.get("estimator", "")),
                    parts["tick"], parts["input"], parts["lab"], _frozen_map(counters),
                    opt_int("window_end_ns"), opt_int("last_scan_ns"),
@@ -521,15 +520,16 @@ class Health:
                    opt_int("stale_since_ns"),
                    None if recording is None else str(recording),
                    None if dropped is None else _frozen_map(dropped),
-                   None if capped is None else _frozen_map(capped))
+                   None if capped is None else _frozen_map(capped), stall)
 
 
 #: The health body's own fields (the rest of its integers are the service's counters).
 _HEALTH_FIELDS: frozenset[str] = frozenset({
-    "status", "detail", "tick_status", "input_status", "lab_status", "estimator", "unit",
+    "status", "detail", "tick_status", "input_status", "lab_status", "tick_detail",
+    "input_detail", "lab_detail", "estimator", "unit",
     "window_end_ns", "last_scan_ns", "labs_waiting", "last_lab_refusal", "last_lab_refusal_ns",
     "last_lab_accepted_ns", "stale_since_ns", "recording", "inputs_dropped",
-    "recording_capped", "stalled", "tick_late_s", "pending"})
+    "recording_capped", "stalled", "tick_late_s", "pending", "tick_every_s"})
 
 
 __all__ = ["CONTRACT_FIELDS", "SEVERITY", "Blend", "Estimate", "FilterTerms", "Health",

@@ -1,7 +1,8 @@
 """The command line (``softsensor/cli.py``): it registers every verb module, and a module that
 fails to import stops it with one line naming the module instead of silently dropping its
 verbs; a verb imports its own module only; every verb describes itself, lists its exit codes
-(the README's table) and helps every option; ``-v`` prints the traceback it promises; library
+(the commands page's table, ``docs/user-guide/commands.md``) and helps every option; ``-v`` prints
+the traceback it promises; library
 loggers stay quiet unless asked (issues 24 and 30)."""
 
 from __future__ import annotations

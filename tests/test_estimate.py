@@ -107,10 +107,19 @@ def test_the_daemons_news_are_fields_not_edited_text():
 
 
 def test_a_health_body_reads_back_to_the_same_body():
-    h = health(lab=Reason("degraded", "lab: silent"), recording="disk full",
-               inputs_dropped={"rate": 3}, recording_capped={"/plant/scan": 8})
-    body = h.to_body()
-    assert Health.from_body(body, T).to_body() == body
+    cases = [
+        health(lab=Reason("degraded", "lab: silent"), recording="disk full",
+               inputs_dropped={"rate": 3}, recording_capped={"/plant/scan": 8}),
+        health(input=Reason("degraded", "no good value of T_air_in"),
+               lab=Reason("degraded", "lab: silent 9 h")),
+        health(tick=Reason("degraded", "inconsistent"), input=Reason("stale", "no scans"))
+        .at(T + 5, stall=Stall(1271.0, 3, 600.0)),
+    ]
+    for h in cases:
+        body = h.to_body()
+        again = Health.from_body(body, h.time_ns)
+        assert again == h, (again, h)
+        assert again.to_body() == body
     # a body that says only its status and detail keeps both
     short = Health.from_body({"status": "degraded", "detail": "inconsistent"}, T)
     assert short.status == "degraded" and short.detail == "inconsistent"

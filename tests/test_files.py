@@ -8,7 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from softsensor.files import atomic_path
+from softsensor.errors import ConfigError
+from softsensor.files import atomic_path, check_target, replace_file, writing
 
 
 def _mode(path: Path) -> int:
@@ -41,3 +42,49 @@ def test_files_replaced_whole_get_the_users_umask(tmp_path, umask):
     assert _mode(params) == 0o640 and "0.2" in params.read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == ["index.html", "params.toml",
                                                           "private.txt"]
+
+
+def test_targets_refused_before_the_work(tmp_path):
+    with pytest.raises(ConfigError, match="is a directory"):
+        check_target(tmp_path)
+    with pytest.raises(ConfigError, match="does not exist"):
+        check_target(tmp_path / "no" / "x.json")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        if not os.access(ro, os.W_OK):  # root may write anyway
+            with pytest.raises(ConfigError, match="not writable"):
+                check_target(ro / "x.json", "--out")
+    finally:
+        ro.chmod(0o700)
+    check_target("-")
+    check_target(None)
+
+
+def test_a_failed_write_leaves_the_previous_file_whole(tmp_path):
+    target = tmp_path / "report.json"
+    target.write_text("previous")
+
+    with pytest.raises(TypeError):
+        replace_file(target, object())  # type: ignore[arg-type]
+    assert target.read_text() == "previous"
+    assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temporary left
+    replace_file(target, b"new")
+    assert target.read_text() == "new"
+
+
+def test_writing_replaces_whole_or_not_at_all(tmp_path):
+
+
+    target = tmp_path / "out.csv"
+    target.write_text("earlier\n")
+    with pytest.raises(KeyboardInterrupt):
+        with writing(target) as tmp:
+            tmp.write_text("half a file")
+            raise KeyboardInterrupt
+    assert target.read_text() == "earlier\n"
+    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]  # no temporary left
+    with writing(target) as tmp:
+        tmp.write_text("new\n")
+    assert target.read_text() == "new\n" and len(list(tmp_path.iterdir())) == 1

@@ -370,7 +370,7 @@ def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
     adopted = None if hist.structure is None else hist.structure.adopted
     deployed = base if adopted is None else base.with_keys(adopted.keys)
     return params_document(deployed, hist.params, fit, verdicts, at,
-                           None if hist.discrepancy is None else hist.discrepancy.as_dict(),
+                           None if hist.discrepancy is None else hist.discrepancy.as_table(),
                            hist.model_error.to_table(),
                            None if hist.structure is None else hist.structure.params_table())
 

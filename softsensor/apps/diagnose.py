@@ -164,7 +164,7 @@ def _calibrate(cfg, args: argparse.Namespace
     # what the calibration left on held-out data sizes the diagnosis's calibration-error
     # alternative, as it does through a PARAMS.toml's [discrepancy]
     cal_cfg = result.calibrated_config()
-    disc = None if result.discrepancy is None else result.discrepancy.as_dict()
+    disc = None if result.discrepancy is None else result.discrepancy.as_table()
     if args.save_params:
         from softsensor.calibration.params_file import params_document, write_params
 

@@ -70,7 +70,7 @@ from softsensor.calibration.validation import (
     validate_many,
 )
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, DiscrepancyPrior, PlantConfig, with_table
 from softsensor.signals import OUTPUT_NAMES
 
 
@@ -147,8 +147,7 @@ class CalibrationResult:
         cfg = self.config.with_parameters(self.theta)
         if self.discrepancy is None:
             return cfg
-        return dataclasses.replace(cfg, extra={**cfg.extra,
-                                               "discrepancy": self.discrepancy.as_table()})
+        return with_table(cfg, "discrepancy", self.discrepancy.as_table())
 
     @property
     def accepted(self) -> bool:

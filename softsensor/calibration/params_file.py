@@ -36,7 +36,6 @@ Python's standard library reads TOML but does not write it; :func:`dumps` writes
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -45,7 +44,7 @@ import tomli_w
 
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
-from softsensor.files import atomic_path
+from softsensor.files import replace_file
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 
 
@@ -87,8 +86,7 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
         params[name] = entry
     doc: dict[str, Any] = {"parameters": params, "fit": dict(fit)}
     if discrepancy:
-        doc["discrepancy"] = {k: v for k, v in discrepancy.items()
-                              if not (isinstance(v, float) and math.isnan(v))}
+        doc["discrepancy"] = dict(discrepancy)
     if model_error:
         doc["model_error"] = dict(model_error)
     if structure:
@@ -99,12 +97,7 @@ def params_document(config: PlantConfig, values: Mapping[str, float],
 def write_params(path: str | Path, document: Mapping[str, Any], comment: str | None = None
                  ) -> Path:
     """Write ``document`` as TOML (atomically: a temporary file renamed into place)."""
-    p = Path(path)
-    if not p.parent.is_dir():
-        raise ConfigError(f"{p}: directory {p.parent} does not exist")
-    with atomic_path(p) as tmp:
-        tmp.write_text(dumps(document, comment), encoding="utf-8")
-    return p
+    return replace_file(path, dumps(document, comment).encode("utf-8"), "--out")
 
 
 def _section(path: str | Path, name: str) -> dict[str, Any]:

@@ -20,7 +20,9 @@ state             moves                                           std           
 
 plus white measurement noise of each channel's noise level. This is a linear Gaussian state
 space model, so a Kalman filter turns any residual series into its one-step-ahead prediction
-errors, each divided by its predicted standard deviation (:meth:`CalibrationErrorModel.whiten`).
+errors, each divided by its predicted standard deviation
+(:meth:`CalibrationErrorModel.whiten_temperatures`,
+:meth:`~CalibrationErrorModel.whiten_labs`).
 The whitened residuals are what the calibration-error alternative cannot predict: their sum
 of squares is minus twice its log-likelihood (up to a constant that depends only on which
 samples exist), so

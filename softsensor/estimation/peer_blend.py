@@ -181,8 +181,9 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
     scored = _Scores(np.array(st["log_w"], float), float(st["log_scale"]),
                      np.array(st["msz"], float))
     phys_prev = _physics_source(s, st["physics"])
+    prior = prior_log_weights(s, reg)
     for lab in sorted(labs, key=lambda r: (r.sample_time_ns, r.sample_id)):
-        _score(s, reg, st, scored, lab, phys_prev, reg_now)
+        _score(s, reg, prior, st, scored, lab, phys_prev, reg_now)
     st["log_w"] = [float(v) for v in scored.log_w]
     st["log_scale"] = scored.log_c
     st["msz"] = [float(v) for v in scored.msz]
@@ -221,12 +222,12 @@ class _Scores:
     msz: np.ndarray
 
 
-def _score(s: EstimatorSettings, reg: LabRegression | None, st: dict[str, Any],
-           scored: _Scores, lab: LabResult, phys_prev: Source, reg_now: float) -> None:
+def _score(s: EstimatorSettings, reg: LabRegression | None, prior: np.ndarray,
+           st: dict[str, Any], scored: _Scores, lab: LabResult, phys_prev: Source,
+           reg_now: float) -> None:
     """Score one lab result against each source as it stood (module docstring): forget
     towards the prior, add its log likelihood, move the band's scale; then it becomes the
     hold and sets the regression's bias. Updates ``st`` and ``scored`` in place."""
-    prior = prior_log_weights(s, reg)
     hold = st["hold"]
     sources = [phys_prev,
                _hold_source(s, None if hold is None else hold[0],

@@ -1,5 +1,5 @@
-"""From a tick's posterior to the published :class:`~softsensor.estimate.Estimate`: the one
-place an estimate is built, and the one pure step that finishes it.
+"""From a tick's posterior to the filter's :class:`~softsensor.estimate.Estimate`: the one
+place the filter's estimate is built (the open-loop estimator builds its own, simpler one).
 
 :func:`physics` is handed the posterior of :func:`~.ukf_step.step` and what it needs of the
 history (:class:`TickContext`: the tick's window and labs, the innovations of the previous

@@ -13,8 +13,8 @@ This module holds what does not depend on the filter:
 * :class:`TickRecord`: one tick of the history (window, inputs, filter state at its start,
   lab results applied there, what it produced) and :class:`FilterState` (with the peers'
   weights and the band's scale, so that a late result re-weighs them too);
-* JSON round trips of all of these, :class:`~softsensor.estimation.interface.Window` and
-  :class:`~softsensor.estimation.interface.LabResult` for checkpoints. Floats go through ``repr`` in
+* JSON round trips of all of these, :class:`~softsensor.messages.Window` and
+  :class:`~softsensor.messages.LabResult` for checkpoints. Floats go through ``repr`` in
   :mod:`json`, so a round trip is exact and a restored estimator continues bit for bit.
 """
 
@@ -186,9 +186,9 @@ class TickRecord:
         """This tick with the lab results ``labs`` instead of its own."""
         return replace(self, labs=tuple(labs))
 
-    def ran(self, start: FilterState, estimate: Estimate, innovation: Innovation) -> TickRecord:
-        """This tick filtered from ``start``: what it produced."""
-        return replace(self, start=start, estimate=estimate, innovation=innovation)
+    def ran(self, estimate: Estimate, innovation: Innovation) -> TickRecord:
+        """This tick with what filtering it from its ``start`` produced."""
+        return replace(self, estimate=estimate, innovation=innovation)
 
     def to_json(self) -> dict[str, Any]:
         inn = self.innovation

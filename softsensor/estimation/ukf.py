@@ -406,7 +406,7 @@ class UkfEstimator(ModelEstimator):
                 rec.window, rec.labs, (estimate.moisture_out, estimate.moisture_out_std))
             estimate = blended(estimate, blend, mixture, s)
             state = replace(state, peers=peers)
-        return state, rec.ran(rec.start, estimate, post.innovation)
+        return state, rec.ran(estimate, post.innovation)
 
     def _latest_lab(self, rec: TickRecord, k: int) -> LabResult | None:
         """The latest lab result applied at tick ``k`` (``rec``) or before. A tick's results

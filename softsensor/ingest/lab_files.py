@@ -39,7 +39,6 @@ from softsensor.messages import LabResult
 if TYPE_CHECKING:
     import pandas as pd
 
-CSV_COLUMNS: tuple[str, ...] = ("sample_time", "moisture_out", "sample_id")
 SUFFIXES: tuple[str, ...] = (".csv", ".json")
 #: Largest lab file read [bytes]: a LIMS export of a few results is a few kB.
 MAX_BYTES = 1024 * 1024
@@ -208,7 +207,6 @@ def parse_lab_file(path: str | os.PathLike[str], *, log_time_ns: int | None = No
 
 
 __all__ = [
-    "CSV_COLUMNS",
     "MAX_BYTES",
     "MAX_ROWS",
     "SUFFIXES",

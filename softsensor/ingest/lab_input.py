@@ -261,7 +261,8 @@ class LabFolderWatcher:
     zone : tzinfo or str, optional
         The plant's clock, for ISO times without an offset (UTC when None).
     lab_map : LabMap
-        The files' layout: the plant config's ``[lab]`` table (module docstring).
+        The files' layout: the plant config's ``[lab]`` table
+        (:mod:`softsensor.ingest.lab_files`).
     rate_per_s : float, optional
         Lab results per wall second the estimator takes (:func:`folder_rate`); files beyond
         it wait. None: no limit.
@@ -348,7 +349,7 @@ class LabFolderWatcher:
                 and not p.name.endswith((".tmp", ".part", ".partial", ".swp"))]
 
     def _settled(self, path: Path, now: float) -> bool:
-        """True once ``path`` has kept its :func:`_signature` over ``settle_s`` of polls and
+        """True once ``path`` has kept its :func:`_stat_signature` over ``settle_s`` of polls and
         was modified at least ``settle_s`` ago."""
         return _steady(self._sightings, path.name, path, now, self.settle_s)
 

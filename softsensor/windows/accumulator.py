@@ -172,7 +172,7 @@ class _Sums:
 
 
 class WindowAccumulator:
-    """Turns a stream of scans into :class:`~softsensor.estimation.interface.Window` objects.
+    """Turns a stream of scans into :class:`~softsensor.messages.Window` objects.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""From a :class:`~softsensor.estimation.interface.Window` to model inputs and measured outputs.
+"""From a :class:`~softsensor.messages.Window` to model inputs and measured outputs.
 
 The model needs all seven measured inputs of :data:`softsensor.signals.INPUT_NAMES` every
 window. A signal whose window mean is missing (sensor out, too few good scans) holds its last

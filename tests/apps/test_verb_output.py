@@ -4,16 +4,12 @@
 from __future__ import annotations
 
 import json
-import os
 import time
 
-import pytest
 from paths import REPO
 
 from softsensor.apps.verb_output import write_json
 from softsensor.cli import main as cli_main
-from softsensor.errors import ConfigError
-from softsensor.files import check_target, replace_file
 
 
 def test_json_goes_only_where_asked(tmp_path, capsys):
@@ -24,36 +20,6 @@ def test_json_goes_only_where_asked(tmp_path, capsys):
     write_json({"a": 2}, tmp_path / "x.json")
     assert json.loads((tmp_path / "x.json").read_text()) == {"a": 2}
     assert capsys.readouterr() == ("", "")
-
-
-def test_targets_refused_before_the_work(tmp_path):
-    with pytest.raises(ConfigError, match="is a directory"):
-        check_target(tmp_path)
-    with pytest.raises(ConfigError, match="does not exist"):
-        check_target(tmp_path / "no" / "x.json")
-    ro = tmp_path / "ro"
-    ro.mkdir()
-    ro.chmod(0o500)
-    try:
-        if not os.access(ro, os.W_OK):  # root may write anyway
-            with pytest.raises(ConfigError, match="not writable"):
-                check_target(ro / "x.json", "--out")
-    finally:
-        ro.chmod(0o700)
-    check_target("-")
-    check_target(None)
-
-
-def test_a_failed_write_leaves_the_previous_file_whole(tmp_path):
-    target = tmp_path / "report.json"
-    target.write_text("previous")
-
-    with pytest.raises(TypeError):
-        replace_file(target, object())  # type: ignore[arg-type]
-    assert target.read_text() == "previous"
-    assert [p.name for p in tmp_path.iterdir()] == ["report.json"]  # no temporary left
-    replace_file(target, b"new")
-    assert target.read_text() == "new"
 
 
 def test_calibrate_refuses_a_folder_as_json_at_once(tmp_path, capsys):
@@ -77,22 +43,6 @@ def test_replay_progress_is_throttled(capsys, monkeypatch):
     lines = capsys.readouterr().err.splitlines()
     assert lines == ["replay: 2 ticks, at 2026-01-05T00:20:00Z ...",
                      "replay: 4 ticks, at 2026-01-05T00:40:00Z ..."]
-
-
-def test_writing_replaces_whole_or_not_at_all(tmp_path):
-    from softsensor.files import writing
-
-    target = tmp_path / "out.csv"
-    target.write_text("earlier\n")
-    with pytest.raises(KeyboardInterrupt):
-        with writing(target) as tmp:
-            tmp.write_text("half a file")
-            raise KeyboardInterrupt
-    assert target.read_text() == "earlier\n"
-    assert [p.name for p in tmp_path.iterdir()] == ["out.csv"]  # no temporary left
-    with writing(target) as tmp:
-        tmp.write_text("new\n")
-    assert target.read_text() == "new\n" and len(list(tmp_path.iterdir())) == 1
 
 
 def test_sigterm_during_replay_keeps_the_previous_out(tmp_path):

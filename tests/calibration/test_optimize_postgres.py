@@ -101,7 +101,8 @@ def test_two_workers_share_one_postgresql_study(tmp_path: Path):
 
         # Optuna makes its tables on first use; two workers started in the same second on an
         # empty database race at it (one fails: duplicate key in pg_type), so the tables are
-        # made first, as the README tells a site to (start one worker, then the others)
+        # made first, as the several-machines page tells a site to (start one worker, then the
+        # others)
         optuna.storages.RDBStorage(url).engine.dispose()
         workers = [subprocess.Popen(_calibrate(day, tmp_path / f"w{k}.json", *shared),
                                     stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,

@@ -9,13 +9,13 @@ is at most 1.25 times the same term at the true values, scored by the same funct
 same windows (the held-out tail cut off, the inlet trajectory fitted to the labs); the
 analysis calls mult_D identifiable (measured on the 24 h day: mult_D alone, 1.4 % from the
 truth; the others weakly or not identifiable), and every parameter it calls identifiable is
-within 15 % of the truth (the README's "identifiable to 15 %"); the cyclone pair
-(mult_C, hm_cyc, which act only through their product) and mult_k are reported as poorly
-identifiable; on the other day, with the inlet moisture fitted to the temperatures only, the
-eq. 4 cost is at most 3 times (24 h, 40 trials: the poorly identified cyclone pair may sit at
-a bound) or 1.5 times (48 h, 200 trials) the true parameters' cost there; PARAMS.toml loads
-into the plant config. The fast test uses a 24 h day and 40 trials; the slow one the paper's
-setting, a 48 h day and 200 trials.
+within 15 % of the truth (the designed-experiments results' "identifiable to 15 %",
+docs/results/design.md); the cyclone pair (mult_C, hm_cyc, which act only through their product)
+and mult_k are reported as poorly identifiable; on the other day, with the inlet moisture fitted to
+the temperatures only, the eq. 4 cost is at most 3 times (24 h, 40 trials: the poorly identified
+cyclone pair may sit at a bound) or 1.5 times (48 h, 200 trials) the true parameters' cost there;
+PARAMS.toml loads into the plant config. The fast test uses a 24 h day and 40 trials; the slow one
+the paper's setting, a 48 h day and 200 trials.
 """
 
 from __future__ import annotations

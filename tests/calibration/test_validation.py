@@ -40,7 +40,7 @@ def _through_params_toml(prior: DiscrepancyPrior, tmp_path: Path) -> Discrepancy
     cfg = load_plant_config()
     values = dict(zip(PARAMETER_NAMES, cfg.parameter_vector(), strict=True))
     path = write_params(tmp_path / "params.toml",
-                        params_document(cfg, values, {}, discrepancy=prior.as_dict()))
+                        params_document(cfg, values, {}, discrepancy=prior.as_table()))
     return discrepancy_of(load_parameters(path, cfg))
 
 
@@ -56,7 +56,10 @@ def test_the_held_out_numbers_are_the_table_the_estimator_reads(tmp_path: Path) 
     assert prior.moisture_std == pytest.approx(math.sqrt((0.01**2 + 0.02**2) / 2))
     steps = np.array([0.1, -0.05]) / np.sqrt([1.0, 3.0])
     assert prior.inlet_walk == pytest.approx(math.sqrt(np.mean(steps**2)))
-    assert prior.tau_s > 0 and (prior.n_windows, prior.n_labs) == (4, 2)
+    # the mean residual (1, 1.5, 1.75, 0.25) has a lag-one autocorrelation of -0.274, floored
+    # at 0.001: tau = 600 s / ln(1000)
+    assert prior.tau_s == pytest.approx(600.0 / math.log(1000.0))
+    assert (prior.n_windows, prior.n_labs) == (4, 2)
     assert _through_params_toml(prior, tmp_path) == prior
 
 

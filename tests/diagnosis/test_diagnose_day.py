@@ -19,7 +19,7 @@ day of a plant whose true parameters are away from the config's and diagnoses 24
 all causes.
 
 This is the matched plant, the floor: the open-world numbers come from
-``benchmarks/open_world.py`` (README, Diagnosis). Measured with base seeds 20261121 (CI),
+``benchmarks/open_world.py`` (docs/results/diagnosis.md). Measured with base seeds 20261121 (CI),
 777 and 31337: 19 of the 21 effect days right (7, 6, 6), every named cause with a positive
 gain. The misses: base 777's inlet-moisture day named ``sensor_bias`` (the inlet filter's
 estimate, replayed one window late, leaves window-to-window errors that the calibration-error

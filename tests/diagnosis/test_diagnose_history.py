@@ -12,7 +12,7 @@ are in the upper half of each effect's detectable range (:data:`softsensor.plant
 EFFECTS`), where the benchmark names them on every tuning plant.
 
 What this checks is the part of the capability that holds on every plant measured
-(``benchmarks/open_world.py --parts diagnosis``, README, Diagnosis): an inlet-moisture
+(``benchmarks/open_world.py --parts diagnosis``, docs/results/diagnosis.md): an inlet-moisture
 excursion and a lagging ``T_air_in`` sensor are named with a positive held-out gain, and
 this clean day is ``none``. It does not show what the history adds: on these 16 h days the
 three cases are also named without it (the config's floors), and the clean days are where

@@ -15,19 +15,15 @@ import math
 import numpy as np
 import pytest
 
-from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate
 from softsensor.estimation.lab_regression import (
-    REGRESSION_SIGNALS,
     LabRegression,
-    fit_lab_regression,
-    regression_of,
 )
 from softsensor.estimation.peer_blend import advance, check_state, fresh
 from softsensor.estimation.publication import blended
 from softsensor.estimation.settings import EstimatorSettings
 from softsensor.messages import LabResult, Window
-from softsensor.plantconfig import load_plant_config, with_table
+from softsensor.plantconfig import load_plant_config
 
 CFG = load_plant_config()
 T0 = 1_767_571_200 * 10**9
@@ -101,52 +97,6 @@ def test_a_checkpointed_peer_state_is_checked():
             check_state({**state, key: bad})
 
 
-# --------------------------------------------------------------------------- the regression
-def synthetic_history(seed: int = 0, days: int = 3, per_day: int = 12):
-    rng = np.random.default_rng(seed)
-    beta = rng.normal(size=len(REGRESSION_SIGNALS)) * 0.01
-    out = []
-    for _ in range(days):
-        X = 300.0 + rng.normal(size=(per_day, len(REGRESSION_SIGNALS))) * 5.0
-        y = 0.1 + (X - 300.0) @ beta / 5.0 + rng.normal(size=per_day) * 0.001
-        out.append((X, y))
-    return out, beta
-
-
-def test_the_regression_fit_recovers_a_linear_lab_and_round_trips_through_params():
-    hist, beta = synthetic_history()
-    reg = fit_lab_regression(hist)
-    X = 300.0 + np.eye(len(REGRESSION_SIGNALS)) * 5.0
-    slope = (reg.predict(X) - reg.predict(np.full((1, len(REGRESSION_SIGNALS)), 300.0)))
-    assert np.allclose(slope, beta, atol=0.002)
-    # the bias-updated regression misses the next lab by about sqrt(2) x the lab noise
-    assert 0.0005 < reg.step_sd < 0.005 and reg.hold_sd > reg.step_sd
-    cfg = with_table(CFG, "regression", reg.to_table())
-    back = regression_of(cfg)
-    assert isinstance(back, LabRegression)
-    assert np.array_equal(back.predict(X), reg.predict(X))
-    means = dict(zip(REGRESSION_SIGNALS, X[0], strict=True))
-    assert back.at_means(means) == pytest.approx(float(reg.predict(X[:1])[0]))
-
-
-@pytest.mark.parametrize("key, bad, words", [
-    ("coef", [1.0], "regression].coef must be"),
-    ("signals", ["T_air_in", "speed"], "regression].signals must list"),
-    ("step_sd", -1.0, "regression].step_sd must be"),
-])
-def test_a_bad_regression_table_is_refused_naming_the_key(key, bad, words):
-    table = fit_lab_regression(synthetic_history()[0]).to_table()
-    cfg = with_table(CFG, "regression", {**table, key: bad})
-    with pytest.raises(ConfigError, match=words.replace("[", r"\[").replace("]", r"\]")):
-        regression_of(cfg)
-
-
-def test_too_short_a_history_for_the_regression_says_so():
-    hist, _ = synthetic_history(days=1, per_day=5)
-    with pytest.raises(ConfigError, match="needs at least 12 lab results"):
-        fit_lab_regression(hist)
-
-
 # --------------------------------------------------------------------------- virtual plant
 @pytest.fixture(scope="module")
 def clean_day():
@@ -205,37 +155,6 @@ def test_a_clean_day_stays_on_the_physics(clean_day):
     assert min(b["sources"]["physics"]["weight"] for b in blended) > 0.8
     first = np.array([b["window_end_ns"] for b in blended]) >= clean_day.labs.log_time_ns.min()
     assert rmse(blended, truth, first) <= 1.05 * rmse(physics, truth, first)
-
-
-def test_calibrate_fits_the_regression_on_the_signals_every_day_scanned(capsys):
-    from types import SimpleNamespace
-
-    import pandas as pd
-
-    from softsensor.calibration.history_calibration import history_regression
-
-    rng = np.random.default_rng(5)
-    t = (np.arange(1, 8641) * 10 + 1_767_571_200) * 10**9  # 24 h of 10 s scans
-    days = []
-    for _ in range(2):
-        scans = pd.DataFrame({s: 300 + rng.normal(size=len(t)) for s in REGRESSION_SIGNALS},
-                             index=t)
-        scans["flap_cmd"] = np.nan  # not read on this plant
-        sample = t[::720][1:] - 5 * 10**9  # one every 2 h
-        mean = scans["T_air_in"].rolling(60).mean().reindex(sample, method="ffill")
-        value = 0.1 + 0.01 * (mean - 300)
-        days.append(SimpleNamespace(scans=scans, labs=pd.DataFrame(
-            {"sample_time_ns": sample, "moisture_out": value.to_numpy()})))
-    reg, why = history_regression(days)
-    assert why is None
-    assert "flap_cmd" not in reg.signals and len(reg.signals) == len(REGRESSION_SIGNALS) - 1
-    assert reg.n_labs == 22
-    assert np.all(np.isfinite(reg.coef)) and reg.step_sd > 0
-    short = SimpleNamespace(scans=days[0].scans, labs=days[0].labs.iloc[:9])
-    reg, why = history_regression([short])
-    assert reg is None  # 9 results for 11 coefficients
-    assert why == ("the regression peer needs at least 11 lab results with every signal "
-                   "scanned, the history holds 9")
 
 
 def test_the_regression_source_is_the_regression_at_the_window_plus_the_last_labs_bias():

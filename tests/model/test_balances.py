@@ -4,9 +4,10 @@ At steady state, summing the cell balances of the tube and the cyclone (cell_phy
 docstring) must give: water in (fibre plus air) = water out, and enthalpy in = enthalpy out +
 heat through the walls; at a steady wall that heat equals what the walls lose to ambient.
 Enthalpies are recomputed here from the profiles with the property functions, independently
-of how the kernels march. The README's claim, checked at that tolerance: water and energy close
-to 1e-15 of what flows in (measured up to 6.4e-16 and 3.5e-16), and at a steady wall the loss
-to ambient equals the heat the walls take to 1e-13 (measured up to 5.3e-14).
+of how the kernels march. The model page's claim (``docs/explanation/model.md``), checked at that
+tolerance: water and energy close to 1e-15 of what flows in (measured up to 6.4e-16 and 3.5e-16),
+and at a steady wall the loss to ambient equals the heat the walls take to 1e-13 (measured up to
+5.3e-14).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from softsensor.model import DryerModel, cell_physics
 from softsensor.model import humid_air as ha
 from softsensor.model import wood as wd
 
-#: README, The model: closure relative to the water and enthalpy flowing in, and of the wall's
+#: docs/explanation/model.md: closure relative to the water and enthalpy flowing in, and of the
+#wall's
 #: steady heat loss against the heat it takes from the air.
 CLOSURE = 1e-15
 WALL_CLOSURE = 1e-13

@@ -22,7 +22,8 @@ from softsensor.model import DryerModel
 from softsensor.plantconfig import load_plant_config
 
 TOL = np.array([0.5, 0.5, 0.002])  # K, K, kg/kg (T_dryer_out, T_cyclone_out, moisture_out)
-#: What the README claims for n_d = 25, 50 and 100 (measured: 0.079 K, 0.049 K, 0.00033).
+#: What the model page (docs/explanation/model.md) claims for n_d = 25, 50 and 100 (measured: 0.079
+#K, 0.049 K, 0.00033).
 CLAIM = np.array([0.08, 0.08, 4e-4])
 
 POINTS = {

@@ -5,7 +5,8 @@ band, measured beside model temperatures, the health in plain words, the age of 
 the last diagnosis. And the server's threads stay bounded under a thousand slow clients (issue
 25 item 8).
 
-``SOFTSENSOR_WRITE_DOCS=1`` saves the screenshot as ``docs/web-page.png`` (the README's)."""
+``SOFTSENSOR_WRITE_DOCS=1`` saves the screenshot as ``docs/web-page.png`` (the operator's screens
+page's)."""
 
 from __future__ import annotations
 
@@ -347,7 +348,7 @@ def test_the_page_shows_the_verdict_of_the_diagnosis_report_file(tmp_path):
 def test_the_daemon_refuses_a_busy_web_port_in_one_line(tmp_path):
     """Issue 30 item 2: ``[outputs.web]`` on a port in use ended the daemon with exit 1 and
     ``unexpected AttributeError: 'BoundedHTTPServer' object has no attribute '_pool'``. The
-    README promises exit 2 and one line naming the port, as the other outputs do."""
+    the commands page promises exit 2 and one line naming the port, as the other outputs do."""
     import socket
 
     with socket.create_server(("127.0.0.1", 0)) as taken, socket.socket() as free:
