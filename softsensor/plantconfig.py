@@ -386,7 +386,7 @@ class DiscrepancyPrior:
     fitted on (after the inlet trajectory fitted to the temperatures), the estimator's prior on
     its own error. The calibration builds it
     (:func:`softsensor.calibration.validation.discrepancy_prior`) and writes it; it is read back
-    here (:func:`load_parameters`) for
+    here (:func:`~softsensor.plantconfig.load_parameters`) for
     :meth:`softsensor.estimation.state_space.ErrorPriors.from_config` and the diagnosis. Every
     key may be absent: not known (TOML has no null; a NaN in memory counts as absent too).
 

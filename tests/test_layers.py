@@ -14,7 +14,6 @@ from pathlib import Path
 
 from paths import REPO
 
-ROOT = REPO
 WINDOWING = Path("softsensor") / "windows" / "accumulator.py"
 LINT = "from importlinter.cli import lint_imports_command; lint_imports_command()"
 
@@ -28,14 +27,14 @@ def _lint_imports(root: Path) -> subprocess.CompletedProcess[str]:
 
 
 def _copy_package(dest: Path) -> Path:
-    shutil.copytree(ROOT / "softsensor", dest / "softsensor",
+    shutil.copytree(REPO / "softsensor", dest / "softsensor",
                     ignore=shutil.ignore_patterns("__pycache__"))
-    shutil.copy(ROOT / "pyproject.toml", dest / "pyproject.toml")
+    shutil.copy(REPO / "pyproject.toml", dest / "pyproject.toml")
     return dest
 
 
 def test_the_package_keeps_its_layers() -> None:
-    res = _lint_imports(ROOT)
+    res = _lint_imports(REPO)
     assert res.returncode == 0, res.stdout + res.stderr
     assert "Contracts: 3 kept, 0 broken." in res.stdout
 

@@ -25,12 +25,13 @@ import tokenize
 import types
 import typing
 from dataclasses import dataclass
-from functools import cache
 
 from docutils import nodes
 from docutils.statemachine import StringList
 from sphinx.util.docutils import SphinxDirective
 from sphinx.util.nodes import nested_parse_with_titles
+
+from softsensor.ingest.units import registry
 
 
 @dataclass(frozen=True)
@@ -40,9 +41,6 @@ class Table:
     name: str
     cls: str
     note: str = ""
-    #: Other dataclasses the program builds for this same table (a table merged with its
-    #: defaults and built again), named so that the tests know they are covered.
-    also: tuple[str, ...] = ()
     #: Render fields typed as dataclasses as sub-tables (off where one generic table, such as
     #: ``[plausibility.<signal>]``, stands for them all).
     subtables: bool = True
@@ -130,7 +128,10 @@ FILES: tuple[ConfigFile, ...] = (
                "(:func:`softsensor.estimation.lab_regression.fit_lab_regression`)."))),
 )
 
-_WRAPPED_TARGET = re.compile(r"(:[a-z]+:`[~.]?[\w.]*\.)\n\s*(?=\w)")
+#: A role whose dotted target the source wraps after a dot (``:class:`~softsensor.estimation.``
+#: at a line's end, the rest on the next): one name to a reader, a space to reST (conf.py joins
+#: them in every docstring before it is parsed).
+WRAPPED_TARGET = re.compile(r"(:[a-z]+:`[~.]?[\w.]*\.)\n\s*(?=\w)")
 _BOUND_SIGNS = {"gt": ">", "ge": "≥", "lt": "<", "le": "≤"}
 _PLAIN_UNITS = {"s", "K", "m", "kg", "Pa", "W", "J", "%", "h", "min", "ns", "bytes"}
 
@@ -141,13 +142,6 @@ def resolve(path: str) -> type:
     return getattr(importlib.import_module(module), name)
 
 
-@cache
-def _ureg():
-    import pint
-
-    return pint.UnitRegistry()
-
-
 def looks_like_unit(text: str) -> bool:
     """Whether ``text`` reads as a unit (pint parses it, ``m2`` as ``m**2``)."""
     text = text.strip()
@@ -155,7 +149,7 @@ def looks_like_unit(text: str) -> bool:
         return False
     spelled = re.sub(r"([a-zA-Z])(\d)", r"\1**\2", text.replace("%", "percent"))
     try:
-        _ureg().parse_units(spelled)
+        registry().parse_units(spelled)
     except Exception:
         return False
     return True
@@ -171,7 +165,7 @@ def _attribute_docs(cls: type) -> dict[str, str]:
     out: dict[str, str] = {}
     for param in NumpyDocString(doc)["Attributes"]:
         # a role whose dotted target the source wraps after a dot is one name (conf.py)
-        text = " ".join(_WRAPPED_TARGET.sub(r"\1", "\n".join(param.desc)).split())
+        text = " ".join(WRAPPED_TARGET.sub(r"\1", "\n".join(param.desc)).split())
         for name in param.name.split(","):
             out[name.strip()] = text
     return out

@@ -66,7 +66,8 @@ LAB_TAIL_HOURS = 1.5
 
 
 class ModelLoop:
-    """The plant's outlet-temperature loop around the model (:class:`ClosedLoop`).
+    """The plant's outlet-temperature loop around the model
+    (:class:`~softsensor.calibration.experiment_design.ClosedLoop`).
 
     Disturbances are held at the operating point ``u0`` (8,) (``INPUT_NAMES`` order, SI);
     every ``dt`` [s] (the virtual plant's control period) the PI (``kp`` [%/K], ``ti`` [s] of

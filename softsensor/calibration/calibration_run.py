@@ -1,4 +1,5 @@
-"""Calibrate: the paper's section 3 as one function, :func:`calibrate`, and its result.
+"""Calibrate: the paper's section 3 as one function,
+:func:`~softsensor.calibration.calibration_run.calibrate`, and its result.
 
 :func:`calibrate` takes the calibration segments (the recorded days, cut to their calibration
 windows by :mod:`.selection`), holds out the end of each (``holdout_fraction``) unless other

@@ -175,7 +175,7 @@ class Segment:
     def lab_points(self, shift_ns: float = 0.0, U: np.ndarray | None = None,
                    bins: np.ndarray | None = None) -> LabPoints:
         """The lab samples with their sample times moved by ``shift_ns`` (a wrong stamp),
-        aligned as :meth:`__post_init__` aligns them, inputs from ``bins`` and ``U`` (default
+        aligned as a segment aligns them when it is made, inputs from ``bins`` and ``U`` (default
         the segment's own); sample times outside the segment clip to its ends."""
         U = self.U if U is None else np.asarray(U, float)
         bins = self.bins if bins is None else np.asarray(bins, float)

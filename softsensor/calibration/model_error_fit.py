@@ -71,7 +71,8 @@ class _Rows:
 
 
 def feature_columns(seg: Segment) -> dict[str, np.ndarray]:
-    """Window means of :data:`FEATURES` of a segment, by name (K,)."""
+    """Window means of :data:`~softsensor.estimation.model_error.FEATURES` of a segment, by name
+    (K,)."""
     cols = {name: seg.U[:, i] for i, name in enumerate(INPUT_NAMES[:-1])}
     cols["T_sp"] = np.asarray(seg.T_sp, float)
     return cols

@@ -3,9 +3,9 @@
 Seven multipliers scale rates; they cannot change a shape, such as how steeply the outlet
 moisture answers the inlet air temperature near the end of drying. Where the multipliers'
 front (:mod:`.trade_off`) holds no point that fits both the temperatures and the labs, the
-structure is what differs from the dryer's. Each :class:`Alternative` is a set of keys of the
-plant sections (``fiber.bound_fraction``, ``cyclone.hold_up_time``, ...) with its source: a
-named change of the model's physics that the config already parameterises.
+structure is what differs from the dryer's. Each :class:`~softsensor.model.structure.Alternative`
+is a set of keys of the plant sections (``fiber.bound_fraction``, ``cyclone.hold_up_time``, ...)
+with its source: a named change of the model's physics that the config already parameterises.
 
 The search (:func:`search`) runs after the paper's form has been calibrated on the history
 windows. For every alternative, the model is built with its keys, the multipliers start

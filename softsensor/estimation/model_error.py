@@ -14,11 +14,11 @@ Per output channel ``c`` (``T_dryer_out`` [K], ``T_cyclone_out`` [K], lab ``mois
     g_c(phi) = intercept_c + coef_c . (phi - mean) / scale,
 
 a discrepancy linear in the standardised operating point ``phi`` (window means of the measured
-inputs and the set point, :data:`FEATURES`) in the manner of Kennedy and O'Hagan's additive
-model discrepancy (J. R. Stat. Soc. B 63, 2001, eq. 5), a day offset ``d ~ N(0, day_sd^2)``
-(correlated across the channels, ``day_cov``), a first-order wander ``w`` about it
-(``wander_sd``, ``wander_tau_h``) and white noise ``e`` of standard deviation ``noise``. The
-estimator adds ``g_c`` to its measurement model (its
+inputs and the set point, :data:`~softsensor.estimation.model_error.FEATURES`) in the manner of
+Kennedy and O'Hagan's additive model discrepancy (J. R. Stat. Soc. B 63, 2001, eq. 5), a day offset
+``d ~ N(0, day_sd^2)`` (correlated across the channels, ``day_cov``), a first-order wander ``w``
+about it (``wander_sd``, ``wander_tau_h``) and white noise ``e`` of standard deviation ``noise``.
+The estimator adds ``g_c`` to its measurement model (its
 uncertainty ``phi' C phi`` to the variance) and carries ``d + w`` as the error state of the
 channel (a random walk: an integrating disturbance per measured output, so the filter is
 offset-free, Pannocchia and Rawlings, AIChE J. 49, 2003); the diagnosis judges a day against
@@ -114,7 +114,8 @@ class ModelError:
     Attributes
     ----------
     features : tuple of str
-        Names of the operating-point features, scan signals (:data:`FEATURES`).
+        Names of the operating-point features, scan signals
+        (:data:`~softsensor.estimation.model_error.FEATURES`).
     mean, scale : tuple of float
         Their means and standard deviations over the history's windows (SI).
     days : int
@@ -131,12 +132,13 @@ class ModelError:
         where the estimator starts (it reverts towards ``moisture_in`` over
         ``estimator.moisture_in_tau_h``); 0: none given (it starts at ``moisture_in``).
     day_cov : tuple of float
-        Covariance of the channels' day offsets, row-major ``3 x 3`` in :data:`CHANNELS`
-        order [unit x unit] (empty: uncorrelated, from each channel's ``day_sd``). On the
-        independent plant the two outlet temperatures' day offsets move together (correlation
-        0.99: one energy balance) and the lab's follows them, so the diagnosis judges a day
-        against correlated day offsets and a thermometer's own offset stands out (the
-        estimator starts uncorrelated, which measured better:
+        Covariance of the channels' day offsets, row-major ``3 x 3`` in
+        :data:`~softsensor.estimation.model_error.CHANNELS` order [unit x unit] (empty:
+        uncorrelated, from each channel's ``day_sd``). On the independent plant the two outlet
+        temperatures' day offsets move together (correlation 0.99: one energy balance) and the
+        lab's follows them, so the diagnosis judges a day against correlated day offsets and a
+        thermometer's own offset stands out (the estimator starts uncorrelated, which measured
+        better:
         :meth:`~softsensor.estimation.state_space.ErrorPriors.from_config`).
     T_dryer_out, T_cyclone_out, moisture_out : ChannelError
         Per channel.
@@ -179,7 +181,8 @@ class ModelError:
         return self.latest_moisture_in or self.moisture_in
 
     def day_covariance(self) -> np.ndarray:
-        """Covariance (3, 3) of the channels' day offsets, in :data:`CHANNELS` order (from
+        """Covariance (3, 3) of the channels' day offsets, in
+        :data:`~softsensor.estimation.model_error.CHANNELS` order (from
         the day spreads alone, uncorrelated, when the table has none)."""
         c = len(CHANNELS)
         if self.day_cov:

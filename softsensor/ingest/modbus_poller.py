@@ -204,7 +204,7 @@ class ModbusPoller:
     async def read_clock(self, timeout_s: float) -> int:
         """The PLC's clock (the tag map's ``[clock]`` registers) [ns since the epoch]; tried
         until ``timeout_s`` [wall s] has passed (a PLC still starting), then
-        :class:`IngestError` saying why. Read through :meth:`_read`, like every value."""
+        :class:`IngestError` saying why. Read through ``_read``, like every value."""
         c = self.tagmap.clock
         if c is None:
             raise IngestError(f"{self.tagmap.source}: has no [clock] table, so the PLC's "

@@ -75,7 +75,7 @@ class DeadlineHTTPServer:
     Parameters
     ----------
     host, port : str, int
-        Where to listen; port 0 takes any free port (then read :attr:`port`).
+        Where to listen; port 0 takes any free port (then read ``port``).
     handler : callable
         ``handler(target) -> Response`` for a GET or HEAD of ``target`` (path and query).
     inline : collection of str

@@ -1,10 +1,11 @@
 """A simulated plant day in memory, shared by every plant simulator (no model import).
 
-:class:`SimulatedDay` holds the frames a recorded day gives (:func:`read_day` returns the same
-shapes) plus the ground truth and what was injected; :meth:`SimulatedDay.write` records it as
-an MCAP day (CONTRACT section 2) with the ground truth on ``/truth/plant`` and the injected
-effect on ``/truth/effect``. Both the matched plant (:mod:`softsensor.plant.simulator`) and the
-independent plant (:mod:`softsensor.plant.independent`) return it.
+:class:`SimulatedDay` holds the frames a recorded day gives
+(:func:`~softsensor.recording.mcap_day.read_day` returns the same shapes) plus the ground truth and
+what was injected; :meth:`SimulatedDay.write` records it as an MCAP day (CONTRACT section 2) with
+the ground truth on ``/truth/plant`` and the injected effect on ``/truth/effect``. Both the matched
+plant (:mod:`softsensor.plant.simulator`) and the independent plant
+(:mod:`softsensor.plant.independent`) return it.
 """
 
 from __future__ import annotations
@@ -40,7 +41,8 @@ def apply_schedule(t: np.ndarray, m_air: np.ndarray, nominal_m_air: float,
 
 @dataclass
 class SimulatedDay:
-    """A simulated day in memory (the same frames :func:`read_day` returns).
+    """A simulated day in memory (the same frames :func:`~softsensor.recording.mcap_day.read_day`
+    returns).
 
     ``scans`` is indexed by log time [ns] with one column per scan signal; ``labs`` has
     ``log_time_ns, sample_time_ns, moisture_out, sample_id``; ``truth`` is indexed like

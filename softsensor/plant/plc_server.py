@@ -66,7 +66,7 @@ class PlcServer:
         Value source, called once per period: SI values per signal [K, kg/s, kg/kg, %].
         Signals it omits keep their previous registers; unknown names are ignored.
     host, port
-        Address to bind; ``port=0`` lets the OS choose (see :attr:`port` after ``start``).
+        Address to bind; ``port=0`` lets the OS choose (see ``port`` after ``start``).
     period_s
         Update period [s]; default the tag map's poll period.
     clock

@@ -10,20 +10,22 @@ Events and what they return (a list of :class:`Output`: typed, frozen
 :class:`~softsensor.estimate.Estimate` and :class:`~softsensor.estimate.Health`, in publishing
 order):
 
-* :meth:`on_scan` (``/plant/scan`` body, time [ns]): adds the scan to its 600 s window; once a
-  scan ``tick_delay_s`` past a window's end has arrived the window is *ticked*: the lab results
-  logged up to the window's end are handed to the estimator, the estimator steps over the window
-  and an estimate and a health are emitted, both stamped with the window's end.
+* :meth:`EstimatorService.on_scan` (``/plant/scan`` body, time [ns]): adds the scan to its 600 s
+  window; once a scan ``tick_delay_s`` past a window's end has arrived the window is *ticked*: the
+  lab results logged up to the window's end are handed to the estimator, the estimator steps over
+  the window and an estimate and a health are emitted, both stamped with the window's end.
   Waiting ``tick_delay_s`` makes the order of lab results and ticks a function of the log
   times alone, so a replay of a recorded day reproduces the live estimates exactly.
-* :meth:`on_lab` (``/plant/lab`` body, log time): checked against the lab-result contract
-  (:func:`~softsensor.messages.lab_from_body`) and queued until the tick of the window holding
-  its log time (:attr:`~softsensor.messages.LabResult.due_ns`): the one queue where lab
+* :meth:`EstimatorService.on_lab` (``/plant/lab`` body, log time): checked against the lab-result
+  contract (:func:`~softsensor.messages.lab_from_body`) and queued until the tick of the window
+  holding its log time (:attr:`~softsensor.messages.LabResult.due_ns`): the one queue where lab
   results wait. The estimator gets a result when it is due, so its window is ticking or in
   its history.
-* :meth:`advance` (now [ns]): lets time pass without scans (PLC gone and poller silent): windows
-  ``gap_after_s`` past their end are closed (stale) and ticked, and health turns ``stale``.
-* :meth:`flush`: end of a recorded day: the partly filled last window is ticked too.
+* :meth:`EstimatorService.advance` (now [ns]): lets time pass without scans (PLC gone and poller
+  silent): windows ``gap_after_s`` past their end are closed (stale) and ticked, and health turns
+  ``stale``.
+* :meth:`EstimatorService.flush`: end of a recorded day: the partly filled last window is ticked
+  too.
 
 Scan values are judged before a window sums them (:mod:`softsensor.windows.plausibility`,
 inside the accumulator); every estimator's estimate is finished by one pure step before it goes
@@ -41,9 +43,9 @@ scans), the input status (``degraded`` while a model input has no good value in 
 result was accepted for ``max_lab_silence_s`` of plant time, counted from the last accepted one
 or from the first scan: an estimate nobody corrects drifts, and a LIMS that sends only files the
 daemon refuses must not look like a quiet lab). A refused lab result (the contract, a flood, the
-estimator's screen) and a refused lab file (:meth:`lab_file_refused`, from the daemon's lab
-folder) are counted alike in ``labs_refused`` (files also in ``lab_files_refused``), and the
-latest reason is ``last_lab_refusal`` (its time ``last_lab_refusal_ns``).
+estimator's screen) and a refused lab file (:meth:`EstimatorService.lab_file_refused`, from the
+daemon's lab folder) are counted alike in ``labs_refused`` (files also in ``lab_files_refused``),
+and the latest reason is ``last_lab_refusal`` (its time ``last_lab_refusal_ns``).
 """
 
 from __future__ import annotations

@@ -79,9 +79,6 @@ def documented(config_reference) -> tuple[dict[str, type], set[str]]:
     for cf in config_reference.FILES:
         for table in cf.tables:
             walk(table.name, config_reference.resolve(table.cls))
-            for also in table.also:
-                cls = config_reference.resolve(also)
-                classes[f"{cls.__module__}.{cls.__qualname__}"] = cls
     return classes, names
 
 

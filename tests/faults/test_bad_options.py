@@ -10,11 +10,11 @@ with a traceback (its poll wait overflowed).
 from __future__ import annotations
 
 import pytest
-from paths import REPO
+from paths import REPLAY
 
 from softsensor.cli import main
 
-DEMO = REPO / "replay" / "demo-day.mcap"
+DEMO = REPLAY / "demo-day.mcap"
 
 
 @pytest.mark.parametrize(("argv", "says"), [

@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from paths import REPO
+from paths import REPLAY
 
 from softsensor.ingest.lab_files import MAX_BYTES, MAX_ROWS
 from softsensor.ingest.lab_input import LabFolderWatcher, LabInput
@@ -216,7 +216,7 @@ def test_the_daemon_reads_the_lims_file_and_applies_every_result_of_a_flood(tmp_
 
     from daemon_harness import running_daemon
 
-    map_lab = (REPO / "replay" / "historian-map.toml"
+    map_lab = (REPLAY / "historian-map.toml"
                ).read_text().split("[lab]", 1)[1]
     extra = '[display]\ntime_zone = "Europe/Madrid"\n\n[lab]' + map_lab
     n_flood = 120

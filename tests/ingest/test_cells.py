@@ -7,7 +7,10 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import pandas as pd
 from paths import REPLAY
+
+from softsensor.recording.mcap_day import read_day
 
 
 def _european(tmp_path: Path) -> Path:
@@ -43,3 +46,11 @@ def test_a_semicolon_export_with_decimal_commas_names_delimiter_and_decimal(tmp_
         text.replace("[source]\n", "[source]\ndelimiter = \";\"\ndecimal = \",\"\n"))
     assert main(["import", "--map", str(tmp_path / "map.toml"), "--scans", str(export),
                  "--out", str(tmp_path / "day.mcap")]) == 0
+    # every value as the original, '.'-decimal export gives it: a parse that dropped the
+    # fractions, or read '209,85' as 20985, would differ
+    (tmp_path / "plain.toml").write_text(text)
+    assert main(["import", "--map", str(tmp_path / "plain.toml"), "--scans",
+                 str(REPLAY / "historian-example.csv"), "--out",
+                 str(tmp_path / "plain.mcap")]) == 0
+    got, want = (read_day(tmp_path / name).scans for name in ("day.mcap", "plain.mcap"))
+    pd.testing.assert_frame_equal(got, want)

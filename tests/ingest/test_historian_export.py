@@ -14,13 +14,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from paths import REPO
+from paths import REPLAY
 
 from softsensor.cli import main as cli_main
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import SCAN_SIGNALS, TOPIC_LAB, TOPIC_SCAN
 
-REPLAY = REPO / "replay"
 ZONE = "Europe/Stockholm"
 MIN = 60 * 10**9
 

@@ -19,15 +19,13 @@ import numpy as np
 import pandas as pd
 import psychrolib
 import pytest
-from paths import REPO
+from paths import REPLAY, REPO
 
 from softsensor.cli import main as cli_main
 from softsensor.ingest.historian_map import LabMap, SignalMap, SourceMap
 from softsensor.recording.mcap_day import read_day
 from softsensor.signals import TOPIC_SCAN
 
-ROOT = REPO
-REPLAY = ROOT / "replay"
 MAP = (REPLAY / "historian-map.toml").read_text()
 EXPORT = (REPLAY / "historian-example.csv").read_text(encoding="utf-8")
 psychrolib.SetUnitSystem(psychrolib.SI)
@@ -182,7 +180,7 @@ def test_day_first_dates_decimal_commas_and_thousands(tmp_path, capsys):
 
 
 def test_every_key_of_the_map_is_documented_in_docs():
-    doc = (ROOT / "docs" / "historian-map.md").read_text()
+    doc = (REPO / "docs" / "historian-map.md").read_text()
     documented = set(re.findall(r"`([a-z_]+)`", doc))
     for cls in (SourceMap, SignalMap, LabMap):
         missing = [f.name for f in dataclasses.fields(cls) if f.name not in documented]

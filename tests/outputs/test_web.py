@@ -37,7 +37,6 @@ from softsensor.outputs.web import BAND, LAB, LINE, MEASURED, MODEL, LivePage
 from softsensor.outputs.web_charts import LIMIT_BAND, TARGET, TIME_STEPS_MIN
 from softsensor.presentation.display import DisplaySettings
 
-ROOT = REPO
 T0 = 1_767_571_200 * 10**9  # 2026-01-05T00:00Z
 W_NS = 600 * 10**9
 N_TICKS = 18  # three hours of estimates: the issue's page squashed them into 6 % of 48 h
@@ -209,7 +208,7 @@ def test_chromium_screenshot_shows_the_fitted_trend_target_band_and_temperatures
     assert counts["lab"] > 3 * 60 and counts["target"] > 400, counts
     assert counts["measured"] > 1500 and counts["model"] > 1500, counts
     if os.environ.get("SOFTSENSOR_WRITE_DOCS") == "1":
-        shutil.copyfile(shot, ROOT / "docs" / "web-page.png")
+        shutil.copyfile(shot, REPO / "docs" / "web-page.png")
 
 
 _SLOW_CLIENTS = """
@@ -355,7 +354,7 @@ def test_the_daemon_refuses_a_busy_web_port_in_one_line(tmp_path):
         free.bind(("127.0.0.1", 0))
         port, zenoh_port = taken.getsockname()[1], free.getsockname()[1]
         cfg = tmp_path / "plant.toml"
-        cfg.write_text((ROOT / "config" / "dryer1.toml").read_text()
+        cfg.write_text((REPO / "config" / "dryer1.toml").read_text()
                        + f"\n[outputs.web]\nenabled = true\nport = {port}\n")
         free.close()
         r = subprocess.run(

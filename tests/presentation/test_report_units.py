@@ -10,13 +10,11 @@ import re
 from pathlib import Path
 
 import pytest
-from paths import REPO
+from paths import REPLAY
 
 from softsensor.calibration.params_file import params_document, write_params
 from softsensor.cli import main as cli_main
 from softsensor.plantconfig import default_config_path, load_plant_config
-
-REPLAY = REPO / "replay"
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,6 @@ from softsensor.recording.mcap_day import iter_messages, read_day
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 H = 3600 * 10**9
-ROOT = REPO
 #: The figures of the replay's summary line that the README's quick start quotes.
 FIGURES = re.compile(r"(?P<ticks>\d+) ticks \((?P<stale>\d+) stale\), (?P<labs>\d+) lab updates "
                      r".*RMSE against /truth/plant \(reporting only\): moisture_out "
@@ -190,7 +189,7 @@ def test_the_readme_quick_start_prints_the_demo_figures(demo_replay) -> None:
     """The quick start prints the figures the README quotes: ticks, stale ticks and lab
     updates exactly, and both RMSEs against the truth to the 4 decimals the README prints
     (the same digits: within 5e-5 kg/kg)."""
-    readme = " ".join((ROOT / "README.md").read_text().split())
+    readme = " ".join((REPO / "README.md").read_text().split())
     quick = readme[readme.index("## Quick start"):readme.index("## How data flows")]
     claimed = FIGURES.search(quick)
     assert claimed, "the README's quick start no longer quotes the replay's figures"

@@ -32,9 +32,10 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[2]
-DEMO = ROOT / "replay" / "demo-day.mcap"
-STORED = Path(__file__).resolve().parents[1] / "fixtures" / "demo_estimates_digest.json"
+from paths import FIXTURES, REPLAY, REPO
+
+DEMO = REPLAY / "demo-day.mcap"
+STORED = FIXTURES / "demo_estimates_digest.json"
 #: Fields whose last value is stored beside the digest, to tell round-off from a real change.
 SAMPLED = ("moisture_out", "moisture_out_std", "moisture_in", "moisture_in_std",
            "T_dryer_out_model", "T_cyclone_out_model")
@@ -93,7 +94,7 @@ def samples(messages: list[tuple[int, dict[str, Any]]]) -> dict[str, Any]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--write", action="store_true",
-                   help=f"store the digest in {STORED.relative_to(ROOT)} (the estimator changed "
+                   help=f"store the digest in {STORED.relative_to(REPO)} (the estimator changed "
                         "on purpose)")
     args = p.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:

@@ -40,22 +40,22 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from paths import FIXTURES, REPO
 
-ROOT = Path(__file__).resolve().parents[2]
-STORED = Path(__file__).resolve().parents[1] / "fixtures" / "model_digest.json"
+STORED = FIXTURES / "model_digest.json"
 
 
 def _closed_loop_inputs(model, hours: float) -> np.ndarray:
     """``benchmarks/model.py``'s input sequence (loaded from the file: benchmarks is not a
     package)."""
-    spec = importlib.util.spec_from_file_location("_bench_model", ROOT / "benchmarks" / "model.py")
+    spec = importlib.util.spec_from_file_location("_bench_model", REPO / "benchmarks" / "model.py")
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
     return bench.closed_loop_inputs(model, hours, seed=0)
 
 
 def _fixture(name: str) -> dict:
-    return json.loads((Path(__file__).resolve().parents[1] / "fixtures" / f"{name}.json")
+    return json.loads((FIXTURES / f"{name}.json")
                       .read_text())
 
 
@@ -146,7 +146,7 @@ def samples(outputs: dict[str, np.ndarray]) -> dict[str, list[float]]:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--write", action="store_true",
-                   help=f"store the digest in {STORED.relative_to(ROOT)} (physics changed on "
+                   help=f"store the digest in {STORED.relative_to(REPO)} (physics changed on "
                         "purpose)")
     args = p.parse_args(argv)
     outputs = model_outputs()

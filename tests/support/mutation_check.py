@@ -25,7 +25,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from paths import REPO
+
 TIMEOUT_S = 900
 
 
@@ -163,7 +164,7 @@ MUTATIONS: tuple[Mutation, ...] = (
 def copy_repository(dest: Path) -> Path:
     ignore = shutil.ignore_patterns(".git", ".venv", "__pycache__", "*.egg-info", "build",
                                     "out", ".pytest_cache", ".ruff_cache")
-    shutil.copytree(ROOT, dest, ignore=ignore)
+    shutil.copytree(REPO, dest, ignore=ignore)
     return dest
 
 

@@ -12,5 +12,7 @@ FIXTURES = REPO / "tests" / "fixtures"
 REPLAY = REPO / "replay"
 #: The project's ``shared/`` folder beside the repository (the contract checker), when present.
 SHARED = REPO.parent / "shared"
+#: The contract's checker of a recorded day (``shared/tools/check_day.py``), when present.
+CHECK_DAY = SHARED / "tools" / "check_day.py"
 
-__all__ = ["FIXTURES", "REPLAY", "REPO", "SHARED"]
+__all__ = ["CHECK_DAY", "FIXTURES", "REPLAY", "REPO", "SHARED"]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from paths import REPO
+from paths import CHECK_DAY, REPO
 from scipy.signal import lfilter
 
 from softsensor.errors import ConfigError
@@ -35,7 +35,6 @@ from softsensor.plant.settings import virtual_plant_settings
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import INJECTABLE_EFFECTS, SCAN_SIGNALS
 
-CHECK_DAY = REPO.parent / "shared" / "tools" / "check_day.py"
 PACKAGE = REPO / "softsensor" / "plant" / "independent"
 HOURS = 6.0
 PLANT = 0
