@@ -30,13 +30,22 @@ class Running:
 
 
 @contextlib.asynccontextmanager
-async def serving_plc(day, *, clock: bool = False) -> AsyncIterator[tuple[PlantFeed, TagMap]]:
+async def serving_plc(day, *, clock: bool = False,
+                      plc_values: Callable[[dict], dict] | None = None,
+                      poll_period_s: float | None = None
+                      ) -> AsyncIterator[tuple[PlantFeed, TagMap]]:
     """The simulated PLC serving ``day`` in a loop, :data:`SCALE` times the plant's pace (with
-    ``clock``, the plant's time of the values in its clock registers); yields the feed and the
-    tag map pointed at the server; the server stops on exit."""
+    ``clock``, the plant's time of the values in its clock registers; ``plc_values`` may change
+    what it serves at each scan, a broken sensor; ``poll_period_s``: the tag map's poll period
+    in plant seconds, 10 s by default); yields the feed and the tag map pointed at the server;
+    the server stops on exit."""
     feed = PlantFeed(day, loop=True)
     tm = load_tagmap()
-    plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE,
+    if poll_period_s is not None:
+        tm = tm.with_settings(poll_period_s=poll_period_s)
+    values = feed.next_values if plc_values is None else (
+        lambda: plc_values(feed.next_values()))
+    plc = PlcServer(tm, values, port=0, period_s=10.0 / SCALE,
                     clock=(lambda: feed.plant_time_ns) if clock else None)
     await plc.start()
     try:
@@ -88,28 +97,17 @@ async def running_daemon(tmp_path: Path, *, ticks: int = 1,
         cfg = load_plant_config(path)
     day = simulate_day(cfg, 3.0, 12)
     settings = daemon_settings(tmp_path, int(day.scans.index[0]), cfg, **changes)
-    feed = PlantFeed(day, loop=True)
-    tm = load_tagmap()
-    if poll_period_s is not None:
-        tm = tm.with_settings(poll_period_s=poll_period_s)
-    values = feed.next_values if plc_values is None else (
-        lambda: plc_values(feed.next_values()))
-    plc = PlcServer(tm, values, port=0, period_s=10.0 / SCALE)
-    await plc.start()
-    daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port),
-                    resume=resume)
-    stop, up = asyncio.Event(), []
-    task = asyncio.create_task(daemon.run(stop, ready=up.append))
-    loop = asyncio.get_running_loop()
-    try:
-        deadline = loop.time() + 60
-        while not up or daemon.worker.service.stats.ticks < ticks:
-            assert loop.time() < deadline and not task.done(), "the daemon did not tick"
-            await asyncio.sleep(0.05)
-        yield Running(daemon, stop, task, up[0].endpoints[0])
-    finally:
-        stop.set()
+    async with serving_plc(day, plc_values=plc_values, poll_period_s=poll_period_s) as (_, tm):
+        daemon = Daemon(cfg, settings, tagmap=tm, resume=resume)
+        stop, up = asyncio.Event(), []
+        task = asyncio.create_task(daemon.run(stop, ready=up.append))
+        loop = asyncio.get_running_loop()
         try:
-            await asyncio.wait_for(task, 30)
+            deadline = loop.time() + 60
+            while not up or daemon.worker.service.stats.ticks < ticks:
+                assert loop.time() < deadline and not task.done(), "the daemon did not tick"
+                await asyncio.sleep(0.05)
+            yield Running(daemon, stop, task, up[0].endpoints[0])
         finally:
-            await plc.stop()
+            stop.set()
+            await asyncio.wait_for(task, 30)
