@@ -1,6 +1,6 @@
 """The latest estimate as Modbus input registers, for a DCS to poll (``[outputs.modbus]``).
 
-A pymodbus 3.16 TCP server on its own port (loopback unless configured) holds one block of
+An asyncio TCP server on its own port (loopback unless configured) holds one block of
 input registers (function code 4), laid out in docs/interface.md section 7 and in
 :data:`REGISTERS`: the outlet and inlet moisture with their standard deviations [kg/kg dry
 basis] and in % on the display basis, the window end [s since the epoch, UTC], the health
@@ -8,13 +8,18 @@ code, a counter of estimates and whether a lab result corrected this window. Flo
 IEEE-754 float32, high word first (ABCD), integers unsigned and big-endian; an estimate that
 is missing is NaN with the health code saying why.
 
-The server serves the estimator's outputs and nothing else: every other function code,
-writes, diagnostics (8), server id (17) and device identification (43) included, is answered
-with exception 1 (illegal function). pymodbus answers some of them itself (8, 17, 43) or
-validates the address first (exception 2 to a read of holding registers), so the rule is
-applied where every response leaves: a response to anything but function code 4 is replaced
-by exception 1 (:func:`only_input_registers`). The softsensor's Modbus client to the PLC is a
-different program path and never writes either.
+The protocol is :mod:`softsensor.outputs.modbus_protocol` (sans I/O): function code 4 only,
+every other code exception 1, a bad count or a malformed read exception 3, pipelined requests
+answered in order. This module moves bytes and keeps the connections in bounds, which
+pymodbus' server did not (issue 40: 2,000 idle clients held 2,036 descriptors, two requests in
+one segment got one answer, and a request to unit 0 logged a traceback with a frame dump):
+
+* a connection without a request for ``idle_timeout_s`` (60 s) is closed;
+* at most ``max_connections`` (32) are open: a new one closes the oldest that never sent a
+  request, else the one that has waited longest since its last request;
+* a client that does not read its answers is not read from until it does.
+
+The softsensor's Modbus client to the PLC is a different program path and never writes either.
 """
 
 from __future__ import annotations
@@ -23,19 +28,16 @@ import asyncio
 import contextlib
 import logging
 import math
-import socket
 import struct
+import threading
+import time
 from collections.abc import Mapping
 from typing import Any
-
-from pymodbus.constants import ExcCodes
-from pymodbus.pdu import ExceptionResponse, ModbusPDU
-from pymodbus.server import ModbusTcpServer
-from pymodbus.simulator import DataType, SimData, SimDevice
 
 from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate, Health
 from softsensor.messages import LabResult
+from softsensor.outputs.modbus_protocol import FramingError, RegisterProtocol
 from softsensor.outputs.settings import ModbusOutputSettings
 from softsensor.presentation.display import DisplaySettings, moisture_pct
 
@@ -58,7 +60,8 @@ N_REGISTERS = 17
 #: Health codes of register 14.
 HEALTH_CODES: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
 NO_ESTIMATE = 3
-READ_INPUT_REGISTERS = 4
+#: The kernel's queue before accept.
+LISTEN_BACKLOG = 128
 
 
 def _words(value: float | int, kind: str) -> list[int]:
@@ -96,29 +99,55 @@ def estimate_registers(body: Mapping[str, Any], time_ns: int, counter: int,
     return words
 
 
-def only_input_registers(pdu: ModbusPDU) -> ModbusPDU:
-    """The response ``pdu`` if it answers function code 4, else exception 1 in its place
-    (same transaction and unit)."""
-    code = pdu.function_code & 0x7F
-    if code == READ_INPUT_REGISTERS:
-        return pdu
-    return ExceptionResponse(code, ExcCodes.ILLEGAL_FUNCTION, device_id=pdu.dev_id,
-                             transaction=pdu.transaction_id)
+class _Connection(asyncio.Protocol):
+    """One client: bytes to :class:`RegisterProtocol`, its answers back, in order."""
 
+    def __init__(self, server: EstimateModbusServer) -> None:
+        self.server = server
+        self.protocol = RegisterProtocol(server.settings.unit_id, server.registers)
+        self.transport: asyncio.Transport | None = None
+        self.last_active = time.monotonic()
+        self.answered = False  #: it has sent a request (a client, not just a socket)
 
-def _bind_problem(host: str, port: int, exc: BaseException) -> str:
-    """Why ``host:port`` cannot be listened on, as the system says it ("Address already in
-    use"): tried with a plain socket, since pymodbus hides the reason."""
-    if isinstance(exc, OSError) and exc.strerror:
-        return exc.strerror
-    try:
-        for family, kind, proto, _name, address in socket.getaddrinfo(
-                host, port, type=socket.SOCK_STREAM):
-            with socket.socket(family, kind, proto) as probe:
-                probe.bind(address)
-    except OSError as err:
-        return err.strerror or str(err)
-    return str(exc)
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        self.server._admit(self)
+
+    def data_received(self, data: bytes) -> None:
+        self.last_active = time.monotonic()
+        try:
+            answers = self.protocol.feed(data)
+        except FramingError:
+            self.server.framing_errors += 1
+            self.close()
+            return
+        finally:
+            self.server.refused += self.protocol.refused
+            self.protocol.refused = 0
+        if answers and self.transport is not None:
+            self.answered = True
+            self.transport.write(b"".join(answers))
+
+    # a client that sends requests without reading the answers: stop reading until the
+    # kernel takes them, so its answers cannot pile up in memory
+    def pause_writing(self) -> None:
+        if self.transport is not None:
+            self.transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self.transport is not None and not self.transport.is_closing():
+            self.transport.resume_reading()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.server._open.pop(self, None)
+        self.transport = None
+
+    def close(self) -> None:
+        """Close at once (the descriptor freed now, whatever is unsent)."""
+        self.server._open.pop(self, None)
+        if self.transport is not None:
+            self.transport.abort()
 
 
 class EstimateModbusServer:
@@ -133,90 +162,92 @@ class EstimateModbusServer:
         self.display = display
         self.counter = 0
         self.refused = 0  #: requests answered with an exception (writes, other tables)
-        self._server: ModbusTcpServer | None = None
-        self._loop: asyncio.AbstractEventLoop | None = None
+        self.framing_errors = 0  #: connections closed for bytes that are not Modbus TCP
+        self.idle_closed = 0  #: connections closed after ``idle_timeout_s`` without a request
+        self.evicted = 0  #: connections closed to make room for a new one
+        self._words = estimate_registers({}, 0, 0, display)
+        self._lock = threading.Lock()  # the estimator's thread and the loop's write words
+        self._open: dict[_Connection, None] = {}  # insertion order: the oldest first
+        self._server: asyncio.Server | None = None
+        self._sweeper: asyncio.Task | None = None
         self.port = settings.port
 
-    async def _action(self, function_code: int, _start: int, _address: int, _count: int,
-                      _registers: list[int], _set_values: object) -> ExcCodes | None:
-        if function_code != READ_INPUT_REGISTERS:
-            return ExcCodes.ILLEGAL_FUNCTION  # (counted in _trace, where it leaves)
-        return None
+    @property
+    def connections(self) -> int:
+        """Connections open now."""
+        return len(self._open)
 
-    def _trace(self, sending: bool, pdu: ModbusPDU) -> ModbusPDU:
-        """pymodbus's hook on every PDU in and out: responses pass :func:`only_input_registers`."""
-        if not sending:
-            return pdu
-        out = only_input_registers(pdu)
-        if out is not pdu:
-            self.refused += 1
-        return out
+    def registers(self) -> list[int]:
+        """The register block served now."""
+        return self._words
 
-    def _device(self) -> SimDevice:
-        empty = [SimData(address=0, values=0, datatype=DataType.BITS)]
-        holding = [SimData(address=0, values=0, datatype=DataType.REGISTERS)]
-        block = [SimData(address=0, count=N_REGISTERS, values=0, datatype=DataType.REGISTERS)]
-        return SimDevice(id=self.settings.unit_id, simdata=(empty, list(empty), holding, block),
-                         action=self._action)
+    def _admit(self, conn: _Connection) -> None:
+        """A new connection; when ``max_connections`` are open, one is closed first: the
+        oldest that never sent a request, else the one that has waited longest since its last
+        request (a DCS polls every few seconds, so it is never that one while idle sockets
+        hold slots)."""
+        if len(self._open) >= self.settings.max_connections:
+            stalest = min(self._open, key=lambda c: (c.answered, c.last_active))
+            self.evicted += 1
+            stalest.close()
+        self._open[conn] = None
+
+    async def _sweep(self) -> None:
+        """Close connections idle for longer than ``idle_timeout_s``."""
+        timeout = self.settings.idle_timeout_s
+        while True:
+            await asyncio.sleep(min(timeout / 4, 5.0))
+            limit = time.monotonic() - timeout
+            for conn in [c for c in self._open if c.last_active < limit]:
+                self.idle_closed += 1
+                conn.close()
 
     async def start(self) -> str:
         """Bind and serve; NaN estimates and health 3 until the first estimate. What it
         serves: ``modbus://host:port``."""
         s = self.settings
-        server = ModbusTcpServer([self._device()], address=(s.host, s.port),
-                                 trace_pdu=self._trace)
+        loop = asyncio.get_running_loop()
         try:
-            await server.serve_forever(background=True)
-        except (OSError, RuntimeError) as exc:
-            # pymodbus says only "Could not start listen" (a RuntimeError) for a busy port
-            with contextlib.suppress(Exception):
-                await server.shutdown()
+            self._server = await loop.create_server(lambda: _Connection(self), s.host, s.port,
+                                                    backlog=LISTEN_BACKLOG)
+        except OSError as exc:
             raise ConfigError(f"outputs.modbus: cannot listen on {s.host}:{s.port}: "
-                              f"{_bind_problem(s.host, s.port, exc)}") from exc
-        self._server, self._loop = server, asyncio.get_running_loop()
-        sockets = getattr(server.transport, "sockets", None)
-        if sockets:
-            self.port = sockets[0].getsockname()[1]
-        await self._store(estimate_registers({}, 0, 0, self.display))
+                              f"{exc.strerror or exc}") from exc
+        self.port = self._server.sockets[0].getsockname()[1]
+        self._sweeper = asyncio.create_task(self._sweep(), name="modbus-idle")
         log.info("estimate registers served on %s:%d", s.host, self.port)
         return f"modbus://{s.host}:{self.port}"
 
-    async def _store(self, words: list[int]) -> None:
-        if self._server is not None:
-            await self._server.async_setValues(self.settings.unit_id, READ_INPUT_REGISTERS, 0,
-                                               words)
-
     def on_estimate(self, estimate: Estimate) -> None:
-        """Serve a new estimate (thread-safe: handed to the server's event loop)."""
-        if self._loop is None:
-            return
-        self.counter += 1
-        words = estimate_registers(estimate.to_body(), estimate.time_ns, self.counter,
-                                   self.display)
-        asyncio.run_coroutine_threadsafe(self._store(words), self._loop)
+        """Serve a new estimate (any thread: the block is replaced whole)."""
+        with self._lock:
+            self.counter += 1
+            self._words = estimate_registers(estimate.to_body(), estimate.time_ns,
+                                             self.counter, self.display)
 
     def on_health(self, health: Health) -> None:
         """A health change between estimates (e.g. ``stale`` when scans stop): register 14."""
-        if self._loop is None:
-            return
-        code = HEALTH_CODES.get(health.status, NO_ESTIMATE)
-
-        async def _set() -> None:
-            if self._server is not None:
-                await self._server.async_setValues(self.settings.unit_id, READ_INPUT_REGISTERS,
-                                                   REGISTERS["health"][0], [code])
-
-        asyncio.run_coroutine_threadsafe(_set(), self._loop)
+        with self._lock:
+            words = list(self._words)
+            words[REGISTERS["health"][0]] = HEALTH_CODES.get(health.status, NO_ESTIMATE)
+            self._words = words
 
     def on_lab(self, lab: LabResult) -> None:
         """Lab results are not served as registers."""
 
     async def stop(self) -> None:
         server, self._server = self._server, None
+        if self._sweeper is not None:
+            self._sweeper.cancel()
+            self._sweeper = None
+        if server is not None:
+            server.close()
+        for conn in list(self._open):
+            conn.close()
         if server is not None:
             with contextlib.suppress(Exception):
-                await server.shutdown()
+                await asyncio.wait_for(server.wait_closed(), 5.0)
 
 
-__all__ = ["HEALTH_CODES", "N_REGISTERS", "NO_ESTIMATE", "REGISTERS", "EstimateModbusServer",
-           "estimate_registers"]
+__all__ = ["HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE", "REGISTERS",
+           "EstimateModbusServer", "estimate_registers"]

@@ -40,6 +40,10 @@ class ModbusOutputSettings:
     host: str = "127.0.0.1"
     port: int = 1502
     unit_id: int = 1
+    # a connection without a request this long is closed [s] (a DCS polls every few seconds)
+    idle_timeout_s: float = num(60.0, gt=0, le=3600)
+    # connections open at once; a new one closes the one idle longest
+    max_connections: int = num(32, ge=1, le=1024)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:

@@ -72,9 +72,7 @@ def test_every_function_code_but_4_gets_exception_1():
 
 @pytest.mark.parametrize("code", [3, 8])
 def test_the_rule_is_one_function(code):
-    from pymodbus.pdu import ExceptionResponse
+    from softsensor.outputs.modbus_protocol import answer_pdu
 
-    from softsensor.outputs.modbus_server import only_input_registers
-
-    out = only_input_registers(ExceptionResponse(code, 2, device_id=1, transaction=7))
-    assert (out.function_code, out.exception_code, out.transaction_id) == (code | 0x80, 1, 7)
+    out = answer_pdu(bytes([code]) + struct.pack(">HH", 0, 2), [0] * N_REGISTERS)
+    assert out == bytes([code | 0x80, 1])

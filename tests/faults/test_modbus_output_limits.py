@@ -1,0 +1,121 @@
+"""Fault injection (issue 40, the fourth probe): the Modbus output's connections kept in
+bounds, probed with raw sockets on 127.0.0.1.
+
+Before: idle connections were never closed and had no limit (2,000 idle clients held 2,036
+descriptors), two requests in one TCP segment got one answer (1,000 pipelined: none within
+5 s), a bad count or a truncated PDU got ``80 01``, and a read addressed to unit 0 or 255
+logged a pymodbus traceback with a frame dump of the daemon's own PLC polling.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import struct
+import threading
+import time
+
+from softsensor.outputs.modbus_protocol import frame
+from softsensor.outputs.modbus_server import N_REGISTERS, EstimateModbusServer
+from softsensor.outputs.settings import ModbusOutputSettings
+from softsensor.presentation.display import DisplaySettings
+
+
+@contextlib.contextmanager
+def _server(**settings):
+    server = EstimateModbusServer(ModbusOutputSettings(enabled=True, port=0, **settings),
+                                  DisplaySettings())
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+    try:
+        asyncio.run_coroutine_threadsafe(server.start(), loop).result(10)
+        yield server
+    finally:
+        asyncio.run_coroutine_threadsafe(server.stop(), loop).result(10)
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10)
+        loop.close()
+
+
+def _read(tid: int, count: int = N_REGISTERS, unit: int = 1) -> bytes:
+    return frame(tid, unit, struct.pack(">BHH", 4, 0, count))
+
+
+def _answers(s: socket.socket, n: int) -> list[tuple[int, bytes]]:
+    out = []
+    for _ in range(n):
+        head = s.recv(7, socket.MSG_WAITALL)
+        assert len(head) == 7, f"{len(out)} answers of {n}"
+        tid, _proto, length, _unit = struct.unpack(">HHHB", head)
+        out.append((tid, s.recv(length - 1, socket.MSG_WAITALL)))
+    return out
+
+
+def _closed_by_peer(s: socket.socket, within_s: float) -> bool:
+    s.settimeout(within_s)
+    try:
+        return s.recv(1) == b""
+    except TimeoutError:
+        return False
+    except ConnectionResetError:
+        return True
+
+
+def test_pipelined_requests_in_one_segment_are_all_answered_in_order():
+    with _server() as server, socket.create_connection(("127.0.0.1", server.port),
+                                                       timeout=5) as s:
+        s.sendall(b"".join(_read(tid) for tid in range(1, 1001)))
+        started = time.monotonic()
+        got = _answers(s, 1000)
+        assert time.monotonic() - started < 5
+    assert [tid for tid, _ in got] == list(range(1, 1001))
+    assert all(pdu[:2] == bytes([4, 2 * N_REGISTERS]) for _, pdu in got)
+
+
+def test_bad_counts_truncated_pdus_and_other_units_get_their_codes_without_a_log_line(caplog):
+    caplog.set_level(logging.DEBUG)
+    with _server() as server, socket.create_connection(("127.0.0.1", server.port),
+                                                       timeout=5) as s:
+        s.sendall(_read(1, count=0) + _read(2, count=2000)
+                  + frame(3, 1, bytes([4, 0, 0, 0])) + _read(4, unit=0) + _read(5, unit=255))
+        got = dict(_answers(s, 5))
+    assert got == {1: b"\x84\x03", 2: b"\x84\x03", 3: b"\x84\x03", 4: b"\x84\x0b",
+                   5: b"\x84\x0b"}
+    assert server.refused == 5
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING]
+
+
+def test_an_idle_connection_is_closed_and_a_polling_one_kept():
+    with _server(idle_timeout_s=0.4) as server:
+        idle = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+        polling = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+        with idle, polling:
+            for tid in range(12):  # 1.2 s of polls, three idle timeouts
+                polling.sendall(_read(tid))
+                assert _answers(polling, 1)[0][0] == tid
+                time.sleep(0.1)
+            assert _closed_by_peer(idle, 1.0)
+            assert server.idle_closed == 1 and server.connections == 1
+
+
+def test_connections_beyond_the_cap_close_the_idlest_and_the_dcs_keeps_reading():
+    with _server(max_connections=8) as server:
+        dcs = socket.create_connection(("127.0.0.1", server.port), timeout=5)
+        idle = []
+        with dcs:
+            for i in range(200):
+                idle.append(socket.create_connection(("127.0.0.1", server.port), timeout=5))
+                if i % 20 == 0:  # the DCS polls through the flood
+                    dcs.sendall(_read(i))
+                    assert _answers(dcs, 1)[0][0] == i
+            time.sleep(0.2)
+            assert server.connections <= 8
+            assert server.evicted >= 192
+            dcs.sendall(_read(999))
+            assert _answers(dcs, 1)[0][0] == 999
+            assert _closed_by_peer(idle[0], 1.0)
+        for s in idle:
+            s.close()
