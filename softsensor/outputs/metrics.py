@@ -21,6 +21,12 @@ the program offers to other programs) and in % on a wet basis (what a plant's la
 operators read), with the 95 % band (its low end clipped at bone dry,
 :func:`~softsensor.presentation.display.moisture_band`) and the ``[display]`` target and acceptable
 band, so a dashboard plots them without arithmetic.
+
+``/metrics`` is served by the web page's server
+(:class:`~softsensor.outputs.deadline_http.DeadlineHTTPServer`): a header deadline of
+``timeout_s``, at most ``workers + backlog`` connections, ``workers`` threads.
+``prometheus_client``'s own server spawned a thread per client and had no header deadline
+(issue 40: 500 slow clients held 522 threads and 535 descriptors).
 """
 
 from __future__ import annotations
@@ -28,13 +34,21 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
+from urllib.parse import urlsplit
 
-from prometheus_client import CollectorRegistry, Gauge, Histogram, start_http_server
+from prometheus_client import (
+    CONTENT_TYPE_LATEST,
+    CollectorRegistry,
+    Gauge,
+    Histogram,
+    generate_latest,
+)
 from prometheus_client.core import CounterMetricFamily
 
 from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate, Health
 from softsensor.messages import LabResult
+from softsensor.outputs.deadline_http import DeadlineHTTPServer, Response
 from softsensor.outputs.settings import MetricsSettings
 from softsensor.presentation.display import DisplaySettings, moisture_band, moisture_pct
 
@@ -132,20 +146,35 @@ class DaemonMetrics:
             self.temperature.labels(**self.labels, channel=channel, source=source).set(math.nan)
         self._set_health("stale")
         r.register(_Counters(counters or {}, (unit, settings.site, unit)))
-        self._server: Any = None
+        self._server: DeadlineHTTPServer | None = None
         self.port = settings.port
+
+    def answer(self, target: str) -> Response:
+        """``/metrics`` in Prometheus' text format; anything else 404."""
+        if urlsplit(target).path != "/metrics":
+            return Response(404, "text/plain", "not found: see /metrics\n")
+        return Response(200, CONTENT_TYPE_LATEST, generate_latest(self.registry))
 
     async def start(self) -> str:
         """Serve ``/metrics``; a port in use is a one-line error naming the table. What it
         serves: the URL."""
         s = self.settings
+        server = DeadlineHTTPServer(s.host, s.port, self.answer, workers=s.workers,
+                                    max_connections=s.workers + s.backlog,
+                                    header_timeout_s=s.timeout_s)
         try:
-            self._server, _thread = start_http_server(s.port, s.host, registry=self.registry)
+            server.start()
         except OSError as exc:
             raise ConfigError(f"outputs.prometheus: cannot listen on {s.host}:{s.port}: "
                               f"{exc.strerror or exc}") from exc
-        self.port = self._server.server_address[1]
+        self._server = server
+        self.port = server.port
         return f"http://{s.host}:{self.port}/metrics"
+
+    @property
+    def expired(self) -> int:
+        """Connections closed because their header missed the deadline."""
+        return 0 if self._server is None else self._server.expired
 
     def on_estimate(self, estimate: Estimate) -> None:
         """Set the gauges from an estimate, and observe the tick's wall time."""
@@ -183,8 +212,7 @@ class DaemonMetrics:
     async def stop(self) -> None:
         server, self._server = self._server, None
         if server is not None:
-            server.shutdown()
-            server.server_close()
+            server.stop()
 
 
 __all__ = ["HEALTH_STATES", "LABELS", "DaemonMetrics"]

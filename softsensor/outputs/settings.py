@@ -61,6 +61,10 @@ class MetricsSettings:
     host: str = "127.0.0.1"
     port: int = 9108
     site: str = "plant"  # the label ``site`` of every metric (a dashboard chooses by it)
+    # as [outputs.web]: threads answering, connections beyond them, header deadline [s]
+    workers: int = num(2, ge=1, le=64)
+    backlog: int = num(14, ge=0, le=1024)
+    timeout_s: float = num(10.0, gt=0, le=300)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:

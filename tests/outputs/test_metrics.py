@@ -108,3 +108,32 @@ def test_a_port_in_use_is_a_one_line_error():
         with pytest.raises(ConfigError, match=rf"outputs\.prometheus: cannot listen on "
                                               rf"127\.0\.0\.1:{port}"):
             asyncio.run(m.start())
+
+
+def test_slow_clients_hold_no_thread_and_are_closed_at_the_header_deadline():
+    """Issue 40: ``prometheus_client``'s server spawned a thread per client with no header
+    deadline (500 slow clients, 522 threads, 535 descriptors); now the web page's server:
+    ``workers`` threads, ``workers + backlog`` connections, scrapes answered throughout."""
+    import socket
+    import threading
+    import time
+
+    m = DaemonMetrics(MetricsSettings(enabled=True, port=0, workers=2, backlog=6,
+                                      timeout_s=0.5))
+    threads_before = threading.active_count()
+    asyncio.run(m.start())
+    slow = []
+    try:
+        for _ in range(300):  # each sends half a header and then nothing
+            s = socket.create_connection(("127.0.0.1", m.port), timeout=5)
+            s.sendall(b"GET /metrics HTTP/1.1\r\nHost: x\r\n")
+            slow.append(s)
+        assert threading.active_count() - threads_before <= 2 + 1  # workers + the loop
+        assert "softsensor_health" in str(scrape_metrics(m.port))
+        time.sleep(1.0)
+        assert m.expired >= 1  # the ones still open at the deadline were closed
+        assert m.answer("/other").code == 404
+    finally:
+        for s in slow:
+            s.close()
+        asyncio.run(m.stop())
