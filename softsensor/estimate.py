@@ -408,6 +408,8 @@ class Health:
         reached (bytes), by name.
     stall : Stall or None
         The estimator thread is late (the watchdog).
+    resources : str or None
+        What the daemon is short of (descriptors near the process limit): ``degraded``.
     """
 
     kind: ClassVar[str] = "health"
@@ -430,12 +432,14 @@ class Health:
     inputs_dropped: Mapping[str, int] | None = None
     recording_capped: Mapping[str, int] | None = None
     stall: Stall | None = None
+    resources: str | None = None
 
     @property
     def status(self) -> str:
-        """The worst of the tick's, the inputs', the lab's and a stall's."""
+        """The worst of the tick's, the inputs', the lab's, a stall's and the resources'."""
         return worst(self.tick.status, self.input.status, self.lab.status,
-                     *(() if self.stall is None else (self.stall.reason.status,)))
+                     *(() if self.stall is None else (self.stall.reason.status,)),
+                     *(() if self.resources is None else ("degraded",)))
 
     @property
     def detail(self) -> str:
@@ -450,6 +454,8 @@ class Health:
                 parts.append(f"input: {self.input.text}")
             if self.lab.status != "ok":
                 parts.append(self.lab.text)
+            if self.resources is not None:
+                parts.append(f"resources: {self.resources}")
         if self.recording not in (None, "ok"):
             parts.append(f"recording: {self.recording}")
         return "; ".join(parts)
@@ -483,6 +489,8 @@ class Health:
             body["inputs_dropped"] = dict(self.inputs_dropped)
         if self.recording_capped is not None:
             body["recording_capped"] = dict(self.recording_capped)
+        if self.resources is not None:
+            body["resources"] = self.resources
         if self.stall is not None:
             body.update(stalled=True, tick_late_s=round(self.stall.late_s, 1),
                         pending=self.stall.pending, tick_every_s=self.stall.window_s)
@@ -520,7 +528,8 @@ class Health:
                    opt_int("stale_since_ns"),
                    None if recording is None else str(recording),
                    None if dropped is None else _frozen_map(dropped),
-                   None if capped is None else _frozen_map(capped), stall)
+                   None if capped is None else _frozen_map(capped), stall,
+                   None if b.get("resources") is None else str(b["resources"]))
 
 
 #: The health body's own fields (the rest of its integers are the service's counters).
@@ -529,7 +538,7 @@ _HEALTH_FIELDS: frozenset[str] = frozenset({
     "input_detail", "lab_detail", "estimator", "unit",
     "window_end_ns", "last_scan_ns", "labs_waiting", "last_lab_refusal", "last_lab_refusal_ns",
     "last_lab_accepted_ns", "stale_since_ns", "recording", "inputs_dropped",
-    "recording_capped", "stalled", "tick_late_s", "pending", "tick_every_s"})
+    "recording_capped", "stalled", "tick_late_s", "pending", "tick_every_s", "resources"})
 
 
 __all__ = ["CONTRACT_FIELDS", "SEVERITY", "Blend", "Estimate", "FilterTerms", "Health",

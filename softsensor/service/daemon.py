@@ -67,6 +67,7 @@ from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import BusWorker, InputLimits
 from softsensor.service.checkpoint import CheckpointStore, check_fits
 from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
+from softsensor.service.descriptors import DescriptorWatch
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.heap import TRIM_EVERY_S, trim
@@ -86,6 +87,8 @@ log = logging.getLogger(__name__)
 
 #: Wall-clock period of the daemon's housekeeping (time passing, recorder, status) [s].
 HOUSEKEEPING_S = 0.1
+#: How often the open descriptors are counted [s, wall] (20,000 of them take about 5 ms).
+DESCRIPTORS_EVERY_S = 2.0
 #: Longest wait at shutdown for the estimator thread's last checkpoint [s]; a thread stuck
 #: longer is left behind (it is a daemon thread) so SIGTERM is honoured within seconds.
 SHUTDOWN_WAIT_S = 10.0
@@ -189,6 +192,7 @@ class Daemon:
         self.health: HealthQueryable | None = None
         self.resumed = False  #: the service continues from the checkpoint
         self._recording_said: str | None = None  #: recorder state health last said
+        self.descriptors = DescriptorWatch()  #: open descriptors against the process limit
         #: the PLC's clock [ns] and the monotonic time it was read (``clock_start = "plc"``)
         self._plc_clock: tuple[int, float] | None = None
 
@@ -489,7 +493,7 @@ class Daemon:
         capped = None if self.bus_recorder is None or not self.bus_recorder.capped \
             else dict(self.bus_recorder.capped)
         return out.at(out.time_ns, recording=self._recording(),
-                      inputs_dropped=None if self.worker is None
+                      resources=self.descriptors.said, inputs_dropped=None if self.worker is None
                       else dict(self.worker.dropped), recording_capped=capped)
 
     def _recording_changed(self) -> None:
@@ -530,9 +534,22 @@ class Daemon:
         base = self.latest_health or Health.initial(now, self.unit, self.worker.service.kind)
         self.worker.publish_aside(base.at(now, stall=stall))
 
+    def _descriptors_changed(self) -> None:
+        """Count the open descriptors; publish health at once when they near the process
+        limit or are clear of it again."""
+        said = self.descriptors.said
+        now_said = self.descriptors.check()
+        if (said is None) == (now_said is None) or self.latest_health is None \
+                or self.worker is None or self.clock is None:
+            return
+        event(log, "descriptors", logging.ERROR if now_said else logging.INFO,
+              state=now_said or "ok")
+        self.worker.publish_aside(self.latest_health.at(self.clock.now_ns()))
+
     async def _housekeeping(self, stop: asyncio.Event, poll_task: asyncio.Task[None]) -> None:
         assert self.worker is not None and self.clock is not None
         next_status = time.monotonic() + self.settings.status_every_s
+        next_descriptors = time.monotonic()
         next_trim = time.monotonic() + TRIM_EVERY_S
         while not stop.is_set():
             with contextlib.suppress(TimeoutError):
@@ -543,6 +560,9 @@ class Daemon:
             self.worker.advance(self.clock.now_ns())
             self._watch()
             self._recording_changed()
+            if time.monotonic() >= next_descriptors:
+                next_descriptors = time.monotonic() + DESCRIPTORS_EVERY_S
+                self._descriptors_changed()
             if time.monotonic() >= next_status:
                 next_status += self.settings.status_every_s
                 self._status()
