@@ -41,6 +41,8 @@ from softsensor.outputs.settings import OpcUaSettings
 from softsensor.presentation.display import DisplaySettings, moisture_pct
 
 log = logging.getLogger(__name__)
+#: A connection must have activated its session this soon [s] (a client does so at once).
+PENDING_ACTIVATION_S = 10.0
 
 
 class _StartNoise(logging.Filter):
@@ -206,6 +208,15 @@ class EstimateOpcUaServer:
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"softsensor {self.unit}")
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+        # asyncua's own bounds, tightened (issue 40): 1,000 connections, 30 s to activate a
+        # session and sessions kept for 10 min by default
+        limits = server.iserver
+        limits.max_connections = self.settings.max_connections
+        limits.max_pending_activation_seconds = min(self.settings.idle_timeout_s,
+                                                    PENDING_ACTIVATION_S)
+        limits.max_session_timeout_ms = 1000 * self.settings.idle_timeout_s
+        limits.min_session_timeout_ms = min(limits.min_session_timeout_ms,
+                                            limits.max_session_timeout_ms)
         await self._variables(server)
         try:
             await server.start()

@@ -80,6 +80,10 @@ class OpcUaSettings:
     host: str = "127.0.0.1"
     port: int = 4840
     history_h: float = num(48.0, gt=0, le=24 * 31)  # HistoryRead: the last hours of windows
+    # connections open at once (asyncua refuses more); a connection without a session after
+    # min(idle_timeout_s, 10 s) is closed, and a session idle for idle_timeout_s [s]
+    max_connections: int = num(32, ge=1, le=1024)
+    idle_timeout_s: float = num(60.0, ge=5, le=3600)
 
     def check(self) -> str | None:
         if not 1 <= self.port <= 65535:

@@ -112,3 +112,46 @@ def test_the_opcua_server_starts_without_forty_warning_lines(caplog):
     assert noise == [], [r.getMessage()[:100] for r in noise[:3]]
     assert any("anonymous, no encryption" in r.getMessage() for r in caplog.records)
 
+
+
+def test_connections_are_capped_and_idle_ones_bounded_in_time():
+    """Issue 40: asyncua kept 1,000 connections, 30 s before a session is activated and
+    sessions 10 min; the output's ``max_connections`` and ``idle_timeout_s`` now bound them."""
+    import socket
+
+    server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=free_port(),
+                                               max_connections=4, idle_timeout_s=6),
+                                 DisplaySettings())
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, daemon=True)
+    thread.start()
+
+    def run(coro, timeout=30.0):
+        return asyncio.run_coroutine_threadsafe(coro, loop).result(timeout)
+
+    held = []
+    try:
+        run(server.start())
+        limits = server._server.iserver
+        assert (limits.max_pending_activation_seconds, limits.max_session_timeout_ms) == \
+            (6, 6000)
+        for _ in range(10):
+            held.append(socket.create_connection(("127.0.0.1", server.settings.port),
+                                                 timeout=5))
+        closed = 0
+        for s in held:
+            s.settimeout(0.3)
+            try:
+                closed += s.recv(1) == b""
+            except TimeoutError:
+                pass
+            except ConnectionResetError:
+                closed += 1
+        assert closed == 6  # the first four hold their slots until their activation deadline
+    finally:
+        for s in held:
+            s.close()
+        run(server.stop())
+        loop.call_soon_threadsafe(loop.stop)
+        thread.join(10)
+        loop.close()
