@@ -8,7 +8,11 @@ Two ways in, one check:
 * a file dropped in a folder, CSV or JSON, read by :mod:`softsensor.ingest.lab_files` (its
   layout, the plant config's ``[lab]`` table, and the rules for untrusted files are there).
 
-:class:`LabInput` ignores (and logs) a ``sample_id`` it has seen before.
+:class:`LabInput` ignores (and logs) a ``sample_id`` it has seen before; an id is seen once its
+result was delivered, and freed again when the estimator refuses that result
+(:meth:`LabInput.forget`, :meth:`LabFolderWatcher.forget`: a result outside the envelope or
+an outlier, issue 40), so the corrected result with the same id is taken, from a file as from
+the bus.
 
 :class:`LabFolderWatcher` polls the folder (no extra dependency). A file is taken whole or not
 at all: every entry usable, it goes to ``processed/`` and its new results to the estimator; any
@@ -25,13 +29,16 @@ old its time: a LIMS export paused mid-file for more than ``settle_s`` was taken
 and unchanged by the reading. A writer can pause for longer than any settle interval, so a file
 taken is watched in ``processed/`` for ``watch_s`` more: when it changes there (a writer that
 kept it open wrote on) it is read again once settled, and its new results are applied (issue
-31 item 4: the rows after a pause were lost, never in ``.seen-ids``, never logged).
+31 item 4: the rows after a pause were lost, never in ``.seen-ids``, never logged), within
+the rate and :data:`BURST` as a fresh file's: what is beyond them is said in the log line and
+taken at later polls (issue 40: more than 25 rows appended were lost without a line).
 
 The folder is a boundary: anyone who can write to it is untrusted. Any failure to read a file
 rejects it with a short reason that names the row and the column, never any of the file's
 content; a link is moved to ``rejected/`` as a link. Accepted ``sample_id`` values are
 remembered in ``.seen-ids`` in the folder, so a file dropped again after a restart is still
-a duplicate.
+a duplicate; an id the estimator refused is written there as ``{"refused": id}`` after it,
+so it stays free across a restart.
 """
 
 from __future__ import annotations
@@ -93,6 +100,15 @@ class LabInput:
         """Treat ``sample_ids`` as delivered already (ids of earlier runs)."""
         with self._lock:
             self._seen.update(sample_ids)
+
+    def forget(self, sample_id: str) -> bool:
+        """Free ``sample_id``: its result was refused downstream, a corrected one may come.
+        False when it was not seen here (a result from another sender on the bus)."""
+        with self._lock:
+            if sample_id not in self._seen:
+                return False
+            self._seen.discard(sample_id)
+            return True
 
     def seen(self, sample_id: str) -> bool:
         """True when a result with this ``sample_id`` was delivered (or was known at start)."""
@@ -225,6 +241,7 @@ class _Taken:
     signature: tuple[int, int, int]
     at: float
     sightings: dict[str, _Sighting] = field(default_factory=dict)
+    deferred: int = 0  #: new results read again but beyond the rate: taken at later polls
 
 
 def _steady(sightings: dict[str, _Sighting], key: str, path: Path, now: float,
@@ -297,6 +314,7 @@ class LabFolderWatcher:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self.seen_ids_file = self.folder / ".seen-ids"
+        self._ids_lock = threading.Lock()  # the watcher's thread and the estimator's write it
         self._n_seen_lines = self._load_seen_ids()
 
     # -- sample ids remembered across restarts
@@ -309,32 +327,47 @@ class LabFolderWatcher:
             if self.seen_ids_file.exists() or self.seen_ids_file.is_symlink():
                 log.warning("lab sample ids of earlier runs not read: %s", exc)
             return 0
-        ids = []
-        for line in data.decode("utf-8", "replace").splitlines()[-SEEN_IDS_KEPT:]:
+        ids: dict[str, None] = {}
+        lines = data.decode("utf-8", "replace").splitlines()[-SEEN_IDS_KEPT:]
+        for line in lines:
             try:
                 value = json.loads(line)
             except ValueError:
                 continue
             if isinstance(value, str):
-                ids.append(value)
+                ids[value] = None
+            elif isinstance(value, dict) and isinstance(value.get("refused"), str):
+                ids.pop(value["refused"], None)
         self.lab_input.remember(ids)
-        return len(ids)
+        return len(lines)
+
+    def forget(self, sample_id: str) -> None:
+        """Free ``sample_id`` (its result was refused downstream), also across restarts."""
+        if self.lab_input.forget(sample_id):
+            self._append_id({"refused": sample_id}, sample_id)
 
     def _remember(self, sample_id: str) -> None:
         """Append an accepted id to ``.seen-ids`` (rewritten to the newest when it grows)."""
+        self._append_id(sample_id, sample_id)
+
+    def _append_id(self, record: str | dict[str, str], sample_id: str) -> None:
         try:
-            fd = os.open(self.seen_ids_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND
-                         | getattr(os, "O_NOFOLLOW", 0), 0o644)
-            with os.fdopen(fd, "a", encoding="utf-8") as f:
-                f.write(json.dumps(sample_id) + "\n")
-            self._n_seen_lines += 1
-            if self._n_seen_lines > 2 * SEEN_IDS_KEPT:
-                lines = self.seen_ids_file.read_text(encoding="utf-8").splitlines()
-                with atomic_path(self.seen_ids_file) as tmp:
-                    tmp.write_text("\n".join(lines[-SEEN_IDS_KEPT:]) + "\n", encoding="utf-8")
-                self._n_seen_lines = SEEN_IDS_KEPT
+            with self._ids_lock:
+                self._append_line(json.dumps(record))
         except OSError as exc:
             log.warning("lab sample id %r not remembered: %s", sample_id, exc.strerror)
+
+    def _append_line(self, line: str) -> None:
+        fd = os.open(self.seen_ids_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND
+                     | getattr(os, "O_NOFOLLOW", 0), 0o644)
+        with os.fdopen(fd, "a", encoding="utf-8") as f:
+            f.write(line + "\n")
+        self._n_seen_lines += 1
+        if self._n_seen_lines > 2 * SEEN_IDS_KEPT:
+            lines = self.seen_ids_file.read_text(encoding="utf-8").splitlines()
+            with atomic_path(self.seen_ids_file) as tmp:
+                tmp.write_text("\n".join(lines[-SEEN_IDS_KEPT:]) + "\n", encoding="utf-8")
+            self._n_seen_lines = SEEN_IDS_KEPT
 
     # -- one poll
 
@@ -427,12 +460,14 @@ class LabFolderWatcher:
         """Read again the files taken that changed since (once settled); new results on."""
         for dest, taken in list(self._taken.items()):
             sig = _stat_signature(dest)
-            if sig is None or time.monotonic() - taken.at > self.watch_s:
+            if sig is None or (time.monotonic() - taken.at > self.watch_s
+                               and not taken.deferred):
                 del self._taken[dest]
                 continue
-            if sig == taken.signature:
+            if sig == taken.signature and not taken.deferred:
                 continue
-            if not _steady(taken.sightings, "", dest, now, self.settle_s):
+            if sig != taken.signature and not _steady(taken.sightings, "", dest, now,
+                                                      self.settle_s):
                 continue  # still being written: read it when it is complete
             try:
                 parsed = parse_lab_file(dest, log_time_ns=self.lab_input.clock(),
@@ -447,17 +482,24 @@ class LabFolderWatcher:
             if _stat_signature(dest) != sig:
                 continue  # written to while being read
             fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)]
-            if len(fresh) > self.budget.available():
-                continue  # read again at a later poll
-            self.budget.take(len(fresh))
-            for lab in fresh:
+            # the rate and the burst as for a fresh file: the first results now, the rest at
+            # later polls (a file cannot be refused whole once part of it was taken)
+            available = min(self.budget.available(), BURST)
+            now_taken = fresh[:int(available)]
+            self.budget.take(len(now_taken))
+            for lab in now_taken:
                 if self.lab_input.submit(lab) is None:
                     report.accepted.append(lab)
                     self._remember(lab.sample_id)
-            log.warning("lab file %s changed after it was taken (a writer still had it "
-                        "open): read again, %d new results", one_line(dest.name, 100),
-                        len(fresh))
-            taken.signature = sig
+            deferred = len(fresh) - len(now_taken)
+            if deferred:
+                report.waiting.append(dest)
+            if now_taken or (deferred and not taken.deferred):
+                log.warning("lab file %s changed after it was taken (a writer still had it "
+                            "open): read again, %d new results applied, %d deferred to later "
+                            "polls (service.max_lab_rate_per_h, at most %d at once)",
+                            one_line(dest.name, 100), len(now_taken), deferred, BURST)
+            taken.signature, taken.deferred = sig, deferred
 
     def poll_once(self, now: float | None = None) -> PollReport:
         """Handle every settled file in the folder once; ``now`` [s, epoch] for tests."""

@@ -368,6 +368,9 @@ class Daemon:
                   sample_time_ns=lab.sample_time_ns, log_time_ns=lab.log_time_ns)
 
         self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
+        assert self.worker is not None
+        # a result the estimator refuses frees its id: the corrected one is then taken
+        self.worker.service.on_lab_refused = self.lab_input.forget
         if s.lab_dir is not None:
             watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
                                        poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
@@ -378,6 +381,7 @@ class Daemon:
                                            s.max_lab_rate_per_h, self._window_s(),
                                            s.time_scale),
                                        on_reject=self._lab_file_rejected).start()
+            self.worker.service.on_lab_refused = watcher.forget  # also in its .seen-ids
             stack.callback(watcher.close)
 
     def _lab_file_rejected(self, reason: str) -> None:

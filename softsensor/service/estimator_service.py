@@ -217,6 +217,9 @@ class EstimatorService:
         self.time_gate = time_gate
         self.max_pending_labs = int(max_pending_labs)
         self._throttle = Throttle()  # bad scans from a broken peer: a few lines, counted
+        #: called with the sample id of every lab result refused (the estimator's envelope
+        #: or screen, a flood): the daemon's lab input frees the id for a corrected result
+        self.on_lab_refused: Callable[[str], None] | None = None
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -285,6 +288,7 @@ class EstimatorService:
         if len(self._labs) >= self.max_pending_labs:
             # a lab sends a few results a day; thousands waiting for one tick are a flood
             # (each would cost the filter an update) and would starve the estimator thread
+            self._free(lab.sample_id)
             return self._refused(f"lab result {lab.sample_id!r} refused: {len(self._labs)} "
                                  f"results already wait for the next tick (at most "
                                  f"{self.max_pending_labs})", t)
@@ -365,6 +369,7 @@ class EstimatorService:
                          lab.sample_id, lab.moisture_out, lab.sample_time_ns)
             else:
                 self._refuse(reason, window.end_ns)
+                self._free(lab.sample_id)
         self._ticked_end = window.end_ns
         try:
             estimate = self.estimator.tick(window)
@@ -384,6 +389,16 @@ class EstimatorService:
             self.stats.unphysical_ticks += 1
         self._tick_status = Reason(estimate.status, estimate.detail)
         return [estimate, self._health(window.end_ns)]
+
+    def _free(self, sample_id: str) -> None:
+        """Tell :attr:`on_lab_refused` that ``sample_id`` was not taken."""
+        if self.on_lab_refused is None:
+            return
+        try:
+            self.on_lab_refused(sample_id)
+        except Exception:  # noqa: BLE001 - the refusal stands; the news must not undo it
+            self._throttle.log(log, "freeing", logging.ERROR,
+                               "freeing a refused lab sample id failed", exc_info=True)
 
     def _refuse(self, reason: str, time_ns: int | None) -> None:
         reason = outside_text(reason)  # a sample id or a value from outside, cut short

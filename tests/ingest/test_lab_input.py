@@ -297,3 +297,49 @@ def test_the_lab_folder_reads_its_lab_tables_delimiter_and_names_it(tmp_path):
             assert got[0].moisture_out == pytest.approx(0.09957 / (1 - 0.09957))
         else:
             assert "set lab.delimiter = ';'" in report.reasons[0], report.reasons
+
+
+def test_a_refused_result_frees_its_id_and_the_corrected_file_is_taken(inbox, tmp_path):
+    """Issue 40: a lab result the estimator refused (outside the envelope, an outlier) kept
+    its sample id seen, so the corrected file with the same id was dropped as a duplicate.
+    The estimator's refusal frees it (``forget``), across a restart too."""
+    watcher, got = inbox
+    _drop(tmp_path, "typo.csv", "sample_time,moisture_out,sample_id\n"
+                                "2025-06-15T15:06:40Z,0.45,S7\n2025-06-15T15:16:40Z,0.1,S8\n")
+    _settle(watcher)
+    watcher.forget("S7")  # as the daemon's estimator service does when it refuses 0.45
+    watcher.forget("from-the-bus")  # never seen here: nothing to free, nothing written
+    restarted = LabFolderWatcher(tmp_path, LabInput(got.append, clock=lambda: NOW_NS),
+                                 poll_s=0.05, settle_s=1.0)
+    assert not restarted.lab_input.seen("S7") and restarted.lab_input.seen("S8")
+    _drop(tmp_path, "fixed.csv", "sample_time,moisture_out,sample_id\n"
+                                 "2025-06-15T15:06:40Z,0.095,S7\n")
+    report = _settle(restarted)
+    assert [(lab.sample_id, lab.moisture_out) for lab in got] == \
+        [("S7", 0.45), ("S8", 0.1), ("S7", 0.095)]
+    assert not report.duplicates
+    assert "from-the-bus" not in (tmp_path / ".seen-ids").read_text()
+    again = LabFolderWatcher(tmp_path, LabInput(got.append), poll_s=0.05, settle_s=1.0)
+    assert again.lab_input.seen("S7")  # the corrected result taken: a duplicate from now on
+
+
+def test_rows_appended_beyond_the_burst_are_applied_later_and_said(inbox, tmp_path, caplog):
+    """Issue 40: more than 25 rows appended to a file already taken (a LIMS writer that kept
+    it open) were lost without a line or a count; now the re-read takes at most the burst
+    per poll, says what it deferred, and takes the rest at the next polls."""
+    watcher, got = inbox
+    head = "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,R0\n"
+    _drop(tmp_path, "open.csv", head)
+    _settle(watcher)
+    taken = tmp_path / "processed" / "open.csv"
+    rows = "".join(f"2025-06-15T15:{10 + k:02d}:00Z,0.1,R{k + 1}\n" for k in range(40))
+    taken.write_text(head + rows)
+    os.utime(taken, (OLD, OLD))
+    t = time.time() + 10
+    watcher.poll_once(now=t)  # the change seen
+    first = watcher.poll_once(now=t + 2)
+    assert len(first.accepted) == 25 and taken in first.waiting
+    assert "read again, 25 new results applied, 15 deferred to later polls" in caplog.text
+    second = watcher.poll_once(now=t + 4)
+    assert len(second.accepted) == 15 and not second.waiting
+    assert [lab.sample_id for lab in got] == [f"R{k}" for k in range(41)]

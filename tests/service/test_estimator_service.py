@@ -407,3 +407,17 @@ def test_scaled_clock() -> None:
 
 def test_required_signals_are_the_model_inputs() -> None:
     assert set(WindowSettings().required) == set(MODEL_SIGNALS) <= set(SCAN_SIGNALS)
+
+
+def test_a_refused_lab_result_is_told_by_its_sample_id() -> None:
+    """Issue 40: the daemon's lab input frees the id of a result the estimator refused (here
+    the fake's screen, and a flood beyond ``max_pending_labs``), so a corrected result with
+    the same id is taken."""
+    svc = EstimatorService(FakeEstimator(), tick_delay_s=30.0, max_pending_labs=2)
+    freed: list[str] = []
+    svc.on_lab_refused = freed.append
+    feed(svc, [("lab", T0 + 100 * S, lab("ok", 50)), ("lab", T0 + 110 * S, lab("wet", 60, 0.9)),
+               ("lab", T0 + 120 * S, lab("flood", 70)), *(("scan", t, b) for t, b in
+                                                         scans(10, 700))])
+    assert freed == ["flood", "wet"]
+    assert svc.stats.labs_accepted == 1 and svc.stats.labs_refused == 2
