@@ -109,6 +109,16 @@ class CheckpointStore:
                 pass
 
 
+def checkpoint_time_ns(doc: dict[str, Any]) -> int:
+    """The latest time a checkpoint ``doc`` holds [ns]: when it was saved, or the service's
+    clock, last tick or last closed window, whichever is latest (a checkpoint must not lie
+    ahead of the messages it meets: the daemon's clock, a replayed day)."""
+    state = doc.get("service", {})
+    times = [doc["saved_at_ns"]] + [state.get(k) for k in ("now_ns", "ticked_end_ns",
+                                                           "closed_end_ns")]
+    return max(t for t in times if isinstance(t, int) and not isinstance(t, bool))
+
+
 def check_fits(doc: dict[str, Any], unit: str, kind: str, where: str, hint: str = "") -> None:
     """Refuse a checkpoint ``doc`` (:meth:`CheckpointStore.load`) of another unit or
     estimator kind than the run's, in one line naming ``where`` (a configuration question,
@@ -135,4 +145,4 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-__all__ = ["CheckpointStore", "check_fits"]
+__all__ = ["CheckpointStore", "check_fits", "checkpoint_time_ns"]

@@ -65,7 +65,7 @@ from softsensor.recording.recorder import Recorder
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import BusWorker, InputLimits
-from softsensor.service.checkpoint import CheckpointStore, check_fits
+from softsensor.service.checkpoint import CheckpointStore, check_fits, checkpoint_time_ns
 from softsensor.service.clock import ScaledClock, daemon_clock, read_plc_clock
 from softsensor.service.descriptors import DescriptorWatch
 from softsensor.service.estimator_service import EstimatorService, Output
@@ -288,10 +288,7 @@ class Daemon:
         run on than ``max_future_s`` (then rejected, :meth:`_reject_checkpoint`)."""
         if doc is None:
             return None
-        state = doc.get("service", {})
-        times = [doc["saved_at_ns"]] + [state.get(k) for k in ("now_ns", "ticked_end_ns",
-                                                               "closed_end_ns")]
-        latest = max(t for t in times if isinstance(t, int) and not isinstance(t, bool))
+        latest = checkpoint_time_ns(doc)
         now = daemon_clock(self.settings, self._plc_clock, doc["saved_at_ns"]).now_ns()
         ahead_s = (latest - now) / 1e9
         if ahead_s <= self.settings.max_future_s:

@@ -71,7 +71,7 @@ from softsensor.recording.mcap_day import iter_messages
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import BusWorker
-from softsensor.service.checkpoint import CheckpointStore, check_fits
+from softsensor.service.checkpoint import CheckpointStore, check_fits, checkpoint_time_ns
 from softsensor.service.day_replay import ReplayStats, parse_time, replay_messages
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.replay_summary import DayPart, ReplaySummary
@@ -157,6 +157,7 @@ class DayStream:
         if not times:
             self.close()
             raise IngestError(f"{day}: no /plant/scan messages in the selected time range")
+        self.first_scan_ns = times[0]  #: the first scan to publish [ns]
         self.scan_period_s = measured_scan_period(times)
 
     def _published(self, t: int) -> bool:
@@ -236,6 +237,8 @@ def replay_to_file(day: str | os.PathLike[str] | Sequence[str | os.PathLike[str]
 
     reads = [stream(days[0])]
     try:
+        if doc is not None:
+            _check_not_after(doc, checkpoint_in, reads[0], settings.max_future_s)
         service = _service(cfg, settings, estimator, reads[0].scan_period_s, doc,
                            checkpoint_in)
         before = dataclasses.replace(service.stats)
@@ -295,6 +298,21 @@ def _checkpoints(days: list[Path], out: Path,
         if doc is None:
             raise ConfigError(f"--checkpoint-in {checkpoint_in}: no such file")
     return doc, store_out
+
+
+def _check_not_after(doc: dict, where: str | os.PathLike[str] | None, first: DayStream,
+                     max_future_s: float) -> None:
+    """Refuse a checkpoint whose times lie more than ``max_future_s`` after the first scan
+    replayed, in one line (the daemon sets such a one aside): every scan of the day would be
+    older than the estimator's windows and dropped (issue 40: a checkpoint saved 34 h after
+    the day made 720 scans give 1 tick, exit 0, no warning)."""
+    ahead_s = (checkpoint_time_ns(doc) - first.first_scan_ns) / 1e9
+    if ahead_s > max_future_s:
+        raise ConfigError(f"--checkpoint-in {where}: checkpoint from after the day: its time "
+                          f"{iso_utc(checkpoint_time_ns(doc))} is {ahead_s / 3600:.1f} h after "
+                          f"the first scan of {first.day.name} ({iso_utc(first.first_scan_ns)};"
+                          f" at most service.max_future_s = {max_future_s:g} s); replay the "
+                          f"days after it, or without --checkpoint-in")
 
 
 def _service(cfg: PlantConfig, settings: ServiceSettings, estimator: str | None,

@@ -106,3 +106,19 @@ def test_days_out_of_order_and_a_bad_checkpoint_are_refused_in_one_line(days, tm
                      "--checkpoint-in", str(ck)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "checksum does not match" in err[0], err
+
+
+def test_a_checkpoint_from_after_the_day_is_refused_in_one_line(days, tmp_path, capsys):
+    """Issue 40: ``replay DAY --checkpoint-in CK`` with CK saved 34 h after DAY took 720 scans
+    in, gave 1 tick out and exit 0 without a word; now exit 2 and one line, as the daemon
+    sets such a checkpoint aside."""
+    ck = tmp_path / "ck.json"
+    _replay(capsys, days["a"], "--out", tmp_path / "a.mcap", "--checkpoint-out", ck)
+    capsys.readouterr()
+    assert cli_main(["replay", str(days["a"]), "--out", str(tmp_path / "again.mcap"),
+                     "--checkpoint-in", str(ck)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"softsensor: --checkpoint-in {ck}: checkpoint "
+                                               f"from after the day: "), err
+    assert "2.1 h after the first scan of a.mcap" in err[0], err
+    assert not (tmp_path / "again.mcap").exists()
