@@ -17,11 +17,14 @@ too, and one metavar per shared option (:data:`METAVARS`).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import logging
 import math
+import signal
 import sys
 import textwrap
+import threading
 import traceback
 from collections.abc import Callable, Sequence
 
@@ -57,7 +60,7 @@ _BAD_INPUT = ("bad input: a missing or unreadable file, a corrupt MCAP, an unkno
 _BUG = ("a bug (one line; -v shows the traceback), a module that cannot be imported, or a "
         "package of the offline extra that is not installed")
 EXIT_CODES: dict[str, dict[int, str]] = {
-    **{verb: {0: "done", 1: _BUG, 2: _BAD_INPUT, 130: "interrupted (Ctrl-C)"}
+    **{verb: {0: "done", 1: _BUG, 2: _BAD_INPUT, 130: "interrupted, Ctrl-C or SIGTERM"}
        for verb in ("simulate", "import", "export", "identify", "validate", "diagnose",
                     "design")},
     "calibrate": {0: "wrote --out: the calibrated parameters, or the current ones kept with "
@@ -65,7 +68,7 @@ EXIT_CODES: dict[str, dict[int, str]] = {
                      "worse; the last line says which and to deploy it",
                   1: _BUG, 2: _BAD_INPUT + "; a day too short or without the lab results a "
                                            "window needs",
-                  130: "interrupted (Ctrl-C)"},
+                  130: "interrupted, Ctrl-C or SIGTERM"},
     "replay": {0: "done (a warning on stderr when most windows were stale)", 1: _BUG,
                2: _BAD_INPUT + "; nothing estimated from data (every window stale, the line "
                                "says why)",
@@ -79,7 +82,7 @@ EXIT_CODES: dict[str, dict[int, str]] = {
     "health": {0: "the daemon answered and its estimator is not stalled (its status, ok or "
                   "degraded, in the line)",
                1: "no answer, refused, or the estimator stalled (the container's HEALTHCHECK)",
-               2: _BAD_INPUT, 130: "interrupted (Ctrl-C)"},
+               2: _BAD_INPUT, 130: "interrupted, Ctrl-C or SIGTERM"},
 }
 #: One metavar per option that several verbs share (a file's kind in its name).
 METAVARS: dict[str, str] = {"--params": "PARAMS.toml", "--config": "PLANT.toml",
@@ -193,6 +196,10 @@ def setup_logging(verbose: bool = False) -> None:
     logging.getLogger("softsensor").setLevel(logging.DEBUG if verbose else logging.INFO)
 
 
+def _interrupted(_signum: int, _frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
@@ -206,6 +213,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(one_line(f"softsensor {args.verb}: error: {problem}"), file=sys.stderr)
         return 2
     setup_logging(args.verbose)
+    # one rule for every verb: SIGTERM ends it as Ctrl-C does (its cleanup, one line, 130);
+    # the daemons (run, plant-server) put their own handlers in place of this one
+    with _sigterm_as_interrupt():
+        return _run_verb(args)
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt():
+    """SIGTERM raises KeyboardInterrupt while the verb runs (the handler before is put back
+    after: ``main`` is also called inside other programs and tests)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    before = signal.signal(signal.SIGTERM, _interrupted)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, before)
+
+
+def _run_verb(args: argparse.Namespace) -> int:
+    """Run the verb; every way it ends as an exit status and at most one line."""
     try:
         return int(args.func(args) or 0)
     except MissingPackageError as exc:  # the install, not the input: as a broken one

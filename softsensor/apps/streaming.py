@@ -141,7 +141,6 @@ def _replay(args: argparse.Namespace) -> int:
     from softsensor.service.settings import service_settings
 
     parse_rate(args.rate)  # a bad rate fails before anything starts
-    signal.signal(signal.SIGTERM, _interrupt)  # clean up the partial --out, as Ctrl-C does
     cfg = load_config_and_params(args).config
     settings = service_settings(cfg)
     if not getattr(args, "verbose", False):
@@ -160,10 +159,6 @@ def _replay(args: argparse.Namespace) -> int:
     if problem is not None:
         print(f"warning: {problem[1]}", file=sys.stderr, flush=True)
     return 0
-
-
-def _interrupt(_signum: int, _frame: object) -> None:
-    raise KeyboardInterrupt
 
 
 def _every(seconds: float) -> Callable[[int, int], None]:

@@ -68,3 +68,32 @@ def test_sigterm_during_replay_keeps_the_previous_out(tmp_path):
     assert out.read_bytes() == b"the earlier replay"
     assert [p.name for p in tmp_path.iterdir()] == ["est.mcap"], err[-500:]
     assert "Traceback" not in err
+
+
+def test_sigterm_into_calibrate_answers_as_ctrl_c(tmp_path):
+    """Issue 40: SIGTERM ended ``calibrate`` by the signal (143, no message) while ``replay``
+    answered 130 with a line; one rule for every verb now: 130, one line, no ``--out``."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+
+    out = tmp_path / "p.toml"
+    proc = subprocess.Popen([sys.executable, "-m", "softsensor.cli", "calibrate",
+                             str(REPO / "replay" / "demo-day.mcap"), "--trials", "500",
+                             "--out", str(out)], stderr=subprocess.PIPE, text=True)
+    err: list[str] = []
+    reader = threading.Thread(target=lambda: err.extend(iter(lambda: proc.stderr.read(1), "")))
+    reader.start()
+    deadline = time.monotonic() + 120
+    while "trial/s" not in "".join(err):  # the study runs (past loading and compiling)
+        assert proc.poll() is None and time.monotonic() < deadline, "".join(err)[-1000:]
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGTERM)
+    proc.wait(timeout=30)
+    reader.join(10)
+    proc.stderr.close()
+    text = "".join(err)
+    assert proc.returncode == 130, text[-1000:]
+    assert text.strip().splitlines()[-1] == "softsensor: interrupted", text[-1000:]
+    assert "Traceback" not in text and not out.exists()
