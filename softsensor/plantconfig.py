@@ -43,30 +43,30 @@ class Unit:
 
 @dataclass(frozen=True)
 class Tube:
-    length: float = num(gt=0)                 # m
-    diameter: float = num(gt=0)               # m, inner
-    wall_thickness: float = num(gt=0)         # m
+    length: float = num(gt=0, le=500)         # m
+    diameter: float = num(gt=0, le=10)        # m, inner
+    wall_thickness: float = num(gt=0, le=0.1)  # m
     n_cells: int = num(ge=2, le=2000)
-    wall_density: float = num(gt=0)           # kg/m3
-    wall_heat_capacity: float = num(gt=0)     # J/(kg K)
-    wall_conductivity: float = num(gt=0)      # W/(m K)
+    wall_density: float = num(gt=0, le=20_000)           # kg/m3 (steel 7850)
+    wall_heat_capacity: float = num(gt=0, le=5000)       # J/(kg K)
+    wall_conductivity: float = num(gt=0, le=500)         # W/(m K)
     wall_emissivity: float = num(ge=0, le=1)
     # fibre and resin deposit on the inside of the tube wall (cleaned at shutdowns)
     deposit_thickness: float = num(0.0015, ge=0, lt=0.05)  # m
-    deposit_conductivity: float = num(0.12, gt=0)           # W/(m K)
+    deposit_conductivity: float = num(0.12, gt=0, le=10)    # W/(m K)
 
 
 @dataclass(frozen=True)
 class Cyclone:
-    count: int = num(ge=1)
-    diameter: float = num(gt=0)
-    height: float = num(gt=0)
-    volume: float = num(gt=0)                 # m3, all cyclones together
+    count: int = num(ge=1, le=20)
+    diameter: float = num(gt=0, le=20)        # m
+    height: float = num(gt=0, le=60)          # m
+    volume: float = num(gt=0, le=20_000)      # m3, all cyclones together
     n_cells: int = num(ge=1, le=100)
-    shell_thickness: float = num(gt=0)
-    shell_density: float = num(gt=0)
-    shell_heat_capacity: float = num(gt=0)
-    inner_heat_transfer: float = num(gt=0)    # W/(m2 K)
+    shell_thickness: float = num(gt=0, le=0.1)        # m
+    shell_density: float = num(gt=0, le=20_000)       # kg/m3
+    shell_heat_capacity: float = num(gt=0, le=5000)   # J/(kg K)
+    inner_heat_transfer: float = num(gt=0, le=1000)   # W/(m2 K)
     # s, fibre residence in the cyclones: the reference plant's (config/dryer1.toml), the
     # paper's form of the structural library (softsensor.model.structure)
     hold_up_time: float = num(4.0, gt=0, le=120)
@@ -80,15 +80,19 @@ DRYING_LAWS: tuple[str, ...] = ("double_sigmoid", "cdc", "rea")
 
 @dataclass(frozen=True)
 class Fiber:
-    dry_density: float = num(gt=0)            # kg/m3
-    diameter: float = num(gt=0)               # m
-    length: float = num(gt=0)                 # m
-    specific_surface: float = num(gt=0)       # m2/kg dry fibre
-    saturation_point: float = num(gt=0, lt=1)  # kg/kg
-    critical_moisture: float = num(gt=0)      # kg/kg
-    critical_width: float = num(gt=0)         # kg/kg
+    # physical ranges (issue 40: a PARAMS.toml [structure] fiber.critical_moisture = 1e6 was
+    # taken, and estimates went out ok with 5 times the error): wood's cell wall is about
+    # 1500 kg/m3, and no fibre holds more than about 3 kg of water per kg (spruce, saturated:
+    # about 2.3)
+    dry_density: float = num(gt=0, le=1600)            # kg/m3
+    diameter: float = num(gt=0, le=1e-3)               # m
+    length: float = num(gt=0, le=0.05)                 # m
+    specific_surface: float = num(gt=0, le=1e5)        # m2/kg dry fibre
+    saturation_point: float = num(gt=0, lt=1)          # kg/kg
+    critical_moisture: float = num(gt=0, le=3.0)       # kg/kg
+    critical_width: float = num(gt=0, le=1.0)          # kg/kg
     bound_fraction: float = num(gt=0, le=1)
-    equilibrium_width: float = num(gt=0)      # kg/kg
+    equilibrium_width: float = num(gt=0, le=1.0)       # kg/kg
     # the drying-rate law (a structural choice, softsensor.model.structure) and the shape
     # parameters of the alternatives; each law reads only its own
     drying_law: str = choice(DRYING_LAWS, "double_sigmoid")
@@ -125,12 +129,12 @@ class Environment:
 
 @dataclass(frozen=True)
 class Nominal:
-    m_fiber: float = num(gt=0)
+    m_fiber: float = num(gt=0, le=100)        # kg/s
     moisture_in: float = num(gt=0, lt=5)
-    m_air: float = num(gt=0)
+    m_air: float = num(gt=0, le=1000)         # kg/s
     T_air_in: float = num(gt=273.15, lt=1000)
     T_fiber_in: float = num(gt=273.15, lt=450)
-    m_steam: float = num(ge=0)
+    m_steam: float = num(ge=0, le=20)         # kg/s
     T_amb: float = num(gt=200, lt=340)
     H_amb: float = num(ge=0, lt=0.1)
     T_sp: float = num(gt=273.15, lt=450)
@@ -223,30 +227,35 @@ class PlantConfig(PlantSections):
         return np.array([[self.parameters[n].low, self.parameters[n].high]
                          for n in PARAMETER_NAMES])
 
-    def with_parameters(self, values: dict[str, float] | np.ndarray) -> PlantConfig:
-        """A copy with new parameter values (bounds kept); values outside bounds are refused."""
+    def with_parameters(self, values: dict[str, float] | np.ndarray,
+                        source: str | None = None) -> PlantConfig:
+        """A copy with new parameter values (bounds kept); values outside bounds are refused,
+        naming ``source`` (the file that set them; default the config's own)."""
+        where = source or self.source
         if not isinstance(values, dict):
             values = dict(zip(PARAMETER_NAMES, np.asarray(values, float), strict=True))
         params = dict(self.parameters)
         for name, v in values.items():
             if name not in params:
-                raise ConfigError(f"{self.source}: parameters.{name} is not a parameter")
+                raise ConfigError(f"{where}: parameters.{name} is not a parameter")
             spec = dataclasses.replace(params[name], value=float(v))
             problem = spec.check()
             if problem:
-                raise ConfigError(f"{self.source}: parameters.{name}.{problem}")
+                raise ConfigError(f"{where}: parameters.{name}.{problem}")
             params[name] = spec
         return _keeping_tables(self, dataclasses.replace(self, parameters=params))
 
-    def with_keys(self, values: Mapping[str, Any]) -> PlantConfig:
+    def with_keys(self, values: Mapping[str, Any], source: str | None = None) -> PlantConfig:
         """A copy with plant keys changed, named as in the TOML file: ``"fiber.drying_law"``,
         ``"cyclone.hold_up_time"``, ``"parameters.mult_D.low"``.
 
         Each changed section is rebuilt and checked as on load (bounds, choices, cross-field
         rules), so a bad value is one :class:`ConfigError` line naming the dotted key; this is
         how a structural alternative (:func:`softsensor.model.structure.structure_space`)
-        becomes a config. The tables already built stay built.
+        becomes a config. Errors name ``source`` (the file that set the values; default the
+        config's own). The tables already built stay built.
         """
+        where = source or self.source
         sections: dict[str, dict[str, Any]] = {}
         specs: dict[str, dict[str, Any]] = {}
         names = {f.name for f in dataclasses.fields(PlantSections)}
@@ -256,24 +265,24 @@ class PlantConfig(PlantSections):
                 sections.setdefault(parts[0], {})[parts[1]] = value
             elif len(parts) == 3 and parts[0] == "parameters":
                 if parts[1] not in PARAMETER_NAMES:
-                    raise ConfigError(f"{self.source}: {key}: {parts[1]} is not one of the "
+                    raise ConfigError(f"{where}: {key}: {parts[1]} is not one of the "
                                       f"paper's Table 1 parameters")
                 specs.setdefault(parts[1], {})[parts[2]] = value
             else:
-                raise ConfigError(f"{self.source}: {key} is not a plant key (section.key of "
+                raise ConfigError(f"{where}: {key} is not a plant key (section.key of "
                                   f"{', '.join(sorted(names))}, or parameters.<name>.<field>)")
         changes: dict[str, Any] = {}
         for name, table in sections.items():
             current = getattr(self, name)
             old = {f.name: getattr(current, f.name) for f in dataclasses.fields(current)
                    if getattr(current, f.name) is not None}
-            changes[name] = build_section(type(current), {**old, **table}, name, self.source)
+            changes[name] = build_section(type(current), {**old, **table}, name, where)
         if specs:
             params = dict(self.parameters)
             for name, table in specs.items():
                 old = dataclasses.asdict(params[name])
                 params[name] = build_section(ParameterSpec, {**old, **table},
-                                             f"parameters.{name}", self.source)
+                                             f"parameters.{name}", where)
             changes["parameters"] = params
         return _keeping_tables(self, dataclasses.replace(self, **changes))
 
@@ -490,8 +499,8 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     if structure is not None:  # first: it may widen the bounds the values must keep within
         if not isinstance(structure, dict):
             raise ConfigError(f"{path}: [structure] must be a table")
-        cfg = cfg.with_keys(_dotted_keys(structure))
-    cfg = cfg.with_parameters(values) if values else cfg
+        cfg = cfg.with_keys(_dotted_keys(structure), source=str(path))
+    cfg = cfg.with_parameters(values, source=str(path)) if values else cfg
     extra = dict(cfg.extra)
     built: dict[str, Any] = {}
     disc = data.get("discrepancy")

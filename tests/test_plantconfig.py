@@ -170,3 +170,43 @@ def test_every_default_is_the_shipped_configs_value():
             assert table[f.name] == f.default, (
                 f"{section.name}.{f.name}: default {f.default!r}, shipped {table[f.name]!r}")
     assert "cyclone.hold_up_time" in checked and len(checked) >= 15, checked
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("[parameters.mult_D]\nvalue = 9.0\n", "parameters.mult_D.value must lie within"),
+    ("[parameters.mult_D]\nvalue = 1.0\n[structure.fiber]\ncritical_moisture = 1e6\n",
+     "fiber.critical_moisture must be <= 3, got 1000000.0"),
+    ("[parameters.mult_D]\nvalue = 1.0\n[structure.cyclone]\nhold_up_time = -4\n",
+     "cyclone.hold_up_time must be > 0"),
+    ("[parameters.mult_D]\nvalue = 1.0\n[structure.tube]\nwidth = 3\n",
+     "tube.width is not a known key"),
+])
+def test_a_bad_params_value_names_the_params_file_and_the_dotted_key(tmp_path, text, message):
+    """Issue 40: ``[structure] fiber.critical_moisture = 1e6`` was taken (estimates went out
+    ``ok`` with 5 times the error), and errors for ``[parameters]`` and ``[structure]`` named
+    the plant config, not the PARAMS.toml that set the value."""
+    p = _write(tmp_path, text, "PARAMS.toml")
+    with pytest.raises(ConfigError) as err:
+        load_parameters(p, load_plant_config())
+    assert str(err.value).startswith(f"{p}: ") and message in str(err.value), str(err.value)
+
+
+def test_every_plant_key_a_structure_may_set_has_a_physical_range():
+    """Every number of the plant's sections is bounded both ways, so no ``[structure]`` value
+    (any plant key, :meth:`PlantConfig.with_keys`) can leave its physical range."""
+    import dataclasses
+    import typing
+
+    from softsensor.plantconfig import PlantSections
+
+    open_ended = []
+    for name, section in typing.get_type_hints(PlantSections).items():
+        if name in ("unit", "solver", "cost"):  # not the plant's physics
+            continue
+        for field_name, kind in typing.get_type_hints(section).items():
+            if kind not in (float, int):
+                continue
+            meta = next(f.metadata for f in dataclasses.fields(section) if f.name == field_name)
+            if not ({"gt", "ge"} & set(meta) and {"lt", "le"} & set(meta)):
+                open_ended.append(f"{name}.{field_name}")
+    assert not open_ended, open_ended
