@@ -12,7 +12,9 @@ subscribes to the outputs only, and the inputs reach it from the worker once adm
 (:meth:`BusRecorder.record`); what the limits drop is recorded as counts in health
 (``inputs_dropped``), not as bodies. And however the peers share those limits, each topic
 grows a day file by at most ``max_topic_bytes_per_day``: beyond it messages of that topic are
-counted (:attr:`BusRecorder.capped`), not recorded, until the next day.
+counted (:attr:`BusRecorder.capped`), not recorded, until the next day. The daemon's own PLC
+scans have a cap of their own (:data:`PLC_BUDGET`), so a flood from another sender cannot stop
+the recording of the real scans (issue 40).
 """
 
 from __future__ import annotations
@@ -35,9 +37,14 @@ from softsensor.errors import SoftsensorError
 from softsensor.jsonable import dumps
 from softsensor.log_throttle import Throttle
 from softsensor.recording.recorder import RECORDER_CHUNK_SIZE, Recorder
+from softsensor.service.plc_scans import OTHER, PLC
 from softsensor.service.time_gate import TimeGate
 
 log = logging.getLogger(__name__)
+
+
+#: The name the PLC's own scans are capped under (and named by in health when they are).
+PLC_BUDGET = "/plant/scan from the PLC"
 
 
 class BusRecorder:
@@ -79,9 +86,11 @@ class BusRecorder:
                                         name="recorder-tick", daemon=True)
         self._ticker.start()
 
-    def record(self, message: BusMessage) -> None:
-        """Record ``message`` as if it had come on the bus (the worker's admitted inputs)."""
-        self._on_message(message)
+    def record(self, message: BusMessage, origin: str = OTHER) -> None:
+        """Record ``message`` as if it had come on the bus (the worker's admitted inputs); the
+        PLC's own scans (``origin`` :data:`~softsensor.service.plc_scans.PLC`) count against a
+        cap of their own, so no other sender can spend it."""
+        self._on_message(message, PLC_BUDGET if origin == PLC else None)
 
     def _within_cap(self, topic: str, file_ns: int, body: dict) -> bool:
         """Count ``body`` against ``topic``'s bytes of the day of ``file_ns``; False when the
@@ -107,7 +116,7 @@ class BusRecorder:
                         "not recorded", topic, used)
         return False
 
-    def _on_message(self, message: BusMessage) -> None:
+    def _on_message(self, message: BusMessage, budget: str | None = None) -> None:
         body = dict(message.body)
         body.pop("time_ns", None)
         t = message.time_ns if message.time_ns is not None else time.time_ns()
@@ -121,7 +130,7 @@ class BusRecorder:
         # one the gate lets through (minutes ahead at midnight), never opens a file
         clock = getattr(self.gate, "clock", None)
         file_ns = t if clock is None else clock()
-        if not self._within_cap(message.topic, file_ns, body):
+        if not self._within_cap(budget or message.topic, file_ns, body):
             return
         if clock is None:
             self.recorder.write(message.topic, t, body)
@@ -206,7 +215,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     return 0
 
 
-__all__ = ["BusRecorder", "main", "run", "stop_on_signals"]
+__all__ = ["PLC_BUDGET", "BusRecorder", "main", "run", "stop_on_signals"]
 
 
 if __name__ == "__main__":

@@ -38,6 +38,7 @@ from softsensor.log_throttle import Throttle, outside_text
 from softsensor.service.checkpoint import CheckpointStore
 from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.logs import event
+from softsensor.service.plc_scans import OTHER, PLC, REFUSED
 
 log = logging.getLogger(__name__)
 
@@ -113,8 +114,15 @@ class BusWorker:
         Called with every :class:`Output` before it is sent; what it returns is sent (the
         daemon adds what the service cannot know to health: the recorder's state).
     on_admitted : callable, optional
-        Called (on the input side's thread) with every input message the limits admitted: the
-        daemon's recorder, so it records what the estimator takes and nothing it refused.
+        Called (on the input side's thread) with every input message the limits admitted and
+        its origin (``origin``'s answer): the daemon's recorder, so it records what the limits
+        admitted and nothing they refused.
+    origin : callable, optional
+        ``origin(message)`` says who sent a message
+        (:meth:`~softsensor.service.plc_scans.PlcScans.origin`): the PLC's own scans skip the
+        rate limit and the queue bound (the poll period bounds them); another sender's scan
+        while the PLC's arrive is recorded but kept out of the windows (counted in
+        ``dropped["other_sender"]``). None: every message from anyone (a replay).
     thread : bool
         Run the service on the worker's own thread (default). False: on the thread that
         delivers each message or calls the worker, nothing queued (a memory input, module
@@ -127,10 +135,12 @@ class BusWorker:
                  on_output: Callable[[Output], None] | None = None,
                  limits: InputLimits | None = None,
                  decorate: Callable[[Output], Output] | None = None,
-                 on_admitted: Callable[[BusMessage], None] | None = None,
+                 on_admitted: Callable[[BusMessage, str], None] | None = None,
+                 origin: Callable[[BusMessage], str] | None = None,
                  thread: bool = True) -> None:
         self.service = service
         self.on_admitted = on_admitted
+        self.origin = origin
         self.decorate = decorate
         self.checkpoints = checkpoints
         self.checkpoint_every = max(1, int(checkpoint_every))
@@ -143,7 +153,7 @@ class BusWorker:
         self.last_tick_at: float = time.monotonic()  #: when the last estimate went out
         self.limits = limits or InputLimits()
         self.dropped: dict[str, int] = {"queue_full": 0, "rate": 0, "too_large": 0,
-                                        "shutdown": 0}
+                                        "shutdown": 0, "other_sender": 0}
         self._skip_inputs = False
         self._abandoned = False
         self._pending = 0  # input messages queued and not yet processed
@@ -173,22 +183,27 @@ class BusWorker:
         full (the thread must never starve)."""
         if message.kind == "lab":
             self.n_labs_received += 1
-        bucket = self._buckets.get(message.kind)
+        origin = OTHER if self.origin is None else self.origin(message)
+        plc = origin == PLC
+        bucket = None if plc else self._buckets.get(message.kind)
         if bucket is not None and not bucket.take(time.monotonic()):
             self._drop("rate")
             return
         cap = self.limits.max_queue_bytes
         with self._pending_lock:
-            full = self._pending >= self.limits.max_queue or (
-                cap is not None and self._pending_bytes + message.nbytes > cap)
-            if not full:
+            full = not plc and (self._pending >= self.limits.max_queue or (
+                cap is not None and self._pending_bytes + message.nbytes > cap))
+            if not full and origin != REFUSED:
                 self._pending += 1
                 self._pending_bytes += message.nbytes
         if full:
             self._drop("queue_full")
             return
         if self.on_admitted is not None:
-            self.on_admitted(message)  # before the worker can make an output of it
+            self.on_admitted(message, origin)  # before the worker can make an output of it
+        if origin == REFUSED:  # recorded, as sent; the windows are the PLC's
+            self._drop("other_sender")
+            return
         self._hand(message)
 
     def _hand(self, item: Any) -> None:

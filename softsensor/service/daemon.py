@@ -72,6 +72,7 @@ from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.heap import TRIM_EVERY_S, trim
 from softsensor.service.logs import event
+from softsensor.service.plc_scans import PlcScans
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import (
     PLC_CLOCK,
@@ -193,6 +194,7 @@ class Daemon:
         self.resumed = False  #: the service continues from the checkpoint
         self._recording_said: str | None = None  #: recorder state health last said
         self.descriptors = DescriptorWatch()  #: open descriptors against the process limit
+        self.plc_scans: PlcScans | None = None  #: the poller's scans known on the bus
         #: the PLC's clock [ns] and the monotonic time it was read (``clock_start = "plc"``)
         self._plc_clock: tuple[int, float] | None = None
 
@@ -437,7 +439,9 @@ class Daemon:
     def _start_poller(self, stack: contextlib.AsyncExitStack, publisher: Publisher,
                       clock: ScaledClock) -> asyncio.Task[None]:
         """Start polling the PLC; ``stack`` stops the poller (10 s at most) on the way out."""
-        self.poller = poller = ModbusPoller(self.tagmap, ScanPublisher(publisher),
+        assert self.plc_scans is not None
+        self.poller = poller = ModbusPoller(self.tagmap,
+                                            ScanPublisher(publisher, self.plc_scans.sent),
                                             clock_ns=clock.now_ns, monotonic=clock.monotonic)
         poll_stop = asyncio.Event()
         poll_task = asyncio.create_task(poller.run(poll_stop), name="modbus-poller")
@@ -457,6 +461,10 @@ class Daemon:
         (rates in plant time, so per wall second they scale with ``time_scale``) and its
         watchdog."""
         s = self.settings
+        # the PLC's scans told apart from other senders' (the clock starts before the worker)
+        assert self.clock is not None
+        self.plc_scans = PlcScans(self.clock.now_ns,
+                                  self.tagmap.modbus.poll_period_s * s.time_scale)
         limits = InputLimits(
             max_queue=s.max_queue, max_queue_bytes=s.max_queue_bytes,
             max_bytes=s.max_message_bytes,
@@ -467,7 +475,8 @@ class Daemon:
                              on_output=self._on_output, limits=limits,
                              decorate=self._decorate,
                              on_admitted=None if self.bus_recorder is None
-                             else self.bus_recorder.record)
+                             else self.bus_recorder.record,
+                             origin=self.plc_scans.origin)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: worker.last_tick_at,

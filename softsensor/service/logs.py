@@ -98,8 +98,8 @@ class LibraryLines(logging.Filter):
         if record.name == OWN_LOGGER or record.name.startswith(OWN_LOGGER + "."):
             return True
         decided = getattr(record, _DECISION, None)
-        if decided is not None:  # the same record on a second handler: the same answer
-            return decided
+        if decided is not None and decided[0] is self:  # on a second handler: same answer
+            return decided[1]
         try:
             text = record.getMessage()
         except Exception:  # noqa: BLE001 - a library's malformed format: keep its template
@@ -115,7 +115,7 @@ class LibraryLines(logging.Filter):
                          f"not logged)")
             record.msg, record.args = line, None
             record.exc_info = record.exc_text = record.stack_info = None
-        setattr(record, _DECISION, keep)
+        setattr(record, _DECISION, (self, keep))
         return keep
 
 

@@ -6,6 +6,11 @@ one peer). Now the daemon records the inputs its limits admit and nothing else (
 goes into health as counts), and each topic adds at most ``record_topic_bytes_per_day`` to a
 day's files. Real daemon, real simulated PLC, a real Zenoh peer on loopback, the real MCAP
 files read back.
+
+Issue 40: the cap was per topic, so a flood spent it and no real PLC scan was recorded for the
+rest of the day, and a flood's values were averaged into the windows. Now the PLC's own scans
+are known to the daemon: recorded under a cap of their own, and other senders' scans are kept
+out of the windows while the PLC's arrive.
 """
 
 from __future__ import annotations
@@ -74,10 +79,50 @@ def test_the_recording_keeps_to_the_input_limits_and_a_daily_cap(tmp_path: Path)
     assert got["dropped"]["rate"] > 300, got  # the limiter dropped most of the flood
     # what the limits dropped is not recorded; of what they admitted, the cap's share
     assert len(scans) + got["capped"]["/plant/scan"] == admitted, (len(scans), got)
-    assert sum(len(b) for b in scans) <= CAP
-    assert sum(len(b) for b in scans) > CAP - 70_000  # (the cap, not something else)
+    # the flood's bytes within the cap (the PLC's own scans have a cap of their own)
+    flood = [b for b in scans if b"pad" in b]
+    assert sum(len(b) for b in flood) <= CAP
+    assert sum(len(b) for b in flood) > CAP - 70_000  # (the cap, not something else)
     assert "record_topic_bytes_per_day" in got["recording"] and "/plant/scan" in got["recording"]
     health = [json.loads(b) for b in day["/softsensor/health"]]
     assert max(h.get("inputs_dropped", {}).get("rate", 0) for h in health) > 300  # as counts
     assert max(h.get("recording_capped", {}).get("/plant/scan", 0) for h in health) > 0
     assert day["/softsensor/estimate"]  # the rest goes on being recorded
+
+
+def test_after_a_flood_the_plcs_scans_are_still_recorded_and_the_windows_are_the_plcs(
+        tmp_path: Path):
+    got: dict = {}
+
+    async def run() -> None:
+        # a high rate: the flood is admitted (as the probe's was at 60x) and spends its cap
+        async with running_daemon(tmp_path, ticks=1, max_scan_rate_hz=50.0,
+                                  record_topic_bytes_per_day=CAP) as r:
+            d = r.daemon
+            stats, poller = d.worker.service.stats, d.poller
+            scans0, polls0 = stats.scans, poller.stats.scans
+            await asyncio.to_thread(_flood, r.endpoint, d.clock.now_ns(), 600)
+            t0 = stats.ticks
+            deadline = asyncio.get_running_loop().time() + 30
+            while stats.ticks < t0 + 2:  # real scans after the flood, windows ticked
+                assert asyncio.get_running_loop().time() < deadline, "ticks stopped"
+                await asyncio.sleep(0.05)
+            got["estimated"] = stats.scans - scans0
+            got["polled"] = poller.stats.scans - polls0
+            got["other"] = d.worker.dropped["other_sender"]
+            got["capped"] = dict(d.bus_recorder.capped)
+            got["after_ns"] = d.clock.now_ns()
+
+    asyncio.run(asyncio.wait_for(run(), 150))
+    scans = []  # (log time, is the flood's)
+    for path in sorted((tmp_path / "rec").glob("*.mcap")):
+        with open(path, "rb") as f:
+            for _schema, _channel, m in make_reader(f).iter_messages(topics=["/plant/scan"]):
+                scans.append((m.log_time, b"pad" in m.data))
+    assert got["capped"].get("/plant/scan", 0) > 0, got  # the flood spent its cap
+    assert got["other"] > 300, got  # and none of it reached the windows
+    # every scan the estimator took is one the PLC served (none of the flood's)
+    assert 0 < got["estimated"] <= got["polled"] + 1, got
+    flood_end = max(t for t, flood in scans if flood)
+    # the PLC's scans are recorded after the flood spent the topic's cap
+    assert sum(1 for t, flood in scans if not flood and t > flood_end) >= 5, scans[-20:]

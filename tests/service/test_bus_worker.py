@@ -124,7 +124,8 @@ def test_the_limits_hold_behind_a_memory_input():
     for i in range(5):
         bus.put("lab", {"sample_time_ns": scans[0][0], "moisture_out": 0.1,
                         "sample_id": f"L{i}"}, scans[2][0])
-    assert worker.dropped == {"queue_full": 0, "rate": 3, "too_large": 1, "shutdown": 0}
+    assert worker.dropped == {"queue_full": 0, "rate": 3, "too_large": 1, "shutdown": 0,
+                              "other_sender": 0}
     assert worker.n_in == 3 and worker.n_labs_received == 5 and service.stats.scans == 1
     worker.close(checkpoint=False)
 
