@@ -289,13 +289,36 @@ def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> 
     return (f"<p class='big' id='now'>Outlet moisture <b id='moisture-out'>"
             f"{pct('moisture_out')}</b> &nbsp; Inlet moisture <b id='moisture-in'>"
             f"{pct('moisture_in')}</b></p>"
-            f"<p>Window ending {when} <span class='age' id='estimate-age'>({age(now_ns, t)})"
+            + _source_line(b)
+            + f"<p>Window ending {when} <span class='age' id='estimate-age'>({age(now_ns, t)})"
             f"</span>{' &middot; lab result applied' if b.get('lab_updated') else ''}. "
             f"Outlet moisture {target}.</p>"
             f"<p id='temperatures'>Outlet temperatures, measured / model: dryer "
             f"{deg('T_dryer_out_measured')} / {deg('T_dryer_out_model')}, cyclone "
             f"{deg('T_cyclone_out_measured')} / {deg('T_cyclone_out_model')}</p>"
             f"<p id='last-lab'>Last lab result: {lab}</p>")
+
+
+#: How an operator reads the blend's sources (softsensor.estimation.peer_blend).
+SOURCE_WORDS: dict[str, str] = {"physics": "the model (physics)",
+                                "hold": "the last lab result held",
+                                "regression": "the lab regression"}
+
+
+def _source_line(body: Mapping[str, Any]) -> str:
+    """Where the published outlet moisture comes from: the leading source and each one's
+    weight (the estimate body's ``source`` and ``sources``; /api/latest.json has them too)."""
+    sources = body.get("sources")
+    if not isinstance(sources, Mapping) or not sources:
+        return ""
+    parts = []
+    for name, s in sorted(sources.items(), key=lambda kv: -float(kv[1].get("weight") or 0)):
+        weight = float(s.get("weight") or 0)
+        parts.append(f"{html.escape(SOURCE_WORDS.get(name, str(name)))} {100 * weight:.0f} %")
+    lead = str(body.get("source", ""))
+    return (f"<p id='moisture-source'>Outlet moisture from "
+            f"<b>{html.escape(SOURCE_WORDS.get(lead, lead))}</b> "
+            f"<span class='age'>(weights: {', '.join(parts)})</span></p>")
 
 
 def _refusal_block(health: Mapping[str, Any], display: DisplaySettings, now_ns: int) -> str:

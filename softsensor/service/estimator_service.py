@@ -220,6 +220,8 @@ class EstimatorService:
         #: called with the sample id of every lab result refused (the estimator's envelope
         #: or screen, a flood): the daemon's lab input frees the id for a corrected result
         self.on_lab_refused: Callable[[str], None] | None = None
+        #: a throwaway service on made-up data (the daemon's warm-up): its lines say so
+        self.synthetic = False
 
     # ------------------------------------------------------------------ events
     def on_message(self, kind: str, body: Mapping[str, Any], time_ns: int | None) -> list[Output]:
@@ -365,8 +367,10 @@ class EstimatorService:
             if reason is None:
                 self.stats.labs_accepted += 1
                 self._lab_since = window.end_ns
-                log.info("lab %s accepted: moisture_out %.4f kg/kg sampled at %d ns",
-                         lab.sample_id, lab.moisture_out, lab.sample_time_ns)
+                log.info("%s %s accepted: moisture_out %.4f kg/kg sampled at %s",
+                         "synthetic warm-up lab" if self.synthetic else "lab",
+                         outside_text(lab.sample_id), lab.moisture_out,
+                         iso_utc(lab.sample_time_ns))
             else:
                 self._refuse(reason, window.end_ns)
                 self._free(lab.sample_id)

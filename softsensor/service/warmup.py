@@ -73,6 +73,7 @@ def warm_up(make: Callable[[], EstimatorService], cfg: PlantConfig) -> WarmUp:
     service: EstimatorService | None = None
     try:
         service = make()
+        service.synthetic = True  # its lab line must not read as a plant's result
         period_ns = int(round(service.window.period_s * NS))
         scan_ns = int(round(service.window.scan_period_s * NS))
         start = _START_NS // period_ns * period_ns

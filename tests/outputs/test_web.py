@@ -395,3 +395,26 @@ def test_the_pages_outlet_axis_stops_at_zero_for_a_wide_start_up_band(tmp_path):
     outlet = re.search(r"<svg[^>]*id=\"outlet\".*?</svg>", dom, re.S).group(0)
     ticks = [float(v) for v in re.findall(r"class=\"tick-y\"[^>]*>([^<]+)<", outlet)]
     assert ticks and min(ticks) >= 0.0, ticks
+
+
+def test_the_page_says_which_source_the_published_moisture_comes_from(tmp_path):
+    """Issue 40: ``/api/latest.json`` said which source the published moisture came from (the
+    physics, the held lab, the regression, with their weights); the page did not."""
+    page = _page(tmp_path, history=False, diagnosis=False)
+    page.on_estimate(Estimate.from_body({
+        "window_end_ns": T0 + W_NS, "moisture_out": 0.101, "moisture_out_std": 0.004,
+        "moisture_in": 1.0, "moisture_in_std": 0.03, "status": "ok", "lab_updated": False,
+        "moisture_out_physics": 0.097, "moisture_out_physics_std": 0.006, "source": "hold",
+        "band_scale": 1.0, "band_misses": [0, 0],
+        "sources": {"physics": {"weight": 0.25, "moisture_out": 0.097,
+                                "moisture_out_std": 0.006},
+                    "hold": {"weight": 0.6, "moisture_out": 0.103, "moisture_out_std": 0.005},
+                    "regression": {"weight": 0.15, "moisture_out": 0.1,
+                                   "moisture_out_std": 0.007}}}))
+    html_text = page.page()
+    line = re.search(r"<p id='moisture-source'>(.*?)</p>", html_text).group(1)
+    text = re.sub(r"<[^>]+>", "", line)
+    assert text == ("Outlet moisture from the last lab result held (weights: the last lab "
+                    "result held 60 %, the model (physics) 25 %, the lab regression 15 %)")
+    latest = json.loads(page.latest_json())["estimate"]
+    assert latest["source"] == "hold" and latest["sources"]["hold"]["weight"] == 0.6

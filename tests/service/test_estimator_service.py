@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import re
 from typing import Any
 
 import pytest
@@ -421,3 +422,14 @@ def test_a_refused_lab_result_is_told_by_its_sample_id() -> None:
                                                          scans(10, 700))])
     assert freed == ["flood", "wet"]
     assert svc.stats.labs_accepted == 1 and svc.stats.labs_refused == 2
+
+
+def test_the_warm_up_lab_is_logged_as_synthetic_with_a_readable_time(caplog) -> None:
+    """Issue 40: the warm-up's made-up lab result was logged like a plant's, with a raw
+    nanosecond timestamp four days before the plant clock."""
+    caplog.set_level(logging.INFO, logger="softsensor.service.estimator_service")
+    warm_up(lambda: EstimatorService(FakeEstimator()), load_plant_config())
+    lines = [r.getMessage() for r in caplog.records if "accepted" in r.getMessage()]
+    assert len(lines) == 1, lines
+    assert re.fullmatch(r"synthetic warm-up lab warm-up accepted: moisture_out 0\.1000 kg/kg "
+                        r"sampled at \d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", lines[0]), lines
