@@ -124,32 +124,56 @@ def profile_step_figure(model: DryerModel, theta: np.ndarray, u: np.ndarray,
     return _save(fig, Path(path))
 
 
-def study_figure(study, importance: Mapping[str, float], path: str | Path) -> Path:
-    """Fig. 4: cost by trial (pruned trials at their last partial cost) and importance."""
+#: What the study's objective is called on the page, by ``[calibration] cost``
+#: (:mod:`softsensor.calibration.objective`): the trials' values are this, not eq. 4.
+OBJECTIVE_LABELS: dict[str, str] = {
+    "likelihood": "objective: negative log-likelihood + prior",
+    "eq4": "objective: cost J (eq. 4) + prior",
+}
+
+
+def study_plot(study, importance: Mapping[str, float], cost: str = "likelihood"):
+    """Fig. 4 as a matplotlib figure (the caller saves or closes it): the objective the study
+    minimised (``cost``, :data:`OBJECTIVE_LABELS`) by trial, every complete trial, the best
+    so far as a line, pruned trials at their last partial value; and the importance. On a
+    linear axis: a likelihood is negative (a log axis drew 15 of 200 trials and no best-so-far
+    line, issue 40)."""
     trials = study.get_trials(deepcopy=False)
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7.5))
-    comp = [(t.number, t.value) for t in trials if t.state == TrialState.COMPLETE]
+    comp = [(t.number, t.value) for t in trials if t.state == TrialState.COMPLETE
+            and t.value is not None and np.isfinite(t.value)]
     pruned = [(t.number, t.intermediate_values[max(t.intermediate_values)])
               for t in trials if t.state == TrialState.PRUNED and t.intermediate_values
               and not t.user_attrs.get("solver_failed")]
     if comp:
         n, v = np.array(comp).T
-        a1.semilogy(n, v, "o", ms=3, label="complete")
+        a1.plot(n, v, "o", ms=3, label="complete", gid="complete")
         order = np.argsort(n)
-        a1.semilogy(n[order], np.minimum.accumulate(v[order]), "k-", lw=1.5, label="best so far")
+        a1.step(n[order], np.minimum.accumulate(v[order]), "k-", where="post", lw=1.5,
+                label="best so far", gid="best")
+        # the axis follows the complete trials (a pruned one's partial value may be far off)
+        low, high = float(v.min()), float(np.percentile(v, 90))
+        pad = 0.05 * (high - low or abs(high) or 1.0)
+        a1.set_ylim(low - pad, high + pad)
     if pruned:
         n, v = np.array(pruned).T
-        a1.semilogy(n, v, "x", ms=3, color="0.6", label="pruned (partial cost)")
+        a1.plot(n, v, "x", ms=3, color="0.6", label="pruned (partial value)", gid="pruned")
     a1.set_xlabel("trial")
-    a1.set_ylabel("cost J (eq. 4)")
-    a1.set_title("Cost by trial")
-    a1.grid(alpha=0.3, which="both")
+    a1.set_ylabel(OBJECTIVE_LABELS.get(cost, f"objective ({cost})"))
+    a1.set_title("What the study minimised, by trial (lower is better)")
+    a1.grid(alpha=0.3)
     a1.legend(fontsize=8)
     names = list(importance)
     a2.barh(names[::-1], [importance[k] for k in names[::-1]])
     a2.set_xlabel("importance (PED-ANOVA, normalised)")
     a2.set_title("Parameter importance")
-    return _save(fig, Path(path))
+    return fig
+
+
+def study_figure(study, importance: Mapping[str, float], path: str | Path,
+                 cost: str = "likelihood") -> Path:
+    """Fig. 4 (:func:`study_plot`) saved to ``path``."""
+    return _save(study_plot(study, importance, cost), Path(path))
 
 
 def clock_axis(ax, display: DisplaySettings) -> None:
@@ -263,5 +287,6 @@ def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, 
     return p
 
 
-__all__ = ["clock_axis", "markdown_table", "profile_step_figure", "sensitivity_figure",
-           "study_figure", "trajectory_figure", "trajectory_plot", "write_page"]
+__all__ = ["OBJECTIVE_LABELS", "clock_axis", "markdown_table", "profile_step_figure",
+           "sensitivity_figure", "study_figure", "study_plot", "trajectory_figure",
+           "trajectory_plot", "write_page"]

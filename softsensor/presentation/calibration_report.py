@@ -183,8 +183,9 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
                               "Calibration: model at the calibrated parameters vs measurements",
                               display_settings(cfg))
     sections.append(("Calibration trajectories (Fig. 5)", "![](fig5_calibration.png)"))
-    figures.study_figure(result.study, result.importance or {}, d / "fig4_study.png")
-    sections.append(("Cost by trial and parameter importance (Fig. 4)",
+    figures.study_figure(result.study, result.importance or {}, d / "fig4_study.png",
+                         result.spec.cost)
+    sections.append(("Objective by trial and parameter importance (Fig. 4)",
                      "![](fig4_study.png)\n\nTPE best: trial "
                      f"{result.tpe_best['trial']} (objective "
                      f"{result.tpe_best['objective']:.4g}); after the local polish: "

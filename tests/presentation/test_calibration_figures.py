@@ -96,3 +96,32 @@ def test_page_is_one_file_with_figures_inside_and_text_escaped(tmp_path):
     assert html.index('class="verdict"') < html.index("<h2>")
     assert "<table>" in html and "<td>1</td>" in html
     assert 'src="data:image/png;base64,' + base64.b64encode(png).decode() + '"' in html
+
+
+def test_the_study_figure_draws_every_trial_of_what_the_study_minimised():
+    """Issue 40: Fig. 4 plotted eq. 4 on a log axis while the study minimised the likelihood
+    (negative): about 15 of 200 trials were drawn and the legend's "best so far" had no line.
+    Now every complete trial's objective is drawn, the best so far is a line, and the axis
+    says what was minimised."""
+    from optuna.distributions import FloatDistribution
+    from optuna.trial import create_trial
+
+    from softsensor.presentation.calibration_figures import OBJECTIVE_LABELS, study_plot
+
+    study = optuna.create_study()
+    values = [-140.0 - 10 * np.sin(k) - 0.05 * k for k in range(60)]
+    for v in values:
+        study.add_trial(create_trial(params={"x": 1.0}, value=v,
+                                     distributions={"x": FloatDistribution(0.0, 2.0)}))
+    fig = study_plot(study, {"mult_D": 0.7, "mult_C": 0.3}, "likelihood")
+    try:
+        ax = fig.axes[0]
+        drawn = {ln.get_gid(): ln.get_ydata() for ln in ax.get_lines()}
+        assert list(drawn["complete"]) == values  # every one, negative as they are
+        assert drawn["best"][-1] == min(values) and list(drawn["best"]) == list(
+            np.minimum.accumulate(values))
+        low, _high = ax.get_ylim()
+        assert low < min(values)  # the best trial is inside the axis
+        assert ax.get_ylabel() == OBJECTIVE_LABELS["likelihood"]
+    finally:
+        plt.close(fig)
