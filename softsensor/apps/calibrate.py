@@ -350,8 +350,12 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
         return (f"Deploy {out} only if you trust it: it holds the calibrated parameters, "
                 f"written because --force asked though they predict the {where} worse than "
                 f"the current ones ({errors}), and {learned}.{bounds}")
+    worse = ("" if old is None or not new.fit.rmse["moisture_out"]
+             > old.fit.rmse["moisture_out"] else
+             f" Worse on the outlet moisture than the parameters it replaces: accepted on the "
+             f"weighted cost of all three channels, not on the moisture.")
     return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
-            f"{where}: {errors}.{bounds}" if errors else
+            f"{where}: {errors}.{worse}{bounds}" if errors else
             f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")
 
 

@@ -184,3 +184,29 @@ def test_cli_errors_are_one_line(tmp_path, capsys, config):
         err = capsys.readouterr().err.strip()
         assert err.startswith("softsensor: ") and words in err and "\n" not in err, err
     assert not out.exists()
+
+
+def test_the_headline_says_when_the_deployed_fit_is_worse_on_the_moisture(tmp_path):
+    """Issue 40: the headline said "Deploy params.toml ... outlet moisture 0.38 -> 1.42 %
+    points" as if that were good: the acceptance rule took a fit 3.7 times worse on the
+    quantity the sensor exists for. The line now says so, and not for a better one."""
+    from types import SimpleNamespace
+
+    from softsensor.apps.calibrate import calibration_outcome
+
+    def ev(t1: float, t2: float, mo: float):
+        return SimpleNamespace(fit=SimpleNamespace(rmse={"T_dryer_out": t1, "T_cyclone_out": t2,
+                                                         "moisture_out": mo}))
+
+    def hist(new_mo: float):
+        result = SimpleNamespace(validation=ev(0.3, 0.4, new_mo),
+                                 current_validation=ev(1.2, 1.5, 0.0040), segments=[],
+                                 at_bounds=[], accepted=True)
+        return SimpleNamespace(calibration=result, model_error=SimpleNamespace(days=3),
+                               kept_current=False)
+
+    worse = calibration_outcome(hist(0.0150), tmp_path / "p.toml", "wet")
+    assert "outlet moisture 0.33 -> 1.22 % points" in worse, worse
+    assert "Worse on the outlet moisture than the parameters it replaces" in worse
+    better = calibration_outcome(hist(0.0030), tmp_path / "p.toml", "wet")
+    assert "Worse" not in better, better
