@@ -297,7 +297,7 @@ def _calibrate_summary(args: argparse.Namespace, out: Path, hist: Any, outcome: 
         from softsensor.presentation.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
-                                                 structure=hist.structure))
+                                                 structure=hist.structure, params_path=out))
     return summary
 
 
@@ -352,8 +352,8 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
                 f"the current ones ({errors}), and {learned}.{bounds}")
     worse = ("" if old is None or not new.fit.rmse["moisture_out"]
              > old.fit.rmse["moisture_out"] else
-             f" Worse on the outlet moisture than the parameters it replaces: accepted on the "
-             f"weighted cost of all three channels, not on the moisture.")
+             " Worse on the outlet moisture than the parameters it replaces: accepted on the "
+             "weighted cost of all three channels, not on the moisture.")
     return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
             f"{where}: {errors}.{worse}{bounds}" if errors else
             f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")

@@ -25,6 +25,7 @@ from softsensor.calibration.identifiability import (
 from softsensor.calibration.structure_search import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
 from softsensor.calibration.validation import ValidationResult
+from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
@@ -150,20 +151,53 @@ def structure_table(search: StructureSearch, display: DisplaySettings, x_ref: fl
          f"held-out lab {unit}", "evidence gain", "adopted or why not"), rows))
 
 
+def deployed_table(params_path: str | Path) -> str:
+    """What the written PARAMS.toml deploys, read back from the file: every parameter's value
+    and bounds, and every ``[structure]`` key (issue 40: the page showed the study's values
+    while the file deployed others, one below the bounds printed beside it)."""
+    doc = read_toml(params_path)
+    rows = [(name, f"{float(spec['value']):.5g}", f"[{float(spec['low']):g}, "
+             f"{float(spec['high']):g}]", str(spec.get("verdict", "")),
+             "yes" if spec.get("at_bound") else "")
+            for name, spec in doc.get("parameters", {}).items()]
+    text = (f"`{params_path}`, as written:\n\n"
+            + figures.markdown_table(("parameter", "deployed", "bounds", "verdict",
+                                      "at a bound"), rows))
+    structure = {k: v for k, v in doc.get("structure", {}).items() if k != "evidence"}
+    if structure:
+        keys = [(f"{section}.{key}", f"{value:.5g}" if isinstance(value, float) else str(value))
+                for section, table in structure.items() if isinstance(table, dict)
+                for key, value in table.items()]
+        text += ("\n\nIts `[structure]`, which replaces these keys of the plant config:\n\n"
+                 + figures.markdown_table(("key", "deployed"), keys))
+    fit = doc.get("fit", {})
+    if fit.get("deployed"):
+        why = f" ({fit['deployed_reason']})" if fit.get("deployed_reason") else ""
+        text += f"\n\nDeployed: the {fit['deployed']} parameters{why}."
+    return text
+
+
 def calibration_page(result: CalibrationResult, directory: str | Path,
                      verdict: str | None = None,
-                     structure: StructureSearch | None = None) -> Path:
+                     structure: StructureSearch | None = None,
+                     params_path: str | Path | None = None) -> Path:
     """Figures and tables of a calibration (Figs. 2 to 5) under ``verdict`` (default: the
-    shared calibration verdict of :mod:`softsensor.presentation.verdicts`)."""
+    shared calibration verdict of :mod:`softsensor.presentation.verdicts`); with
+    ``params_path``, first what that PARAMS.toml deploys (:func:`deployed_table`), and the
+    study's own values named as such."""
     d = _dir(directory)
     cfg = result.config
     model = DryerModel(cfg)
     sections: list[tuple[str, str]] = []
+    if params_path is not None:
+        sections.append(("Deployed parameters (PARAMS.toml)", deployed_table(params_path)))
     rows = [(n, f"{result.theta[i]:.5g}", f"{cfg.parameters[n].value:.5g}",
              f"[{cfg.parameters[n].low:g}, {cfg.parameters[n].high:g}]")
             for i, n in enumerate(PARAMETER_NAMES)]
-    sections.append(("Calibrated parameters", figures.markdown_table(
-        ("parameter", "calibrated", "config", "bounds"), rows)))
+    sections.append(("The study's fit (before the deploy decision and the structure search)"
+                     if params_path is not None else "Calibrated parameters",
+                     figures.markdown_table(("parameter", "study's fit", "config", "bounds"),
+                                            rows)))
     cur = result.current_evaluation
     disp, x_ref = display_settings(cfg), lab_reference(result.segments)
     sections.append(("Fit on the calibration data", fit_table(result.fit, cfg.cost.weights(),
@@ -275,5 +309,5 @@ def identifiability_verdict(ident: Identifiability) -> str:
     return text
 
 
-__all__ = ["calibration_page", "fit_table", "identifiability_table", "identify_page",
-           "lab_reference", "validation_page"]
+__all__ = ["calibration_page", "deployed_table", "fit_table", "identifiability_table",
+           "identify_page", "lab_reference", "validation_page"]

@@ -74,6 +74,7 @@ def test_a_refused_calibration_leaves_a_file_replay_and_diagnose_run_on(days, tm
     # the page says the same sentence first
     assert _page_verdict(tmp_path / "report") == line.removeprefix("calibrate: ")
     doc = read_toml(out)
+    _the_page_deploys_the_file(tmp_path / "report", doc)
     assert doc["fit"]["deployed"] == "current" and doc["fit"]["accepted"] is False
     assert doc["model_error"]["days"] == 2 and "discrepancy" in doc
     kept = load_parameters(out, load_plant_config())
@@ -89,6 +90,35 @@ def test_a_refused_calibration_leaves_a_file_replay_and_diagnose_run_on(days, tm
     assert cli_main(["diagnose", d2, "--params", str(out), "--json", str(report),
                      "--quiet"]) == 0
     assert json.loads(report.read_text())["calibration"]["params_file"] == str(out)
+
+
+def _tables_after(page: str, heading: str) -> list[list[list[str]]]:
+    """The rows (cells, tags stripped) of every table of the page's section ``heading``."""
+    section = page.split(f"<h2>{heading}</h2>", 1)[1].split("<h2>", 1)[0]
+    return [[[html.unescape(re.sub(r"<[^>]+>", "", c)).strip()
+              for c in re.findall(r"<td>(.*?)</td>", row, re.S)]
+             for row in re.findall(r"<tr>(.*?)</tr>", table, re.S)
+             if "<td>" in row]
+            for table in re.findall(r"<table>(.*?)</table>", section, re.S)]
+
+
+def _the_page_deploys_the_file(report: Path, doc: dict) -> None:
+    """Issue 40: the page showed the study's values (mult_D 0.875, mult_C 0.318) while
+    PARAMS.toml deployed others (0.0103, 0.0037); its deployed table is the file's, value for
+    value, structure included."""
+    page = (report / "index.html").read_text()
+    tables = _tables_after(page, "Deployed parameters (PARAMS.toml)")
+    shown = {row[0]: (float(row[1]), row[2]) for row in tables[0]}
+    assert shown == {n: (pytest.approx(spec["value"], rel=1e-4),
+                         f"[{spec['low']:g}, {spec['high']:g}]")
+                     for n, spec in doc["parameters"].items()}
+    structure = {f"{s}.{k}": v for s, t in doc.get("structure", {}).items()
+                 if s != "evidence" and isinstance(t, dict) for k, v in t.items()}
+    if structure:
+        keys = {row[0]: row[1] for row in tables[1]}
+        assert keys.keys() == structure.keys()
+        for k, v in structure.items():
+            assert keys[k] == (f"{v:.5g}" if isinstance(v, float) else str(v))
 
 
 def test_force_says_it_wrote_the_calibrated_parameters(days, tmp_path, capsys):
