@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import os
 import struct
 import threading
 import time
@@ -210,9 +211,10 @@ class EstimateModbusServer:
         try:
             self._server = await loop.create_server(lambda: _Connection(self), s.host, s.port,
                                                     backlog=LISTEN_BACKLOG)
-        except OSError as exc:
+        except OSError as exc:  # asyncio words it "error while attempting to bind on ..."
+            why = os.strerror(exc.errno) if exc.errno else str(exc)
             raise ConfigError(f"outputs.modbus: cannot listen on {s.host}:{s.port}: "
-                              f"{exc.strerror or exc}") from exc
+                              f"{why}") from exc
         self.port = self._server.sockets[0].getsockname()[1]
         self._sweeper = asyncio.create_task(self._sweep(), name="modbus-idle")
         log.info("estimate registers served on %s:%d", s.host, self.port)
