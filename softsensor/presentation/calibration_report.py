@@ -39,8 +39,6 @@ from softsensor.presentation.display import (
 from softsensor.presentation.verdicts import calibration_result_verdict, validation_verdict
 from softsensor.signals import OUTPUT_NAMES
 
-_UNIT = {"T_dryer_out": "K", "T_cyclone_out": "K", "moisture_out": "kg/kg"}
-
 
 def _dir(path: str | Path) -> Path:
     d = Path(path)
@@ -109,11 +107,21 @@ def matrix_table(M: np.ndarray, fmt: str = "{:.3g}") -> str:
     return figures.markdown_table(("", *PARAMETER_NAMES), rows)
 
 
+def noise_line(noise: np.ndarray, display: DisplaySettings, x_ref: float) -> str:
+    """The channels' noise as the page's tables say errors: °C and % points on the display
+    basis at ``x_ref`` (issue 40: this line alone said K and kg/kg)."""
+    parts = []
+    for n, sd in zip(OUTPUT_NAMES, noise, strict=True):
+        value, unit = plant_error(n, float(sd), x_ref, display)
+        parts.append(f"{n} {value:.3g} {unit}")
+    return ", ".join(parts)
+
+
 def identifiability_sections(ident: Identifiability, config: PlantConfig,
-                             importance: dict[str, float] | None) -> list[tuple[str, str]]:
+                             importance: dict[str, float] | None,
+                             x_ref: float = 0.1) -> list[tuple[str, str]]:
     weak = "\n".join(f"- {d}" for d in ident.weakest_directions(2))
-    noise = ", ".join(f"{n} {s:.3g} {_UNIT[n]}" for n, s in
-                      zip(OUTPUT_NAMES, ident.noise, strict=True))
+    noise = noise_line(ident.noise, display_settings(config), x_ref)
     return [
         ("What the data can and cannot pin down",
          identifiability_table(ident, config, importance)
@@ -227,7 +235,8 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
     if result.identifiability is not None and result.sensitivities:
         figures.sensitivity_figure(result.sensitivities[0], d / "fig2_sensitivity.png")
         sections.append(("Sensitivity trajectories (Fig. 2)", "![](fig2_sensitivity.png)"))
-        sections += identifiability_sections(result.identifiability, cfg, result.importance)
+        sections += identifiability_sections(result.identifiability, cfg, result.importance,
+                                             x_ref)
     u = np.median(result.segments[0].U, axis=0)
     figures.profile_step_figure(model, result.theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
@@ -310,4 +319,4 @@ def identifiability_verdict(ident: Identifiability) -> str:
 
 
 __all__ = ["calibration_page", "deployed_table", "fit_table", "identifiability_table",
-           "identify_page", "lab_reference", "validation_page"]
+           "identify_page", "lab_reference", "noise_line", "validation_page"]

@@ -125,3 +125,14 @@ def test_the_study_figure_draws_every_trial_of_what_the_study_minimised():
         assert ax.get_ylabel() == OBJECTIVE_LABELS["likelihood"]
     finally:
         plt.close(fig)
+
+
+def test_the_noise_line_says_errors_as_the_tables_do():
+    """Issue 40: the page's tables said °C and % points (wet basis) while the identifiability
+    note said K and kg/kg; one way now."""
+    from softsensor.presentation.calibration_report import noise_line
+
+    line = noise_line(np.array([0.5, 0.8, 0.004]), DisplaySettings(moisture_basis="wet"), 0.1)
+    assert line == ("T_dryer_out 0.5 °C, T_cyclone_out 0.8 °C, moisture_out 0.329 % points "
+                    "(wet basis)")
+    assert " K" not in line and "kg/kg" not in line
