@@ -36,6 +36,7 @@ from softsensor.presentation.display import (  # noqa: E402
     celsius,
     local_times,
     moisture_pct,
+    plant_error,
 )
 from softsensor.signals import OUTPUT_NAMES  # noqa: E402
 
@@ -176,6 +177,41 @@ def study_figure(study, importance: Mapping[str, float], path: str | Path,
     return _save(study_plot(study, importance, cost), Path(path))
 
 
+def front_plot(trade, display: DisplaySettings, x_ref: float):
+    """The multipliers' front as a figure (the caller saves or closes it): the worse outlet
+    temperature RMSE against the lab moisture RMSE on the held-out data, in °C and % points
+    on the display basis, each point labelled, the deployed and current parameters marked,
+    the ``[calibration]`` targets as lines (issue 40: the front was a table only)."""
+    fig, ax = plt.subplots(figsize=(7.5, 5))
+    unit = plant_error("moisture_out", 0.0, x_ref, display)[1]
+    style = {"deployed": ("*", 14, "#d62728"), "current": ("s", 8, "#1f77b4")}
+    for p in trade.points:
+        if not p.held_out:
+            continue
+        t = p.worst_temperature()
+        m = plant_error("moisture_out", float(p.held_out["moisture_out"]), x_ref, display)[0]
+        marker, size, colour = style.get(p.label, ("o", 5, "0.45"))
+        ax.plot([t], [m], marker, ms=size, color=colour, gid=p.label,
+                label=p.label if p.label in style else None)
+        ax.annotate(p.label, (t, m), textcoords="offset points", xytext=(5, 4), fontsize=7)
+    ax.axvline(trade.temperature_target, color="#238b45", ls="--", lw=1, gid="target_T",
+               label=f"target {trade.temperature_target:g} °C")
+    m_target = plant_error("moisture_out", trade.moisture_target, x_ref, display)[0]
+    ax.axhline(m_target, color="#238b45", ls=":", lw=1, gid="target_moisture",
+               label=f"target {m_target:.2g} {unit}")
+    ax.set_xlabel("worse outlet temperature RMSE, held out [°C]")
+    ax.set_ylabel(f"lab moisture RMSE, held out [{unit}]")
+    ax.set_title("Temperatures against moisture: the multipliers' front")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    return fig
+
+
+def front_figure(trade, display: DisplaySettings, x_ref: float, path: str | Path) -> Path:
+    """:func:`front_plot` saved to ``path``."""
+    return _save(front_plot(trade, display, x_ref), Path(path))
+
+
 def clock_axis(ax, display: DisplaySettings) -> None:
     """Date axis in the plant's local clock time."""
     loc = mdates.AutoDateLocator(tz=display.zone)
@@ -287,6 +323,6 @@ def write_page(directory: str | Path, title: str, sections: Sequence[tuple[str, 
     return p
 
 
-__all__ = ["OBJECTIVE_LABELS", "clock_axis", "markdown_table", "profile_step_figure",
-           "sensitivity_figure", "study_figure", "study_plot", "trajectory_figure",
-           "trajectory_plot", "write_page"]
+__all__ = ["OBJECTIVE_LABELS", "clock_axis", "front_figure", "front_plot", "markdown_table",
+           "profile_step_figure", "sensitivity_figure", "study_figure", "study_plot",
+           "trajectory_figure", "trajectory_plot", "write_page"]

@@ -214,8 +214,10 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
                      + ("n/a" if cur is None else f"{cur.fit.cost:.4g}")
                      + f"\n\n{result.verdict_line()}"))
     if result.trade_off is not None:
+        figures.front_figure(result.trade_off, disp, x_ref, d / "front.png")
         sections.append(("Temperatures against moisture: the multipliers' front",
-                         trade_off_table(result.trade_off, disp, x_ref)))
+                         "![](front.png)\n\n"
+                         + trade_off_table(result.trade_off, disp, x_ref)))
     if structure is not None:
         sections.append(("The model's structure, chosen by evidence from history",
                          structure_table(structure, disp, x_ref)))

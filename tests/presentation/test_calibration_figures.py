@@ -136,3 +136,31 @@ def test_the_noise_line_says_errors_as_the_tables_do():
     assert line == ("T_dryer_out 0.5 °C, T_cyclone_out 0.8 °C, moisture_out 0.329 % points "
                     "(wet basis)")
     assert " K" not in line and "kg/kg" not in line
+
+
+def test_the_front_is_drawn_with_the_deployed_and_current_points_and_the_targets():
+    """Issue 40: the temperature-moisture front was a table only; drawn now, worse outlet
+    temperature against lab RMSE (held out, °C and % points), deployed and current marked,
+    the targets as lines."""
+    from softsensor.calibration.trade_off import FrontPoint, TradeOff
+    from softsensor.presentation.calibration_figures import front_plot
+
+    def point(label, t, m):
+        rmse = {"T_dryer_out": t, "T_cyclone_out": t / 2, "moisture_out": m}
+        return FrontPoint(label, np.ones(7), rmse, rmse, rmse)
+
+    trade = TradeOff([point("trial 3", 0.4, 0.012), point("deployed", 0.7, 0.005),
+                      point("current", 1.9, 0.004)], temperature_target=1.0,
+                     moisture_target=0.006)
+    fig = front_plot(trade, DRY, 0.1)
+    try:
+        ax = fig.axes[0]
+        drawn = {ln.get_gid(): (ln.get_xdata(), ln.get_ydata()) for ln in ax.get_lines()}
+        assert [float(x) for x in drawn["deployed"][0]] == [0.7]
+        assert float(drawn["deployed"][1][0]) == pytest.approx(0.5)  # % dry basis points
+        assert [float(x) for x in drawn["current"][0]] == [1.9]
+        assert list(drawn["target_T"][0]) == [1.0, 1.0]
+        assert float(drawn["target_moisture"][1][0]) == pytest.approx(0.6)
+        assert "°C" in ax.get_xlabel() and "% points" in ax.get_ylabel()
+    finally:
+        plt.close(fig)
