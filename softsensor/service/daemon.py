@@ -72,7 +72,7 @@ from softsensor.service.estimator_service import EstimatorService, Output
 from softsensor.service.estimators import default_kind
 from softsensor.service.heap import TRIM_EVERY_S, trim
 from softsensor.service.logs import event
-from softsensor.service.plc_scans import PlcScans
+from softsensor.service.plc_scans import HOLD_SCANS, PlcScans
 from softsensor.service.scan_publisher import ScanPublisher
 from softsensor.service.settings import (
     PLC_CLOCK,
@@ -464,7 +464,8 @@ class Daemon:
         # the PLC's scans told apart from other senders' (the clock starts before the worker)
         assert self.clock is not None
         self.plc_scans = PlcScans(self.clock.now_ns,
-                                  self.tagmap.modbus.poll_period_s * s.time_scale)
+                                  self.tagmap.modbus.poll_period_s * s.time_scale,
+                                  hold_scans=HOLD_SCANS if s.plc_scans_first else 0)
         limits = InputLimits(
             max_queue=s.max_queue, max_queue_bytes=s.max_queue_bytes,
             max_bytes=s.max_message_bytes,

@@ -45,11 +45,15 @@ class PlcScans:
         The daemon's clock [ns, plant time].
     scan_period_s : float
         The poller's period [s, plant time].
+    hold_scans : float
+        Poll periods after the PLC's last scan during which other senders' scans are refused
+        (0: never; ``[service] plc_scans_first = false``).
     """
 
-    def __init__(self, clock_ns: Callable[[], int], scan_period_s: float) -> None:
+    def __init__(self, clock_ns: Callable[[], int], scan_period_s: float,
+                 hold_scans: float = HOLD_SCANS) -> None:
         self.clock_ns = clock_ns
-        self.hold_ns = int(HOLD_SCANS * scan_period_s * 1e9)
+        self.hold_ns = int(hold_scans * scan_period_s * 1e9)
         self._pending: OrderedDict[tuple[int, str], None] = OrderedDict()
         self._last_plc_ns: int | None = None
         self._lock = threading.Lock()  # the poller's loop adds, Zenoh's thread looks up
@@ -73,7 +77,7 @@ class PlcScans:
                 self._last_plc_ns = self.clock_ns()
                 return PLC
             last = self._last_plc_ns
-        if last is not None and self.clock_ns() - last <= self.hold_ns:
+        if self.hold_ns > 0 and last is not None and self.clock_ns() - last <= self.hold_ns:
             return REFUSED
         return OTHER
 

@@ -79,7 +79,12 @@ class ServiceSettings:
         Most JSON bytes one topic adds to a day file; beyond, its messages are counted in
         health (``recording``), not recorded, until the next day. The inputs are recorded as
         the estimator admits them (``max_message_bytes``, ``max_scan_rate_hz``,
-        ``max_lab_rate_per_h``), whoever sends them [bytes].
+        ``max_lab_rate_per_h``), whoever sends them [bytes]; the PLC's own scans count
+        against a cap of their own.
+    plc_scans_first : bool
+        While the daemon's own PLC scans arrive, another sender's scans on the bus are
+        recorded but kept out of the windows (``inputs_dropped`` ``other_sender``); false:
+        every sender's scans go into the windows, as before issue 40.
     checkpoint : str
         Estimator checkpoint file (JSON, replaced atomically).
     checkpoint_every : int
@@ -183,6 +188,7 @@ class ServiceSettings:
     max_scan_rate_hz: float = num(10.0, gt=0, le=100_000)
     max_lab_rate_per_h: float = num(600.0, gt=0, le=1e9)
     max_lab_silence_h: float = num(12.0, ge=0, le=24 * 365)
+    plc_scans_first: bool = True
 
     #: One rule, one key: the estimator's kind and a window's good share are set where the
     #: estimator and the windowing read them (these keys once set them a second time).
