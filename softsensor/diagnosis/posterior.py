@@ -84,13 +84,14 @@ INELIGIBLE_PENALTY = 3.0
 #: the minimum of the mean Brier score): ``benchmarks/diagnosis_temperature.py --refit`` over
 #: independent plants 11 and 12 (each its normal from 4 clean 16 h days, day seeds 100 to
 #: 103; 16 test days of 16 h, 2 per cause, day seeds 300 to 315;
-#: ``benchmarks/results/diagnosis_calibration.json``): ``T = 0.68``; of the 32 verdicts, 10
-#: of 12 extensions were right (``eps`` 0.18: an extension named with hundreds of nats gets
-#: about 0.84), 4 of 7 ``none`` (0.42) and 4 of 13 ``unexplained`` (0.78). ``T`` below 1
-#: only sharpens the close calls; what the probabilities mean comes from ``eps``. Checked on
-#: fresh plants 7001 to 7004 with a reliability table (docs/results/diagnosis.md).
-TEMPERATURE = 0.68
-CONTAMINATION = {"extension": 0.18, "none": 0.42, "unexplained": 0.78}
+#: ``benchmarks/results/diagnosis_calibration.json``): ``T = 0.67``; of the 32 verdicts, 12
+#: of 13 extensions were right (``eps`` 2/15 by the rule of succession, the Brier minimum
+#: 0.08: an extension named with hundreds of nats gets about 0.88), 4 of 7 ``none`` (4/9
+#: likewise, 0.42) and 4 of 12 ``unexplained`` (0.76). ``T`` below 1 only sharpens the close
+#: calls; what the probabilities mean comes from ``eps``. Checked on fresh plants 7001 to
+#: 7004 with a reliability table (docs/results/diagnosis.md).
+TEMPERATURE = 0.67
+CONTAMINATION = {"extension": 0.133, "none": 0.444, "unexplained": 0.76}
 #: The most probable candidate less than this many times as probable as the second: the
 #: day cannot tell them apart. Three: the leader holds under three quarters of what the two
 #: share.
@@ -227,10 +228,12 @@ def fit_calibration(days: Sequence[tuple[Sequence[float], int, str]],
     """``(T, {kind: eps})`` minimising the mean Brier score over ``days``, each ``(L of every
     candidate, index of the true one or -1 when none is, kind of the named cause)``
     (:func:`kind`): each ``eps`` on a grid of 0.02 over [0, 0.9] (they are independent
-    given ``T``: each kind's days have their own), ``T`` searched on the log scale. Where
-    none of a kind's ``N`` verdicts was wrong, its ``eps`` is at least ``1 / (N + 2)``
-    (Laplace's rule of succession): the Brier minimum puts it at 0 there, and none wrong out
-    of ``N`` is not a rate of 0. The
+    given ``T``: each kind's days have their own), ``T`` searched on the log scale. Each
+    ``eps`` is at least ``(w + 1) / (N + 2)`` for ``w`` wrong verdicts among the kind's
+    ``N`` days (Laplace's rule of succession, the mean wrong rate under a uniform prior):
+    the Brier minimum on a dozen days can sit below what those days show (0 where none was
+    wrong, 0.08 for the extensions' 1 wrong in 13), and a verdict's probability is at most
+    ``1 - eps (1 - 1/n)``. The
     Brier score, not the log loss: on tuning days where the true cause left no trace (its fit
     failed, ``L`` tens of nats down) the log loss is ruled by those days alone and flattens
     every probability (it chose ``T = 93`` on the tuning days); the Brier score is bounded
@@ -271,8 +274,7 @@ def fit_calibration(days: Sequence[tuple[Sequence[float], int, str]],
                           options={"xatol": 1e-3})
     b = per_day(float(res.x))
     wrong = np.array([i != int(np.argmax(L)) for L, i, _ in days])
-    eps = {k: float(grid[int(np.argmin(b[kinds == k].sum(axis=0)))]) for k in set(kinds)}
-    for k in eps:
-        if not wrong[kinds == k].any():
-            eps[k] = max(eps[k], 1.0 / (float((kinds == k).sum()) + 2.0))
+    eps = {k: max(float(grid[int(np.argmin(b[kinds == k].sum(axis=0)))]),
+                  (float(wrong[kinds == k].sum()) + 1.0) / (float((kinds == k).sum()) + 2.0))
+           for k in set(kinds)}
     return float(math.exp(res.x)), eps

@@ -39,7 +39,7 @@ def _score(cause, penalised, gain=0.1, worse=(), channel=None):
 
 #: A clean day's ``none`` at the shipped temperature and contamination: more likely than
 #: not. Set on the tuning days (posterior.CONTAMINATION: a named ``none`` was right on 4 of
-#: 7), asserted on the made-up clean case below.
+#: 7), asserted on the made-up clean case below (which gets 0.62).
 CLEAN_NONE = 0.5
 #: The evidence's resolution at the shipped temperature: two candidates closer than this
 #: many nats cannot be told apart (posterior.undecided).
@@ -171,7 +171,9 @@ def test_the_temperature_and_contamination_are_fitted_to_the_days_they_are_given
     causes = ["sensor_bias", "lab_delay", "fouling_drift", "none", "unexplained"]
     days = []
     for _ in range(1500):
-        L = rng.normal(0.0, 4.0, size=5)
+        # evidence far apart, as on real days (tens of nats): the wrong verdicts are the
+        # contamination's, so the rule of succession does not bind
+        L = rng.normal(0.0, 20.0, size=5)
         k = kind(causes[int(np.argmax(L))])
         days.append((L, int(rng.choice(5, p=probabilities(L, 2.5, truth[k]))), k))
     t, eps = fit_calibration(days)
@@ -181,11 +183,15 @@ def test_the_temperature_and_contamination_are_fitted_to_the_days_they_are_given
     assert eps["unexplained"] == pytest.approx(0.6, abs=0.15)
 
 
-def test_a_kind_never_wrong_on_the_tuning_days_keeps_the_rule_of_succession():
-    """Every verdict right: the Brier minimum is at ``eps = 0``, the fit keeps 1 / (N + 2)."""
+def test_a_kind_seldom_wrong_on_the_tuning_days_keeps_the_rule_of_succession():
+    """Every verdict right: the Brier minimum is at ``eps = 0``, the fit keeps 1 / (N + 2);
+    one wrong in 14: at least 2 / 16."""
     days = [(np.array([30.0, 0.0, -3.0]), 0, "extension") for _ in range(18)]
     _, eps = fit_calibration(days)
     assert eps["extension"] == pytest.approx(1.0 / 20.0)
+    days = days[:13] + [(np.array([30.0, 0.0, -3.0]), 1, "extension")]
+    _, eps = fit_calibration(days)
+    assert eps["extension"] >= 2.0 / 16.0
 
 
 def test_no_evidence_claims_more_than_the_contamination_allows():
