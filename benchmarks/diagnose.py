@@ -9,7 +9,8 @@
    days, with magnitudes drawn uniformly from each effect's detectable range, diagnosed with
    the config step 1 saved (its parameters and ``[discrepancy]``, as ``--params`` reads
    it). A case is right when the named cause (and for ``sensor_bias`` the channel) is the
-   hidden one.
+   hidden one; each case keeps the named cause's probability and the "cannot tell" pair,
+   counted apart in the summary.
 
 This is the matched plant (the model itself): the floor beside the open-world numbers of
 ``benchmarks/open_world.py``. The plant's true parameters are the config's (``--truth
@@ -112,7 +113,9 @@ def main() -> None:
         right = rep["cause"] == cause and (cause != "sensor_bias"
                                            or rep["channel"] == day.effect.get("channel"))
         cases.append({"seed": seed, "cause": cause, "magnitude": m, "named": rep["cause"],
-                      "channel": rep["channel"], "gain": rep["gain"], "right": right})
+                      "channel": rep["channel"], "gain": rep["gain"], "right": right,
+                      "probability": rep["probabilities"][0]["probability"],
+                      "cannot_tell": [c["cause"] for c in rep["cannot_tell"]]})
     n_right = sum(c["right"] for c in cases)
     out.update({
         "cases": cases, "n_cases": len(cases), "accuracy": n_right / max(len(cases), 1),
@@ -120,6 +123,10 @@ def main() -> None:
         "missed": sum(c["cause"] != "none" and c["named"] == "none" for c in cases),
         "positive_gain_share": (sum(c["gain"] > 0 for c in cases if c["cause"] != "none")
                                 / max(sum(c["cause"] != "none" for c in cases), 1)),
+        # issue 39: "cannot tell" counted apart, and how sure the wrong verdicts were
+        "cannot_tell_days": sum(bool(c["cannot_tell"]) for c in cases),
+        "true_in_cannot_tell_pair": sum(c["cause"] in c["cannot_tell"] for c in cases),
+        "wrong_above_0.9": sum(not c["right"] and c["probability"] > 0.9 for c in cases),
         "smallest_gain_named_right": min([c["gain"] for c in cases
                                           if c["right"] and c["cause"] != "none"], default=None),
         "seconds_per_case": round((time.perf_counter() - t1) / max(len(cases), 1), 1),

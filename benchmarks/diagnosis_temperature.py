@@ -1,27 +1,38 @@
-"""Fit the temperature of the diagnosis's probabilities on tuning days (issue 33 item 2).
+"""Calibrate the diagnosis's probabilities on tuning days and check them on fresh ones
+(issue 33 item 2, issue 39 items 2 and 3).
 
-The softmax of :mod:`softsensor.diagnosis.posterior` turns the candidates' log-evidences into
-probabilities; its temperature is fitted here, on tuning seeds only: independent plant
-``--plant`` (default 11, one of the tuning plants 11 to 13), its normal learned from
-``--history`` clean days (day seeds 100, 101, ...; as ``tests/diagnosis/test_diagnose_history.py``
-does, :func:`~softsensor.calibration.model_error_fit.fit_model_error` at the config's
-parameters), then ``--days-per-cause`` test days per cause (day seeds 300, 301, ...,
-magnitudes one uniform draw in each stratum of the effect's detectable range) diagnosed
-against it. Output: per day the true cause, the verdict and every candidate's
-log-evidence, and the temperature minimising the mean Brier score
-(:func:`~softsensor.diagnosis.posterior.fit_temperature`) with the Brier score and top-1 and
-top-2 accuracy at it and at the module's :data:`~softsensor.diagnosis.posterior.TEMPERATURE`.
+:mod:`softsensor.diagnosis.posterior` turns the candidates' log-evidences into
+probabilities with a temperature and a contamination per kind of verdict; both are fitted
+here, on tuning seeds only. One run diagnoses the days of one plant: independent plant
+``--plant``, its normal learned from ``--history`` clean days (day seeds 100, 101, ...; as
+``tests/diagnosis/test_diagnose_history.py`` does,
+:func:`~softsensor.calibration.model_error_fit.fit_model_error` at the config's parameters),
+then ``--days-per-cause`` test days per cause (day seeds 300, 301, ..., magnitudes one
+uniform draw in each stratum of the effect's detectable range) diagnosed against it. It
+stores per day the true cause, the verdict, every candidate's log-evidence and what they
+were computed from (:func:`ingredients`), so that the probabilities can be fitted and judged
+again without diagnosing (the expensive part: about 10 min per plant on this machine):
 
-    python benchmarks/diagnosis_temperature.py [--plant 11] [--history 4] [--hours 16]
-        [--days-per-cause 2] [--out FILE] [--refit FILE]
+    python benchmarks/diagnosis_temperature.py --plant 11 --out plant11.json  # one plant
+    python benchmarks/diagnosis_temperature.py --refit plant11.json plant12.json \
+        --check plant7001.json plant7002.json plant7003.json --out result.json
 
-``--refit FILE`` reads the days of an earlier run's JSON and fits again without diagnosing.
+The second form fits ``(T, eps)`` on the ``--refit`` (tuning) days
+(:func:`~softsensor.diagnosis.posterior.fit_calibration`) and gives, on the tuning and on
+the ``--check`` (fresh) days, at the fitted values, at the module's and before issue 39
+(a plain softmax at ``T = 8``, "cannot tell" only between two collinear extensions): the
+Brier score, the days right and with the right cause in the top two, "cannot tell" counted
+apart (days, how often the truth is in the pair, right when decided), the wrong verdicts
+above 0.9, and the reliability tables (predicted probability against observed frequency,
+over every candidate and over the verdicts). ``--occam`` tries a Laplace Occam factor for
+each cause's size (:func:`with_occam`) in place of its Akaike charge.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import tempfile
 import time
@@ -30,7 +41,16 @@ from typing import Any
 
 import numpy as np
 
-from softsensor.diagnosis.posterior import TEMPERATURE, fit_temperature, softmax
+from softsensor.diagnosis.posterior import (
+    CANNOT_TELL_ODDS,
+    CONTAMINATION,
+    TEMPERATURE,
+    brier,
+    fit_calibration,
+    kind,
+    probabilities,
+    undecided,
+)
 
 CAUSES = ("none", "inlet_moisture", "sensor_bias", "lab_delay", "fouling_drift", "input_lag",
           "ambient_heat_loss", "unexplained")
@@ -76,19 +96,55 @@ def diagnose_days(args: argparse.Namespace) -> list[dict[str, Any]]:
                                            None if cause == "none" else cause, mag,
                                            plant_seed=args.plant)
             t0 = time.perf_counter()
-            doc = diagnose(with_history, day).to_json()
-            rec = {"seed": seed, "cause": cause, "magnitude": mag,
+            diag = diagnose(with_history, day)
+            doc = diag.to_json()
+            rec = {"plant": args.plant, "seed": seed, "cause": cause, "magnitude": mag,
                    "channel": day.effect.get("channel"), "named": doc["cause"],
                    "named_channel": doc["channel"],
                    "candidates": [[c["cause"], c["channel"], c["log_evidence"]]
                                   for c in doc["probabilities"]],
                    "cannot_tell": [c["cause"] for c in doc["cannot_tell"]],
-                   "seconds": round(time.perf_counter() - t0, 1)}
+                   "seconds": round(time.perf_counter() - t0, 1), **ingredients(diag)}
             say(f"{cause} {mag} seed {seed}: named {doc['cause']} "
                 f"({rec['seconds']} s)")
             days.append(rec)
             seed += 1
+            if args.out:  # what is done so far survives an interrupted run
+                Path(args.out).write_text(json.dumps({"settings": vars(args), "days": days},
+                                                     indent=1) + "\n")
     return days
+
+
+def ingredients(diag: Any) -> dict[str, Any]:
+    """What the probabilities are computed from, so that another posterior can be tried on the
+    stored days without diagnosing again (``--refit``): every score, the skipped causes, the
+    structure margin, every signature's norm and the pairwise ``|cos|`` of the signatures and
+    of each signature with the baseline's whitened residual."""
+    from softsensor.diagnosis.detectability import collinearity
+    from softsensor.diagnosis.verdict import structure_margins
+
+    p = diag.problem
+    resid = np.concatenate(p.whitened(p.baseline, "all"))
+    sigs = diag.signatures
+    names = sorted(sigs)
+    margin = max((m for m, _, _ in structure_margins(p).values()), default=-np.inf)
+    return {
+        "scores": [{"cause": s.cause, "channel": s.channel, "n_params": s.n_params,
+                    "penalised": s.penalised, "eligible": bool(s.eligible), "gain": s.gain,
+                    "loglik": s.loglik} for s in diag.scores.values()],
+        "skipped": sorted(diag.skipped),
+        "structure_margin": float(margin),
+        "residual_norm": float(np.linalg.norm(resid)),
+        "signatures": {c: {"channel": sigs[c].channel, "norm": sigs[c].norm,
+                           "probe_size": sigs[c].probe_size, "n_params": sigs[c].n_params,
+                           "residual_cos": (abs(float(sigs[c].vector @ resid))
+                                            / (sigs[c].norm * float(np.linalg.norm(resid)))
+                                            if sigs[c].norm > 0 and sigs[c].vector.shape
+                                            == resid.shape and resid.any() else 0.0)}
+                       for c in names},
+        "collinearity": {f"{a}|{b}": collinearity(sigs[a], sigs[b])
+                         for i, a in enumerate(names) for b in names[i + 1:]},
+    }
 
 
 def true_index(rec: dict[str, Any]) -> int:
@@ -100,24 +156,110 @@ def true_index(rec: dict[str, Any]) -> int:
     return -1
 
 
-def scores(days: list[dict[str, Any]], t: float) -> dict[str, float]:
-    """Mean log loss, Brier score (over every candidate), top-1 and top-2 accuracy at ``t``."""
-    ll, brier, top1, top2 = [], [], 0, 0
+#: The contamination before issue 39 (a plain softmax at T = 8).
+BEFORE = {"extension": 0.0, "none": 0.0, "unexplained": 0.0}
+#: Edges of the reliability table's bins of predicted probability.
+BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 1.0)
+
+
+def _bin(p: float) -> int:
+    return min(int(np.searchsorted(BINS, p, side="right")) - 1, len(BINS) - 2)
+
+
+def _undecided(rec: dict[str, Any], p: np.ndarray, order: np.ndarray, t: float,
+               old_rule: bool) -> list[str]:
+    """The pair "cannot tell" names on this day (empty when it does not fire): the rule of
+    :func:`~softsensor.diagnosis.posterior.cannot_tell`, or with ``old_rule`` the one it
+    replaced (two extensions within the odds whose signatures have ``|cos| >= 0.9``)."""
+    a, b = order[0], order[1]
+    L = [c[2] for c in rec["candidates"]]
+    if old_rule and (not p[b] > 0 or p[a] / p[b] > CANNOT_TELL_ODDS):
+        return []
+    if not old_rule and not undecided(L[a], L[b], t):
+        return []
+    ca, cb = rec["candidates"][a][0], rec["candidates"][b][0]
+    if old_rule:
+        cos = rec.get("collinearity", {})
+        key = "|".join(sorted((ca, cb)))
+        if key not in cos or cos[key] < 0.9:
+            return []
+    return [ca, cb]
+
+
+def evaluate(days: list[dict[str, Any]], t: float, eps: dict[str, float],
+             old_rule: bool = False) -> dict[str, Any]:
+    """Brier score, right and top-two counts, "cannot tell" counted apart, wrong verdicts
+    above 0.9, and the reliability table (every candidate of every day: predicted
+    probability against how often it was the true one) at ``(t, eps)``."""
+    br, right, top2, wrong_sure = [], 0, 0, []
+    table = [[0, 0.0, 0] for _ in BINS[:-1]]
+    verdicts = [[0, 0.0, 0] for _ in BINS[:-1]]
+    told = {"days": 0, "true_in_pair": 0, "right_when_decided": 0, "decided": 0}
     for rec in days:
         L = np.array([c[2] for c in rec["candidates"]], float)
-        p = softmax(L, t)
+        p = probabilities(L, t, eps[kind(rec["named"])])
         i = true_index(rec)
-        y = np.zeros_like(p)
-        if i >= 0:
-            y[i] = 1.0
-        ll.append(-np.log(max(p[i], 1e-12)) if i >= 0 else np.log(1e12))
-        brier.append(float(np.sum((p - y) ** 2)) + (1.0 if i < 0 else 0.0))
+        br.append(brier(p, i))
         order = np.argsort(-p, kind="stable")
-        top1 += i >= 0 and order[0] == i
-        top2 += i >= 0 and i in order[:2]
-    n = max(len(days), 1)
-    return {"log_loss": float(np.mean(ll)), "brier": float(np.mean(brier)),
-            "top1": top1 / n, "top2": top2 / n}
+        ok = bool(i >= 0 and order[0] == i)
+        right += ok
+        top2 += bool(i >= 0 and i in order[:2])
+        if not ok and p[order[0]] > 0.9:
+            wrong_sure.append({"plant": rec.get("plant"), "seed": rec["seed"],
+                               "cause": rec["cause"],
+                               "named": rec["candidates"][order[0]][0],
+                               "probability": round(float(p[order[0]]), 3)})
+        for j, q in enumerate(p):
+            row = table[_bin(q)]
+            row[0] += 1
+            row[1] += float(q)
+            row[2] += int(j == i)
+        row = verdicts[_bin(p[order[0]])]
+        row[0] += 1
+        row[1] += float(p[order[0]])
+        row[2] += int(ok)
+        pair = _undecided(rec, p, order, t, old_rule)
+        if pair:
+            told["days"] += 1
+            told["true_in_pair"] += rec["cause"] in pair
+        else:
+            told["decided"] += 1
+            told["right_when_decided"] += ok
+
+    def rows(tab: list[list[float]]) -> list[dict[str, Any]]:
+        return [{"bin": f"{lo:g}-{hi:g}", "n": int(n),
+                 "predicted": round(s / n, 3) if n else None,
+                 "observed": round(k / n, 3) if n else None}
+                for lo, hi, (n, s, k) in zip(BINS[:-1], BINS[1:], tab, strict=True)]
+
+    return {"temperature": t, "contamination": eps, "days": len(days),
+            "brier": round(float(np.mean(br)), 4), "right": right, "top_two": top2,
+            "wrong_above_0.9": wrong_sure, "cannot_tell": told,
+            "reliability_candidates": rows(table), "reliability_verdicts": rows(verdicts)}
+
+
+def with_occam(rec: dict[str, Any]) -> dict[str, Any]:
+    """``rec`` with each fitted cause's Akaike charge for its size (1 nat) replaced by a
+    Laplace Occam factor: the size's prior uniform on [0, 2 x probe size], its posterior
+    width from the curvature of the day's log-likelihood along the size, the signature's
+    squared norm per probe size squared (:mod:`softsensor.diagnosis.detectability`), so the
+    factor is ``log(sqrt(2 pi) / (2 |d|))``; causes without a signature are left as they
+    are. The other parameters (onsets, time constants) keep their Akaike charge."""
+    sigs = rec["signatures"]
+    cands = []
+    for c, ch, L in rec["candidates"]:
+        n = sigs.get(c, {}).get("norm", 0.0)
+        if n > 0:
+            L = L + 1.0 + math.log(math.sqrt(2.0 * math.pi) / (2.0 * n))
+        cands.append([c, ch, L])
+    return dict(rec, candidates=cands)
+
+
+def _load(paths: list[str], occam: bool = False) -> list[dict[str, Any]]:
+    days = []
+    for path in paths:
+        days += json.loads(Path(path).read_text())["days"]
+    return [with_occam(r) for r in days] if occam else days
 
 
 def main() -> int:
@@ -127,24 +269,36 @@ def main() -> int:
     ap.add_argument("--hours", type=float, default=16.0)
     ap.add_argument("--days-per-cause", type=int, default=2)
     ap.add_argument("--out", default=None)
-    ap.add_argument("--refit", default=None, metavar="FILE")
+    ap.add_argument("--refit", nargs="+", default=None, metavar="FILE",
+                    help="tuning days of earlier runs: fit on them without diagnosing")
+    ap.add_argument("--check", nargs="*", default=(), metavar="FILE",
+                    help="fresh days of earlier runs: judged at the fitted values")
+    ap.add_argument("--occam", action="store_true",
+                    help="try the Laplace Occam factor for each cause's size (with_occam)")
     args = ap.parse_args()
-    if args.refit:
-        doc = json.loads(Path(args.refit).read_text())
-        days = doc["days"]
-    else:
+    if not args.refit:
         days = diagnose_days(args)
-        doc = {"settings": vars(args), "days": days}
-    usable = [(np.array([c[2] for c in r["candidates"]]), true_index(r)) for r in days]
-    t = fit_temperature(usable)
-    doc["fitted_temperature"] = t
-    doc["at_fitted"] = scores(days, t)
-    doc["at_module_temperature"] = {"temperature": TEMPERATURE, **scores(days, TEMPERATURE)}
+        doc: dict[str, Any] = {"settings": vars(args), "days": days}
+        text = json.dumps(doc, indent=1)
+        if args.out:
+            Path(args.out).write_text(text + "\n")
+        print(json.dumps(evaluate(days, TEMPERATURE, CONTAMINATION), indent=1))
+        return 0
+    tuning, fresh = _load(args.refit, args.occam), _load(list(args.check), args.occam)
+    t, eps = fit_calibration([(np.array([c[2] for c in r["candidates"]]), true_index(r),
+                               kind(r["named"])) for r in tuning])
+    doc = {"tuning_files": args.refit, "fresh_files": list(args.check), "occam": args.occam,
+           "fitted": {"temperature": t, "contamination": eps},
+           "module": {"temperature": TEMPERATURE, "contamination": CONTAMINATION},
+           "tuning": {"fitted": evaluate(tuning, t, eps),
+                      "before": evaluate(tuning, 8.0, BEFORE, old_rule=True)},
+           "fresh": {"fitted": evaluate(fresh, t, eps),
+                     "module": evaluate(fresh, TEMPERATURE, CONTAMINATION),
+                     "before": evaluate(fresh, 8.0, BEFORE, old_rule=True)} if fresh else None}
     text = json.dumps(doc, indent=1)
     if args.out:
         Path(args.out).write_text(text + "\n")
-    print(json.dumps({k: doc[k] for k in ("fitted_temperature", "at_fitted",
-                                          "at_module_temperature")}, indent=1))
+    print(text)
     return 0
 
 

@@ -14,8 +14,10 @@ sensor does) and open loop.
 
 The verdict asks whether any point of that held-out front holds both temperatures within
 ``temperature_target`` and the lab moisture within ``moisture_target``
-(``[calibration]``, 1.0 K and 0.006 kg/kg by default): where none does, no choice of the
-multipliers fits this dryer and the structure is what is wrong (the model issue's part 2).
+(``[calibration]``, 1.0 K and 0.006 kg/kg by default). Where none does, the line says both
+things that can be wrong: the front is only what the study's trials reached, so a short study
+on a model whose structure is exactly right (the matched plant, 3 trials) misses the targets
+too; only a study long enough to converge lets the front speak for the structure.
 """
 
 from __future__ import annotations
@@ -135,7 +137,8 @@ class TradeOff:
                 f"{float(best.held_out['moisture_out']):.4f} kg/kg)")
         return (f"this model cannot hold the outlet temperatures within {t:g} K while the "
                 f"outlet moisture stays within {m:g} kg/kg on the held-out data: no point of "
-                f"the multipliers' front does{tail}; the structure differs from this dryer's")
+                f"the front this study found does{tail}: either the study did not search far "
+                f"enough or the model's structure differs from this dryer's")
 
     def as_dict(self) -> dict[str, object]:
         return {"temperature_target_K": self.temperature_target,

@@ -14,7 +14,7 @@
 4. name the cause and write the evidence (:mod:`.evidence`);
 5. give every cause its probability (:mod:`.posterior`), with every cause's signature on this
    day and the size the normal can see of it (:mod:`.detectability`), and say where the two
-   most probable causes cannot be told apart on this day's data.
+   most probable causes cannot be told apart on this day's data and what data would.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
 (:meth:`Diagnosis.to_json`) and feeds the report page
@@ -168,6 +168,8 @@ class Diagnosis:
             "cannot_tell": [] if self.undecided is None else self.undecided["causes"],
             "cannot_tell_collinearity": None if self.undecided is None
             else self.undecided["collinearity"],
+            "cannot_tell_separate": None if self.undecided is None
+            else self.undecided["separate"],
             "detectability": {c: sg.to_json() for c, sg in self.signatures.items()},
             "parameters": {k: _num(x) for k, x in zip(PARAMETER_NAMES, p.theta, strict=True)},
             "timings_s": {k: round(x, 2) for k, x in self.timings.items()},

@@ -81,6 +81,10 @@ def _cause_words(entry: Mapping[str, Any]) -> str:
     return str(entry.get("cause")) + (f" on {entry['channel']}" if entry.get("channel") else "")
 
 
+#: ``|cos|`` of two signatures above which the sentence says both leave the same trace.
+SAME_TRACE = 0.9
+
+
 def cannot_tell_sentence(doc: Mapping[str, Any]) -> str:
     """The sentence that names both causes the record cannot tell apart (REPORT.json
     ``cannot_tell``), or ``""``."""
@@ -88,10 +92,14 @@ def cannot_tell_sentence(doc: Mapping[str, Any]) -> str:
     if len(both) < 2:
         return ""
     a, b = both[0], both[1]
+    cos = doc.get("cannot_tell_collinearity")
+    why = ("both would leave nearly the same trace in the data" if cos is not None
+           and float(cos) >= SAME_TRACE else "its evidence does not separate them")
+    separate = doc.get("cannot_tell_separate")
     return (f"This record cannot tell {_cause_words(a)} (probability "
             f"{float(a['probability']):.0%}) from {_cause_words(b)} "
-            f"({float(b['probability']):.0%}): on this day both would leave nearly the same "
-            f"trace in the data; check both.")
+            f"({float(b['probability']):.0%}): on this day {why}; check both"
+            + (f". What would separate them: {separate}." if separate else "."))
 
 
 def diagnosis_verdict(doc: Mapping[str, Any]) -> str:

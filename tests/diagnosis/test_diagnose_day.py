@@ -222,10 +222,6 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "measured at base 20261121: 17 of 24 days right, the three lab delays named input_lag "
-    "(an undone lag of T_air_in moves the outlet moisture at the lab times as a stamp error "
-    "does); fails its 90 % target until the two are told apart"))
 def test_randomised_days_are_named_correctly(cfg):
     """24 random days (3 per cause, 6 clean) of a plant with shifted true parameters, one
     calibration (40 trials and the polish) on a clean 48 h day of it: at least 90 % named
@@ -235,11 +231,12 @@ def test_randomised_days_are_named_correctly(cfg):
     (issue 4), and a calibration that fits its day to the noise but extrapolates badly makes an
     error on other days that depends on the ambient conditions. Measured at base 20261121 with
     the diagnosis against the calibration error (stop 17): 17 of 24 right, one clean day
-    named ``unexplained``; the three lab delays were named ``input_lag`` (an undone lag of
-    ``T_air_in`` moves the model's outlet moisture at the lab sample times in time, as a
-    stamp error does), which the target (90 %) does not allow: this test fails until the two
-    are told apart (hence ``xfail(strict=True)``: a pass is reported, so the marker goes
-    when they are). Before that change the same base gave 24 of 24. A day counts as right
+    named ``unexplained``; the three lab delays were named ``input_lag``: the undone lag took
+    the air's slope at the lab times between neighbouring one-minute bins, which put the
+    sensor's noise into the model's outlet moisture there, as a stamp error does (the test
+    was ``xfail(strict=True)`` until they were told apart). With the slope over one window
+    either side (issue 39, :func:`~softsensor.diagnosis.day_windows.delagged_air`) the same
+    base gives 24 of 24 again, and the marker is gone. A day counts as right
     only when :func:`check` finds nothing: the cause, the channel and a positive held-out
     gain.
     """

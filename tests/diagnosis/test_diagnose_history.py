@@ -4,19 +4,23 @@ against the plant's normal learned from its history (issue 22).
 The independent plant (:mod:`softsensor.plant.independent`) shares no equation with the
 model, so the calibrated model misses it on every day; a clean day of it must read as normal
 and an effect day must stand out. Here, as a process engineer would hand it over: four clean
-days of one plant (plant seed 11, day seeds 100 to 103) give the model error
+days of one plant (plant seed 8101, day seeds 100 to 103) give the model error
 (:func:`~softsensor.calibration.model_error_fit.fit_model_error`, PARAMS.toml's
 ``[model_error]``) at the config's parameters, and ``diagnose`` judges fresh days of the same
 plant against it. The seeds are fixed (the default suite is deterministic); the magnitudes
 are in the upper half of each effect's detectable range (:data:`softsensor.plant.effects.
-EFFECTS`), where the benchmark names them on every tuning plant.
+EFFECTS`), where the benchmark names them on every tuning plant. The plant is fresh (issue
+39 item 4): no threshold of the diagnosis was set on it. The thresholds of the
+probabilities below were set on the tuning plants 11 and 12 (``benchmarks/
+diagnosis_temperature.py``, ``benchmarks/results/diagnosis_calibration.json``) and are
+asserted here on another plant, at the shipped temperature and contamination.
 
 What this checks is the part of the capability that holds on every plant measured
 (``benchmarks/open_world.py --parts diagnosis``, docs/results/diagnosis.md): an inlet-moisture
 excursion and a lagging ``T_air_in`` sensor are named with a positive held-out gain, and
 this clean day is ``none``. It does not show what the history adds: on these 16 h days the
 three cases are also named without it (the config's floors), and the clean days are where
-a short history hurts. Measured on this plant with this history (``_plant_with_history``
+a short history hurts. Measured on plant 11 with this history (``_plant_with_history``
 below, then ``diagnose`` on clean day seeds 201 to 206): with the history's
 normal 2 of 6 clean 16 h days are ``none`` (the others ``unexplained`` or
 ``ambient_heat_loss``), with the config's floors 5 of 6; on 48 h days with four 48 h history
@@ -45,7 +49,12 @@ from softsensor.plantconfig import load_parameters, load_plant_config
 
 #: Record length of every day [h] (the benchmark's are 48 h; 16 h keeps the suite short).
 HOURS = 16.0
-PLANT = 11
+PLANT = 8101
+#: The probability of the named cause, below which a right verdict on this fresh plant fails:
+#: just under the least that a right verdict of its kind got on the 32 tuning days (plants
+#: 11 and 12: a right ``none`` 0.57 to 0.61, a right extension 0.84 to 0.88; the ceiling of
+#: an extension is 0.88, posterior.CONTAMINATION).
+RIGHT_NONE, RIGHT_EFFECT = 0.55, 0.8
 HISTORY_SEEDS = (100, 101, 102, 103)
 #: (cause, magnitude, day seed): magnitudes in the upper half of the detectable range.
 CASES = (("none", None, 201), ("inlet_moisture", 0.2, 201), ("input_lag", 15.0, 202))
@@ -79,13 +88,12 @@ def test_hidden_effect_is_named_against_the_plants_normal(plant, cause, magnitud
     assert doc["cause"] == cause, why
     if cause != "none":
         assert doc["gain"] > 0.05, why
-    # issue 33: a probability for every cause; the cause is the most probable one, an
-    # effect in the upper half of its range by far, a clean day's none as far as the tuning
-    # days' misses allow (posterior.TEMPERATURE: a named none is right about half the time)
+    # issue 33: a probability for every cause; the cause is the most probable one, as
+    # probable as a right verdict of its kind was on the tuning plants (RIGHT_*)
     probs = doc["probabilities"]
     assert sum(p["probability"] for p in probs) == pytest.approx(1.0, abs=1e-5)
     assert probs[0]["cause"] == doc["cause"], probs
-    assert probs[0]["probability"] > (0.4 if cause == "none" else 0.9), probs
+    assert probs[0]["probability"] > (RIGHT_NONE if cause == "none" else RIGHT_EFFECT), probs
     assert {p["cause"] for p in probs} >= {"none", "unexplained", "lab_delay"}
     assert doc["cannot_tell"] == [], doc["cannot_tell"]
 

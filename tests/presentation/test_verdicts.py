@@ -42,6 +42,25 @@ def test_none_and_unexplained_say_what_to_do():
     assert "none of the known causes" in diagnosis_verdict({"cause": "unexplained"})
 
 
+def test_cannot_tell_says_both_and_what_would_separate_them():
+    """Issue 39 item 3: a pair without signatures to compare (an extension against
+    ``unexplained``) is said as evidence that does not separate them, with the data that
+    would; two collinear signatures as the same trace."""
+    pair = [{"cause": "lab_delay", "channel": None, "probability": 0.41},
+            {"cause": "unexplained", "channel": None, "probability": 0.33}]
+    doc = {"cause": "lab_delay", "ranking": [], "cannot_tell": pair,
+           "cannot_tell_collinearity": None,
+           "cannot_tell_separate": "for lab_delay, lab samples while the moisture moves"}
+    text = diagnosis_verdict(doc)
+    assert text.startswith("This record cannot tell lab_delay (probability 41%) from "
+                           "unexplained (33%): on this day its evidence does not separate "
+                           "them; check both. What would separate them: for lab_delay, lab "
+                           "samples while the moisture moves."), text
+    same = dict(doc, cannot_tell_collinearity=0.97, cannot_tell_separate=None)
+    assert "both would leave nearly the same trace in the data; check both." in \
+        diagnosis_verdict(same)
+
+
 def test_calibration_verdict_in_celsius_and_moisture_points():
     old = {"T_dryer_out": 2.5, "T_cyclone_out": 3.0, "moisture_out": 0.02}
     new = {"T_dryer_out": 0.8, "T_cyclone_out": 0.9, "moisture_out": 0.01}
