@@ -8,6 +8,8 @@ kinds are estimated beside the peers and the plant's own perfect-model floor:
   recorded ``m_air`` stays flat (:class:`softsensor.plant.independent.UnmeasuredFlow`);
 * ``input_lag``: the ``T_air_in`` reading lags the truth by 10 to 25 min (CONTRACT cause);
 * ``moves``: production changes every 1 to 2 h, each with a set-point move;
+* ``inlet``: the inlet moisture steps and drifts by 0.08 to 0.2 kg/kg (CONTRACT cause): the
+  change the temperatures should be read as;
 * ``none``: a clean day.
 
 Per day: the outlet-moisture RMSE of the published estimate, the physics alone, holding the
@@ -54,7 +56,7 @@ from softsensor.plantconfig import (  # noqa: E402
     with_table,
 )
 
-KINDS = ("none", "surge", "input_lag", "moves")
+KINDS = ("none", "surge", "input_lag", "moves", "inlet")
 
 
 def swing(x: np.ndarray) -> float:
@@ -94,6 +96,9 @@ def event_day(base: PlantConfig, hours: float, kind: str, plant_seed: int, seed:
         info["lag_min"] = magnitude
     elif kind == "moves":
         config = moves_config(base)
+    elif kind == "inlet":
+        effect, magnitude = "inlet_moisture", float(rng.uniform(0.08, 0.2))
+        info["inlet_step"] = magnitude
     day = simulate_independent_day(config, hours, seed, effect, magnitude,
                                    plant_seed=plant_seed, start_ns=start,
                                    unmeasured_flow=flow)

@@ -124,16 +124,6 @@ def _normalised(log_w: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return e / e.sum()
 
 
-def _inverse_mse(sources: list[Source], msz: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Weights inversely proportional to each source's recent mean squared lab error
-    (``msz`` times its predictive variance): Bates and Granger's combination (Oper. Res.
-    Q. 20:451, 1969), which averages estimates whose errors differ instead of picking one."""
-    mse = np.array([m * src.predictive**2 if src.ok else math.inf
-                    for m, src in zip(np.maximum(msz, 1e-6), sources, strict=True)])
-    inv = np.where(ok & np.isfinite(mse) & (mse > 0), 1.0 / np.where(mse > 0, mse, 1.0), 0.0)
-    return inv / inv.sum() if inv.sum() > 0 else inv
-
-
 def _mixture(sources: list[Source], w: np.ndarray) -> tuple[float, float]:
     """Mean and band sd of the mixture of ``sources`` weighted ``w`` (zero weights skipped)."""
     used = [(wi, src) for wi, src in zip(w, sources, strict=True) if wi > 0]
@@ -205,12 +195,8 @@ def advance(s: EstimatorSettings, reg: LabRegression | None, state: dict[str, An
                             None if hold is None else hold[1], window.end_ns),
                _regression_source(s, reg, st["bias"], reg_now)]
     ok = np.array([src.ok for src in sources])
-    if not s.peer_blend:
-        w = np.array([1.0 if sources[0].ok else 0.0, 0.0, 0.0])
-    elif s.peer_weighting == "inverse_mse" and int(st["labs"]) > 0:
-        w = _inverse_mse(sources, scored.msz, ok)
-    else:
-        w = _normalised(scored.log_w, ok)
+    w = (_normalised(scored.log_w, ok) if s.peer_blend
+         else np.array([1.0 if sources[0].ok else 0.0, 0.0, 0.0]))
     mixture = None
     if w.sum() > 0:
         mean, band = _mixture(sources, w)

@@ -262,9 +262,9 @@ def measurements(filt: FilterModel, tick: TickData, g: np.ndarray, g_var: np.nda
 
 def transient_variance(filt: FilterModel, window: Window) -> float:
     """Variance [K^2] added to each outlet temperature of ``window`` while the inlet air
-    temperature moves inside it: ``(estimator.transient_fraction * heat_gain * range)^2``,
-    with ``range`` the spread of ``T_air_in``'s sub-window bin means [K] and ``heat_gain``
-    the model's outlet-temperature gain [K/K].
+    temperature moves inside it: ``(f * heat_gain * range)^2``, with ``range`` the spread of
+    ``T_air_in``'s sub-window bin means [K], ``heat_gain`` the model's outlet-temperature
+    gain [K/K] and ``f`` ``estimator.transient_fraction``.
 
     The model steps the window at its mean inputs, and a thermometer that lags, a flow that
     surges or a production move put the plant's outlet temperatures off that mean response
@@ -272,11 +272,11 @@ def transient_variance(filt: FilterModel, window: Window) -> float:
     such move shows on ``T_air_in``. Without this term the filter reads each transient as an
     inlet-moisture jump and publishes a spike (0.02-0.05 kg/kg at every move on the
     independent plant's lag and production-move days)."""
-    frac = filt.settings.transient_fraction
     vals = [v for v in window.bins.get("T_air_in", ()) if v is not None and math.isfinite(v)]
-    if frac <= 0.0 or len(vals) < 2:
+    if len(vals) < 2:
         return 0.0
-    return (frac * filt.heat_gain * (max(vals) - min(vals))) ** 2
+    f = filt.settings.transient_fraction
+    return (f * filt.heat_gain * (max(vals) - min(vals))) ** 2
 
 
 def _sigma_outputs(filt: FilterModel, x: np.ndarray, P: np.ndarray, u: np.ndarray,

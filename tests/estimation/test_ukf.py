@@ -33,6 +33,7 @@ from softsensor.estimation.state_space import (
 )
 from softsensor.estimation.tick_history import FilterState
 from softsensor.estimation.ukf import UkfEstimator
+from softsensor.estimation.ukf_step import TickData, measurements, transient_variance
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import SCAN_SIGNALS
 from softsensor.windows.inputs import InputHold
@@ -777,6 +778,26 @@ def test_a_checkpoint_of_another_calibration_keeps_the_inlet_and_reseeds_the_res
     assert recalibrated._dirty == 0                                # kept hours run again
     rest = run(recalibrated, wins[20:], {})
     assert all(abs(r["moisture_in"] - 1.12) < 0.05 for r in rest[:3])
+
+
+def test_a_moving_inlet_air_temperature_widens_the_temperature_rows():
+    """The temperature rows' variance grows by (transient_fraction * heat_gain * spread)^2
+    with the spread of T_air_in's bin means inside the window (ukf_step.transient_variance);
+    the lab rows keep theirs, and a calm window has none."""
+    est = make()
+    f = est.filter
+    base = window(0, 485.0, (float(Y0[0]), float(Y0[1])))
+    spread = [475.0 + 2.0 * i for i in range(10)]  # 60 s bins from 475 to 493 K
+    moving = dataclasses.replace(base, bin_s=60.0, bins={"T_air_in": spread})
+    assert transient_variance(f, base) == 0.0
+    extra = (f.settings.transient_fraction * f.heat_gain * 18.0) ** 2
+    assert transient_variance(f, moving) == pytest.approx(extra)
+    labs = (lab(0, 0.1, "L"),)
+    zero = np.zeros(3)
+    calm = measurements(f, TickData(base, est._hold.inputs(base)[0], labs), zero, zero)
+    swung = measurements(f, TickData(moving, est._hold.inputs(moving)[0], labs), zero, zero)
+    assert calm.rows == swung.rows == [0, 1, 2]
+    np.testing.assert_allclose(np.diag(swung.R) - np.diag(calm.R), [extra, extra, 0.0])
 
 
 def test_restore_refuses_a_foreign_checkpoint():
