@@ -310,7 +310,7 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         rec["simulate_s"] = round(time.perf_counter() - t0, 1)
         base = ctx.base
         key = _digest([ctx.kind, rec["plant_seed"], rec["history_seeds"], ctx.hours,
-                       ctx.trials, ctx.truth.parameter_vector().tolist(), "v3"]
+                       ctx.trials, ctx.truth.parameter_vector().tolist(), "v4"]
                       + ([ctx.cost] if ctx.cost else [])
                       + (["structure"] if ctx.structure else []))
         folder = ctx.cache / "calibration" if ctx.cache else ctx.work
@@ -369,10 +369,11 @@ def _calibration_summary(hist: Any) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------- part 2
-def run_estimator(config: PlantConfig, day: SimulatedDay) -> dict[str, np.ndarray]:
-    """Tick the UKF over ``day`` as the estimator service does; per-tick arrays and the
-    truth at each tick's end."""
-    est = UkfEstimator(config)
+def run_estimator(config: PlantConfig, day: SimulatedDay, est: UkfEstimator | None = None
+                  ) -> dict[str, np.ndarray]:
+    """Tick the UKF over ``day`` as the estimator service does (``est``, or a fresh one on
+    ``config``); per-tick arrays and the truth at each tick's end."""
+    est = est if est is not None else UkfEstimator(config)
     windows = windows_from_frame(day.scans, window_settings(config))
     labs = sorted((LabResult(int(r.sample_time_ns), float(r.moisture_out), str(r.sample_id),
                              int(r.log_time_ns)) for r in day.labs.itertuples(index=False)),

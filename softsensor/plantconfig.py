@@ -18,6 +18,8 @@ with one line naming the file and the dotted key.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -306,6 +308,28 @@ def section_of(cfg: PlantConfig, name: str, cls: type[T]) -> T:
     have defaults (the defaults when the table is absent)."""
     return built_table(cfg, name, lambda c: build_section(cls, c.extra.get(name, {}), name,
                                                           c.source))
+
+
+#: The sections that make the model (its geometry, fibre, gas and numerics, with what a
+#: PARAMS.toml ``[structure]`` changed in them), for :func:`made_with`.
+MODEL_SECTIONS: tuple[str, ...] = ("tube", "cyclone", "fiber", "hot_gas", "environment",
+                                   "solver")
+
+
+def made_with(cfg: PlantConfig) -> dict[str, str]:
+    """Short digests of what an estimator's state is made with: the parameter values, the
+    model's structure (:data:`MODEL_SECTIONS`) and PARAMS.toml's ``[discrepancy]``,
+    ``[model_error]`` and ``[regression]``. A checkpoint carries them, so that a state made
+    with one calibration is never continued under another as if nothing had changed."""
+
+    def digest(x: Any) -> str:
+        text = json.dumps(x, sort_keys=True, default=repr)
+        return hashlib.sha256(text.encode()).hexdigest()[:12]
+
+    return {"parameters": digest(cfg.parameter_vector().tolist()),
+            "structure": digest({k: repr(getattr(cfg, k)) for k in MODEL_SECTIONS}),
+            **{k: digest(cfg.extra.get(k)) for k in ("discrepancy", "model_error",
+                                                      "regression")}}
 
 
 def with_table(cfg: PlantConfig, name: str, table: dict[str, Any]) -> PlantConfig:

@@ -42,6 +42,12 @@ from softsensor.calibration.dataset import DayLike, Segment
 from softsensor.calibration.model_error_fit import fit_model_error
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.selection import WindowChoice, select_across, select_windows
+from softsensor.calibration.sensor_score import (
+    SCORE_DAYS,
+    deployable,
+    latest_days,
+    sensor_score,
+)
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.structure_search import Candidate, StructureSearch
 from softsensor.calibration.structure_search import search as structural_search
@@ -199,6 +205,9 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                        result.trade_off, structure, seed=settings.seed,
                                        say=say)
         if search.adopted is not None:
+            with phase("sensor_score", timings, say):
+                search = sensor_decides(search, days, config, model, theta, result)
+        if search.adopted is not None:
             config = config.with_keys(search.adopted.keys)
             model, theta, kept = DryerModel(config), search.adopted.theta, False
             reason = f"calibrated with the structure '{search.adopted.candidate.name}'"
@@ -216,6 +225,36 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
 
 
+def sensor_decides(search: StructureSearch, days: Sequence[Segment], config: PlantConfig,
+                   model: DryerModel, theta: np.ndarray, result: CalibrationResult
+                   ) -> StructureSearch:
+    """The structure the held-out evidence chose, kept only when the estimator does at least
+    as well with it on the latest days (:mod:`.sensor_score`): each side deployed as
+    PARAMS.toml would deploy it, its own model error learned on the history."""
+    adopted = search.adopted
+    assert adopted is not None
+    alt_config = config.with_keys(adopted.keys)
+    scores = {}
+    for name, cfg, mdl, th in (("baseline", config, model, theta),
+                               (adopted.candidate.name, alt_config, DryerModel(alt_config),
+                                adopted.theta)):
+        levels = inlet_levels(mdl, days, th, result)
+        me = fit_model_error(mdl, days, th, float(np.mean(levels)),
+                             float(np.std(levels)) if len(levels) > 1 else 0.0,
+                             levels[int(np.argmax([d.start_ns for d in days]))])
+        scores[name] = sensor_score(deployable(cfg, th, me, result.discrepancy),
+                                    latest_days(days))
+    base, alt = scores["baseline"], scores[adopted.candidate.name]
+    record = {"days": min(len(days), SCORE_DAYS),
+              **{k: v.as_dict() for k, v in scores.items()}}
+    if alt.log_score >= base.log_score:
+        return dataclasses.replace(search, sensor=record)
+    return search.overruled(
+        f"the estimator's lab score on the latest days is worse with it ({alt.log_score:.2f} "
+        f"against {base.log_score:.2f}; RMSE {alt.rmse:.4f} against {base.rmse:.4f} kg/kg)",
+        record)
+
+
 def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, str | None]:
     """The lab regression on the history (PARAMS.toml's ``[regression]``, the peer the
     estimator runs beside its physics) on the signals every day scanned, and None; or None
@@ -230,4 +269,4 @@ def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, s
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
-           "history_regression", "inlet_levels", "validation_pieces"]
+           "history_regression", "inlet_levels", "sensor_decides", "validation_pieces"]

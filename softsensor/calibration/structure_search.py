@@ -165,6 +165,15 @@ class StructureSearch:
     baseline_score: float
     baseline_held_out: dict[str, float]
     candidates: list[Scored]
+    #: the estimator's prequential lab score of the baseline and of the alternative the
+    #: held-out evidence chose (:mod:`.sensor_score`), when it was asked
+    sensor: dict[str, Any] | None = None
+
+    def overruled(self, why: str, sensor: dict[str, Any]) -> StructureSearch:
+        """This search with its adopted alternative set aside by the sensor's score."""
+        cands = [dataclasses.replace(c, adopted=False, why_not=why) if c.adopted else c
+                 for c in self.candidates]
+        return dataclasses.replace(self, candidates=cands, sensor=sensor)
 
     @property
     def adopted(self) -> Scored | None:
@@ -186,7 +195,7 @@ class StructureSearch:
         return {"baseline_score": self.baseline_score,
                 "baseline_held_out_rmse": self.baseline_held_out,
                 "adopted": None if self.adopted is None else self.adopted.candidate.name,
-                "candidates": [c.row() for c in self.candidates]}
+                "candidates": [c.row() for c in self.candidates], "sensor": self.sensor}
 
     def params_table(self) -> dict[str, Any] | None:
         """PARAMS.toml's ``[structure]``: the adopted keys as nested tables and the evidence
@@ -203,6 +212,7 @@ class StructureSearch:
             node[key] = v
         out["evidence"] = {"adopted": a.candidate.name, "source": a.candidate.source,
                            "gain": a.gain, "baseline_score": self.baseline_score,
+                           **({"sensor": self.sensor} if self.sensor else {}),
                            "candidates": [{k: v for k, v in c.row().items()
                                            if k in ("name", "gain", "adopted", "why_not",
                                                     "held_out_rmse")}

@@ -108,7 +108,7 @@ from softsensor.estimation.state_space import (
 from softsensor.estimation.tick_history import FilterState, LabBook, TickRecord
 from softsensor.estimation.ukf_step import FilterModel, TickData, step
 from softsensor.estimation.unscented import MerweScaledSigmaPoints
-from softsensor.plantconfig import PlantConfig
+from softsensor.plantconfig import PlantConfig, made_with
 from softsensor.signals import INPUT_NAMES
 from softsensor.windows.inputs import InputHold
 
@@ -248,16 +248,28 @@ class UkfEstimator(ModelEstimator):
         return None
 
     def checkpoint(self) -> dict[str, Any]:
-        """JSON-able snapshot: filter state, history, labs, held inputs."""
+        """JSON-able snapshot: filter state, history, labs, held inputs, and what the state
+        was made with (:func:`~softsensor.plantconfig.made_with`)."""
         return {"kind": self.kind, "version": _CHECKPOINT_VERSION,
+                "made_with": made_with(self.config),
                 "state": self._state.to_json(), "hold": self._hold.last.tolist(),
                 "labs": self._labs.to_json(), "dirty": self._dirty,
                 "gate_streak": self._gate_streak, "taken_outlier": self._taken,
                 "history": [r.to_json() for r in self._history]}
 
     def restore(self, snapshot: dict[str, Any]) -> None:
-        """Continue from :meth:`checkpoint` output; EstimationError if it does not fit."""
+        """Continue from :meth:`checkpoint` output; EstimationError if it does not fit.
+
+        A checkpoint made with another calibration (parameters, structure, model error,
+        discrepancy or regression: :func:`~softsensor.plantconfig.made_with`) keeps what the
+        plant is doing, the inlet moisture and its variance, and starts the rest afresh from
+        this calibration's priors: the model's error states, the walls, the noise
+        adaptation and the peers' weights belong to the old model and would pass its errors
+        off as the new one's (:meth:`_reseeded`). The kept hours are filtered again with the
+        new model at the next tick, so late lab results still find their ticks.
+        """
         self._check_snapshot(snapshot, _CHECKPOINT_VERSION)
+        fresh = self._state
         try:
             state = FilterState.from_json(snapshot["state"])
             history = [TickRecord.from_json(r) for r in snapshot["history"]]
@@ -281,10 +293,32 @@ class UkfEstimator(ModelEstimator):
                                   f"P{state.P.shape} hold{hold.shape}, expected ({n},), "
                                   f"({n}, {n}) and ({m},)")
         _check_state(state.x, state.P, hold)
+        old = snapshot.get("made_with")  # absent from checkpoints before issue 38
+        changed = [] if old is None else [k for k, v in made_with(self.config).items()
+                                          if old.get(k) != v]
+        if changed:
+            state = self._reseeded(fresh, state)
+            if history:
+                history[0] = replace(history[0], start=self._reseeded(fresh, history[0].start))
+                dirty = 0
+            log.warning("checkpoint made with another %s: the inlet moisture carried "
+                        "(%.3f kg/kg), the model's error states started afresh from this "
+                        "calibration's priors%s", ", ".join(changed),
+                        float(self.inlet.forward(state.x[X_IN])),
+                        f", the kept {len(history)} ticks filtered again" if history else "")
         self._state, self._history, self._labs = state, history, labs
         self._hold = InputHold(hold)
         self._dirty = None if dirty is None else int(dirty)
         self._gate_streak, self._taken = streak, taken
+
+    @staticmethod
+    def _reseeded(fresh: FilterState, old: FilterState) -> FilterState:
+        """``fresh`` (this calibration's start) with ``old``'s inlet moisture and variance."""
+        x, P = fresh.x.copy(), fresh.P.copy()
+        x[X_IN] = old.x[X_IN]
+        P[X_IN, :] = P[:, X_IN] = 0.0
+        P[X_IN, X_IN] = old.P[X_IN, X_IN]
+        return FilterState(x, P, None, dict(fresh.adapt))
 
     # ------------------------------------------------------------------ lab screening
     def _screen(self, lab: LabResult, estimate: Estimate | None) -> str | None:

@@ -244,8 +244,9 @@ def measurements(filt: FilterModel, tick: TickData, g: np.ndarray, g_var: np.nda
     temps = temperatures(tick.window, s.temperature_sensor_std, s.temperature_model_std)
     rows = list(temps.channels)
     values = [v - g[c] for c, v in zip(temps.channels, temps.values, strict=True)]
+    moving = transient_variance(filt, tick.window)
     var = [(v if me is None else max(v, me.channel(OUTPUT_NAMES[c]).noise ** 2)) + g_var[c]
-           for c, v in zip(temps.channels, temps.variances, strict=True)]
+           + moving for c, v in zip(temps.channels, temps.variances, strict=True)]
     names = [OUTPUT_NAMES[c] for c in temps.channels]
     channels = list(temps.channels)
     lab_var = (s.lab_std**2 + s.moisture_out_jitter_std**2 if me is None
@@ -257,6 +258,25 @@ def measurements(filt: FilterModel, tick: TickData, g: np.ndarray, g_var: np.nda
         names.append("moisture_out (lab)")
         channels.append(ADAPT_CHANNELS.index("moisture_out"))
     return Measurements(rows, np.array(values, float), np.diag(var), names, channels)
+
+
+def transient_variance(filt: FilterModel, window: Window) -> float:
+    """Variance [K^2] added to each outlet temperature of ``window`` while the inlet air
+    temperature moves inside it: ``(f * heat_gain * range)^2``, with ``range`` the spread of
+    ``T_air_in``'s sub-window bin means [K], ``heat_gain`` the model's outlet-temperature
+    gain [K/K] and ``f`` ``estimator.transient_fraction``.
+
+    The model steps the window at its mean inputs, and a thermometer that lags, a flow that
+    surges or a production move put the plant's outlet temperatures off that mean response
+    by a part of the move that no state of the filter stands for. Under the outlet loop every
+    such move shows on ``T_air_in``. Without this term the filter reads each transient as an
+    inlet-moisture jump and publishes a spike (0.02-0.05 kg/kg at every move on the
+    independent plant's lag and production-move days)."""
+    vals = [v for v in window.bins.get("T_air_in", ()) if v is not None and math.isfinite(v)]
+    if len(vals) < 2:
+        return 0.0
+    f = filt.settings.transient_fraction
+    return (f * filt.heat_gain * (max(vals) - min(vals))) ** 2
 
 
 def _sigma_outputs(filt: FilterModel, x: np.ndarray, P: np.ndarray, u: np.ndarray,
@@ -450,4 +470,5 @@ def inlet_moments(filt: FilterModel, x: np.ndarray, P: np.ndarray) -> tuple[floa
 
 
 __all__ = ["ROW_OFFSET", "FilterModel", "JointLayout", "Measurements", "Posterior", "TickData",
-           "inlet_moments", "learned_offsets", "measurements", "step"]
+           "inlet_moments", "learned_offsets", "measurements", "step",
+           "transient_variance"]

@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from softsensor.calibration.dataset import segment_from_day
-from softsensor.calibration.history_calibration import calibrate_history
+from softsensor.calibration.history_calibration import calibrate_history, sensor_decides
 from softsensor.calibration.optimize import StudySettings
 from softsensor.calibration.params_file import params_document, write_params
 from softsensor.calibration.settings import calibration_settings
-from softsensor.calibration.structure_search import default_library
+from softsensor.calibration.structure_search import Scored, default_library
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
@@ -75,6 +75,11 @@ def test_a_hidden_drying_law_is_named_and_deployed(cdc_history, tmp_path):
     assert search is not None and search.adopted is not None, search.as_dict()
     assert search.adopted.candidate.name == LIBRARY[0], search.line()
     assert search.adopted.gain > 0
+    # the estimator, run on the latest days with each side deployed, confirms it
+    sensor = search.sensor
+    assert sensor is not None and sensor["days"] == 2, search.as_dict()
+    assert sensor[LIBRARY[0]]["log_score"] >= sensor["baseline"]["log_score"], sensor
+    assert sensor["baseline"]["n"] == sensor[LIBRARY[0]]["n"] > 0
     t, m = search.adopted.point()
     assert t < 1.0 and m < 0.006, (t, m)
     # PARAMS.toml carries the structure and loading it builds the model with it
@@ -87,11 +92,32 @@ def test_a_hidden_drying_law_is_named_and_deployed(cdc_history, tmp_path):
     assert DryerModel(cfg).theta0 == pytest.approx(hist.theta)
 
 
-def test_the_paper_form_keeps_the_paper_form():
+@pytest.fixture(scope="module")
+def paper_history():
     days = _history(BASE.with_parameters(TRUTH))
-    hist = _calibrate(days, _library(LIBRARY))
+    return days, _calibrate(days, _library(LIBRARY))
+
+
+def test_the_paper_form_keeps_the_paper_form(paper_history):
+    _, hist = paper_history
     assert hist.structure.adopted is None, hist.structure.line()
     assert hist.structure.line().startswith("structure: the paper's form kept")
+
+
+def test_the_estimator_overrules_a_structure_that_makes_it_worse(paper_history):
+    """A wrong drying law that the held-out evidence had chosen (here: set by hand on the
+    paper form's plant) is set aside when the estimator predicts the labs worse with it."""
+    days, hist = paper_history
+    decoy = _library(LIBRARY[2:])[0]
+    cfg = decoy.config(BASE.with_parameters(hist.theta))
+    chosen = Scored(decoy, decoy.keys(cfg), cfg.parameter_vector(), {}, {}, 0.0, 1.0,
+                    adopted=True)
+    search = dataclasses.replace(hist.structure, candidates=[chosen])
+    out = sensor_decides(search, days, BASE, DryerModel(BASE), hist.theta, hist.calibration)
+    assert out.adopted is None
+    assert out.candidates[0].why_not.startswith("the estimator's lab score on the latest days")
+    sensor = out.sensor
+    assert sensor["baseline"]["log_score"] > sensor[decoy.name]["log_score"], sensor
 
 
 def test_a_bad_structure_table_is_one_line(tmp_path):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
 
 import numpy as np
@@ -30,7 +31,9 @@ from softsensor.estimation.state_space import (
     ErrorPriors,
     InletTransform,
 )
+from softsensor.estimation.tick_history import FilterState
 from softsensor.estimation.ukf import UkfEstimator
+from softsensor.estimation.ukf_step import TickData, measurements, transient_variance
 from softsensor.plantconfig import load_plant_config
 from softsensor.signals import SCAN_SIGNALS
 from softsensor.windows.inputs import InputHold
@@ -745,6 +748,56 @@ def test_restart_from_checkpoint_continues_the_same_estimate():
     assert second.add_lab(deliveries[12][0]) is not None     # duplicates remembered
     rest = run(second, wins[20:], {k - 20: v for k, v in deliveries.items() if k > 20})
     assert rest == straight[20:]
+
+
+def test_a_checkpoint_of_another_calibration_keeps_the_inlet_and_reseeds_the_rest(caplog):
+    wins, truth = synthetic_day(40, seed=17, x_in=lambda k: 1.12)
+    deliveries = {12: [lab(9, truth[9, 1] + 0.01, "A")], 18: [lab(16, truth[16, 1] + 0.01, "B")]}
+    first = make(**CALIBRATED)
+    run(first, wins[:20], deliveries)
+    snap = json.loads(json.dumps(first.checkpoint(), allow_nan=False))
+    old = FilterState.from_json(snap["state"])
+    assert abs(first.inlet.forward(old.x[X_IN]) - 1.12) < 0.03   # it had found the inlet
+    assert abs(old.x[X_BIAS]) > 1e-3                               # and learned a bias
+
+    same = make(**CALIBRATED)
+    same.restore(snap)                                             # the same calibration
+    assert np.array_equal(same._state.x, old.x)
+
+    recalibrated = UkfEstimator(CFG.with_parameters({"mult_h": 1.1}),
+                                dataclasses.replace(EstimatorSettings(), **CALIBRATED),
+                                model=LinearDryer())
+    fresh = recalibrated._state
+    with caplog.at_level(logging.WARNING, logger="softsensor.estimation.ukf"):
+        recalibrated.restore(snap)
+    assert "checkpoint made with another parameters" in caplog.text
+    new = recalibrated._state
+    assert new.x[X_IN] == old.x[X_IN] and new.P[X_IN, X_IN] == old.P[X_IN, X_IN]
+    assert np.array_equal(new.x[1:], fresh.x[1:])                  # the old bias is gone
+    assert np.array_equal(new.P[1:, 1:], fresh.P[1:, 1:]) and new.wall is None
+    assert recalibrated._dirty == 0                                # kept hours run again
+    rest = run(recalibrated, wins[20:], {})
+    assert all(abs(r["moisture_in"] - 1.12) < 0.05 for r in rest[:3])
+
+
+def test_a_moving_inlet_air_temperature_widens_the_temperature_rows():
+    """The temperature rows' variance grows by (transient_fraction * heat_gain * spread)^2
+    with the spread of T_air_in's bin means inside the window (ukf_step.transient_variance);
+    the lab rows keep theirs, and a calm window has none."""
+    est = make()
+    f = est.filter
+    base = window(0, 485.0, (float(Y0[0]), float(Y0[1])))
+    spread = [475.0 + 2.0 * i for i in range(10)]  # 60 s bins from 475 to 493 K
+    moving = dataclasses.replace(base, bin_s=60.0, bins={"T_air_in": spread})
+    assert transient_variance(f, base) == 0.0
+    extra = (f.settings.transient_fraction * f.heat_gain * 18.0) ** 2
+    assert transient_variance(f, moving) == pytest.approx(extra)
+    labs = (lab(0, 0.1, "L"),)
+    zero = np.zeros(3)
+    calm = measurements(f, TickData(base, est._hold.inputs(base)[0], labs), zero, zero)
+    swung = measurements(f, TickData(moving, est._hold.inputs(moving)[0], labs), zero, zero)
+    assert calm.rows == swung.rows == [0, 1, 2]
+    np.testing.assert_allclose(np.diag(swung.R) - np.diag(calm.R), [extra, extra, 0.0])
 
 
 def test_restore_refuses_a_foreign_checkpoint():

@@ -11,7 +11,8 @@ day of the same plant seed measures how well the model predicts a dryer it is no
 Entry point::
 
     simulate_independent_day(config, hours, seed, effect=None, magnitude=None, *,
-                             plant_seed=0, start_ns=DEFAULT_START_NS) -> SimulatedDay
+                             plant_seed=0, start_ns=DEFAULT_START_NS, schedule=None,
+                             unmeasured_flow=None) -> SimulatedDay
 
 ``plant_seed`` draws the plant's *structure* from a family and commissions it
 (:mod:`.family`, :mod:`.commissioning`); ``seed`` draws the *day* (disturbances, effect
@@ -46,6 +47,7 @@ from softsensor.jit_cache import configure as _configure_jit_cache
 
 _configure_jit_cache()  # before the plant's kernels are compiled or loaded from the cache
 
+from softsensor.plant.independent.disturbances import UnmeasuredFlow  # noqa: E402
 from softsensor.plant.independent.simulator import simulate_independent_day  # noqa: E402
 
-__all__ = ["simulate_independent_day"]
+__all__ = ["UnmeasuredFlow", "simulate_independent_day"]

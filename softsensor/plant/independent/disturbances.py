@@ -47,6 +47,28 @@ class Day:
     Y_hot: np.ndarray         # kg/kg
 
 
+@dataclass(frozen=True)
+class UnmeasuredFlow:
+    """A surge of the fan's flow its meter does not see: the true gas flow is the day's times
+    ``1 + amplitude sin(2 pi t / period_s + phase)`` (a damper hunting, a leaking inspection
+    door, a fan whose speed loop oscillates) while the recorded ``m_air`` keeps the day's own.
+    ``amplitude`` [-] relative, ``period_s`` [s], ``phase`` [rad]."""
+
+    amplitude: float
+    period_s: float
+    phase: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= self.amplitude < 0.5 and self.period_s > 0.0):
+            raise ValueError(f"unmeasured flow: amplitude in [0, 0.5) and period > 0 s, got "
+                             f"{self.amplitude!r}, {self.period_s!r}")
+
+    def applied(self, t: np.ndarray, m_air: np.ndarray) -> np.ndarray:
+        """The true gas flow [kg/s] at times ``t`` [s] given the day's ``m_air`` [kg/s]."""
+        return m_air * (1.0 + self.amplitude * np.sin(2.0 * np.pi * t / self.period_s
+                                                      + self.phase))
+
+
 def ou(rng: np.random.Generator, n: int, dt: float, tau: float) -> np.ndarray:
     """Unit-variance Ornstein-Uhlenbeck path of ``n`` samples ``dt`` [s] apart, time
     constant ``tau`` [s], started from its stationary distribution."""

@@ -38,7 +38,7 @@ from softsensor.plant.independent.commissioning import (
     operating_point,
 )
 from softsensor.plant.independent.control import PV_FILTER, FlapDrive, VelocityPI, simc_tuning
-from softsensor.plant.independent.disturbances import Day, draw_day
+from softsensor.plant.independent.disturbances import Day, UnmeasuredFlow, draw_day
 from softsensor.plant.independent.effects import Injection, inject
 from softsensor.plant.independent.process import Process
 from softsensor.plant.independent.properties import density, dry_gas_molar_mass
@@ -83,7 +83,7 @@ class _Plant:
     """The process with its delay lines, in the day loop."""
 
     def __init__(self, member: Commissioned, config: PlantConfig, day: Day,
-                 inj: Injection, moisture_in: np.ndarray) -> None:
+                 inj: Injection, moisture_in: np.ndarray, m_gas: np.ndarray) -> None:
         self.process = Process(member.structure, config)
         self.st = member.structure
         self.day = day
@@ -99,7 +99,7 @@ class _Plant:
         U[:, chain.U_X_IN] = moisture_in
         U[:, chain.U_T_FIBER] = d.T_fiber_in
         U[:, chain.U_M_STEAM] = d.m_steam
-        U[:, chain.U_M_GAS] = d.m_air
+        U[:, chain.U_M_GAS] = m_gas  # the fan's true flow (the day's, or a surge's)
         U[:, chain.U_T_AMB] = d.T_amb
         U[:, chain.U_H_AMB] = d.H_amb
         U[:, chain.U_WIND] = d.wind
@@ -203,7 +203,8 @@ def _step_process(plant: _Plant, loop: _Loop, st: Any, k: int, t: float, dt: flo
     T_do = lines["T_dryer_out"].at(t)
     T_co = lines["T_cyclone_out"].at(t)
     truth_k[:6] = (moisture_in, lines["moisture_out"].at(t), T_air, T_do, T_co, day.m_fiber[k])
-    truth_k[6:] = (lines["moisture_tube_out"].at(t), pos, day.m_air[k], day.T_amb[k])
+    truth_k[6:] = (lines["moisture_tube_out"].at(t), pos, plant.U[k, chain.U_M_GAS],
+                   day.T_amb[k])
     return T_air, T_do, T_co
 
 
@@ -250,7 +251,8 @@ def _control(row: np.ndarray, loop: _Loop, k: int, per_control: int, day: Day,
 def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
                              effect: str | None = None, magnitude: float | None = None, *,
                              plant_seed: int = 0, start_ns: int = DEFAULT_START_NS,
-                             schedule: KnobSchedule | None = None) -> SimulatedDay:
+                             schedule: KnobSchedule | None = None,
+                             unmeasured_flow: UnmeasuredFlow | None = None) -> SimulatedDay:
     """Run the independent plant for ``hours`` and return the recorded day.
 
     ``config``: geometry (``tube``, ``cyclone``), nominal point, ambient pressure and the
@@ -261,6 +263,9 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
     (:mod:`.family`), commissioned once and cached. ``start_ns``: time of the first scan
     [ns since the Unix epoch, UTC]. ``schedule``: knob moves ``(t [s], T_sp [K], m_air
     [kg/s])`` in place of the day's set point and fan flow (a designed experiment).
+    ``unmeasured_flow``: a surge of the fan's flow that its meter does not see (the recorded
+    ``m_air`` keeps the day's own; the truth's ``m_air`` has the surge): a cause outside
+    CONTRACT section 5 that the soft sensor's model cannot explain.
     """
     _check_arguments(hours, plant_seed)
     effect, magnitude = resolve_effect(effect, magnitude)
@@ -276,7 +281,8 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
         day = dataclasses.replace(day, T_sp=T_sp, m_air=m_air)
     inj = inject(effect, magnitude, rng_eff, day.t, seed)
     moisture_in = np.clip(day.moisture_in + inj.moisture_dev, 0.8, 1.3)
-    plant = _Plant(member, config, day, inj, moisture_in)
+    m_gas = day.m_air if unmeasured_flow is None else unmeasured_flow.applied(day.t, day.m_air)
+    plant = _Plant(member, config, day, inj, moisture_in, m_gas)
     n = len(day.t)
     loop = _start_loop(plant, member, s, day, inj)
     noise = rng_noise.standard_normal((n, len(SCAN_SIGNALS)))
@@ -298,6 +304,8 @@ def simulate_independent_day(config: PlantConfig, hours: float, seed: int,
     labs = lab_results(rng_lab, s, hours, start_ns, loop.lines["moisture_out"].at,
                        inj.lab_shift, f"IP{plant_seed}-D{seed}")
     info: dict[str, Any] = dict(inj.info)
+    if unmeasured_flow is not None:
+        info["unmeasured_flow"] = dataclasses.asdict(unmeasured_flow)
     info.update(plant="independent", plant_seed=int(plant_seed),
                 structure=member.describe(),
                 loop={"kc_pct_per_K": round(loop.kc, 5), "ti_s": round(loop.ti, 3)})

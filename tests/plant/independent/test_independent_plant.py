@@ -22,7 +22,7 @@ from scipy.signal import lfilter
 
 from softsensor.errors import ConfigError
 from softsensor.plant.effects import EFFECTS
-from softsensor.plant.independent import simulate_independent_day
+from softsensor.plant.independent import UnmeasuredFlow, simulate_independent_day
 from softsensor.plant.independent.balances import steady_balances
 from softsensor.plant.independent.commissioning import (
     commissioned_member,
@@ -219,6 +219,23 @@ def test_input_lag_slows_the_T_air_in_reading(cfg, seed):
            for t in taus]
     assert taus[int(np.argmin(rms))] == 10.0
     assert min(rms) < 0.6  # what is left is the 0.5 K sensor noise
+
+
+def test_an_unmeasured_flow_surge_moves_the_truth_and_not_the_meter(cfg):
+    surge = UnmeasuredFlow(0.08, 5400.0, 0.3)
+    plain = simulate_independent_day(cfg, 3.0, 5, plant_seed=PLANT)
+    d = simulate_independent_day(cfg, 3.0, 5, plant_seed=PLANT, unmeasured_flow=surge)
+    t = (d.truth.index.to_numpy() - d.truth.index[0]) / 1e9
+    # the meter reads the day's own flow, scan for scan; the fan's true flow has the surge
+    assert d.scans.m_air.equals(plain.scans.m_air)
+    np.testing.assert_allclose(d.truth.m_air / plain.truth.m_air,
+                               1.0 + 0.08 * np.sin(2 * np.pi * t / 5400.0 + 0.3), rtol=1e-12)
+    assert d.effect["unmeasured_flow"] == {"amplitude": 0.08, "period_s": 5400.0, "phase": 0.3}
+    # and the process feels it: the outlet moisture moves with the flow
+    swing = (d.truth.moisture_out - plain.truth.moisture_out).std()
+    assert swing > 0.003, swing
+    with pytest.raises(ValueError, match="amplitude"):
+        UnmeasuredFlow(0.7, 5400.0)
 
 
 def test_lab_delay_shifts_the_stamped_sample_times(cfg, seed, clean):

@@ -1,0 +1,136 @@
+"""What the sensor does with a calibration: the filter's prequential lab score on whole days.
+
+A calibration is deployed for the estimator, which reads the inlet moisture from the
+temperatures and corrects its outlet moisture with late lab results. A fit judged by its
+held-out temperatures can make that estimator worse (the history benchmark on plant 6262: the
+structure search adopted a longer cyclone hold-up on the temperatures while the held-out labs
+went from 0.0076 to 0.0176 kg/kg). So a decision between two calibrations asks the estimator
+itself: :func:`sensor_score` runs the UKF (its physics alone: no peers, no conformal band,
+so the model and not the blend is judged) over each day, hands every lab result over
+``delay_ticks`` after its sample window, as a plant's lab does, and before it is applied
+scores the estimate the filter had published for that window: the log density of the result
+under ``N(mean, sd^2 + lab_std^2)`` (a proper score: Gneiting and Raftery, JASA 102:359,
+2007; prequential, Dawid, JRSS A 147:278, 1984: each result is predicted before it is seen),
+and the error of the mean.
+
+Both candidates carry their own model error learned on the history at their own parameters
+(:func:`~.model_error_fit.fit_model_error`), as PARAMS.toml would deploy them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from softsensor.calibration.dataset import Segment
+from softsensor.errors import SoftsensorError
+from softsensor.estimation.interface import LabResult, Window
+from softsensor.estimation.model_error import ModelError
+from softsensor.estimation.settings import estimator_settings
+from softsensor.estimation.ukf import UkfEstimator
+from softsensor.plantconfig import DiscrepancyPrior, PlantConfig, with_table
+from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+from softsensor.windows.inputs import MEASURED_INPUTS
+
+#: Latest days of the history the decision runs the filter on: the dryer's present, which
+#: the deployed calibration continues from (two 48 h days: about 20 s of filtering).
+SCORE_DAYS = 2
+#: Windows after the sample's before its result is handed over (a lab's delay).
+DELAY_TICKS = 1
+
+
+@dataclass(frozen=True)
+class SensorScore:
+    """The filter's prequential lab score on some days: mean log density ``log_score``
+    [-], the RMSE of its predictions ``rmse`` [kg/kg] and the results scored ``n``."""
+
+    log_score: float
+    rmse: float
+    n: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"log_score": self.log_score, "rmse": self.rmse, "n": self.n}
+
+
+def day_windows(seg: Segment) -> list[Window]:
+    """The estimator's windows of a day: its inputs, temperatures, set point and bins."""
+    out = []
+    w_ns = seg.window_ns
+    n_bins = seg.bins.shape[1]
+    for k in range(seg.n_windows):
+        means: dict[str, float | None] = {n: _finite(seg.U[k, i])
+                                          for i, n in enumerate(INPUT_NAMES[:-1])}
+        for c, name in enumerate(OUTPUT_NAMES[:2]):
+            means[name] = _finite(seg.Y[k, c])
+        means["T_sp"] = _finite(seg.T_sp[k])
+        bins = {n: [_finite(v) for v in seg.bins[k, :, i]]
+                for i, n in enumerate(MEASURED_INPUTS)} if n_bins else {}
+        start = seg.start_ns + k * w_ns
+        out.append(Window(start, start + w_ns, means, 60,
+                          {n: (60 if v is not None else 0) for n, v in means.items()},
+                          bin_s=seg.window / n_bins if n_bins else 0.0, bins=bins))
+    return out
+
+
+def _finite(v: float) -> float | None:
+    return float(v) if math.isfinite(v) else None
+
+
+def deployable(config: PlantConfig, theta: np.ndarray, model_error: ModelError,
+               discrepancy: DiscrepancyPrior | None) -> PlantConfig:
+    """``config`` as PARAMS.toml would deploy it: ``theta``, its model error and the
+    discrepancy prior."""
+    out = config.with_parameters(np.asarray(theta, float))
+    out = with_table(out, "model_error", model_error.to_table())
+    if discrepancy is not None:
+        out = with_table(out, "discrepancy", discrepancy.as_table())
+    return out
+
+
+def sensor_score(config: PlantConfig, days: Sequence[Segment],
+                 delay_ticks: int = DELAY_TICKS) -> SensorScore:
+    """The filter's prequential lab score on ``days`` (module docstring)."""
+    s = replace(estimator_settings(config), peer_blend=False, band_conformal=False)
+    lab_var = s.lab_std ** 2
+    logs: list[float] = []
+    errs: list[float] = []
+    for seg in days:
+        est = UkfEstimator(config, s)
+        published: list[tuple[float, float] | None] = []
+        due: dict[int, list[int]] = {}
+        for j, k in enumerate(seg.lab_window):
+            due.setdefault(int(k) + delay_ticks, []).append(j)
+        for k, w in enumerate(day_windows(seg)):
+            for j in due.get(k, []):
+                pred = published[int(seg.lab_window[j])]
+                value = float(seg.lab_value[j])
+                if pred is not None:
+                    mean, sd = pred
+                    var = sd * sd + lab_var
+                    logs.append(-0.5 * (math.log(2 * math.pi * var) + (value - mean) ** 2 / var))
+                    errs.append(value - mean)
+                t = int(seg.lab_time_ns[j])
+                est.add_lab(LabResult(t, value, str(seg.lab_id[j]), w.start_ns))
+            try:
+                e = est.tick(w)
+                published.append((e.moisture_out, e.moisture_out_std)
+                                 if e.moisture_out is not None and e.moisture_out_std
+                                 else None)
+            except (SoftsensorError, ArithmeticError, ValueError):
+                published.append(None)
+    if not logs:
+        return SensorScore(-math.inf, math.nan, 0)
+    return SensorScore(float(np.mean(logs)), float(np.sqrt(np.mean(np.square(errs)))),
+                       len(logs))
+
+
+def latest_days(days: Sequence[Segment], n: int = SCORE_DAYS) -> list[Segment]:
+    """The ``n`` latest of ``days`` (by start), oldest first."""
+    return sorted(days, key=lambda d: d.start_ns)[-n:]
+
+
+__all__ = ["DELAY_TICKS", "SCORE_DAYS", "SensorScore", "day_windows", "deployable",
+           "latest_days", "sensor_score"]
