@@ -265,7 +265,7 @@ class UkfEstimator(ModelEstimator):
         plant is doing, the inlet moisture and its variance, and starts the rest afresh from
         this calibration's priors: the model's error states, the walls, the noise
         adaptation and the peers' weights belong to the old model and would pass its errors
-        off as the new one's (:meth:`_reseeded`). The kept hours are filtered again with the
+        off as the new one's. The kept hours are filtered again with the
         new model at the next tick, so late lab results still find their ticks.
         """
         self._check_snapshot(snapshot, _CHECKPOINT_VERSION)
@@ -301,9 +301,9 @@ class UkfEstimator(ModelEstimator):
             if history:
                 history[0] = replace(history[0], start=self._reseeded(fresh, history[0].start))
                 dirty = 0
-            log.warning("checkpoint made with another %s: the inlet moisture carried "
-                        "(%.3f kg/kg), the model's error states started afresh from this "
-                        "calibration's priors%s", ", ".join(changed),
+            log.warning("checkpoint made under another calibration (changed: %s): the inlet "
+                        "moisture carried (%.3f kg/kg), the model's error states started "
+                        "afresh from this calibration's priors%s", ", ".join(changed),
                         float(self.inlet.forward(state.x[X_IN])),
                         f", the kept {len(history)} ticks filtered again" if history else "")
         self._state, self._history, self._labs = state, history, labs

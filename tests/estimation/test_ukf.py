@@ -770,7 +770,7 @@ def test_a_checkpoint_of_another_calibration_keeps_the_inlet_and_reseeds_the_res
     fresh = recalibrated._state
     with caplog.at_level(logging.WARNING, logger="softsensor.estimation.ukf"):
         recalibrated.restore(snap)
-    assert "checkpoint made with another parameters" in caplog.text
+    assert "checkpoint made under another calibration (changed: parameters)" in caplog.text
     new = recalibrated._state
     assert new.x[X_IN] == old.x[X_IN] and new.P[X_IN, X_IN] == old.P[X_IN, X_IN]
     assert np.array_equal(new.x[1:], fresh.x[1:])                  # the old bias is gone
