@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from types import ModuleType
 
 import pytest
 from paths import REPO
+from script_modules import load_script
 
 EXT = REPO / "docs" / "_ext"
 
@@ -16,13 +15,7 @@ def load_extension(name: str) -> ModuleType:
     """``docs/_ext/<name>.py`` as a module (it is not part of the package)."""
     pytest.importorskip("sphinx", reason="the docs extra is not installed "
                         "(pip install -e '.[docs]')")
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.spec_from_file_location(name, EXT / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_script(EXT / f"{name}.py")
 
 
 @pytest.fixture(scope="module")

@@ -19,13 +19,12 @@ result, the peer every plant has (the benchmark's ``benchmarks/peers.py``, the s
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import sys
 from types import ModuleType
 
 import pytest
 from paths import FIXTURES, REPO
+from script_modules import load_script
 
 from softsensor.estimation.lab_regression import regression_of
 from softsensor.plant.independent import UnmeasuredFlow, simulate_independent_day
@@ -37,21 +36,9 @@ HOURS = 24.0
 BASE = load_plant_config()
 
 
-def _bench(name: str) -> ModuleType:
-    if name in sys.modules:
-        return sys.modules[name]
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    spec = importlib.util.spec_from_file_location(name, REPO / "benchmarks" / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def events() -> ModuleType:
-    return _bench("sensor_events")
+    return load_script(REPO / "benchmarks" / "sensor_events.py")
 
 
 @pytest.fixture(scope="module")

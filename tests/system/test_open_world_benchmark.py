@@ -4,7 +4,6 @@ calibrates on history, estimates and diagnoses, minutes on two cores)."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import sys
 from types import ModuleType
@@ -13,6 +12,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from paths import REPO
+from script_modules import load_script
 
 from softsensor.plant.effects import EFFECTS
 
@@ -20,12 +20,7 @@ BENCH = REPO / "benchmarks"
 
 
 def _load(name: str) -> ModuleType:
-    spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(BENCH / f"{name}.py")
 
 
 @pytest.fixture(scope="module")
