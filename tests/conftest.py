@@ -1,7 +1,28 @@
 """Shared test helpers."""
 
+import logging
+
 import numpy as np
 import pytest
+
+
+@pytest.fixture(autouse=True)
+def _root_logging_restored():
+    """Undo what a test's in-process ``softsensor run`` did to the root logger's handlers
+    (:func:`softsensor.service.logs.configure_logging` sets their formatter and adds its
+    library-line filter): pytest's log-capturing handlers live for the whole session, so a
+    filter left on them would throttle the next tests' captured lines."""
+    root = logging.getLogger()
+    before = {h: (h.formatter, list(h.filters)) for h in root.handlers}
+    level = root.level
+    yield
+    for handler in list(root.handlers):
+        if handler in before:
+            handler.setFormatter(before[handler][0])
+            handler.filters[:] = before[handler][1]
+        elif type(handler) is logging.StreamHandler:  # one the test's run added
+            root.removeHandler(handler)
+    root.setLevel(level)
 
 
 @pytest.fixture
