@@ -31,8 +31,10 @@ from softsensor.estimation.interface import LabResult, Window
 from softsensor.estimation.model_error import ModelError
 from softsensor.estimation.settings import estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
+from softsensor.jsonable import finite_or_none
 from softsensor.plantconfig import DiscrepancyPrior, PlantConfig, with_table
 from softsensor.signals import INPUT_NAMES, OUTPUT_NAMES
+from softsensor.windows.accumulator import window_settings
 from softsensor.windows.inputs import MEASURED_INPUTS
 
 #: Latest days of the history the decision runs the filter on: the dryer's present, which
@@ -55,28 +57,26 @@ class SensorScore:
         return {"log_score": self.log_score, "rmse": self.rmse, "n": self.n}
 
 
-def day_windows(seg: Segment) -> list[Window]:
-    """The estimator's windows of a day: its inputs, temperatures, set point and bins."""
+def day_windows(seg: Segment, scan_period_s: float) -> list[Window]:
+    """The estimator's windows of a day: its inputs, temperatures, set point and bins, each
+    window full of scans ``scan_period_s`` apart (a segment keeps means, not counts)."""
     out = []
     w_ns = seg.window_ns
     n_bins = seg.bins.shape[1]
+    n_scans = max(1, round(seg.window / scan_period_s))
     for k in range(seg.n_windows):
-        means: dict[str, float | None] = {n: _finite(seg.U[k, i])
+        means: dict[str, float | None] = {n: finite_or_none(seg.U[k, i])
                                           for i, n in enumerate(INPUT_NAMES[:-1])}
         for c, name in enumerate(OUTPUT_NAMES[:2]):
-            means[name] = _finite(seg.Y[k, c])
-        means["T_sp"] = _finite(seg.T_sp[k])
-        bins = {n: [_finite(v) for v in seg.bins[k, :, i]]
+            means[name] = finite_or_none(seg.Y[k, c])
+        means["T_sp"] = finite_or_none(seg.T_sp[k])
+        bins = {n: [finite_or_none(v) for v in seg.bins[k, :, i]]
                 for i, n in enumerate(MEASURED_INPUTS)} if n_bins else {}
         start = seg.start_ns + k * w_ns
-        out.append(Window(start, start + w_ns, means, 60,
-                          {n: (60 if v is not None else 0) for n, v in means.items()},
+        out.append(Window(start, start + w_ns, means, n_scans,
+                          {n: (n_scans if v is not None else 0) for n, v in means.items()},
                           bin_s=seg.window / n_bins if n_bins else 0.0, bins=bins))
     return out
-
-
-def _finite(v: float) -> float | None:
-    return float(v) if math.isfinite(v) else None
 
 
 def deployable(config: PlantConfig, theta: np.ndarray, model_error: ModelError,
@@ -103,7 +103,7 @@ def sensor_score(config: PlantConfig, days: Sequence[Segment],
         due: dict[int, list[int]] = {}
         for j, k in enumerate(seg.lab_window):
             due.setdefault(int(k) + delay_ticks, []).append(j)
-        for k, w in enumerate(day_windows(seg)):
+        for k, w in enumerate(day_windows(seg, window_settings(config).scan_period_s)):
             for j in due.get(k, []):
                 pred = published[int(seg.lab_window[j])]
                 value = float(seg.lab_value[j])

@@ -146,16 +146,8 @@ class UkfEstimator(ModelEstimator):
         self.filter = _filter_model(config, s, self.model, self.theta, self.window_s)
         #: the history's lab regression, run beside the physics (:mod:`.peer_blend`)
         self.regression = regression_of(config)
-        f = self.filter
-        P0 = np.zeros((len(STATE_NAMES), len(STATE_NAMES)))
-        P0[X_IN, X_IN] = _inlet_sd0(config, s) ** 2
-        P0[1:, 1:] = f.priors.covariance()
         self._hold = InputHold(config.nominal_inputs())
-        x0 = f.reference.copy()
-        me = model_error_of(config)
-        if me is not None:  # the latest history day's level: the dryer's current state
-            x0[X_IN] = float(f.inlet.inverse(me.start_moisture_in))
-        self._state = FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
+        self._state = self._initial_state()
         self._history: list[TickRecord] = []
         self._dirty: int | None = None
         #: refused outliers in a row, signed by their side (+ above the estimate, - below)
@@ -269,7 +261,6 @@ class UkfEstimator(ModelEstimator):
         new model at the next tick, so late lab results still find their ticks.
         """
         self._check_snapshot(snapshot, _CHECKPOINT_VERSION)
-        fresh = self._state
         try:
             state = FilterState.from_json(snapshot["state"])
             history = [TickRecord.from_json(r) for r in snapshot["history"]]
@@ -297,6 +288,7 @@ class UkfEstimator(ModelEstimator):
         changed = [] if old is None else [k for k, v in made_with(self.config).items()
                                           if old.get(k) != v]
         if changed:
+            fresh = self._initial_state()
             state = self._reseeded(fresh, state)
             if history:
                 history[0] = replace(history[0], start=self._reseeded(fresh, history[0].start))
@@ -310,6 +302,19 @@ class UkfEstimator(ModelEstimator):
         self._hold = InputHold(hold)
         self._dirty = None if dirty is None else int(dirty)
         self._gate_streak, self._taken = streak, taken
+
+    def _initial_state(self) -> FilterState:
+        """The state before the first tick: this calibration's priors, the inlet moisture at
+        the latest history day's level (the dryer's current state) when there is one."""
+        f = self.filter
+        P0 = np.zeros((len(STATE_NAMES), len(STATE_NAMES)))
+        P0[X_IN, X_IN] = _inlet_sd0(self.config, self.settings) ** 2
+        P0[1:, 1:] = f.priors.covariance()
+        x0 = f.reference.copy()
+        me = model_error_of(self.config)
+        if me is not None:
+            x0[X_IN] = float(f.inlet.inverse(me.start_moisture_in))
+        return FilterState(x0, P0, None, AdaptiveNoise.fresh().to_json())
 
     @staticmethod
     def _reseeded(fresh: FilterState, old: FilterState) -> FilterState:
