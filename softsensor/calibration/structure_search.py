@@ -33,11 +33,13 @@ from typing import Any
 
 import numpy as np
 
+from softsensor.calibration.calibration_run import objective_spec, search_model
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.objective import RMSE_FLOOR, Evaluation
-from softsensor.calibration.optimize import StudySettings
+from softsensor.calibration.refine import refine
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
+from softsensor.calibration.validation import validate_many
 from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
 from softsensor.model.structure import Alternative as ModelAlternative
@@ -232,7 +234,7 @@ def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
 def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
            calibration: CalibrationSettings, baseline_theta: np.ndarray,
            baseline: Evaluation, front: TradeOff | None,
-           library: Sequence[Candidate], *, seed: int = 0,
+           library: Sequence[Candidate], *,
            say: Callable[[str], None] | None = None) -> StructureSearch:
     """Calibrate and score every alternative of ``library`` (module docstring) on the
     baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
@@ -255,7 +257,7 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
         except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
             say(f"structure: {alt.name} skipped: {exc}")
             continue
-        ev, theta = _calibrated(fit, held, cfg, light, seed)
+        ev, theta = _calibrated(fit, held, cfg, light)
         score, _ = held_out_score(ev)
         gain = base_score - score - alt.k * penalty_per_k
         out.append(Scored(alt, alt.keys(cfg), theta,
@@ -266,17 +268,24 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
 
 
 def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfig,
-                calibration: CalibrationSettings, seed: int) -> tuple[Evaluation, np.ndarray]:
+                calibration: CalibrationSettings) -> tuple[Evaluation, np.ndarray]:
     """An alternative's config ``cfg`` calibrated from its commissioned start on ``fit``
-    (one trial, then the polish) and validated on ``held``: the validation and the
-    parameters."""
-    from softsensor.calibration.calibration_run import calibrate
+    (the polish) and validated on ``held``: the validation and the parameters.
 
-    res = calibrate(list(fit), cfg, StudySettings(n_trials=1, seed=seed, progress=False),
-                    calibration, validation_segments=list(held),
-                    current_theta=cfg.parameter_vector(), polish=True, identify_result=False,
-                    model=DryerModel(cfg))
-    return res.validation.evaluation, res.theta
+    The numbers are those of :func:`~.calibration_run.calibrate` with one trial and the
+    polish, less the work whose results the search does not read: the one trial (the study's
+    first trial is the config's values, enqueued, so it is the polish's start whatever it
+    scores), the re-evaluation of the result and of the start on the fitted windows, and the
+    validation of the start and of the study's front on the held-out hours (each as many
+    simulations of the held-out hours as the result's own)."""
+    model = DryerModel(cfg)
+    fast = search_model(model, calibration)
+    spec = objective_spec(model, fit, cfg, calibration)
+    start = cfg.parameter_vector()
+    polished = refine(model, fit, start, cfg.bounds(), spec, jac_model=fast,
+                      passes=calibration.polish_passes, max_nfev=calibration.polish_evaluations)
+    theta = polished.theta if polished.improved else start
+    return validate_many(held, cfg, spec, [theta], [None], model)[0].evaluation, theta
 
 
 def _decided(out: Sequence[Scored], front: TradeOff | None, penalty_per_k: float
