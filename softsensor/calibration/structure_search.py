@@ -9,8 +9,10 @@ with its source: a named change of the model's physics that the config already p
 
 The search (:func:`search`) runs after the paper's form has been calibrated on the history
 windows. For every alternative, the model is built with its keys, the multipliers start
-where the paper's form ended (the study's first trial, its prior centred there) and the
-local polish (:mod:`.refine`) re-fits them on the same windows; the result is scored on the
+where the paper's form ended (its prior centred there) and the local polish
+(:mod:`.refine`) re-fits them on the same windows, its Jacobian differenced once at the start
+and then carried by Broyden's update (:class:`~.refine.BroydenResiduals`: a step costs one
+simulation, not one per parameter more); the result is scored on the
 same held-out hours (inlet moisture read from the temperatures, labs out of sample) by the
 profile likelihood ``sum_m (N_m / 2) ln MSE_m``, each channel by its own scale. An
 alternative's evidence is the baseline's score less its own, less ``(k / 2) ln N`` for its
@@ -28,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -42,6 +45,7 @@ from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
 from softsensor.calibration.validation import validate_many
 from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
+from softsensor.model.dryer import default_threads
 from softsensor.model.structure import Alternative as ModelAlternative
 from softsensor.model.structure import commission, structure_space
 from softsensor.plantconfig import PlantConfig
@@ -248,16 +252,26 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
                                                        ALTERNATIVE_POLISH[1]))
     base_score, n = held_out_score(baseline)
     penalty_per_k = 0.5 * math.log(max(n, 2))
-    out = []
     start = config.with_parameters(baseline_theta)
+    tried = []
     for alt in library:
-        say(f"structure: {alt.name}")
         try:
-            cfg = alt.config(start)
+            tried.append((alt, alt.config(start)))
         except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
             say(f"structure: {alt.name} skipped: {exc}")
-            continue
-        ev, theta = _calibrated(fit, held, cfg, light)
+    workers = min(default_threads(), len(tried))
+
+    def one(item: tuple[Candidate, PlantConfig]) -> tuple[Evaluation, np.ndarray]:
+        say(f"structure: {item[0].name}")
+        # with several workers each runs its members in its own thread: every core busy with
+        # a whole alternative, none waiting on another's short calls
+        return _calibrated(fit, held, item[1], light, threads=1 if workers > 1 else None)
+
+    with ThreadPoolExecutor(max_workers=max(workers, 1),
+                            thread_name_prefix="structure") as pool:
+        results = list(pool.map(one, tried))
+    out = []
+    for (alt, cfg), (ev, theta) in zip(tried, results, strict=True):
         score, _ = held_out_score(ev)
         gain = base_score - score - alt.k * penalty_per_k
         out.append(Scored(alt, alt.keys(cfg), theta,
@@ -268,22 +282,27 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
 
 
 def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfig,
-                calibration: CalibrationSettings) -> tuple[Evaluation, np.ndarray]:
+                calibration: CalibrationSettings, threads: int | None = None
+                ) -> tuple[Evaluation, np.ndarray]:
     """An alternative's config ``cfg`` calibrated from its commissioned start on ``fit``
-    (the polish) and validated on ``held``: the validation and the parameters.
+    (the polish, with Broyden's Jacobian) and validated on ``held``: the validation and the
+    parameters.
 
-    The numbers are those of :func:`~.calibration_run.calibrate` with one trial and the
-    polish, less the work whose results the search does not read: the one trial (the study's
-    first trial is the config's values, enqueued, so it is the polish's start whatever it
-    scores), the re-evaluation of the result and of the start on the fitted windows, and the
-    validation of the start and of the study's front on the held-out hours (each as many
-    simulations of the held-out hours as the result's own)."""
-    model = DryerModel(cfg)
+    What :func:`~.calibration_run.calibrate` with one trial and the polish gives, less the
+    work whose results the search does not read: the one trial (the study's first trial is
+    the config's values, enqueued, so it is the polish's start whatever it scores), the
+    re-evaluation of the result and of the start on the fitted windows, and the validation
+    of the start and of the study's front on the held-out hours (each as many simulations of
+    the held-out hours as the result's own). ``threads``: the model's
+    (:class:`~softsensor.model.dryer.DryerModel`); every member gets the numbers it gets
+    alone, so the result does not depend on them."""
+    model = DryerModel(cfg, threads=threads)
     fast = search_model(model, calibration)
     spec = objective_spec(model, fit, cfg, calibration)
     start = cfg.parameter_vector()
     polished = refine(model, fit, start, cfg.bounds(), spec, jac_model=fast,
-                      passes=calibration.polish_passes, max_nfev=calibration.polish_evaluations)
+                      passes=calibration.polish_passes, max_nfev=calibration.polish_evaluations,
+                      broyden=True)
     theta = polished.theta if polished.improved else start
     return validate_many(held, cfg, spec, [theta], [None], model)[0].evaluation, theta
 
