@@ -10,9 +10,7 @@ with its source: a named change of the model's physics that the config already p
 The search (:func:`search`) runs after the paper's form has been calibrated on the history
 windows. For every alternative, the model is built with its keys, the multipliers start
 where the paper's form ended (its prior centred there) and the local polish
-(:mod:`.refine`) re-fits them on the same windows, its Jacobian differenced once at the start
-and then carried by Broyden's update (:class:`~.refine.BroydenResiduals`: a step costs one
-simulation, not one per parameter more); the result is scored on the
+(:mod:`.refine`) re-fits them on the same windows; the result is scored on the
 same held-out hours (inlet moisture read from the temperatures, labs out of sample) by the
 profile likelihood ``sum_m (N_m / 2) ln MSE_m``, each channel by its own scale. An
 alternative's evidence is the baseline's score less its own, less ``(k / 2) ln N`` for its
@@ -23,6 +21,14 @@ front, not only the balance between the channels. The adopted keys and the table
 go into PARAMS.toml's ``[structure]`` (:func:`softsensor.plantconfig.load_parameters`
 applies them), so ``validate``, ``replay``, ``run`` and ``diagnose`` use the structure from
 then on.
+
+What it costs: every alternative is first screened with a polish whose Jacobian is
+differenced once at its start and then carried by Broyden's update
+(:class:`~.refine.BroydenResiduals`: a step costs one simulation, not one per parameter
+more), the alternatives side by side, one per core. The one the screen would adopt is then
+polished again as the paper's form is (the Jacobian differenced at every step), and the
+decision is taken again on that; so what is adopted and deployed is what the differenced
+polish gives, and a rejected alternative's row says how it was polished (``polish``).
 """
 
 from __future__ import annotations
@@ -151,6 +157,9 @@ class Scored:
     gain: float
     adopted: bool = False
     why_not: str = ""
+    #: how its polish took the Jacobian: "broyden" (screened) or "differences" (the
+    #: alternative the search adopts or would adopt, polished as the paper's form is)
+    polish: str = "broyden"
 
     def point(self) -> tuple[float, float]:
         return (max(self.held_out[c] for c in TEMPERATURES), self.held_out["moisture_out"])
@@ -161,7 +170,7 @@ class Scored:
                 "source": a.source, "params": list(map(float, self.theta)),
                 "held_out_rmse": self.held_out, "open_loop_rmse": self.open_loop,
                 "score": self.score, "gain": self.gain, "adopted": self.adopted,
-                "why_not": self.why_not}
+                "why_not": self.why_not, "polish": self.polish}
 
 
 @dataclass(frozen=True)
@@ -261,32 +270,43 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
             say(f"structure: {alt.name} skipped: {exc}")
     workers = min(default_threads(), len(tried))
 
-    def one(item: tuple[Candidate, PlantConfig]) -> tuple[Evaluation, np.ndarray]:
-        say(f"structure: {item[0].name}")
+    def scored(alt: Candidate, cfg: PlantConfig, broyden: bool) -> Scored:
         # with several workers each runs its members in its own thread: every core busy with
         # a whole alternative, none waiting on another's short calls
-        return _calibrated(fit, held, item[1], light, threads=1 if workers > 1 else None)
+        ev, theta = _calibrated(fit, held, cfg, light, threads=1 if workers > 1 else None,
+                                broyden=broyden)
+        score, _ = held_out_score(ev)
+        return Scored(alt, alt.keys(cfg), theta, {k: float(v) for k, v in ev.fit.rmse.items()},
+                      {k: float(v) for k, v in ev.open_fit.rmse.items()}, score,
+                      base_score - score - alt.k * penalty_per_k,
+                      polish="broyden" if broyden else "differences")
+
+    def screened(item: tuple[Candidate, PlantConfig]) -> Scored:
+        say(f"structure: {item[0].name}")
+        return scored(*item, broyden=True)
 
     with ThreadPoolExecutor(max_workers=max(workers, 1),
                             thread_name_prefix="structure") as pool:
-        results = list(pool.map(one, tried))
-    out = []
-    for (alt, cfg), (ev, theta) in zip(tried, results, strict=True):
-        score, _ = held_out_score(ev)
-        gain = base_score - score - alt.k * penalty_per_k
-        out.append(Scored(alt, alt.keys(cfg), theta,
-                          {k: float(v) for k, v in ev.fit.rmse.items()},
-                          {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
+        out = list(pool.map(screened, tried))
+    # the screen's choice polished again as the paper's form is (the Jacobian differenced at
+    # every step), so that what is adopted and deployed is what that polish gives; should it
+    # then lose its place, the next choice likewise
+    decided = _decided(out, front, penalty_per_k)
+    while (pick := next((i for i, c in enumerate(decided) if c.adopted), None)) is not None \
+            and out[pick].polish == "broyden":
+        say(f"structure: {out[pick].candidate.name}, the polish differenced")
+        out[pick] = scored(*tried[pick], broyden=False)
+        decided = _decided(out, front, penalty_per_k)
     return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
-                           _decided(out, front, penalty_per_k))
+                           decided)
 
 
 def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfig,
-                calibration: CalibrationSettings, threads: int | None = None
-                ) -> tuple[Evaluation, np.ndarray]:
+                calibration: CalibrationSettings, threads: int | None = None,
+                broyden: bool = True) -> tuple[Evaluation, np.ndarray]:
     """An alternative's config ``cfg`` calibrated from its commissioned start on ``fit``
-    (the polish, with Broyden's Jacobian) and validated on ``held``: the validation and the
-    parameters.
+    (the polish, with Broyden's Jacobian unless not ``broyden``) and validated on ``held``:
+    the validation and the parameters.
 
     What :func:`~.calibration_run.calibrate` with one trial and the polish gives, less the
     work whose results the search does not read: the one trial (the study's first trial is
@@ -302,7 +322,7 @@ def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfi
     start = cfg.parameter_vector()
     polished = refine(model, fit, start, cfg.bounds(), spec, jac_model=fast,
                       passes=calibration.polish_passes, max_nfev=calibration.polish_evaluations,
-                      broyden=True)
+                      broyden=broyden)
     theta = polished.theta if polished.improved else start
     return validate_many(held, cfg, spec, [theta], [None], model)[0].evaluation, theta
 
