@@ -17,20 +17,23 @@ two-core ratio; the load average (the machine may be shared); whether the target
 ``benchmarks/targets.json`` (``calibrate``) are met. The paper needed 4.2 h on an i9
 workstation for its 200 trials.
 
-The history case (:func:`history`, issue 21: "Calibration on 14 days of history (7 records of
-48 h, 200 trials) in at most 120 s on two cores") runs what ``softsensor calibrate
+The history case (:func:`history`, issues 21 and 41: 7 records of 48 h, 200 trials, in at
+most 120 s on two cores, the structure search included) runs what ``softsensor calibrate
 DAY.mcap ...`` runs with its defaults (:func:`~softsensor.calibration.history_calibration.
 calibrate_history`: 12 h windows picked across the records up to 96 h, 200 trials, the
-polish, validation on the held-out hours, the identifiability analysis, the per-day inlet
-levels and the model error) on consecutive 48 h records of one independent plant
-(``--plant-seed``), and prints per phase (study, refine, validate, identify, model error)
-the wall and CPU seconds, what the calibration reached (the objective after TPE and after
-the polish, the held-out validation against the config's parameters) and whether the
-target of ``targets.json`` (``calibrate_history``) is met. ``--records 2,7,14`` runs it on
-the first 2, 7 and 14 records and fits the seconds to ``a + b x records``: the study, the
-polish and the analysis run on at most ``--fit-hours`` of windows whatever the history's
-length, the validation and the model error on the rest of every record, so the time grows
-linearly with the records.
+polish, validation on the held-out hours, the identifiability analysis, the structure search
+and the sensor's decision on what it adopts, the per-day inlet levels and the model error)
+on consecutive 48 h records of one independent plant (``--plant-seed``), and prints per
+phase (study, refine, validate, identify, structure, sensor_score, model_error) the wall and
+CPU seconds, what the calibration reached (the objective after TPE and after the polish, the
+held-out validation against the config's parameters, the deployed parameters and the
+structure adopted, with every alternative's gain) and whether the targets of
+``targets.json`` (``calibrate_history``; ``calibrate_one_day`` with ``--records 1``, which
+runs the one-day defaults: the 48 h window, no structure search) are met. ``--records
+2,7,14`` runs it on the first 2, 7 and 14 records and fits the seconds to ``a + b x
+records``: the study, the polish and the analysis run on at most ``--fit-hours`` of windows
+whatever the history's length, the validation and the model error on the rest of every
+record, so the time grows linearly with the records.
 
     python benchmarks/calibrate.py [--case day|history|all] [--trials 200] [--hours 48]
         [--seed 0] [--batch 1] [--records 7] [--plant-seed 7]
@@ -54,8 +57,9 @@ from softsensor.calibration.calibration_run import calibrate
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.selection import DEFAULT_MIN_LABS
+from softsensor.calibration.selection import DEFAULT_MIN_LABS, DEFAULT_WINDOW_HOURS
 from softsensor.calibration.settings import calibration_settings
+from softsensor.calibration.structure_search import default_library
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.independent.simulator import simulate_independent_day
@@ -67,8 +71,11 @@ TRUTH = {"mult_D": 0.7, "mult_C": 2.0, "mult_h": 1.4, "mult_k": 2.0, "mult_p": 1
 _ALL_TARGETS = json.loads((Path(__file__).with_name("targets.json")).read_text())
 TARGETS = _ALL_TARGETS["calibrate"]
 HISTORY_TARGETS = _ALL_TARGETS["calibrate_history"]
-#: Phases of a calibration from history, as its timings name them.
-PHASES = ("study", "refine", "validate", "identify", "model_error")
+ONE_DAY_TARGETS = _ALL_TARGETS["calibrate_one_day"]
+#: Phases of a calibration from history, as its timings name them (the structure search and
+#: the sensor's decision on what it adopted run with several records, as ``calibrate`` runs).
+PHASES = ("study", "refine", "validate", "identify", "structure", "sensor_score",
+          "model_error")
 #: Seed of the first record's day (the next ones count up).
 FIRST_DAY_SEED = 1000
 
@@ -143,19 +150,24 @@ def history(days: list, config, trials: int, seed: int) -> dict:
     model = DryerModel(config)
     for n in {1, model.wall_substeps}:  # compile / load the cache outside timing
         DryerModel(config, wall_substeps=n).simulate(days[0].U[None, :2], model.theta0)
+    # the verb's default windows: the paper's 48 h for one day
+    window_hours = HISTORY_WINDOW_HOURS if len(days) > 1 else DEFAULT_WINDOW_HOURS
     load = os.getloadavg()[0]
     w0, c0 = time.perf_counter(), time.process_time()
     h = calibrate_history(days, config, StudySettings(n_trials=trials, seed=seed,
                                                       progress=False),
                           calibration_settings(config), current_theta=config.parameter_vector(),
-                          window_hours=HISTORY_WINDOW_HOURS, fit_hours=HISTORY_FIT_HOURS,
-                          min_labs=DEFAULT_MIN_LABS, model=model)
+                          window_hours=window_hours, fit_hours=HISTORY_FIT_HOURS,
+                          min_labs=DEFAULT_MIN_LABS, model=model,
+                          # the verb's default: the structure searched with several days
+                          structure=default_library(config) if len(days) > 1 else None)
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     r, t = h.calibration, h.timings
     ref = r.refinement
     val, cur = r.validation, r.current_validation
     return {
         "records": len(days), "hours": round(sum(d.hours for d in days), 1),
+        "window_hours": window_hours,
         "fit_hours": round(sum(s.hours for s in r.segments), 1),
         "held_out_hours": None if val is None else round(sum(s.hours for s in val.segments), 1),
         "phases": {p: {"wall_s": round(t[p], 2), "cpu_s": None if f"{p}_cpu" not in t
@@ -174,6 +186,12 @@ def history(days: list, config, trials: int, seed: int) -> dict:
         "current_validation_rmse": None if cur is None else _rounded(cur.fit.rmse),
         "accepted": r.accepted,
         "identifiable": None if r.identifiability is None else r.identifiability.identifiable,
+        "deployed_params": _rounded(h.params),
+        "structure": None if h.structure is None else {
+            "adopted": None if h.structure.adopted is None
+            else h.structure.adopted.candidate.name,
+            "gains": {c.candidate.name: round(float(c.gain), 3)
+                      for c in h.structure.candidates}},
     }
 
 
@@ -227,16 +245,20 @@ def history_case(config, args) -> dict:
     days = records(config, max(counts), HISTORY_TARGETS["hours_per_record"], args.plant_seed)
     runs = [history(days[:n], config, args.trials, args.seed) for n in counts]
     T = HISTORY_TARGETS
-    standard = args.trials == T["trials"] and T["records"] in counts
-    at = next((r for r in runs if r["records"] == T["records"]), None)
+    met = {}
+    for key, tt in (("history", T), ("one_day", ONE_DAY_TARGETS)):
+        at = next((r for r in runs if r["records"] == tt["records"]), None)
+        if args.trials == tt["trials"] and args.plant_seed == tt["plant_seed"] and at:
+            met[f"{key}_wall_two_cores_at_most_s"] = (at["wall_s"]
+                                                      <= tt["wall_two_cores_at_most_s"])
     return {
         "plant_seed": args.plant_seed, "first_day_seed": FIRST_DAY_SEED,
         "hours_per_record": T["hours_per_record"], "trials": args.trials,
-        "window_hours": HISTORY_WINDOW_HOURS, "fit_hours": HISTORY_FIT_HOURS, "runs": runs,
+        "fit_hours": HISTORY_FIT_HOURS, "runs": runs,
         "linear_in_records": linear_in_records(runs) if len(runs) > 1 else None,
-        "targets": T,
-        "meets_targets": None if not standard or at is None else {
-            "wall_two_cores_at_most_s": at["wall_s"] <= T["wall_two_cores_at_most_s"]},
+        "targets": {"history": T, "one_day": ONE_DAY_TARGETS},
+        # wall seconds: met or not on quiet cores only (see each run's load average)
+        "meets_targets": met or None,
     }
 
 

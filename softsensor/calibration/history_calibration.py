@@ -193,6 +193,10 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
     search = None
+    # what sensor_decides learned for each side, by name ("baseline" or the alternative's),
+    # and the side deployed
+    learned: dict[str, tuple[list[float], ModelError]] = {}
+    deployed = "baseline"
     # only against a polished baseline: from a study stopped short of the optimum, any change
     # of structure can look better (measured: 3 trials without the polish on a matched plant
     # of the paper's form "adopted" a longer cyclone hold-up by 391 log-likelihood units)
@@ -202,20 +206,18 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                        calibration, theta,
                                        result.validation.evaluation if not kept else
                                        result.current_validation.evaluation,
-                                       result.trade_off, structure, seed=settings.seed,
-                                       say=say)
+                                       result.trade_off, structure, say=say)
         if search.adopted is not None:
             with phase("sensor_score", timings, say):
-                search = sensor_decides(search, days, config, model, theta, result)
+                search = sensor_decides(search, days, config, model, theta, result, learned)
         if search.adopted is not None:
+            deployed = search.adopted.candidate.name
             config = config.with_keys(search.adopted.keys)
             model, theta, kept = DryerModel(config), search.adopted.theta, False
             reason = f"calibrated with the structure '{search.adopted.candidate.name}'"
     with phase("model_error", timings, say):
-        levels = inlet_levels(model, days, theta, result)
-        latest = levels[int(np.argmax([d.start_ns for d in days]))]
-        me = fit_model_error(model, days, theta, float(np.mean(levels)),
-                             float(np.std(levels)) if len(levels) > 1 else 0.0, latest)
+        # the sensor's decision learned the deployed side's already: the same days and theta
+        levels, me = learned.get(deployed) or learned_error(model, days, theta, result)
     disc = result.discrepancy
     if kept and result.current_validation is not None:
         cur = result.current_validation
@@ -225,23 +227,34 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
 
 
+def learned_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
+                  result: CalibrationResult) -> tuple[list[float], ModelError]:
+    """Every day's inlet level (:func:`inlet_levels`) and the model error learned on the
+    days at ``theta`` with their mean, their spread and the latest day's level."""
+    levels = inlet_levels(model, days, theta, result)
+    latest = levels[int(np.argmax([d.start_ns for d in days]))]
+    return levels, fit_model_error(model, days, theta, float(np.mean(levels)),
+                                   float(np.std(levels)) if len(levels) > 1 else 0.0, latest)
+
+
 def sensor_decides(search: StructureSearch, days: Sequence[Segment], config: PlantConfig,
-                   model: DryerModel, theta: np.ndarray, result: CalibrationResult
+                   model: DryerModel, theta: np.ndarray, result: CalibrationResult,
+                   learned: dict[str, tuple[list[float], ModelError]] | None = None
                    ) -> StructureSearch:
     """The structure the held-out evidence chose, kept only when the estimator does at least
     as well with it on the latest days (:mod:`.sensor_score`): each side deployed as
-    PARAMS.toml would deploy it, its own model error learned on the history."""
+    PARAMS.toml would deploy it, its own model error learned on the history
+    (:func:`learned_error`; each side's goes into ``learned`` by name, so that the side
+    deployed is not learned twice)."""
     adopted = search.adopted
     assert adopted is not None
     alt_config = config.with_keys(adopted.keys)
     scores = {}
+    learned = {} if learned is None else learned
     for name, cfg, mdl, th in (("baseline", config, model, theta),
                                (adopted.candidate.name, alt_config, DryerModel(alt_config),
                                 adopted.theta)):
-        levels = inlet_levels(mdl, days, th, result)
-        me = fit_model_error(mdl, days, th, float(np.mean(levels)),
-                             float(np.std(levels)) if len(levels) > 1 else 0.0,
-                             levels[int(np.argmax([d.start_ns for d in days]))])
+        levels, me = learned[name] = learned_error(mdl, days, th, result)
         scores[name] = sensor_score(deployable(cfg, th, me, result.discrepancy),
                                     latest_days(days))
     base, alt = scores["baseline"], scores[adopted.candidate.name]
@@ -269,4 +282,5 @@ def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, s
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
-           "history_regression", "inlet_levels", "sensor_decides", "validation_pieces"]
+           "history_regression", "inlet_levels", "learned_error", "sensor_decides",
+           "validation_pieces"]

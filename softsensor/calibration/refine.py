@@ -162,6 +162,33 @@ class WeightedResiduals:
         return self._jac_cache.get(np.asarray(za, float).tobytes())
 
 
+class BroydenResiduals(WeightedResiduals):
+    """:class:`WeightedResiduals` whose Jacobian is differenced once, at the first point it is
+    asked (or seeded there), and then carried by Broyden's rank-one update
+    ``J + (e - e_0 - J dx) dx' / (dx' dx)`` from the residuals at the points where it is
+    asked next (the steps :func:`~scipy.optimize.least_squares` accepted, whose residuals it
+    has already evaluated): a Gauss-Newton step costs one simulation instead of one per
+    active parameter more (Dennis and Schnabel, *Numerical Methods for Unconstrained
+    Optimization*, 1983, section 8.1). For a polish that starts close to its optimum."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._last: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+    def jac(self, za: np.ndarray) -> np.ndarray:
+        za = np.asarray(za, float)
+        key = za.tobytes()
+        if key not in self._jac_cache and self._last is not None:
+            x0, e0, J0 = self._last
+            dx = za - x0
+            if float(dx @ dx) > 0.0:
+                e = self.fun(za)
+                self._jac_cache = {key: J0 + np.outer(e - e0 - J0 @ dx, dx) / float(dx @ dx)}
+        J = super().jac(za)
+        self._last = (za.copy(), self.fun(za).copy(), J)
+        return J
+
+
 def row_channels(ev: Evaluation, n_rows: int) -> np.ndarray:
     """Channel (0, 1, 2) of each data row of :func:`~.objective.residual_vector` at ``ev``
     and -1 for its prior rows, which the re-weighting does not scale."""
@@ -206,7 +233,8 @@ def _active(model: DryerModel, segments: Sequence[Segment], spec: ObjectiveSpec,
 
 def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
            bounds: np.ndarray, spec: ObjectiveSpec, *, passes: int = 2,
-           max_nfev: int = 6, jac_model: DryerModel | None = None) -> Refinement:
+           max_nfev: int = 6, jac_model: DryerModel | None = None,
+           broyden: bool = False) -> Refinement:
     """Polish ``theta0`` (7,) within ``bounds`` (7, 2) to lower the objective on ``segments``.
 
     At most ``passes`` re-weighting passes of at most ``max_nfev`` residual evaluations each
@@ -216,7 +244,9 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
     :data:`ACTIVE_FRACTION` of the largest; the others keep their value, and every later
     Jacobian costs one batched call of ``n_active`` simulations. Jacobians come from
     ``jac_model``'s differences when given (:class:`WeightedResiduals`); the first one
-    starts the first pass, and the last one of a pass, re-weighted, the next.
+    starts the first pass, and the last one of a pass, re-weighted, the next. ``broyden``:
+    within a pass, the Jacobian is updated from the residuals of the accepted steps
+    (:class:`BroydenResiduals`) instead of differenced again at each.
     """
     lo, hi = np.log(bounds[:, 0]), np.log(bounds[:, 1])
     z = np.clip(np.log(np.asarray(theta0, float)), lo, hi)
@@ -227,8 +257,8 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
     active, J0, probe = _active(model, segments, spec, z, start, jac_model)
     sims, jac_sims = sims + probe.simulations, probe.jac_simulations
     for _ in range(int(passes) if active.any() else 0):
-        prob = WeightedResiduals(model, segments, spec, irls_scale(best, spec), best_z,
-                                 active, jac_model)
+        kind = BroydenResiduals if broyden else WeightedResiduals
+        prob = kind(model, segments, spec, irls_scale(best, spec), best_z, active, jac_model)
         prob.seed(best_z[active], best, J0)
         sol = least_squares(prob.fun, best_z[active], jac=prob.jac,
                             bounds=(lo[active], hi[active]), method="trf", x_scale=1.0,
@@ -251,4 +281,5 @@ def refine(model: DryerModel, segments: Sequence[Segment], theta0: np.ndarray,
                       jac_simulations=jac_sims)
 
 
-__all__ = ["FD_STEP", "Refinement", "WeightedResiduals", "refine", "row_channels"]
+__all__ = ["FD_STEP", "BroydenResiduals", "Refinement", "WeightedResiduals", "refine",
+           "row_channels"]

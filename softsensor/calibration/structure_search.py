@@ -9,8 +9,8 @@ with its source: a named change of the model's physics that the config already p
 
 The search (:func:`search`) runs after the paper's form has been calibrated on the history
 windows. For every alternative, the model is built with its keys, the multipliers start
-where the paper's form ended (the study's first trial, its prior centred there) and the
-local polish (:mod:`.refine`) re-fits them on the same windows; the result is scored on the
+where the paper's form ended (its prior centred there) and the local polish
+(:mod:`.refine`) re-fits them on the same windows; the result is scored on the
 same held-out hours (inlet moisture read from the temperatures, labs out of sample) by the
 profile likelihood ``sum_m (N_m / 2) ln MSE_m``, each channel by its own scale. An
 alternative's evidence is the baseline's score less its own, less ``(k / 2) ln N`` for its
@@ -21,6 +21,14 @@ front, not only the balance between the channels. The adopted keys and the table
 go into PARAMS.toml's ``[structure]`` (:func:`softsensor.plantconfig.load_parameters`
 applies them), so ``validate``, ``replay``, ``run`` and ``diagnose`` use the structure from
 then on.
+
+What it costs: every alternative is first screened with a polish whose Jacobian is
+differenced once at its start and then carried by Broyden's update
+(:class:`~.refine.BroydenResiduals`: a step costs one simulation, not one per parameter
+more), the alternatives side by side, one per core. The one the screen would adopt is then
+polished again as the paper's form is (the Jacobian differenced at every step), and the
+decision is taken again on that; so what is adopted and deployed is what the differenced
+polish gives, and a rejected alternative's row says how it was polished (``polish``).
 """
 
 from __future__ import annotations
@@ -28,18 +36,22 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from softsensor.calibration.calibration_run import objective_spec, search_model
 from softsensor.calibration.dataset import Segment
 from softsensor.calibration.objective import RMSE_FLOOR, Evaluation
-from softsensor.calibration.optimize import StudySettings
+from softsensor.calibration.refine import refine
 from softsensor.calibration.settings import CalibrationSettings
 from softsensor.calibration.trade_off import TEMPERATURES, TradeOff
+from softsensor.calibration.validation import validate_many
 from softsensor.errors import SoftsensorError
 from softsensor.model import DryerModel
+from softsensor.model.dryer import default_threads
 from softsensor.model.structure import Alternative as ModelAlternative
 from softsensor.model.structure import commission, structure_space
 from softsensor.plantconfig import PlantConfig
@@ -145,6 +157,9 @@ class Scored:
     gain: float
     adopted: bool = False
     why_not: str = ""
+    #: how its polish took the Jacobian: "broyden" (screened) or "differences" (the
+    #: alternative the search adopts or would adopt, polished as the paper's form is)
+    polish: str = "broyden"
 
     def point(self) -> tuple[float, float]:
         return (max(self.held_out[c] for c in TEMPERATURES), self.held_out["moisture_out"])
@@ -155,7 +170,7 @@ class Scored:
                 "source": a.source, "params": list(map(float, self.theta)),
                 "held_out_rmse": self.held_out, "open_loop_rmse": self.open_loop,
                 "score": self.score, "gain": self.gain, "adopted": self.adopted,
-                "why_not": self.why_not}
+                "why_not": self.why_not, "polish": self.polish}
 
 
 @dataclass(frozen=True)
@@ -232,7 +247,7 @@ def _dominated(point: tuple[float, float], front: TradeOff | None) -> bool:
 def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
            calibration: CalibrationSettings, baseline_theta: np.ndarray,
            baseline: Evaluation, front: TradeOff | None,
-           library: Sequence[Candidate], *, seed: int = 0,
+           library: Sequence[Candidate], *,
            say: Callable[[str], None] | None = None) -> StructureSearch:
     """Calibrate and score every alternative of ``library`` (module docstring) on the
     baseline's fitted segments ``fit`` and its held-out ``held`` pieces, against the paper's form at
@@ -246,37 +261,70 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
                                                        ALTERNATIVE_POLISH[1]))
     base_score, n = held_out_score(baseline)
     penalty_per_k = 0.5 * math.log(max(n, 2))
-    out = []
     start = config.with_parameters(baseline_theta)
+    tried = []
     for alt in library:
-        say(f"structure: {alt.name}")
         try:
-            cfg = alt.config(start)
+            tried.append((alt, alt.config(start)))
         except SoftsensorError as exc:  # no commissioning within the bounds: not a candidate
             say(f"structure: {alt.name} skipped: {exc}")
-            continue
-        ev, theta = _calibrated(fit, held, cfg, light, seed)
+    workers = min(default_threads(), len(tried))
+
+    def scored(alt: Candidate, cfg: PlantConfig, broyden: bool) -> Scored:
+        # with several workers each runs its members in its own thread: every core busy with
+        # a whole alternative, none waiting on another's short calls
+        ev, theta = _calibrated(fit, held, cfg, light, threads=1 if workers > 1 else None,
+                                broyden=broyden)
         score, _ = held_out_score(ev)
-        gain = base_score - score - alt.k * penalty_per_k
-        out.append(Scored(alt, alt.keys(cfg), theta,
-                          {k: float(v) for k, v in ev.fit.rmse.items()},
-                          {k: float(v) for k, v in ev.open_fit.rmse.items()}, score, gain))
+        return Scored(alt, alt.keys(cfg), theta, {k: float(v) for k, v in ev.fit.rmse.items()},
+                      {k: float(v) for k, v in ev.open_fit.rmse.items()}, score,
+                      base_score - score - alt.k * penalty_per_k,
+                      polish="broyden" if broyden else "differences")
+
+    def screened(item: tuple[Candidate, PlantConfig]) -> Scored:
+        say(f"structure: {item[0].name}")
+        return scored(*item, broyden=True)
+
+    with ThreadPoolExecutor(max_workers=max(workers, 1),
+                            thread_name_prefix="structure") as pool:
+        out = list(pool.map(screened, tried))
+    # the screen's choice polished again as the paper's form is (the Jacobian differenced at
+    # every step), so that what is adopted and deployed is what that polish gives; should it
+    # then lose its place, the next choice likewise
+    decided = _decided(out, front, penalty_per_k)
+    while (pick := next((i for i, c in enumerate(decided) if c.adopted), None)) is not None \
+            and out[pick].polish == "broyden":
+        say(f"structure: {out[pick].candidate.name}, the polish differenced")
+        out[pick] = scored(*tried[pick], broyden=False)
+        decided = _decided(out, front, penalty_per_k)
     return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
-                           _decided(out, front, penalty_per_k))
+                           decided)
 
 
 def _calibrated(fit: Sequence[Segment], held: Sequence[Segment], cfg: PlantConfig,
-                calibration: CalibrationSettings, seed: int) -> tuple[Evaluation, np.ndarray]:
+                calibration: CalibrationSettings, threads: int | None = None,
+                broyden: bool = True) -> tuple[Evaluation, np.ndarray]:
     """An alternative's config ``cfg`` calibrated from its commissioned start on ``fit``
-    (one trial, then the polish) and validated on ``held``: the validation and the
-    parameters."""
-    from softsensor.calibration.calibration_run import calibrate
+    (the polish, with Broyden's Jacobian unless not ``broyden``) and validated on ``held``:
+    the validation and the parameters.
 
-    res = calibrate(list(fit), cfg, StudySettings(n_trials=1, seed=seed, progress=False),
-                    calibration, validation_segments=list(held),
-                    current_theta=cfg.parameter_vector(), polish=True, identify_result=False,
-                    model=DryerModel(cfg))
-    return res.validation.evaluation, res.theta
+    What :func:`~.calibration_run.calibrate` with one trial and the polish gives, less the
+    work whose results the search does not read: the one trial (the study's first trial is
+    the config's values, enqueued, so it is the polish's start whatever it scores), the
+    re-evaluation of the result and of the start on the fitted windows, and the validation
+    of the start and of the study's front on the held-out hours (each as many simulations of
+    the held-out hours as the result's own). ``threads``: the model's
+    (:class:`~softsensor.model.dryer.DryerModel`); every member gets the numbers it gets
+    alone, so the result does not depend on them."""
+    model = DryerModel(cfg, threads=threads)
+    fast = search_model(model, calibration)
+    spec = objective_spec(model, fit, cfg, calibration)
+    start = cfg.parameter_vector()
+    polished = refine(model, fit, start, cfg.bounds(), spec, jac_model=fast,
+                      passes=calibration.polish_passes, max_nfev=calibration.polish_evaluations,
+                      broyden=broyden)
+    theta = polished.theta if polished.improved else start
+    return validate_many(held, cfg, spec, [theta], [None], model)[0].evaluation, theta
 
 
 def _decided(out: Sequence[Scored], front: TradeOff | None, penalty_per_k: float

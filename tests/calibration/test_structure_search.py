@@ -75,6 +75,10 @@ def test_a_hidden_drying_law_is_named_and_deployed(cdc_history, tmp_path):
     assert search is not None and search.adopted is not None, search.as_dict()
     assert search.adopted.candidate.name == LIBRARY[0], search.line()
     assert search.adopted.gain > 0
+    # the decoys were screened with Broyden's Jacobian; what is adopted and deployed was
+    # polished again with the Jacobian differenced at every step
+    assert search.adopted.polish == "differences"
+    assert {c.polish for c in search.candidates if not c.adopted} == {"broyden"}
     # the estimator, run on the latest days with each side deployed, confirms it
     sensor = search.sensor
     assert sensor is not None and sensor["days"] == 2, search.as_dict()
