@@ -93,15 +93,15 @@ INELIGIBLE_PENALTY = 3.0
 #: verdict (module docstring). Fitted together on tuning days only (:func:`fit_calibration`,
 #: the minimum of the mean Brier score): ``benchmarks/diagnosis_temperature.py --refit`` over
 #: independent plants 11 and 12 (each its normal from 4 clean 16 h days, day seeds 100 to
-#: 103; 16 test days of 16 h, 2 per cause, day seeds 300 to 315;
-#: ``benchmarks/results/diagnosis_calibration.json``): ``T = 0.67``; of the 32 verdicts, 12
-#: of 13 extensions were right (``eps`` 2/15 by the rule of succession, the Brier minimum
-#: 0.08: an extension named with hundreds of nats gets about 0.88), 4 of 7 ``none`` (4/9
-#: likewise, 0.42) and 4 of 12 ``unexplained`` (0.76). ``T`` below 1 only sharpens the close
-#: calls; what the probabilities mean comes from ``eps``. Checked on fresh plants 7001 to
-#: 7004 with a reliability table (docs/results/diagnosis.md).
-TEMPERATURE = 0.67
-CONTAMINATION = {"extension": 0.133, "none": 0.444, "unexplained": 0.76}
+#: 103; 16 test days of 16 h, 2 per cause, day seeds 300 to 315, diagnosed with the shapes of
+#: :mod:`.shapes`; ``benchmarks/results/diagnosis_calibration.json``): ``T = 1.21``; of the 32
+#: verdicts, 18 of 19 fitted causes were right (``eps`` 2/21 by the rule of succession: a
+#: cause named with hundreds of nats gets about 0.92), 4 of 5 ``none`` (2/7 likewise, 0.74)
+#: and 4 of 8 ``unexplained`` (the Brier minimum 0.5, 0.52). What the probabilities mean comes
+#: from ``eps``. Checked on fresh plants 7001 to 7004 with a reliability table
+#: (docs/results/diagnosis.md).
+TEMPERATURE = 1.21
+CONTAMINATION = {"extension": 0.095, "none": 0.286, "unexplained": 0.5}
 #: What a shape (:mod:`.shapes`) is charged beyond its Occam factor before it competes: the
 #: verdict's ``MIN_PENALISED``, the gain a clean day's best extension reaches against the
 #: approximate normal. [nats] Checked on the 32 days of tuning plants 11 and 12 only
