@@ -11,15 +11,18 @@ with the history's normal, :class:`~.problem.Problem`), a small linear model in 
 cause              shape (unit size; alternatives marginalised over)
 ================== ==========================================================================
 ambient_heat_loss  a regressor ``(T_COLD - T_amb)^+ / 10 K`` on each outlet temperature, one
-                   coefficient per channel [K per 10 K of cold] (the outside loss grows per
-                   10 K of ambient below ``T_COLD``; zero on warm hours)
+                   coefficient per channel [K per 10 K of cold], both negative (the outside
+                   loss grows per 10 K of ambient below ``T_COLD`` and leaves the outlets
+                   colder; zero on warm hours: a day that is never cold cannot show it)
 lab_delay          the lab residual of moved sample times: ``y(t + delta) - y(t)`` of the
                    baseline's outlet moisture at each stamped time ``t``, for ``delta`` on a
                    grid (a shift shows only while the moisture moves); no free size
-fouling_drift      a ramp from an onset on the grid to the day's end, times the fibre load
-                   over its mean (the same loss of transfer moves the outputs in proportion
-                   to what is dried), on both temperatures and the labs, one coefficient per
-                   channel
+fouling_drift      a ramp from the day's start to its end, times the fibre load over its
+                   mean (the same loss of transfer moves the outputs in proportion to what
+                   is dried), along the model's steady response to a lost transfer on both
+                   temperatures and the labs; one size, the loss by the day's end, a loss
+                   only (fouling never gains transfer; on every clean tuning and fresh day
+                   the ramp fitted a gain)
 sensor_bias        a step from an onset on the grid to the day's end on one thermometer alone
                    (the offset does not scale with load), one coefficient; the channel and the
                    onset are alternatives
@@ -28,8 +31,8 @@ sensor_bias        a step from an onset on the grid to the day's end on one ther
 The whitening through the normal (:class:`~.calibration_error.CalibrationErrorModel`) is
 linear, so a shape ``G x`` leaves whitened residuals ``v - W x`` (``v`` the baseline's,
 ``W`` the whitened shape), and with a Gaussian prior ``x ~ N(0, diag(s^2))`` of the cause's
-plant size (:attr:`Shape.prior_sd`) the evidence against the normal alone is exact
-(:func:`linear_evidence`):
+plant size (:attr:`Shape.prior_sd`, cut to :attr:`Shape.signs` where the physics fixes the
+sign) the evidence against the normal alone is exact (:func:`linear_evidence`):
 
     ``log B = b' (A + S^-1)^-1 b / 2 - log det(I + A S) / 2``,  ``A = W'W``, ``b = W'v``
 
@@ -300,6 +303,9 @@ class FoulingShape(Shape):
     size_names = ("loss_by_end",)
     #: Fouling loses transfer; it never gains it.
     signs = (1,)
+    #: Where the ramp may start, as shares of the day: the day's start only. Fouling builds
+    #: over days; with the onsets of the step shape as alternatives, late ramps fitted the
+    #: normal's own wander on clean days (tuning plant 12, seed 300: 14.6 nats).
     onsets: tuple[float, ...] = (0.0,)
 
     def alternatives(self, problem: Problem) -> Iterator[Alternative]:
