@@ -106,8 +106,8 @@ CONTAMINATION = {"extension": 0.095, "none": 0.286, "unexplained": 0.5}
 #: verdict's ``MIN_PENALISED``, the gain a clean day's best extension reaches against the
 #: approximate normal. [nats] Checked on the 32 days of tuning plants 11 and 12 only
 #: (``benchmarks/diagnosis_temperature.py --shapes``, then ``--refit``; the tuning days'
-#: Brier at the refitted temperature and contamination): 0.33 at 5, 0.28 at 8, 0.27 at 10
-#: and 12, 0.30 at 15. The clean tuning days' largest shape evidence is 5.4 nats (a
+#: Brier at the refitted temperature and contamination): 0.32 at 5, 0.290 at 8, 0.286 at
+#: 10, 0.289 at 12, 0.32 at 15. The clean tuning days' largest shape evidence is 5.4 nats (a
 #: thermometer step, plant 12, seed 300); there the fouling ramp reached 11.7 before it was
 #: cut to a loss of transfer (every clean day's ramp fitted a gain).
 SHAPE_CHARGE = MIN_PENALISED
