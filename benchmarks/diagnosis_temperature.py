@@ -26,6 +26,14 @@ apart (days, how often the truth is in the pair, right when decided), the wrong 
 above 0.9, and the reliability tables (predicted probability against observed frequency,
 over every candidate and over the verdicts). ``--occam`` tries a Laplace Occam factor for
 each cause's size (:func:`with_occam`) in place of its Akaike charge.
+
+Every figure is given twice: with each cause's shape on the residuals ranked with the
+extensions (``shapes``, :mod:`softsensor.diagnosis.shapes`) and with the extensions alone
+(``extensions_only``). ``--shapes FILE...`` adds the shapes to the days of earlier runs in
+place (each day simulated again from its seeds, only the baseline and the shapes computed: a
+few seconds a day), so that a change of the shapes is judged without diagnosing again:
+
+    python benchmarks/diagnosis_temperature.py --shapes plant11.json plant12.json ...
 """
 
 from __future__ import annotations
@@ -36,6 +44,7 @@ import math
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -60,19 +69,19 @@ def say(msg: str) -> None:
     print(f"diagnosis_temperature: {msg}", file=sys.stderr, flush=True)
 
 
-def diagnose_days(args: argparse.Namespace) -> list[dict[str, Any]]:
+def plant_normal(plant: int, hours: float, history: int) -> tuple[Any, Any]:
+    """``(config, config with the history's normal)`` of independent plant ``plant``: its
+    normal learned from ``history`` clean days (day seeds 100, 101, ...)."""
     from softsensor.calibration.dataset import segment_from_day
     from softsensor.calibration.model_error_fit import fit_model_error
     from softsensor.calibration.params_file import params_document, write_params
-    from softsensor.diagnosis.diagnose_day import diagnose
     from softsensor.model.dryer import DryerModel
-    from softsensor.plant.effects import EFFECTS
     from softsensor.plant.independent import simulate_independent_day
     from softsensor.plantconfig import load_parameters, load_plant_config
 
     cfg = load_plant_config()
-    hist = [simulate_independent_day(cfg, args.hours, 100 + i, plant_seed=args.plant)
-            for i in range(args.history)]
+    hist = [simulate_independent_day(cfg, hours, 100 + i, plant_seed=plant)
+            for i in range(history)]
     segs = [segment_from_day(d, cfg, source=f"history {i}") for i, d in enumerate(hist)]
     me = fit_model_error(DryerModel(cfg), segs, cfg.parameter_vector(),
                          float(cfg.nominal.moisture_in))
@@ -80,39 +89,97 @@ def diagnose_days(args: argparse.Namespace) -> list[dict[str, Any]]:
     with tempfile.TemporaryDirectory() as tmp:
         path = write_params(Path(tmp) / "params.toml",
                             params_document(cfg, values, {}, model_error=me.to_table()))
-        with_history = load_parameters(path, cfg)
-    rng = np.random.default_rng(args.plant)
-    days = []
+        return cfg, load_parameters(path, cfg)
+
+
+def effect_days(cfg: Any, plant: int, hours: float, per_cause: int
+              ) -> Iterator[tuple[str, float | None, int, Any]]:
+    """``(cause, magnitude, day seed, day)`` of every test day (module docstring)."""
+    from softsensor.plant.effects import EFFECTS
+    from softsensor.plant.independent import simulate_independent_day
+
+    rng = np.random.default_rng(plant)
     seed = 300
-    n = args.days_per_cause
     for cause in CAUSES:
         if cause == "none":
-            mags: list[float | None] = [None] * n
+            mags: list[float | None] = [None] * per_cause
         else:
             lo, hi = EFFECTS[cause].detectable
-            mags = [float(lo + (hi - lo) * (j + rng.uniform()) / n) for j in range(n)]
+            mags = [float(lo + (hi - lo) * (j + rng.uniform()) / per_cause)
+                    for j in range(per_cause)]
         for mag in mags:
-            day = simulate_independent_day(cfg, args.hours, seed,
-                                           None if cause == "none" else cause, mag,
-                                           plant_seed=args.plant)
-            t0 = time.perf_counter()
-            diag = diagnose(with_history, day)
-            doc = diag.to_json()
-            rec = {"plant": args.plant, "seed": seed, "cause": cause, "magnitude": mag,
-                   "channel": day.effect.get("channel"), "named": doc["cause"],
-                   "named_channel": doc["channel"],
-                   "candidates": [[c["cause"], c["channel"], c["log_evidence"]]
-                                  for c in doc["probabilities"]],
-                   "cannot_tell": [c["cause"] for c in doc["cannot_tell"]],
-                   "seconds": round(time.perf_counter() - t0, 1), **ingredients(diag)}
-            say(f"{cause} {mag} seed {seed}: named {doc['cause']} "
-                f"({rec['seconds']} s)")
-            days.append(rec)
+            yield cause, mag, seed, simulate_independent_day(
+                cfg, hours, seed, None if cause == "none" else cause, mag, plant_seed=plant)
             seed += 1
-            if args.out:  # what is done so far survives an interrupted run
-                Path(args.out).write_text(json.dumps({"settings": vars(args), "days": days},
-                                                     indent=1) + "\n")
+
+
+def diagnose_days(args: argparse.Namespace) -> list[dict[str, Any]]:
+    from softsensor.diagnosis.diagnose_day import diagnose
+
+    cfg, with_history = plant_normal(args.plant, args.hours, args.history)
+    days = []
+    for cause, mag, seed, day in effect_days(cfg, args.plant, args.hours, args.days_per_cause):
+        t0 = time.perf_counter()
+        diag = diagnose(with_history, day)
+        doc = diag.to_json()
+        rec = {"plant": args.plant, "seed": seed, "cause": cause, "magnitude": mag,
+               "channel": day.effect.get("channel"), "named": doc["cause"],
+               "named_channel": doc["channel"],
+               "candidates": [[c["cause"], c["channel"], c["log_evidence"]]
+                              for c in doc["probabilities"]],
+               "cannot_tell": [c["cause"] for c in doc["cannot_tell"]],
+               **extensions_only(diag),
+               "seconds": round(time.perf_counter() - t0, 1), **ingredients(diag)}
+        say(f"{cause} {mag} seed {seed}: named {doc['cause']} ({rec['seconds']} s)")
+        days.append(rec)
+        if args.out:  # what is done so far survives an interrupted run
+            Path(args.out).write_text(json.dumps({"settings": vars(args), "days": days},
+                                                 indent=1) + "\n")
     return days
+
+
+def extensions_only(diag: Any) -> dict[str, Any]:
+    """The day's candidates and named cause without the shapes (the extensions and the
+    baseline alone), from which :func:`merged` ranks the shapes again."""
+    from softsensor.diagnosis.posterior import log_evidence
+    from softsensor.diagnosis.verdict import structure_margins, structured, verdict
+
+    p = diag.problem
+    margin = max((m for m, _, _ in structure_margins(p).values()), default=-math.inf)
+    ev = log_evidence(diag.scores.values(), diag.skipped, margin)
+    return {"candidates_extensions": [[c, ch, L] for c, ch, L, _ in ev],
+            "named_extensions": verdict(list(diag.scores.values()), structured(p)).cause}
+
+
+def add_shapes(path: str) -> None:
+    """Each stored day of ``path`` (one plant's run) with every cause's shape on its
+    residuals (:mod:`softsensor.diagnosis.shapes`, ``rec["shapes"]``), written back in
+    place: the days are simulated again from their seeds and only the baseline and the
+    shapes are computed (a few seconds a day, against half a minute for a diagnosis). The
+    extensions' candidates stay as they were; :func:`_load` merges the shapes into them as
+    :func:`~softsensor.diagnosis.posterior.log_evidence` does."""
+    from softsensor.diagnosis.day_windows import day_windows
+    from softsensor.diagnosis.problem import Problem, choose_split
+    from softsensor.diagnosis.shapes import SHAPES
+    from softsensor.estimation.settings import estimator_settings
+    from softsensor.model.dryer import DryerModel
+
+    doc = json.loads(Path(path).read_text())
+    st = doc["settings"]
+    cfg, normal = plant_normal(st["plant"], st["hours"], st["history"])
+    model = DryerModel(normal)
+    by_seed = {r["seed"]: r for r in doc["days"]}
+    for cause, _, seed, day in effect_days(cfg, st["plant"], st["hours"], st["days_per_cause"]):
+        rec = by_seed.get(seed)
+        if rec is None or rec["cause"] != cause:
+            continue
+        w = day_windows(day, normal, "day")
+        problem = Problem(normal, model, w, choose_split(w), model.theta0,
+                          estimator_settings(normal).lab_std)
+        rec["shapes"] = {sh.cause: sh.fit(problem).to_json() for sh in SHAPES}
+        say(f"plant {st['plant']} seed {seed} {cause}: shapes "
+            + ", ".join(f"{c} {f['log_bayes']}" for c, f in rec["shapes"].items()))
+    Path(path).write_text(json.dumps(doc, indent=1) + "\n")
 
 
 def ingredients(diag: Any) -> dict[str, Any]:
@@ -129,6 +196,7 @@ def ingredients(diag: Any) -> dict[str, Any]:
     names = sorted(sigs)
     margin = max((m for m, _, _ in structure_margins(p).values()), default=-np.inf)
     return {
+        "shapes": {c: f.to_json() for c, f in diag.shapes.items()},
         "scores": [{"cause": s.cause, "channel": s.channel, "n_params": s.n_params,
                     "penalised": s.penalised, "eligible": bool(s.eligible), "gain": s.gain,
                     "loglik": s.loglik} for s in diag.scores.values()],
@@ -255,10 +323,41 @@ def with_occam(rec: dict[str, Any]) -> dict[str, Any]:
     return dict(rec, candidates=cands)
 
 
-def _load(paths: list[str], occam: bool = False) -> list[dict[str, Any]]:
+def merged(rec: dict[str, Any]) -> dict[str, Any]:
+    """``rec`` with its shapes (``rec["shapes"]``, :func:`add_shapes`) ranked with its
+    candidates as :func:`~softsensor.diagnosis.posterior.with_shapes` ranks them, and the
+    named cause the most probable candidate's."""
+    from softsensor.diagnosis.posterior import with_shapes
+    from softsensor.diagnosis.shapes import ShapeFit
+
+    base, named = _extensions(rec)
+    fits = [ShapeFit.from_json(f) for f in rec.get("shapes", {}).values()]
+    cands = with_shapes([(c, ch, L, "") for c, ch, L in base], fits)
+    top = max(range(len(cands)), key=lambda i: cands[i][2])
+    named = cands[top][0] if cands[top][3] == "shape" else named
+    return dict(rec, candidates=[[c, ch, L] for c, ch, L, _ in cands], named=named)
+
+
+def _extensions(rec: dict[str, Any]) -> tuple[list[list[Any]], str]:
+    """The day's candidates and named cause without the shapes (runs before the shapes
+    stored only these, as ``candidates`` and ``named``)."""
+    if "candidates_extensions" in rec:
+        return rec["candidates_extensions"], rec["named_extensions"]
+    return rec["candidates"], rec["named"]
+
+
+def unmerged(rec: dict[str, Any]) -> dict[str, Any]:
+    """``rec`` as the extensions alone rank it (:func:`_extensions`)."""
+    cands, named = _extensions(rec)
+    return dict(rec, candidates=cands, named=named)
+
+
+def _load(paths: list[str], occam: bool = False, shapes: bool = True
+          ) -> list[dict[str, Any]]:
     days = []
     for path in paths:
         days += json.loads(Path(path).read_text())["days"]
+    days = [merged(r) if shapes else unmerged(r) for r in days]
     return [with_occam(r) for r in days] if occam else days
 
 
@@ -275,7 +374,13 @@ def main() -> int:
                     help="fresh days of earlier runs: judged at the fitted values")
     ap.add_argument("--occam", action="store_true",
                     help="try the Laplace Occam factor for each cause's size (with_occam)")
+    ap.add_argument("--shapes", nargs="+", default=None, metavar="FILE",
+                    help="add every cause's shape to the days of earlier runs (in place)")
     args = ap.parse_args()
+    if args.shapes:
+        for path in args.shapes:
+            add_shapes(path)
+        return 0
     if not args.refit:
         days = diagnose_days(args)
         doc: dict[str, Any] = {"settings": vars(args), "days": days}
@@ -284,17 +389,26 @@ def main() -> int:
             Path(args.out).write_text(text + "\n")
         print(json.dumps(evaluate(days, TEMPERATURE, CONTAMINATION), indent=1))
         return 0
-    tuning, fresh = _load(args.refit, args.occam), _load(list(args.check), args.occam)
-    t, eps = fit_calibration([(np.array([c[2] for c in r["candidates"]]), true_index(r),
-                               kind(r["named"])) for r in tuning])
     doc = {"tuning_files": args.refit, "fresh_files": list(args.check), "occam": args.occam,
-           "fitted": {"temperature": t, "contamination": eps},
-           "module": {"temperature": TEMPERATURE, "contamination": CONTAMINATION},
-           "tuning": {"fitted": evaluate(tuning, t, eps),
-                      "before": evaluate(tuning, 8.0, BEFORE, old_rule=True)},
-           "fresh": {"fitted": evaluate(fresh, t, eps),
-                     "module": evaluate(fresh, TEMPERATURE, CONTAMINATION),
-                     "before": evaluate(fresh, 8.0, BEFORE, old_rule=True)} if fresh else None}
+           "module": {"temperature": TEMPERATURE, "contamination": CONTAMINATION}}
+    # with every cause's shape (:mod:`softsensor.diagnosis.shapes`) ranked with the
+    # extensions, and without (the extensions alone, as before the shapes)
+    for key, shapes in (("shapes", True), ("extensions_only", False)):
+        tuning = _load(args.refit, args.occam, shapes)
+        fresh = _load(list(args.check), args.occam, shapes)
+        t, eps = fit_calibration([(np.array([c[2] for c in r["candidates"]]), true_index(r),
+                                   kind(r["named"])) for r in tuning])
+        # a kind the tuning days never named keeps the module's value
+        eps = {**CONTAMINATION, **eps}
+        doc[key] = {
+            "fitted": {"temperature": t, "contamination": eps},
+            "tuning": {"fitted": evaluate(tuning, t, eps),
+                       "module": evaluate(tuning, TEMPERATURE, CONTAMINATION),
+                       "before": evaluate(tuning, 8.0, BEFORE, old_rule=True)},
+            "fresh": {"fitted": evaluate(fresh, t, eps),
+                      "module": evaluate(fresh, TEMPERATURE, CONTAMINATION),
+                      "before": evaluate(fresh, 8.0, BEFORE, old_rule=True)}
+            if fresh else None}
     text = json.dumps(doc, indent=1)
     if args.out:
         Path(args.out).write_text(text + "\n")

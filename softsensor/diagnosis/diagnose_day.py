@@ -35,11 +35,12 @@ import numpy as np
 
 from softsensor.diagnosis.day_windows import DayLike, DayWindows, day_windows
 from softsensor.diagnosis.detectability import Signature, signatures
-from softsensor.diagnosis.evidence import ResidualSummary, evidence_text
+from softsensor.diagnosis.evidence import ResidualSummary, evidence_text, shape_text
 from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted, LabTimeShift
 from softsensor.diagnosis.posterior import Candidate, cannot_tell, posterior
 from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Prediction, Problem, choose_split
 from softsensor.diagnosis.residuals import LAB_SHIFTS_MIN, channel_stats, lab_stats
+from softsensor.diagnosis.shapes import SHAPES, Shape, ShapeFit
 from softsensor.diagnosis.verdict import (
     Score,
     Verdict,
@@ -83,6 +84,13 @@ class Diagnosis:
     signatures: dict[str, Signature] = field(default_factory=dict)
     candidates: list[Candidate] = field(default_factory=list)
     undecided: dict[str, Any] | None = None
+    shapes: dict[str, ShapeFit] = field(default_factory=dict)
+
+    @property
+    def shape(self) -> ShapeFit | None:
+        """The shape that named the cause (None: an extension, or the baseline, did)."""
+        c = self.candidates[0] if self.candidates else None
+        return self.shapes.get(c.cause) if c is not None and c.source == "shape" else None
 
     @property
     def cause(self) -> str:
@@ -119,12 +127,27 @@ class Diagnosis:
                     "params_other_fold": {k: _num(x) for k, x in
                                           self.other_fold[cause].params.items()},
                     "channel": fitted.channel})
+            fit = self.shapes.get(cause)
+            if fit is not None:
+                entry["evidence"] += f". Shape on the residuals: {shape_text(fit)}"
+                entry["shape"] = fit.to_json()
+                if fit is self.shape:
+                    entry.update({"params": dict(fit.params), "channel": fit.channel})
             ranking.append(entry)
         for cause, reason in self.skipped.items():
             ranking.append({"cause": cause, "score": 0.0, "eligible": False,
                             "evidence": evidence_text(cause, self.summary, None, None)
                             + f". Not fitted: {reason}"})
         return ranking
+
+    def _channel(self) -> str | None:
+        """The thermometer of a named ``sensor_bias`` (CONTRACT section 5), else None."""
+        if self.cause != "sensor_bias":
+            return None
+        win = self.verdict.winner
+        if win is not None:
+            return win.channel
+        return None if self.shape is None else self.shape.channel
 
     def to_json(self) -> dict[str, Any]:
         """REPORT.json (CONTRACT section 5) plus the project's extra fields."""
@@ -139,7 +162,7 @@ class Diagnosis:
         out: dict[str, Any] = {
             "cause": v.cause,
             "ranking": ranking,
-            "channel": win.channel if win is not None and win.cause == "sensor_bias" else None,
+            "channel": self._channel(),
             "baseline_rmse": {k: _num(x) for k, x in base.rmse.items()},
             "extended_rmse": {k: _num(x) for k, x in ext.rmse.items()},
             "baseline_cost": _num(base.cost),
@@ -165,6 +188,8 @@ class Diagnosis:
             "noise_levels": {k: _num(x) for k, x in zip(OUTPUT_NAMES, self.sigma, strict=True)},
             "structure": v.structure,
             "probabilities": [c.to_json() for c in self.candidates],
+            "shape": None if self.shape is None else self.shape.to_json(),
+            "shapes": {c: f.to_json() for c, f in self.shapes.items()},
             "cannot_tell": [] if self.undecided is None else self.undecided["causes"],
             "cannot_tell_collinearity": None if self.undecided is None
             else self.undecided["collinearity"],
@@ -268,6 +293,7 @@ def _fit_extensions(problem: Problem, summary: ResidualSummary,
 def diagnose(config: PlantConfig, day: DayLike, *,
              fit_fraction: float = DEFAULT_FIT_FRACTION,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
+             shapes: tuple[Shape, ...] = SHAPES,
              model: DryerModel | None = None,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose ``day`` with the calibrated ``config`` (module docstring).
@@ -283,6 +309,8 @@ def diagnose(config: PlantConfig, day: DayLike, *,
         The day to diagnose (``scans`` and ``labs``; ground truth is never read).
     fit_fraction : float
         Share of the windows the extensions are fitted on.
+    shapes : tuple of Shape
+        The causes' shapes on the residuals (:mod:`.shapes`), ranked with the extensions.
     progress : callable, optional
         Called with a short phase description as each phase starts (the verb prints them:
         a diagnosis takes minutes).
@@ -307,8 +335,21 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     t1 = time.perf_counter()
     sigs = signatures(problem, extensions, fitted)
     margin = max((m for m, _, _ in structure_margins(problem).values()), default=-math.inf)
-    cands = posterior(v, scores.values(), skipped, margin)
+    say("every cause's shape on the residuals")
+    fits = {sh.cause: sh.fit(problem) for sh in shapes}
+    cands = posterior(v, scores.values(), skipped, margin, shapes=fits.values())
+    if cands and cands[0].source == "shape":
+        v = named_by_shape(v, cands[0].cause, cands[0].probability, scores.get(cands[0].cause))
     timings["probabilities"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
-                     skipped, sigs, cands, cannot_tell(cands, sigs))
+                     skipped, sigs, cands, cannot_tell(cands, sigs), fits)
+
+
+def named_by_shape(v: Verdict, cause: str, probability: float, sc: Score | None) -> Verdict:
+    """The verdict when a cause's shape (:mod:`.shapes`) has the most evidence of all: that
+    cause named first in the ranking at its probability, without a winning extension (its
+    model extension, where fitted, was not eligible: the held-out numbers stay the
+    baseline's)."""
+    rest = [r for r in v.ranking if r[0] != cause]
+    return Verdict(cause, None, [(cause, probability, sc), *rest], v.structure)

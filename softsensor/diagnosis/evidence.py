@@ -7,12 +7,14 @@ means, trends and correlations (:mod:`.residuals`), the fitted extension
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from softsensor.diagnosis.extensions import Fitted
 from softsensor.diagnosis.residuals import ChannelStats, LabStats
+from softsensor.diagnosis.shapes import ShapeFit
 from softsensor.diagnosis.verdict import Score
 from softsensor.signals import OUTPUT_NAMES
 
@@ -99,6 +101,13 @@ def score_text(fitted: Fitted, sc: Score) -> str:
             f"(p = {sc.p_value:.2g})")
     why = sc.why_not()
     return text + (f". Not eligible: {why}" if why else ". Eligible")
+
+
+def shape_text(fit: ShapeFit) -> str:
+    """A cause's shape on the residuals (:mod:`.shapes`) and its evidence, in words."""
+    left = (f"{fit.structure_left:+.1f}" if math.isfinite(fit.structure_left) else "n/a")
+    return (f"{fit.description}; log Bayes factor against the normal {fit.log_bayes:+.1f} "
+            f"nats (Occam factor included), structure left {left} nats")
 
 
 def evidence_text(cause: str, summary: ResidualSummary, fitted: Fitted | None,

@@ -16,6 +16,10 @@ skipped extension   ``-MIN_PENALISED - INELIGIBLE_PENALTY``: the residuals rule 
                     any fit (as a fit that gains nothing)
 ``none``            ``-max(s, 0)``
 ``unexplained``     ``min(s, 0)``
+a cause's shape     ``log B - SHAPE_CHARGE - max(s_left, 0)`` (:mod:`.shapes`: the marginal
+                    evidence of the shape it leaves on the residuals, Occam factor included,
+                    charged as an extension is and paying for the structure ``s_left`` it
+                    leaves); the cause takes the larger of this and its extension's ``L``
 =================== =======================================================================
 
 ``s`` is the baseline's structure margin (:func:`~.verdict.structure_margins`, the largest
@@ -23,6 +27,10 @@ over the channels): what the whitened residuals hold beyond what ``unexplained``
 ``STRUCTURE_MS`` times their count, half of it in log-likelihood. It is positive exactly when
 the verdict calls the residuals structured, so ``none`` and ``unexplained`` each pay for what
 the other explains, and ``unexplained`` carries the largest penalty of all candidates.
+
+When a shape's ``L`` is the largest of all, its cause is named (the verdict's ranking
+puts it first, :func:`~.diagnose_day.named_by_shape`): a cause whose model extension failed
+on a plant whose form of it is not the model's is still named by what it leaves.
 
 The probabilities read the log-evidences as the likelihood of a model that is itself only
 approximately right: with a prior ``pi`` over the candidates (uniform: before the day is seen,
@@ -33,24 +41,25 @@ candidate ``c`` is
 
     ``p_c = (1 - eps) exp(L_c / T) / sum_j exp(L_j / T) + eps pi_c``
 
-The temperature ``T`` (:data:`TEMPERATURE`) says how many nats of the penalised gains are one
-nat of real evidence on a plant the model is not; ``eps`` (:data:`CONTAMINATION`) bounds what
-any evidence can claim: however many nats a fit gains, its probability stays at or below
-``1 - eps (1 - pi_c)``. ``eps`` is one of three values, by what the day's evidence names
-(:func:`kind`): an eligible extension (a fitted shape that explains the day beyond the
-normal), ``none`` or ``unexplained``; the last two were right far less often on the tuning
-days (a cause whose fit failed lands there). The three values and ``T`` are fitted together on
-tuning days only, at the minimum of the mean Brier score (:func:`fit_calibration`), and
-checked on fresh ones with a reliability table (``benchmarks/diagnosis_temperature.py``,
-docs/results/diagnosis.md). The mixture is monotone in ``L`` within a day, so the most
-probable candidate is still the verdict's cause: the winner is the eligible extension with
-the largest ``P`` (``L >= 0``), every other eligible one a smaller ``L`` and every
-ineligible or skipped one ``L < 0``, and the unextended candidate the verdict falls back on
-has ``L = 0``.
+The temperature ``T`` (:data:`TEMPERATURE`) says how many nats of the penalised gains are
+one nat of real evidence on a plant the model is not; ``eps`` (:data:`CONTAMINATION`) bounds
+what any evidence can claim: however many nats a fit gains, its probability stays at or
+below ``1 - eps (1 - pi_c)``. ``eps`` is one of three values, by what the day's evidence
+names (:func:`kind`): an eligible extension or a shape (a fitted cause that explains the day
+beyond the normal), ``none`` or ``unexplained``; the last two were right far less often on
+the tuning days (a cause whose fit failed lands there). The three values and ``T`` are
+fitted together on tuning days only, at the minimum of the mean Brier score
+(:func:`fit_calibration`), and checked on fresh ones with a reliability table
+(``benchmarks/diagnosis_temperature.py``, docs/results/diagnosis.md). The mixture is
+monotone in ``L`` within a day, so the most probable candidate is still the verdict's cause:
+the winner is the eligible extension with the largest ``P`` (``L >= 0``), every other
+eligible one a smaller ``L`` and every ineligible or skipped one ``L < 0``, and the
+unextended candidate the verdict falls back on has ``L = 0``; a shape named instead is the
+candidate of largest ``L``.
 
-An Occam factor from each fit's curvature (the evidence as a Laplace integral over each
-cause's parameters) is not in ``L`` yet: ``P`` charges one nat per parameter (Akaike), and
-the temperature and ``eps`` carry what that misjudges, measured on tuning days.
+The extensions' ``P`` charges one nat per parameter (Akaike); the shapes carry their exact
+Occam factor (a linear-Gaussian evidence, :func:`~.shapes.linear_evidence`). The temperature
+and ``eps`` carry what either misjudges, measured on tuning days.
 
 **Cannot tell** (:func:`cannot_tell`): when the most probable candidate is less than
 :data:`CANNOT_TELL_ODDS` times as likely as the second on the day's evidence
@@ -72,6 +81,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from softsensor.diagnosis.detectability import Signature, collinearity
+from softsensor.diagnosis.shapes import ShapeFit
 from softsensor.diagnosis.verdict import MIN_PENALISED, Score, Verdict
 
 #: What a failed eligibility check costs an extension beyond the charge of an eligible one.
@@ -83,15 +93,24 @@ INELIGIBLE_PENALTY = 3.0
 #: verdict (module docstring). Fitted together on tuning days only (:func:`fit_calibration`,
 #: the minimum of the mean Brier score): ``benchmarks/diagnosis_temperature.py --refit`` over
 #: independent plants 11 and 12 (each its normal from 4 clean 16 h days, day seeds 100 to
-#: 103; 16 test days of 16 h, 2 per cause, day seeds 300 to 315;
-#: ``benchmarks/results/diagnosis_calibration.json``): ``T = 0.67``; of the 32 verdicts, 12
-#: of 13 extensions were right (``eps`` 2/15 by the rule of succession, the Brier minimum
-#: 0.08: an extension named with hundreds of nats gets about 0.88), 4 of 7 ``none`` (4/9
-#: likewise, 0.42) and 4 of 12 ``unexplained`` (0.76). ``T`` below 1 only sharpens the close
-#: calls; what the probabilities mean comes from ``eps``. Checked on fresh plants 7001 to
-#: 7004 with a reliability table (docs/results/diagnosis.md).
-TEMPERATURE = 0.67
-CONTAMINATION = {"extension": 0.133, "none": 0.444, "unexplained": 0.76}
+#: 103; 16 test days of 16 h, 2 per cause, day seeds 300 to 315, diagnosed with the shapes of
+#: :mod:`.shapes`; ``benchmarks/results/diagnosis_calibration.json``): ``T = 1.21``; of the 32
+#: verdicts, 18 of 19 fitted causes were right (``eps`` 2/21 by the rule of succession: a
+#: cause named with hundreds of nats gets about 0.92), 4 of 5 ``none`` (2/7 likewise, 0.74)
+#: and 4 of 8 ``unexplained`` (the Brier minimum 0.5, 0.52). What the probabilities mean comes
+#: from ``eps``. Checked on fresh plants 7001 to 7004 with a reliability table
+#: (docs/results/diagnosis.md).
+TEMPERATURE = 1.21
+CONTAMINATION = {"extension": 0.095, "none": 0.286, "unexplained": 0.5}
+#: What a shape (:mod:`.shapes`) is charged beyond its Occam factor before it competes: the
+#: verdict's ``MIN_PENALISED``, the gain a clean day's best extension reaches against the
+#: approximate normal. [nats] Checked on the 32 days of tuning plants 11 and 12 only
+#: (``benchmarks/diagnosis_temperature.py --shapes``, then ``--refit``; the tuning days'
+#: Brier at the refitted temperature and contamination): 0.32 at 5, 0.290 at 8, 0.286 at
+#: 10, 0.289 at 12, 0.32 at 15. The clean tuning days' largest shape evidence is 5.4 nats (a
+#: thermometer step, plant 12, seed 300); there the fouling ramp reached 11.7 before it was
+#: cut to a loss of transfer (every clean day's ramp fitted a gain).
+SHAPE_CHARGE = MIN_PENALISED
 #: The most probable candidate less than this many times as probable as the second: the
 #: day cannot tell them apart. Three: the leader holds under three quarters of what the two
 #: share.
@@ -126,26 +145,54 @@ class Candidate:
     channel: str | None
     log_evidence: float
     probability: float
+    #: Where ``log_evidence`` comes from: ``"extension"`` (:mod:`.verdict`'s scores),
+    #: ``"shape"`` (:mod:`.shapes`) or ``"baseline"`` (``none``, ``unexplained``).
+    source: str = "extension"
 
     def to_json(self) -> dict[str, object]:
         return {"cause": self.cause, "channel": self.channel,
                 "probability": round(self.probability, 6),
-                "log_evidence": round(self.log_evidence, 3)}
+                "log_evidence": round(self.log_evidence, 3), "source": self.source}
 
 
-def log_evidence(scores: Iterable[Score], skipped: Iterable[str],
-                 structure: float) -> list[tuple[str, str | None, float]]:
-    """``(cause, channel, L)`` of every candidate (module docstring); ``structure`` is the
-    structure margin ``s`` (``-inf`` when no channel has values)."""
-    out: list[tuple[str, str | None, float]] = []
+def shape_evidence(fit: ShapeFit, charge: float = SHAPE_CHARGE) -> float:
+    """A shape's log-evidence ``log B - charge - max(structure left, 0)`` (:mod:`.shapes`):
+    charged as an extension is, and paying for what it leaves structured as ``none``
+    does."""
+    L = fit.log_bayes - charge - max(fit.structure_left, 0.0)
+    return L if math.isfinite(L) else -math.inf
+
+
+def log_evidence(scores: Iterable[Score], skipped: Iterable[str], structure: float,
+                 shapes: Iterable[ShapeFit] = ()) -> list[tuple[str, str | None, float, str]]:
+    """``(cause, channel, L, source)`` of every candidate (module docstring); ``structure``
+    is the structure margin ``s`` (``-inf`` when no channel has values). A cause with a
+    shape (:mod:`.shapes`) takes the larger of its extension's ``L`` and the shape's
+    (:func:`shape_evidence`; ``source`` says which: ``"extension"`` or ``"shape"``), with the
+    shape's channel when the shape's is larger."""
+    out: list[tuple[str, str | None, float, str]] = []
     for sc in scores:
         gain = sc.penalised - MIN_PENALISED
         L = gain if sc.eligible else min(gain, 0.0) - INELIGIBLE_PENALTY
-        out.append((sc.cause, sc.channel, L if math.isfinite(L) else -math.inf))
-    out += [(c, None, -MIN_PENALISED - INELIGIBLE_PENALTY) for c in skipped]
+        out.append((sc.cause, sc.channel, L if math.isfinite(L) else -math.inf, "extension"))
+    out += [(c, None, -MIN_PENALISED - INELIGIBLE_PENALTY, "extension") for c in skipped]
     s = structure if math.isfinite(structure) else -math.inf
-    out.append(("none", None, -max(s, 0.0)))
-    out.append(("unexplained", None, min(s, 0.0)))
+    out.append(("none", None, -max(s, 0.0), "baseline"))
+    out.append(("unexplained", None, min(s, 0.0), "baseline"))
+    return with_shapes(out, shapes)
+
+
+def with_shapes(candidates: Sequence[tuple[str, str | None, float, str]],
+                shapes: Iterable[ShapeFit]) -> list[tuple[str, str | None, float, str]]:
+    """``candidates`` (``(cause, channel, L, source)``) with each cause's ``L`` the larger of
+    its own and its shape's (:func:`shape_evidence`), the shape's channel and ``"shape"`` as
+    the source where the shape's is larger."""
+    out = list(candidates)
+    for fit in shapes:
+        L = shape_evidence(fit)
+        for i, (c, _, L_ext, _) in enumerate(out):
+            if c == fit.cause and L > L_ext:
+                out[i] = (c, fit.channel, L, "shape")
     return out
 
 
@@ -172,14 +219,19 @@ def probabilities(L: np.ndarray, temperature: float = TEMPERATURE,
 
 def posterior(verdict: Verdict, scores: Iterable[Score], skipped: Iterable[str],
               structure: float, temperature: float = TEMPERATURE,
-              contamination: Mapping[str, float] = CONTAMINATION) -> list[Candidate]:
-    """Every candidate with its probability, most probable first (the verdict's cause first
-    among equals); ``contamination`` by :func:`kind` of the verdict's cause."""
-    ev = log_evidence(scores, skipped, structure)
-    p = probabilities(np.array([e[2] for e in ev]), temperature,
-                      contamination[kind(verdict.cause)])
-    cands = [Candidate(c, ch, L, float(q)) for (c, ch, L), q in zip(ev, p, strict=True)]
-    return sorted(cands, key=lambda c: (-c.probability, c.cause != verdict.cause))
+              contamination: Mapping[str, float] = CONTAMINATION,
+              shapes: Iterable[ShapeFit] = ()) -> list[Candidate]:
+    """Every candidate with its probability, most probable first (the named cause first
+    among equals); ``contamination`` by :func:`kind` of the named cause: the verdict's, or
+    the cause whose shape (:mod:`.shapes`) has the largest log-evidence of all."""
+    ev = log_evidence(scores, skipped, structure, shapes)
+    L = np.array([e[2] for e in ev])
+    leader = ev[int(np.argmax(L))]
+    named = leader[0] if leader[3] == "shape" else verdict.cause
+    p = probabilities(L, temperature, contamination[kind(named)])
+    cands = [Candidate(c, ch, Lc, float(q), src)
+             for (c, ch, Lc, src), q in zip(ev, p, strict=True)]
+    return sorted(cands, key=lambda c: (-c.probability, c.cause != named))
 
 
 def separating_data(a: str, b: str) -> str:

@@ -231,8 +231,14 @@ def structure_margins(problem: Problem) -> dict[str, tuple[float, int, float]]:
     channel is clearly structured (:func:`structured`). It is what the residual holds beyond
     what ``unexplained`` is charged: ``STRUCTURE_MS`` times its count of values, half of it in
     log-likelihood."""
+    return margins(problem.whitened(problem.baseline, "all"))
+
+
+def margins(whitened: list[np.ndarray]) -> dict[str, tuple[float, int, float]]:
+    """:func:`structure_margins` of any whitened residuals over the whole day, one array per
+    channel in ``OUTPUT_NAMES`` order (what a shape leaves, :mod:`.shapes`)."""
     out = {}
-    for name, w in zip(OUTPUT_NAMES, problem.whitened(problem.baseline, "all"), strict=True):
+    for name, w in zip(OUTPUT_NAMES, whitened, strict=True):
         n = w.size
         if n == 0 or (name == "moisture_out" and n < MIN_LABS_STRUCTURE):
             continue

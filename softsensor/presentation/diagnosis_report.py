@@ -229,7 +229,8 @@ PROBABILITY_COLUMNS = ("rank", "cause", "channel", "probability", "log-evidence 
 #: What the probability ranking is (printed above it).
 PROBABILITY_NOTE = (
     "Every cause with its probability: a softmax over the causes' penalised held-out "
-    "log-likelihood gains against the plant's normal, each extension charged for the gain a "
+    "log-likelihood gains against the plant's normal (or, where larger, the marginal "
+    "evidence of the shape the cause leaves on the residuals), each charged for the gain a "
     "clean day reaches, `unexplained` for what the normal's noise allows, its temperature "
     "fitted on tuning days. *Smallest size this day can show*: the size at which the cause's "
     "trace on this day, seen through the plant's normal, is large enough to be named; a "

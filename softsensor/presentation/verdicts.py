@@ -60,6 +60,12 @@ def _lag(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
 
 
 def _ambient(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
+    if "dT_cyclone_out_per_10K" in p:  # named by its shape on the residuals
+        return (f"Heat loss to the outside changes with the weather more than the model says "
+                f"(the outlet temperatures read {float(p['dT_dryer_out_per_10K']):+.1f} °C and "
+                f"{float(p['dT_cyclone_out_per_10K']):+.1f} °C off the model per 10 °C of "
+                f"cold below 10 °C): check the cladding and insulation of the tube and "
+                f"cyclones.")
     beta = float(p.get("beta_amb_per_K", math.nan))
     return (f"Heat loss to the outside changes with the weather more than the model says "
             f"({beta * 10:+.0%} per 10 °C colder): check the cladding and insulation of the "
@@ -123,6 +129,11 @@ def _named_verdict(doc: Mapping[str, Any]) -> str:
     gain = doc.get("gain")
     tail = "" if gain is None else (f" Accounting for it predicts the held-out part of the "
                                     f"record {100 * float(gain):.0f} % better.")
+    if doc.get("shape"):
+        # named by the shape it leaves on the residuals, not by a model extension's
+        # held-out gain (there is none to quote)
+        tail = (" Named from the shape it leaves on the residuals against this plant's "
+                "normal; the model's own extension for it did not improve the held-out part.")
     return sentence(_params(doc), doc) + tail
 
 
