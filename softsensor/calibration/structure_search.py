@@ -200,6 +200,8 @@ class StructureSearch:
         if a is None:
             best = max(self.candidates, key=lambda c: c.gain, default=None)
             tail = "" if best is None else f" (best: {best.candidate.name}, {best.why_not})"
+            if self.sensor:  # the held-out evidence chose one; the estimator's score did not
+                return f"structure: the paper's form kept, the estimator's lab score{tail}"
             return (f"structure: the paper's form kept; none of {len(self.candidates)} "
                     f"alternatives earned its place on the held-out data{tail}")
         t, m = a.point()
