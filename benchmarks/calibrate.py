@@ -52,14 +52,17 @@ from pathlib import Path
 import numpy as np
 import optuna
 
-from softsensor.apps.calibrate import HISTORY_FIT_HOURS, HISTORY_WINDOW_HOURS
+from softsensor.apps.calibrate import (
+    HISTORY_FIT_HOURS,
+    default_structure,
+    default_window_hours,
+)
 from softsensor.calibration.calibration_run import calibrate
 from softsensor.calibration.dataset import segment_from_day
 from softsensor.calibration.history_calibration import calibrate_history
 from softsensor.calibration.optimize import StudySettings
-from softsensor.calibration.selection import DEFAULT_MIN_LABS, DEFAULT_WINDOW_HOURS
+from softsensor.calibration.selection import DEFAULT_MIN_LABS
 from softsensor.calibration.settings import calibration_settings
-from softsensor.calibration.structure_search import default_library
 from softsensor.model import DryerModel
 from softsensor.plant.day import DEFAULT_START_NS
 from softsensor.plant.independent.simulator import simulate_independent_day
@@ -151,7 +154,7 @@ def history(days: list, config, trials: int, seed: int) -> dict:
     for n in {1, model.wall_substeps}:  # compile / load the cache outside timing
         DryerModel(config, wall_substeps=n).simulate(days[0].U[None, :2], model.theta0)
     # the verb's default windows: the paper's 48 h for one day
-    window_hours = HISTORY_WINDOW_HOURS if len(days) > 1 else DEFAULT_WINDOW_HOURS
+    window_hours = default_window_hours(len(days))
     load = os.getloadavg()[0]
     w0, c0 = time.perf_counter(), time.process_time()
     h = calibrate_history(days, config, StudySettings(n_trials=trials, seed=seed,
@@ -160,7 +163,7 @@ def history(days: list, config, trials: int, seed: int) -> dict:
                           window_hours=window_hours, fit_hours=HISTORY_FIT_HOURS,
                           min_labs=DEFAULT_MIN_LABS, model=model,
                           # the verb's default: the structure searched with several days
-                          structure=default_library(config) if len(days) > 1 else None)
+                          structure=default_structure(config, len(days)))
     wall, cpu = time.perf_counter() - w0, time.process_time() - c0
     r, t = h.calibration, h.timings
     ref = r.refinement

@@ -69,8 +69,9 @@ import provenance  # noqa: E402
 
 from softsensor.apps.calibrate import (  # noqa: E402
     HISTORY_FIT_HOURS,
-    HISTORY_WINDOW_HOURS,
     _params_doc,
+    default_structure,
+    default_window_hours,
 )
 from softsensor.calibration.chunked_run import simulate_segments  # noqa: E402
 from softsensor.calibration.dataset import segment_from_day  # noqa: E402
@@ -78,9 +79,7 @@ from softsensor.calibration.history_calibration import calibrate_history  # noqa
 from softsensor.calibration.model_error_fit import at_inlet_moisture  # noqa: E402
 from softsensor.calibration.optimize import StudySettings  # noqa: E402
 from softsensor.calibration.params_file import write_params  # noqa: E402
-from softsensor.calibration.selection import DEFAULT_WINDOW_HOURS  # noqa: E402
 from softsensor.calibration.settings import calibration_settings  # noqa: E402
-from softsensor.calibration.structure_search import default_library  # noqa: E402
 from softsensor.errors import SoftsensorError  # noqa: E402
 from softsensor.estimation.interface import LabResult  # noqa: E402
 from softsensor.estimation.model_error import model_error_of  # noqa: E402
@@ -321,15 +320,15 @@ def calibrate_plant(ctx: Context, i: int) -> PlantModel:
         if not (params_path.is_file() and summary_path.is_file()):
             segs = [segment_from_day(d, base, source=f"history seed {s.seed}")
                     for d, s in zip(days, specs, strict=True)]
-            window = DEFAULT_WINDOW_HOURS if len(segs) == 1 else HISTORY_WINDOW_HOURS
+            window = default_window_hours(len(segs))
             hist = calibrate_history(segs, base, StudySettings(n_trials=ctx.trials, seed=0,
                                                                progress=False),
                                      settings_with_cost(base, ctx.cost),
                                      current_theta=base.parameter_vector(),
                                      window_hours=min(window, ctx.hours),
                                      fit_hours=HISTORY_FIT_HOURS, identify_result=False,
-                                     structure=(default_library(base)
-                                                if ctx.structure and len(segs) > 1 else None))
+                                     structure=default_structure(
+                                         base, len(segs), None if ctx.structure else False))
             write_params(params_path, _params_doc(base, hist),
                          "Written by benchmarks/open_world.py (softsensor calibrate's code).")
             summary_path.write_text(json.dumps(jsonable(_calibration_summary(hist))))

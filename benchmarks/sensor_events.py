@@ -1,11 +1,12 @@
 """Events the model cannot explain: does the sensor turn them into moisture?
 
 On an independent plant calibrated from its history (the code of ``softsensor calibrate
-DAY...`` with its defaults, through :mod:`open_world`'s plan and cache), fresh days of four
+DAY...`` with its defaults, through :mod:`open_world`'s plan and cache), fresh days of five
 kinds are estimated beside the peers and the plant's own perfect-model floor:
 
-* ``surge``: the fan's true flow oscillates (amplitude 5 to 10 %, period 1.5 to 2 h) while the
-  recorded ``m_air`` stays flat (:class:`softsensor.plant.independent.UnmeasuredFlow`);
+* ``surge``: the fan's true flow oscillates (amplitude 2 to 6 %, ``--surge``; period 1.5 to
+  2 h) while the recorded ``m_air`` stays flat
+  (:class:`softsensor.plant.independent.UnmeasuredFlow`);
 * ``input_lag``: the ``T_air_in`` reading lags the truth by 10 to 25 min (CONTRACT cause);
 * ``moves``: production changes every 1 to 2 h, each with a set-point move;
 * ``inlet``: the inlet moisture steps and drifts by 0.08 to 0.2 kg/kg (CONTRACT cause): the
@@ -75,7 +76,8 @@ def moves_config(base: PlantConfig) -> PlantConfig:
     return with_table(base, "virtual_plant", table)
 
 
-SURGE = (0.05, 0.10)  # relative amplitude range of the unmeasured flow's surge [-]
+#: Relative amplitude range of the unmeasured flow's surge [-] (the published runs').
+SURGE = (0.02, 0.06)
 
 
 def event_day(base: PlantConfig, hours: float, kind: str, plant_seed: int, seed: int,

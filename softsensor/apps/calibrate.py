@@ -64,11 +64,25 @@ HISTORY_WINDOW_HOURS = 12.0
 HISTORY_FIT_HOURS = 96.0
 
 
+def default_window_hours(n_days: int) -> float:
+    """The verb's default calibration window [h]: the paper's 48 h for one day, shorter
+    windows picked across the days of a history."""
+    return DEFAULT_WINDOW_HOURS if n_days == 1 else HISTORY_WINDOW_HOURS
+
+
+def default_structure(base: PlantConfig, n_days: int, asked: bool | None = None) -> list[Any]:
+    """The structural alternatives the verb searches: the default library with several days
+    (or when ``asked``), none with one day (or when not)."""
+    from softsensor.calibration.structure_search import default_library
+
+    on = n_days > 1 if asked is None else asked
+    return default_library(base) if on else []
+
+
 def _window_hours(args: argparse.Namespace) -> float:
-    """``--window-hours``, by default the paper's 48 h for one day and shorter windows picked
-    across the days of a history."""
+    """``--window-hours``, else :func:`default_window_hours`."""
     if args.window_hours is None:
-        return DEFAULT_WINDOW_HOURS if len(args.days) == 1 else HISTORY_WINDOW_HOURS
+        return default_window_hours(len(args.days))
     return args.window_hours
 
 
@@ -200,15 +214,6 @@ def _fresh_journal(out: Path) -> str:
     return str(journal)
 
 
-def _structure_library(args: argparse.Namespace, base: PlantConfig) -> list[Any]:
-    """The structural alternatives to search: the default library with several days or
-    ``--structure``, none with one day or ``--no-structure``."""
-    from softsensor.calibration.structure_search import default_library
-
-    on = len(args.days) > 1 if args.structure is None else args.structure
-    return default_library(base) if on else []
-
-
 def calibrate_main(args: argparse.Namespace) -> int:
     """``softsensor calibrate``: fit on the history, validate, learn the model error, write
     PARAMS.toml (always: the calibrated parameters, or the current ones kept when the
@@ -243,7 +248,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              polish=not args.no_polish,
                              identify_result=not args.no_identify, force=args.force,
                              validation=validation, progress=progress,
-                             structure=_structure_library(args, base))
+                             structure=default_structure(base, len(args.days), args.structure))
     for c in hist.calibration.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
     doc = _params_doc(base, hist)

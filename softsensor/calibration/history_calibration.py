@@ -46,6 +46,8 @@ from softsensor.calibration.sensor_score import (
     SCORE_DAYS,
     deployable,
     latest_days,
+    not_worse,
+    paired,
     sensor_score,
 )
 from softsensor.calibration.settings import CalibrationSettings
@@ -209,7 +211,8 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                        result.trade_off, structure, say=say)
         if search.adopted is not None:
             with phase("sensor_score", timings, say):
-                search = sensor_decides(search, days, config, model, theta, result, learned)
+                search = sensor_decides(search, days, config, model, theta, result, learned,
+                                        deployed_discrepancy(result, kept))
         if search.adopted is not None:
             deployed = search.adopted.candidate.name
             config = config.with_keys(search.adopted.keys)
@@ -218,13 +221,19 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     with phase("model_error", timings, say):
         # the sensor's decision learned the deployed side's already: the same days and theta
         levels, me = learned.get(deployed) or learned_error(model, days, theta, result)
-    disc = result.discrepancy
-    if kept and result.current_validation is not None:
-        cur = result.current_validation
-        disc = discrepancy_prior(cur.evaluation, cur.segments)
+    disc = deployed_discrepancy(result, kept)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
     return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
+
+
+def deployed_discrepancy(result: CalibrationResult, kept: bool) -> DiscrepancyPrior | None:
+    """PARAMS.toml's ``[discrepancy]``: the calibration's, or the current parameters' when
+    they are kept (from their own validation on the held-out hours)."""
+    if kept and result.current_validation is not None:
+        cur = result.current_validation
+        return discrepancy_prior(cur.evaluation, cur.segments)
+    return result.discrepancy
 
 
 def learned_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
@@ -239,13 +248,18 @@ def learned_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
 
 def sensor_decides(search: StructureSearch, days: Sequence[Segment], config: PlantConfig,
                    model: DryerModel, theta: np.ndarray, result: CalibrationResult,
-                   learned: dict[str, tuple[list[float], ModelError]] | None = None
-                   ) -> StructureSearch:
+                   learned: dict[str, tuple[list[float], ModelError]] | None = None,
+                   discrepancy: DiscrepancyPrior | None = None) -> StructureSearch:
     """The structure the held-out evidence chose, kept only when the estimator does at least
-    as well with it on the latest days (:mod:`.sensor_score`): each side deployed as
-    PARAMS.toml would deploy it, its own model error learned on the history
+    as well with it on the latest days (:mod:`.sensor_score`), lab by lab
+    (:func:`~.sensor_score.not_worse`: no more results it failed to predict, and a mean log
+    density on the results both predicted not lower by more than the difference's standard
+    error; a tie leaves the held-out evidence's choice standing). Each side is
+    deployed as PARAMS.toml would deploy it (``discrepancy``, the ``[discrepancy]`` the
+    baseline deploys with), its own model error learned on the history
     (:func:`learned_error`; each side's goes into ``learned`` by name, so that the side
-    deployed is not learned twice)."""
+    deployed is not learned twice). Both scores and the paired difference go into the
+    search's record."""
     adopted = search.adopted
     assert adopted is not None
     alt_config = config.with_keys(adopted.keys)
@@ -255,17 +269,19 @@ def sensor_decides(search: StructureSearch, days: Sequence[Segment], config: Pla
                                (adopted.candidate.name, alt_config, DryerModel(alt_config),
                                 adopted.theta)):
         levels, me = learned[name] = learned_error(mdl, days, th, result)
-        scores[name] = sensor_score(deployable(cfg, th, me, result.discrepancy),
-                                    latest_days(days))
+        scores[name] = sensor_score(deployable(cfg, th, me, discrepancy), latest_days(days))
     base, alt = scores["baseline"], scores[adopted.candidate.name]
+    p = paired(alt, base)
     record = {"days": min(len(days), SCORE_DAYS),
-              **{k: v.as_dict() for k, v in scores.items()}}
-    if alt.log_score >= base.log_score:
+              **{k: v.as_dict() for k, v in scores.items()}, "paired": p.as_dict()}
+    if not_worse(p):
         return dataclasses.replace(search, sensor=record)
+    why = (f"it failed to predict {p.failed_a} lab results against {p.failed_b}"
+           if p.failed_a > p.failed_b else
+           f"{p.diff:+.3f} +- {p.se:.3f} per result on {p.n} results")
     return search.overruled(
-        f"the estimator's lab score on the latest days is worse with it ({alt.log_score:.2f} "
-        f"against {base.log_score:.2f}; RMSE {alt.rmse:.4f} against {base.rmse:.4f} kg/kg)",
-        record)
+        f"the estimator's lab score on the latest days is worse with it ({why}; RMSE "
+        f"{alt.rmse:.4f} against {base.rmse:.4f} kg/kg)", record)
 
 
 def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, str | None]:
@@ -282,5 +298,5 @@ def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, s
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
-           "history_regression", "inlet_levels", "learned_error", "sensor_decides",
-           "validation_pieces"]
+           "deployed_discrepancy", "history_regression", "inlet_levels", "learned_error",
+           "sensor_decides", "validation_pieces"]

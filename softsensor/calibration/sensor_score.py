@@ -15,13 +15,22 @@ and the error of the mean.
 
 Both candidates carry their own model error learned on the history at their own parameters
 (:func:`~.model_error_fit.fit_model_error`), as PARAMS.toml would deploy them.
+
+Two calibrations are compared lab by lab (:func:`paired`): on the results both predicted, the
+mean difference of their log densities and its standard error, and how many each failed to
+predict (a tick that raised or published no band). A side is not credited for labs it failed
+on, as a mean over its own successes alone would do.
+
+Prequential in the lab results only: each result is predicted before the filter sees it, but
+the parameters and the model error were fitted on histories that hold these days (the latest
+days are history too), so the score is in-sample for the calibration.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -47,14 +56,51 @@ DELAY_TICKS = 1
 @dataclass(frozen=True)
 class SensorScore:
     """The filter's prequential lab score on some days: mean log density ``log_score``
-    [-], the RMSE of its predictions ``rmse`` [kg/kg] and the results scored ``n``."""
+    [-], the RMSE of its predictions ``rmse`` [kg/kg] and the results scored ``n``;
+    ``per_lab``: each result's log density by ``"day:sample_id"`` (None: not predicted)."""
 
     log_score: float
     rmse: float
     n: int
+    per_lab: Mapping[str, float | None] = field(default_factory=dict, repr=False)
 
     def as_dict(self) -> dict[str, float | int]:
-        return {"log_score": self.log_score, "rmse": self.rmse, "n": self.n}
+        return {"log_score": self.log_score, "rmse": self.rmse, "n": self.n,
+                "failed": sum(v is None for v in self.per_lab.values())}
+
+
+@dataclass(frozen=True)
+class Paired:
+    """``a`` against ``b`` on the lab results both predicted: the mean difference of their
+    log densities ``diff`` (positive: ``a`` better) and its standard error ``se`` [-], the
+    results compared ``n``, and the results each failed to predict."""
+
+    diff: float
+    se: float
+    n: int
+    failed_a: int
+    failed_b: int
+
+    def as_dict(self) -> dict[str, float | int]:
+        return {"diff": self.diff, "se": self.se, "n": self.n, "failed_a": self.failed_a,
+                "failed_b": self.failed_b}
+
+
+def not_worse(p: Paired) -> bool:
+    """``a`` does at least as well as ``b`` (:func:`paired`): it failed to predict no more
+    results, and its mean log density is not lower by more than the difference's standard
+    error (a difference within it is a tie: deciding on it would be a coin flip)."""
+    return p.failed_a <= p.failed_b and not p.diff < -p.se
+
+
+def paired(a: SensorScore, b: SensorScore) -> Paired:
+    """``a`` against ``b`` lab by lab (module docstring)."""
+    both = [k for k, v in a.per_lab.items() if v is not None and b.per_lab.get(k) is not None]
+    d = np.array([a.per_lab[k] - b.per_lab[k] for k in both], float)  # type: ignore[operator]
+    se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.inf
+    return Paired(float(np.mean(d)) if d.size else math.nan, se, int(d.size),
+                  sum(v is None for v in a.per_lab.values()),
+                  sum(v is None for v in b.per_lab.values()))
 
 
 def day_windows(seg: Segment, scan_period_s: float) -> list[Window]:
@@ -97,7 +143,8 @@ def sensor_score(config: PlantConfig, days: Sequence[Segment],
     lab_var = s.lab_std ** 2
     logs: list[float] = []
     errs: list[float] = []
-    for seg in days:
+    per_lab: dict[str, float | None] = {}
+    for i, seg in enumerate(days):
         est = UkfEstimator(config, s)
         published: list[tuple[float, float] | None] = []
         due: dict[int, list[int]] = {}
@@ -107,11 +154,14 @@ def sensor_score(config: PlantConfig, days: Sequence[Segment],
             for j in due.get(k, []):
                 pred = published[int(seg.lab_window[j])]
                 value = float(seg.lab_value[j])
+                key = f"{i}:{seg.lab_id[j]}"
+                per_lab[key] = None
                 if pred is not None:
                     mean, sd = pred
                     var = sd * sd + lab_var
                     logs.append(-0.5 * (math.log(2 * math.pi * var) + (value - mean) ** 2 / var))
                     errs.append(value - mean)
+                    per_lab[key] = logs[-1]
                 t = int(seg.lab_time_ns[j])
                 est.add_lab(LabResult(t, value, str(seg.lab_id[j]), w.start_ns))
             try:
@@ -122,9 +172,9 @@ def sensor_score(config: PlantConfig, days: Sequence[Segment],
             except (SoftsensorError, ArithmeticError, ValueError):
                 published.append(None)
     if not logs:
-        return SensorScore(-math.inf, math.nan, 0)
+        return SensorScore(-math.inf, math.nan, 0, per_lab)
     return SensorScore(float(np.mean(logs)), float(np.sqrt(np.mean(np.square(errs)))),
-                       len(logs))
+                       len(logs), per_lab)
 
 
 def latest_days(days: Sequence[Segment], n: int = SCORE_DAYS) -> list[Segment]:
@@ -132,5 +182,5 @@ def latest_days(days: Sequence[Segment], n: int = SCORE_DAYS) -> list[Segment]:
     return sorted(days, key=lambda d: d.start_ns)[-n:]
 
 
-__all__ = ["DELAY_TICKS", "SCORE_DAYS", "SensorScore", "day_windows", "deployable",
-           "latest_days", "sensor_score"]
+__all__ = ["DELAY_TICKS", "SCORE_DAYS", "Paired", "SensorScore", "day_windows", "deployable",
+           "latest_days", "not_worse", "paired", "sensor_score"]

@@ -200,6 +200,8 @@ class StructureSearch:
         if a is None:
             best = max(self.candidates, key=lambda c: c.gain, default=None)
             tail = "" if best is None else f" (best: {best.candidate.name}, {best.why_not})"
+            if self.sensor:  # the held-out evidence chose one; the estimator's score did not
+                return f"structure: the paper's form kept, the estimator's lab score{tail}"
             return (f"structure: the paper's form kept; none of {len(self.candidates)} "
                     f"alternatives earned its place on the held-out data{tail}")
         t, m = a.point()
@@ -270,11 +272,9 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
             say(f"structure: {alt.name} skipped: {exc}")
     workers = min(default_threads(), len(tried))
 
-    def scored(alt: Candidate, cfg: PlantConfig, broyden: bool) -> Scored:
-        # with several workers each runs its members in its own thread: every core busy with
-        # a whole alternative, none waiting on another's short calls
-        ev, theta = _calibrated(fit, held, cfg, light, threads=1 if workers > 1 else None,
-                                broyden=broyden)
+    def scored(alt: Candidate, cfg: PlantConfig, broyden: bool,
+               threads: int | None = None) -> Scored:
+        ev, theta = _calibrated(fit, held, cfg, light, threads=threads, broyden=broyden)
         score, _ = held_out_score(ev)
         return Scored(alt, alt.keys(cfg), theta, {k: float(v) for k, v in ev.fit.rmse.items()},
                       {k: float(v) for k, v in ev.open_fit.rmse.items()}, score,
@@ -283,7 +283,9 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
 
     def screened(item: tuple[Candidate, PlantConfig]) -> Scored:
         say(f"structure: {item[0].name}")
-        return scored(*item, broyden=True)
+        # with several workers each runs its members in its own thread: every core busy with
+        # a whole alternative, none waiting on another's short calls
+        return scored(*item, broyden=True, threads=1 if workers > 1 else None)
 
     with ThreadPoolExecutor(max_workers=max(workers, 1),
                             thread_name_prefix="structure") as pool:
@@ -295,7 +297,7 @@ def search(fit: Sequence[Segment], held: Sequence[Segment], config: PlantConfig,
     while (pick := next((i for i, c in enumerate(decided) if c.adopted), None)) is not None \
             and out[pick].polish == "broyden":
         say(f"structure: {out[pick].candidate.name}, the polish differenced")
-        out[pick] = scored(*tried[pick], broyden=False)
+        out[pick] = scored(*tried[pick], broyden=False)  # alone: its members on every core
         decided = _decided(out, front, penalty_per_k)
     return StructureSearch(base_score, {k: float(v) for k, v in baseline.fit.rmse.items()},
                            decided)

@@ -150,6 +150,9 @@ class UkfEstimator(ModelEstimator):
         self._state = self._initial_state()
         self._history: list[TickRecord] = []
         self._dirty: int | None = None
+        #: what the state is made with, written into every checkpoint (hashes of the
+        #: calibration: fixed for the estimator's life, so computed once, not at every tick)
+        self._made_with = made_with(self.config)
         #: refused outliers in a row, signed by their side (+ above the estimate, - below)
         self._gate_streak = 0
         #: the last outlier taken as the second of a streak, until a result confirms or
@@ -243,7 +246,7 @@ class UkfEstimator(ModelEstimator):
         """JSON-able snapshot: filter state, history, labs, held inputs, and what the state
         was made with (:func:`~softsensor.plantconfig.made_with`)."""
         return {"kind": self.kind, "version": _CHECKPOINT_VERSION,
-                "made_with": made_with(self.config),
+                "made_with": self._made_with,
                 "state": self._state.to_json(), "hold": self._hold.last.tolist(),
                 "labs": self._labs.to_json(), "dirty": self._dirty,
                 "gate_streak": self._gate_streak, "taken_outlier": self._taken,
@@ -285,7 +288,7 @@ class UkfEstimator(ModelEstimator):
                                   f"({n}, {n}) and ({m},)")
         _check_state(state.x, state.P, hold)
         old = snapshot.get("made_with")  # absent from checkpoints before issue 38
-        changed = [] if old is None else [k for k, v in made_with(self.config).items()
+        changed = [] if old is None else [k for k, v in self._made_with.items()
                                           if old.get(k) != v]
         if changed:
             fresh = self._initial_state()

@@ -15,6 +15,11 @@ days of ``--seed 6262 --event-seed 777``) and hides one thing the model cannot e
 Each asserts the estimate's swing against the truth's (the standard deviation after the daily
 mean, issue 38's "within 1.5 times the truth's") and its error against holding the last lab
 result, the peer every plant has (the benchmark's ``benchmarks/peers.py``, the same code).
+
+These are the issue's targets checked on fresh days, not tests of one mechanism: they pass
+with ``estimator.transient_fraction = 0`` too (RMSE 0.0084, 0.0106 and 0.0073 on the three
+days, against 0.0099, 0.0111 and 0.0067 at the shipped 0.2). The widening itself is pinned by
+``test_ukf.py::test_a_moving_inlet_air_temperature_widens_the_temperature_rows``.
 """
 
 from __future__ import annotations

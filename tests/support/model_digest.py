@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -41,6 +40,7 @@ from typing import Any
 
 import numpy as np
 from paths import FIXTURES, REPO
+from script_modules import load_script
 
 STORED = FIXTURES / "model_digest.json"
 
@@ -48,9 +48,7 @@ STORED = FIXTURES / "model_digest.json"
 def _closed_loop_inputs(model, hours: float) -> np.ndarray:
     """``benchmarks/model.py``'s input sequence (loaded from the file: benchmarks is not a
     package)."""
-    spec = importlib.util.spec_from_file_location("_bench_model", REPO / "benchmarks" / "model.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = load_script(REPO / "benchmarks" / "model.py")
     return bench.closed_loop_inputs(model, hours, seed=0)
 
 

@@ -14,7 +14,12 @@ def load_script(path: Path) -> ModuleType:
     first: a benchmark imports its siblings, such as ``peers``)."""
     name = path.stem
     if name in sys.modules:
-        return sys.modules[name]
+        loaded = sys.modules[name]
+        # a sibling imported by name is the same file; another file of the same stem is not
+        if Path(getattr(loaded, "__file__", "") or "").resolve() != path.resolve():
+            raise ImportError(f"{path}: a module {name!r} from another file is loaded "
+                              f"({getattr(loaded, '__file__', None)})")
+        return loaded
     if str(path.parent) not in sys.path:
         sys.path.insert(0, str(path.parent))
     spec = importlib.util.spec_from_file_location(name, path)

@@ -14,7 +14,6 @@ saying why, where no engine or base is there.
 from __future__ import annotations
 
 import fnmatch
-import importlib.util
 import json
 import re
 import shlex
@@ -25,6 +24,7 @@ from types import ModuleType
 import pytest
 from mcap.reader import make_reader
 from paths import REPO
+from script_modules import load_script
 
 from softsensor.cli import build_parser
 from softsensor.plantconfig import load_plant_config
@@ -259,12 +259,7 @@ def test_healthcheck_runs_softsensor_health() -> None:
 # ------------------------------------------------------------------ a real build and run
 def _image_benchmark() -> ModuleType:
     """benchmarks/image.py: the build, run and size helpers the slow test shares with it."""
-    spec = importlib.util.spec_from_file_location("image_benchmark",
-                                                  ROOT / "benchmarks" / "image.py")
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script(ROOT / "benchmarks" / "image.py")
 
 
 @pytest.mark.docker
