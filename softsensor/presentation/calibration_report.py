@@ -29,7 +29,7 @@ from softsensor.calibration.validation import ValidationResult
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, dotted_keys
 from softsensor.presentation import calibration_figures as figures
 from softsensor.presentation.display import (
     DisplaySettings,
@@ -172,11 +172,10 @@ def deployed_table(params_path: str | Path) -> str:
     text = (f"`{params_path}`, as written:\n\n"
             + figures.markdown_table(("parameter", "deployed", "bounds", "verdict",
                                       "at a bound"), rows))
-    structure = {k: v for k, v in doc.get("structure", {}).items() if k != "evidence"}
+    structure = dotted_keys(doc.get("structure", {}))  # the keys load_parameters applies
     if structure:
-        keys = [(f"{section}.{key}", f"{value:.5g}" if isinstance(value, float) else str(value))
-                for section, table in structure.items() if isinstance(table, dict)
-                for key, value in table.items()]
+        keys = [(key, f"{value:.5g}" if isinstance(value, float) else str(value))
+                for key, value in structure.items()]
         text += ("\n\nIts `[structure]`, which replaces these keys of the plant config:\n\n"
                  + figures.markdown_table(("key", "deployed"), keys))
     fit = doc.get("fit", {})

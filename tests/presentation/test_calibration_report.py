@@ -8,6 +8,7 @@ page does: the objective minimised, the same heading, the segments' median lab r
 from __future__ import annotations
 
 import html
+import re
 
 import optuna
 from synthetic_days import TRUTH
@@ -18,7 +19,7 @@ from softsensor.calibration.identifiability import identify
 from softsensor.calibration.settings import calibration_settings
 from softsensor.plant.simulator import simulate_day
 from softsensor.presentation import calibration_report
-from softsensor.presentation.calibration_report import identify_page, noise_line
+from softsensor.presentation.calibration_report import deployed_table, identify_page, noise_line
 from softsensor.presentation.display import display_settings, lab_reference
 
 optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -45,3 +46,15 @@ def test_the_identify_page_names_its_objective_and_the_labs_moisture(config, mod
     assert html.escape(noise_line(ident.noise, display, 0.1)) not in page
     identify_page(ident, sens[0], config, theta, tmp_path / "default", object())
     assert drawn[1] == calibration_settings(config).cost  # without one: the config's
+
+
+def test_the_deployed_table_lists_every_structure_key_at_any_depth(tmp_path):
+    """``[structure]`` is applied as dotted keys at any depth (``dotted_keys``); the page
+    flattened one level by hand, so a deeper table was shown as one cell of a dict."""
+    params = tmp_path / "params.toml"
+    params.write_text('[parameters.mult_D]\nvalue = 1.0\nlow = 0.5\nhigh = 2.0\n\n'
+                      '[structure.model]\nn_cells = 20\n\n[structure.model.inlet]\nlag_s = 12.5\n\n'
+                      '[structure.evidence]\ngain = 3.0\n')
+    text = deployed_table(params)
+    keys = re.findall(r"^\| (\S+) \| (\S+) \|$", text.split("`[structure]`")[1], re.M)
+    assert keys[1:] == [("model.n_cells", "20"), ("model.inlet.lag_s", "12.5")], text
