@@ -475,7 +475,7 @@ def discrepancy_of(cfg: PlantConfig) -> DiscrepancyPrior | None:
                        lambda c: _discrepancy(c.extra.get("discrepancy"), c.source))
 
 
-def _dotted_keys(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+def dotted_keys(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     """A nested TOML table as ``{"section.key": value}``; the ``evidence`` sub-table, which
     records why a structure was adopted, is not a key."""
     out: dict[str, Any] = {}
@@ -483,7 +483,7 @@ def _dotted_keys(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         if not prefix and k == "evidence":
             continue
         if isinstance(v, dict):
-            out.update(_dotted_keys(v, f"{prefix}{k}."))
+            out.update(dotted_keys(v, f"{prefix}{k}."))
         else:
             out[f"{prefix}{k}"] = v
     return out
@@ -523,7 +523,7 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     if structure is not None:  # first: it may widen the bounds the values must keep within
         if not isinstance(structure, dict):
             raise ConfigError(f"{path}: [structure] must be a table")
-        cfg = cfg.with_keys(_dotted_keys(structure), source=str(path))
+        cfg = cfg.with_keys(dotted_keys(structure), source=str(path))
     cfg = cfg.with_parameters(values, source=str(path)) if values else cfg
     extra = dict(cfg.extra)
     built: dict[str, Any] = {}

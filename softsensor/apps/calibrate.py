@@ -470,7 +470,7 @@ def identify_main(args: argparse.Namespace) -> int:
     }
     if args.report:
         doc["report"] = str(identify_page(ident, sens[0], config, theta, args.report, study,
-                                          importance))
+                                          importance, cost=spec.cost, segments=segments))
     write_json(doc, args.json)
     return 0
 

@@ -235,13 +235,16 @@ class _Sighting:
 
 @dataclass
 class _Taken:
-    """A file taken: its signature when read, when taken [s, monotonic], and the sightings
-    of its changes since."""
+    """A file taken: its signature when read, when taken [s, monotonic], the sightings
+    of its changes since, and the (sample id, moisture) of every result handed on from it."""
 
     signature: tuple[int, int, int]
     at: float
     sightings: dict[str, _Sighting] = field(default_factory=dict)
     deferred: int = 0  #: new results read again but beyond the rate: taken at later polls
+    # a result the estimator refused frees its id (forget), but the same row read again is
+    # not a correction: without this it was handed on at every poll, ahead of the rows after
+    submitted: set[tuple[str, float]] = field(default_factory=set)
 
 
 def _steady(sightings: dict[str, _Sighting], key: str, path: Path, now: float,
@@ -442,17 +445,18 @@ class LabFolderWatcher:
         dest = _unique(self.processed_dir / path.name)
         shutil.move(str(path), dest)
         report.processed.append(dest)
-        self._watch(dest, before)
+        self._watch(dest, before, {(lab.sample_id, lab.moisture_out) for lab in parsed.results})
         return True
 
     # -- files taken, watched for changes
 
-    def _watch(self, dest: Path, signature: tuple[int, int, int] | None) -> None:
-        """Watch ``dest`` (taken with ``signature``) for :attr:`watch_s`; the newest
-        :data:`WATCHED_FILES` at most."""
+    def _watch(self, dest: Path, signature: tuple[int, int, int] | None,
+               submitted: set[tuple[str, float]]) -> None:
+        """Watch ``dest`` (taken with ``signature``, its results ``submitted``) for
+        :attr:`watch_s`; the newest :data:`WATCHED_FILES` at most."""
         if signature is None:
             return
-        self._taken[dest] = _Taken(signature, time.monotonic())
+        self._taken[dest] = _Taken(signature, time.monotonic(), submitted=submitted)
         while len(self._taken) > WATCHED_FILES:
             del self._taken[next(iter(self._taken))]
 
@@ -481,14 +485,19 @@ class LabFolderWatcher:
                 continue
             if _stat_signature(dest) != sig:
                 continue  # written to while being read
-            fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)]
+            # new: an id not seen whose row was not handed on unchanged before (a corrected
+            # value under a refused id is new)
+            fresh = [lab for lab in parsed.results if not self.lab_input.seen(lab.sample_id)
+                     and (lab.sample_id, lab.moisture_out) not in taken.submitted]
             # the rate and the burst as for a fresh file: the first results now, the rest at
             # later polls (a file cannot be refused whole once part of it was taken)
             available = min(self.budget.available(), BURST)
             now_taken = fresh[:int(available)]
             self.budget.take(len(now_taken))
             for lab in now_taken:
-                if self.lab_input.submit(lab) is None:
+                reason = self.lab_input.submit(lab)  # (a sink that raises: tried again)
+                taken.submitted.add((lab.sample_id, lab.moisture_out))
+                if reason is None:
                     report.accepted.append(lab)
                     self._remember(lab.sample_id)
             deferred = len(fresh) - len(now_taken)

@@ -17,8 +17,11 @@ What a request gets (Modbus Application Protocol v1.1b3, section 7):
   trailing bytes) or with ``count`` outside 1..125: exception 3 (illegal data value);
 * function code 4 beyond the block: exception 2 (illegal data address);
 * every other function code: exception 1 (illegal function);
-* a unit other than the configured one (0 and 255 included): exception 11 (gateway target
-  failed to respond), as a gateway answers for a device it does not have.
+* unit 255 (0xFF): as the configured unit. The implementation guide above recommends 0xFF
+  for a device addressed by its IP address alone, which this server is, and clients that
+  follow it send 255 whatever ``unit_id`` says;
+* any other unit than the configured one (0 included): exception 11 (gateway target failed to
+  respond), as a gateway answers for a device it does not have.
 
 A header that cannot be a Modbus TCP frame (protocol id not 0, a length below 2 or above
 254) leaves no way to find the next frame: :class:`FramingError`, and the server closes the
@@ -35,6 +38,8 @@ ILLEGAL_FUNCTION = 1
 ILLEGAL_DATA_ADDRESS = 2
 ILLEGAL_DATA_VALUE = 3
 GATEWAY_TARGET_FAILED = 11
+#: The unit a client sends to a device addressed by its IP address alone (answered as ours).
+ANY_UNIT = 0xFF
 #: The most registers one read may ask for (the spec's 0x7D: 250 bytes of data).
 MAX_READ = 125
 #: MBAP header: transaction, protocol, length (unit included).
@@ -80,7 +85,7 @@ class RegisterProtocol:
     Parameters
     ----------
     unit_id : int
-        The unit answered; others get exception 11.
+        The unit answered, and :data:`ANY_UNIT` as it; others get exception 11.
     registers : callable
         Returns the register block now (read at each request, so an answer is never older
         than the request).
@@ -108,7 +113,7 @@ class RegisterProtocol:
                 break
             unit, pdu = self._buffer[_MBAP.size], bytes(self._buffer[_MBAP.size + 1:end])
             del self._buffer[:end]
-            if unit != self.unit_id:
+            if unit not in (self.unit_id, ANY_UNIT):
                 answer = exception_pdu(pdu[0], GATEWAY_TARGET_FAILED)
             else:
                 answer = answer_pdu(pdu, self.registers())
@@ -118,6 +123,6 @@ class RegisterProtocol:
         return out
 
 
-__all__ = ["GATEWAY_TARGET_FAILED", "ILLEGAL_DATA_ADDRESS", "ILLEGAL_DATA_VALUE",
+__all__ = ["ANY_UNIT", "GATEWAY_TARGET_FAILED", "ILLEGAL_DATA_ADDRESS", "ILLEGAL_DATA_VALUE",
            "ILLEGAL_FUNCTION", "MAX_READ", "READ_INPUT_REGISTERS", "FramingError",
            "RegisterProtocol", "answer_pdu", "exception_pdu", "frame"]

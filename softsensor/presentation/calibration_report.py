@@ -22,13 +22,14 @@ from softsensor.calibration.identifiability import (
     Identifiability,
     Sensitivities,
 )
+from softsensor.calibration.settings import calibration_settings
 from softsensor.calibration.structure_search import StructureSearch
 from softsensor.calibration.trade_off import TradeOff
 from softsensor.calibration.validation import ValidationResult
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
-from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
+from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, dotted_keys
 from softsensor.presentation import calibration_figures as figures
 from softsensor.presentation.display import (
     DisplaySettings,
@@ -171,11 +172,10 @@ def deployed_table(params_path: str | Path) -> str:
     text = (f"`{params_path}`, as written:\n\n"
             + figures.markdown_table(("parameter", "deployed", "bounds", "verdict",
                                       "at a bound"), rows))
-    structure = {k: v for k, v in doc.get("structure", {}).items() if k != "evidence"}
+    structure = dotted_keys(doc.get("structure", {}))  # the keys load_parameters applies
     if structure:
-        keys = [(f"{section}.{key}", f"{value:.5g}" if isinstance(value, float) else str(value))
-                for section, table in structure.items() if isinstance(table, dict)
-                for key, value in table.items()]
+        keys = [(key, f"{value:.5g}" if isinstance(value, float) else str(value))
+                for key, value in structure.items()]
         text += ("\n\nIts `[structure]`, which replaces these keys of the plant config:\n\n"
                  + figures.markdown_table(("key", "deployed"), keys))
     fit = doc.get("fit", {})
@@ -249,15 +249,22 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
 
 def identify_page(ident: Identifiability, sens: Sensitivities, config: PlantConfig,
                   theta: np.ndarray, directory: str | Path, study=None,
-                  importance: dict[str, float] | None = None) -> Path:
+                  importance: dict[str, float] | None = None, *, cost: str | None = None,
+                  segments=None) -> Path:
+    """The identifiability report; ``cost`` names the objective the study minimised (None:
+    the config's ``[calibration] cost``), ``segments`` give the lab moisture at which kg/kg
+    errors become % points (:func:`lab_reference`; None: ``sens``'s segment), as on the
+    calibration page."""
     d = _dir(directory)
     model = DryerModel(config)
+    cost = calibration_settings(config).cost if cost is None else cost
+    x_ref = lab_reference([sens.segment] if segments is None else segments)
     figures.sensitivity_figure(sens, d / "fig2_sensitivity.png")
     sections = [("Sensitivity trajectories (Fig. 2)", "![](fig2_sensitivity.png)")]
-    sections += identifiability_sections(ident, config, importance)
+    sections += identifiability_sections(ident, config, importance, x_ref)
     if study is not None:
-        figures.study_figure(study, importance or {}, d / "fig4_study.png")
-        sections.append(("Cost by trial and parameter importance (Fig. 4)",
+        figures.study_figure(study, importance or {}, d / "fig4_study.png", cost)
+        sections.append(("Objective by trial and parameter importance (Fig. 4)",
                          "![](fig4_study.png)"))
     u = np.median(sens.segment.U, axis=0)
     figures.profile_step_figure(model, theta, u, d / "fig3_profile_steps.png")

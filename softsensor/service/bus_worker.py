@@ -116,12 +116,12 @@ class BusWorker:
     on_admitted : callable, optional
         Called (on the input side's thread) with every input message the limits admitted and
         its origin (``origin``'s answer): the daemon's recorder, so it records what the limits
-        admitted and nothing they refused.
+        admitted and nothing they, or ``origin``, refused.
     origin : callable, optional
         ``origin(message)`` says who sent a message
         (:meth:`~softsensor.service.plc_scans.PlcScans.origin`): the PLC's own scans skip the
         rate limit and the queue bound (the poll period bounds them); another sender's scan
-        while the PLC's arrive is recorded but kept out of the windows (counted in
+        while the PLC's arrive is dropped, neither estimated nor recorded (counted in
         ``dropped["other_sender"]``). None: every message from anyone (a replay).
     thread : bool
         Run the service on the worker's own thread (default). False: on the thread that
@@ -199,11 +199,11 @@ class BusWorker:
         if full:
             self._drop("queue_full")
             return
-        if self.on_admitted is not None:
-            self.on_admitted(message, origin)  # before the worker can make an output of it
-        if origin == REFUSED:  # recorded, as sent; the windows are the PLC's
+        if origin == REFUSED:  # not recorded either: a recorded day is what the estimator took
             self._drop("other_sender")
             return
+        if self.on_admitted is not None:
+            self.on_admitted(message, origin)  # before the worker can make an output of it
         self._hand(message)
 
     def _hand(self, item: Any) -> None:

@@ -497,8 +497,9 @@ class Daemon:
         return "ok"
 
     def _decorate(self, out: Output) -> Output:
-        """Health says when recording is paused (estimates go on without it) and what the
-        input limits dropped."""
+        """Health says when recording is paused (estimates go on without it), what the
+        input limits dropped, and, in ``resources``, when the open file descriptors near the
+        process limit (:class:`~softsensor.service.descriptors.DescriptorWatch`)."""
         if not isinstance(out, Health):
             return out
         capped = None if self.bus_recorder is None or not self.bus_recorder.capped \

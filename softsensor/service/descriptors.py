@@ -44,20 +44,24 @@ class DescriptorWatch:
     def __init__(self, count: Callable[[], int | None] = open_descriptors,
                  limit: Callable[[], int | None] = descriptor_limit) -> None:
         self._count, self._limit = count, limit
-        self.near = False
-        self.said: str | None = None
+        self.said: str | None = None  #: the words of the last check (None: not near)
+
+    @property
+    def near(self) -> bool:
+        """Whether the last check found the descriptors near the limit."""
+        return self.said is not None
 
     def check(self) -> str | None:
         """Count now; the words for health while near the limit, else None."""
         n, limit = self._count(), self._limit()
         if n is None or not limit:
-            self.near, self.said = False, None
+            self.said = None
             return None
         share = n / limit
-        self.near = share >= NEAR or (self.near and share >= CLEAR)
+        near = share >= NEAR or (self.near and share >= CLEAR)
         self.said = (f"{n} of {limit} file descriptors open ({100 * share:.0f} %): near the "
                      f"process limit, at which checkpoints, the lab folder and new "
-                     f"connections fail") if self.near else None
+                     f"connections fail") if near else None
         return self.said
 
 

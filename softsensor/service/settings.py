@@ -83,7 +83,7 @@ class ServiceSettings:
         against a cap of their own.
     plc_scans_first : bool
         While the daemon's own PLC scans arrive, another sender's scans on the bus are
-        recorded but kept out of the windows (``inputs_dropped`` ``other_sender``); false:
+        dropped, neither recorded nor estimated (``inputs_dropped`` ``other_sender``); false:
         every sender's scans go into the windows, as before issue 40.
     checkpoint : str
         Estimator checkpoint file (JSON, replaced atomically).

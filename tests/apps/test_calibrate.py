@@ -33,7 +33,12 @@ from softsensor.cli import main as cli_main
 from softsensor.configfile import read_toml
 from softsensor.estimation.lab_regression import regression_of
 from softsensor.plant.simulator import simulate_day
-from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, load_plant_config
+from softsensor.plantconfig import (
+    PARAMETER_NAMES,
+    dotted_keys,
+    load_parameters,
+    load_plant_config,
+)
 from softsensor.presentation.calibration_report import lab_reference
 from softsensor.presentation.display import moisture_pct_points
 from softsensor.presentation.verdicts import validation_verdict
@@ -112,8 +117,7 @@ def _the_page_deploys_the_file(report: Path, doc: dict) -> None:
     assert shown == {n: (pytest.approx(spec["value"], rel=1e-4),
                          f"[{spec['low']:g}, {spec['high']:g}]")
                      for n, spec in doc["parameters"].items()}
-    structure = {f"{s}.{k}": v for s, t in doc.get("structure", {}).items()
-                 if s != "evidence" and isinstance(t, dict) for k, v in t.items()}
+    structure = dotted_keys(doc.get("structure", {}))
     if structure:
         keys = {row[0]: row[1] for row in tables[1]}
         assert keys.keys() == structure.keys()

@@ -80,8 +80,10 @@ def test_bad_counts_truncated_pdus_and_other_units_get_their_codes_without_a_log
     with _server() as server, socket.create_connection(("127.0.0.1", server.port),
                                                        timeout=5) as s:
         s.sendall(_read(1, count=0) + _read(2, count=2000)
-                  + frame(3, 1, bytes([4, 0, 0, 0])) + _read(4, unit=0) + _read(5, unit=255))
-        got = dict(_answers(s, 5))
+                  + frame(3, 1, bytes([4, 0, 0, 0])) + _read(4, unit=0) + _read(5, unit=2)
+                  + _read(6, unit=255))
+        got = dict(_answers(s, 6))
+    assert got.pop(6)[:2] == bytes([4, 2 * N_REGISTERS])  # 255: the device addressed by IP
     assert got == {1: b"\x84\x03", 2: b"\x84\x03", 3: b"\x84\x03", 4: b"\x84\x0b",
                    5: b"\x84\x0b"}
     assert server.refused == 5

@@ -10,7 +10,8 @@ files read back.
 Issue 40: the cap was per topic, so a flood spent it and no real PLC scan was recorded for the
 rest of the day, and a flood's values were averaged into the windows. Now the PLC's own scans
 are known to the daemon: recorded under a cap of their own, and other senders' scans are kept
-out of the windows while the PLC's arrive.
+out of the windows while the PLC's arrive. And out of the recording: a recorded day is what the
+estimator took, so ``replay``, ``calibrate`` and ``diagnose`` never read the flood.
 """
 
 from __future__ import annotations
@@ -54,9 +55,10 @@ def test_the_recording_keeps_to_the_input_limits_and_a_daily_cap(tmp_path: Path)
     got: dict = {}
 
     async def run() -> None:
-        # 0.25 scans a plant second: 60 a wall second at 240x, so most of the flood is dropped
+        # 0.25 scans a plant second: 60 a wall second at 240x, so most of the flood is dropped;
+        # every sender's scans taken (as without a PLC), so the peer's reach the recording
         async with running_daemon(tmp_path, ticks=1, max_scan_rate_hz=0.25,
-                                  record_topic_bytes_per_day=CAP) as r:
+                                  record_topic_bytes_per_day=CAP, plc_scans_first=False) as r:
             p, rec = r.daemon.worker, r.daemon.bus_recorder
             await asyncio.to_thread(_flood, r.endpoint, r.daemon.clock.now_ns(), 600)
             await asyncio.sleep(0.5)
@@ -75,7 +77,8 @@ def test_the_recording_keeps_to_the_input_limits_and_a_daily_cap(tmp_path: Path)
     asyncio.run(asyncio.wait_for(run(), 150))
     day = _recorded(tmp_path / "rec")
     scans = day["/plant/scan"]
-    admitted = got["received"] - got["dropped"]["rate"] - got["dropped"]["queue_full"]
+    admitted = got["received"] - got["dropped"]["rate"] - got["dropped"]["queue_full"] \
+        - got["dropped"]["other_sender"]
     assert got["dropped"]["rate"] > 300, got  # the limiter dropped most of the flood
     # what the limits dropped is not recorded; of what they admitted, the cap's share
     assert len(scans) + got["capped"]["/plant/scan"] == admitted, (len(scans), got)
@@ -90,17 +93,18 @@ def test_the_recording_keeps_to_the_input_limits_and_a_daily_cap(tmp_path: Path)
     assert day["/softsensor/estimate"]  # the rest goes on being recorded
 
 
-def test_after_a_flood_the_plcs_scans_are_still_recorded_and_the_windows_are_the_plcs(
-        tmp_path: Path):
+def test_a_flood_while_the_plc_serves_is_neither_recorded_nor_estimated(tmp_path: Path):
     got: dict = {}
 
     async def run() -> None:
-        # a high rate: the flood is admitted (as the probe's was at 60x) and spends its cap
+        # a high rate: the limiter admits the flood (as the probe's at 60x); the PLC's scans
+        # arriving, the daemon refuses it
         async with running_daemon(tmp_path, ticks=1, max_scan_rate_hz=50.0,
                                   record_topic_bytes_per_day=CAP) as r:
             d = r.daemon
             stats, poller = d.worker.service.stats, d.poller
             scans0, polls0 = stats.scans, poller.stats.scans
+            got["flood_ns"] = d.clock.now_ns()
             await asyncio.to_thread(_flood, r.endpoint, d.clock.now_ns(), 600)
             t0 = stats.ticks
             deadline = asyncio.get_running_loop().time() + 30
@@ -111,7 +115,6 @@ def test_after_a_flood_the_plcs_scans_are_still_recorded_and_the_windows_are_the
             got["polled"] = poller.stats.scans - polls0
             got["other"] = d.worker.dropped["other_sender"]
             got["capped"] = dict(d.bus_recorder.capped)
-            got["after_ns"] = d.clock.now_ns()
 
     asyncio.run(asyncio.wait_for(run(), 150))
     scans = []  # (log time, is the flood's)
@@ -119,10 +122,11 @@ def test_after_a_flood_the_plcs_scans_are_still_recorded_and_the_windows_are_the
         with open(path, "rb") as f:
             for _schema, _channel, m in make_reader(f).iter_messages(topics=["/plant/scan"]):
                 scans.append((m.log_time, b"pad" in m.data))
-    assert got["capped"].get("/plant/scan", 0) > 0, got  # the flood spent its cap
-    assert got["other"] > 300, got  # and none of it reached the windows
+    assert got["other"] > 300, got  # the flood was refused: none of it reached the windows
     # every scan the estimator took is one the PLC served (none of the flood's)
     assert 0 < got["estimated"] <= got["polled"] + 1, got
-    flood_end = max(t for t, flood in scans if flood)
-    # the PLC's scans are recorded after the flood spent the topic's cap
-    assert sum(1 for t, flood in scans if not flood and t > flood_end) >= 5, scans[-20:]
+    # none of it was recorded either (a replay of the day reads what the estimator took) ...
+    assert not any(flood for _t, flood in scans), sum(flood for _t, flood in scans)
+    assert got["capped"].get("/plant/scan", 0) == 0, got  # (so it spent no cap)
+    # ... and the PLC's own scans were, through the flood and after it
+    assert sum(1 for t, flood in scans if not flood and t > got["flood_ns"]) >= 5, scans[-20:]

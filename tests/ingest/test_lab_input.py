@@ -17,7 +17,7 @@ import pytest
 from softsensor.errors import IngestError
 from softsensor.estimation.interface import LabResult
 from softsensor.ingest.lab_files import parse_lab_csv
-from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, PollReport
+from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, PollReport, _Budget
 from softsensor.messages import make_lab_result
 
 T_S = 1_750_000_000  # 2025-06-15T15:06:40Z
@@ -343,3 +343,46 @@ def test_rows_appended_beyond_the_burst_are_applied_later_and_said(inbox, tmp_pa
     second = watcher.poll_once(now=t + 4)
     assert len(second.accepted) == 15 and not second.waiting
     assert [lab.sample_id for lab in got] == [f"R{k}" for k in range(41)]
+
+
+def test_a_refused_row_read_again_does_not_starve_the_rows_after_it(tmp_path):
+    """A file with rows deferred is read again at every poll; a result the estimator refused
+    (its id freed by ``forget``) was handed on again unchanged at each one, taking the poll's
+    token first, so the rows after it never came. Now a row handed on from the file is not
+    handed on again unchanged; a corrected value under the same id is."""
+    got: list[LabResult] = []
+
+    def estimator(lab: LabResult) -> None:  # refuses 0.45, as the daemon's service does
+        got.append(lab)
+        if lab.moisture_out == 0.45:
+            watcher.forget(lab.sample_id)
+
+    watcher = LabFolderWatcher(tmp_path, LabInput(estimator, clock=lambda: NOW_NS),
+                               poll_s=0.05, settle_s=1.0)
+    head = "sample_time,moisture_out,sample_id\n2025-06-15T15:06:40Z,0.1,R0\n"
+    _drop(tmp_path, "open.csv", head)
+    _settle(watcher)
+    wall = [0.0]
+    watcher.budget = _Budget(1.0, burst=1, clock=lambda: wall[0])  # one result a poll
+    taken = tmp_path / "processed" / "open.csv"
+
+    def rows(r1: str) -> str:
+        return head + f"2025-06-15T15:10:00Z,{r1},R1\n" + "".join(
+            f"2025-06-15T15:{10 + k:02d}:00Z,0.1,R{k}\n" for k in (2, 3, 4))
+
+    taken.write_text(rows("0.45"))
+    os.utime(taken, (OLD, OLD))
+    t = time.time() + 10
+    watcher.poll_once(now=t)  # the change seen
+    for k in range(1, 7):
+        wall[0] += 1.0
+        watcher.poll_once(now=t + 2 * k)
+    assert [(lab.sample_id, lab.moisture_out) for lab in got] == \
+        [("R0", 0.1), ("R1", 0.45), ("R2", 0.1), ("R3", 0.1), ("R4", 0.1)]
+    taken.write_text(rows("0.095"))  # the typo corrected under the same id
+    os.utime(taken, (OLD, OLD))
+    watcher.poll_once(now=t + 20)
+    wall[0] += 1.0
+    report = watcher.poll_once(now=t + 22)
+    assert [(lab.sample_id, lab.moisture_out) for lab in report.accepted] == [("R1", 0.095)]
+    assert watcher.lab_input.seen("R1") and len(got) == 6

@@ -51,10 +51,20 @@ def test_a_read_beyond_the_block_gets_exception_2_and_a_good_one_its_registers()
     assert _answer(last)[2] == bytes([4, 2, 0, 116])
 
 
-@pytest.mark.parametrize("unit", [0, 2, 255])
+@pytest.mark.parametrize("unit", [0, 2, 254])
 def test_another_unit_gets_exception_11(unit):
     [out] = RegisterProtocol(1, lambda: BLOCK).feed(_read(5, 0, 2, unit=unit))
     assert _answer(out) == (5, unit, b"\x84\x0b")
+
+
+@pytest.mark.parametrize("unit_id", [1, 17])
+def test_unit_255_is_answered_as_the_configured_unit(unit_id):
+    """0xFF is what the Modbus TCP guide tells a client to send to a device addressed by
+    its IP address alone; it got exception 11."""
+    p = RegisterProtocol(unit_id, lambda: BLOCK)
+    ours, any_unit = p.feed(_read(5, 0, 2, unit=unit_id) + _read(6, 0, 2, unit=255))
+    assert _answer(any_unit) == (6, 255, _answer(ours)[2]) and p.refused == 0
+    assert _answer(ours)[2] == bytes([4, 4, 0, 100, 0, 101])
 
 
 def test_pipelined_requests_are_answered_in_order_and_a_split_one_when_complete():
