@@ -88,9 +88,13 @@ class Diagnosis:
 
     @property
     def shape(self) -> ShapeFit | None:
-        """The shape that named the cause (None: an extension, or the baseline, did)."""
+        """The shape that named the cause (None: an extension, or the baseline, did; an
+        eligible extension that won the verdict keeps it even where its cause's shape has
+        the larger evidence, :func:`after_shapes`)."""
         c = self.candidates[0] if self.candidates else None
-        return self.shapes.get(c.cause) if c is not None and c.source == "shape" else None
+        if c is None or c.source != "shape" or self.verdict.winner is not None:
+            return None
+        return self.shapes.get(c.cause)
 
     @property
     def cause(self) -> str:
@@ -338,12 +342,24 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     say("every cause's shape on the residuals")
     fits = {sh.cause: sh.fit(problem) for sh in shapes}
     cands = posterior(v, scores.values(), skipped, margin, shapes=fits.values())
-    if cands and cands[0].source == "shape":
-        v = named_by_shape(v, cands[0].cause, cands[0].probability, scores.get(cands[0].cause))
+    v = after_shapes(v, cands, scores)
     timings["probabilities"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
                      skipped, sigs, cands, cannot_tell(cands, sigs), fits)
+
+
+def after_shapes(v: Verdict, cands: list[Candidate], scores: dict[str, Score]) -> Verdict:
+    """The verdict once the shapes have competed (:func:`~.posterior.posterior`'s
+    ``cands``, most probable first): named by the most probable candidate's shape when that
+    is a shape of another cause than the verdict's winning extension. A shape larger than
+    the winning extension of its own cause names nothing new: the extension, held-out gain
+    and all, stays the verdict (the probabilities keep the shape's larger evidence)."""
+    if not cands or cands[0].source != "shape":
+        return v
+    if v.winner is not None and v.winner.cause == cands[0].cause:
+        return v
+    return named_by_shape(v, cands[0].cause, cands[0].probability, scores.get(cands[0].cause))
 
 
 def named_by_shape(v: Verdict, cause: str, probability: float, sc: Score | None) -> Verdict:

@@ -30,7 +30,9 @@ the other explains, and ``unexplained`` carries the largest penalty of all candi
 
 When a shape's ``L`` is the largest of all, its cause is named (the verdict's ranking
 puts it first, :func:`~.diagnose_day.named_by_shape`): a cause whose model extension failed
-on a plant whose form of it is not the model's is still named by what it leaves.
+on a plant whose form of it is not the model's is still named by what it leaves. When that
+cause is already the verdict's, named by its eligible extension, the extension stays the
+verdict, held-out gain and all (:func:`~.diagnose_day.after_shapes`).
 
 The probabilities read the log-evidences as the likelihood of a model that is itself only
 approximately right: with a prior ``pi`` over the candidates (uniform: before the day is seen,
