@@ -311,15 +311,18 @@ def _stub_score(cause: str, penalised: float, gain: float) -> Score:
                  {n: penalised / 3 for n in OUTPUT_NAMES}, penalised, (), 30.0, 1e-6)
 
 
-def _shape_named(scores: list[Score], shape: ShapeFit) -> Diagnosis:
-    """What :func:`diagnose` makes of ``scores`` and one cause's ``shape`` on a day with
-    unstructured residuals: the verdict after the shapes, with the candidates (no day
-    behind them: only the verdict, the candidates and the shapes are read)."""
+def _shape_named(scores: list[Score], shape: ShapeFit, skipped: tuple[str, ...] = ()
+                 ) -> Diagnosis:
+    """What :func:`diagnose` makes of ``scores``, the ``skipped`` causes and one cause's
+    ``shape`` on a day with unstructured residuals: the verdict after the shapes, with the
+    candidates (no day behind them: only the verdict, the candidates and the shapes are
+    read)."""
     v = verdict(scores, None)
-    cands = posterior(v, scores, [], -5.0, shapes=[shape])
+    cands = posterior(v, scores, skipped, -5.0, shapes=[shape])
     assert cands[0].cause == shape.cause and cands[0].source == "shape"
-    return Diagnosis(None, None, {}, {s.cause: s for s in scores}, {},  # type: ignore[arg-type]
-                     after_shapes(v, cands, {s.cause: s for s in scores}), np.ones(3),
+    by_cause = {s.cause: s for s in scores}
+    return Diagnosis(None, None, {}, by_cause, {}, after_shapes(v, cands, by_cause, skipped),  # type: ignore[arg-type]
+                     np.ones(3), skipped={c: "ruled out" for c in skipped},
                      candidates=cands, shapes={shape.cause: shape})
 
 
@@ -341,3 +344,17 @@ def test_a_shape_of_a_cause_without_an_eligible_extension_names_it():
     shape = ShapeFit("ambient_heat_loss", None, 200.0, -5.0, {}, "cold")
     d = _shape_named(scores, shape)
     assert d.cause == "ambient_heat_loss" and d.verdict.winner is None and d.shape is shape
+
+
+def test_a_cause_named_by_its_shape_ranks_every_cause_by_one_posterior():
+    """Review of issue 39: the named cause took its posterior probability while the others
+    kept the verdict's softmax weights (summing to 1.9 on one day); every entry, the
+    skipped causes' too, now scores its probability in the same posterior."""
+    scores = [_stub_score("fouling_drift", 40.0, 0.23), _stub_score("lab_delay", 2.0, 0.01),
+              _stub_score("ambient_heat_loss", 3.0, -0.02)]
+    d = _shape_named(scores, ShapeFit("ambient_heat_loss", None, 200.0, -5.0, {}, "cold"),
+                     skipped=("inlet_moisture",))
+    weights = {c: w for c, w, _ in d.verdict.ranking}
+    assert sum(weights.values()) == pytest.approx(1.0, abs=1e-9)
+    assert weights == {c.cause: c.probability for c in d.candidates}
+    assert max(weights, key=weights.__getitem__) == d.verdict.ranking[0][0] == d.cause
