@@ -56,7 +56,7 @@ import numpy as np
 from scipy.stats import multivariate_normal, norm
 
 from softsensor.diagnosis.extensions import TransferDrift
-from softsensor.diagnosis.problem import Problem
+from softsensor.diagnosis.problem import Problem, Residuals
 from softsensor.diagnosis.verdict import margins
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
 
@@ -138,18 +138,30 @@ def _rounded(x: float, digits: int) -> float | None:
     return round(float(x), digits) if math.isfinite(x) else None
 
 
-def whitened_shape(problem: Problem, T: np.ndarray, lab: np.ndarray) -> np.ndarray:
+def whitened_shape(problem: Problem, T: np.ndarray, lab: np.ndarray,
+                   base: Residuals | None = None) -> np.ndarray:
     """A residual change ``T`` (K, 2), ``lab`` (L,) whitened as the baseline's residuals are
     over the whole day (:meth:`Problem.whitened <.problem.Problem.whitened>`, ``"all"``), with
-    the baseline's missing samples left out, as one vector in the same order."""
-    base = problem.residuals(problem.baseline)
-    T = np.where(np.isfinite(base.T), T, np.nan)
-    lab = np.where(np.isfinite(base.lab), lab, np.nan)
+    the baseline's missing samples left out, as one vector in the same order. ``base``: the
+    baseline's residuals, when the caller has them (a fit whitens dozens of alternatives).
+
+    The whitening is linear and keeps exactly the samples it is given, so an all-zero block
+    (the temperatures of a lab shift, the labs of a thermometer step) whitens to zeros
+    without running its filter."""
+    base = problem.residuals(problem.baseline) if base is None else base
+    okT, okl = np.isfinite(base.T), np.isfinite(base.lab)
     ce = problem.calibration_error
-    wT = ce.whiten_temperatures(T)
-    t_s = (problem.windows.lab_time_ns - problem.windows.start_ns) / 1e9
-    wl = ce.whiten_labs(lab, t_s)
-    return np.concatenate([p[np.isfinite(p)] for p in (wT[:, 0], wT[:, 1], wl)])
+    if np.any(T[okT]):
+        wT = ce.whiten_temperatures(np.where(okT, T, np.nan))
+        blocks = [wT[:, 0][okT[:, 0]], wT[:, 1][okT[:, 1]]]
+    else:
+        blocks = [np.zeros(int(okT[:, 0].sum())), np.zeros(int(okT[:, 1].sum()))]
+    if np.any(lab[okl]):
+        t_s = (problem.windows.lab_time_ns - problem.windows.start_ns) / 1e9
+        blocks.append(ce.whiten_labs(np.where(okl, lab, np.nan), t_s)[okl])
+    else:
+        blocks.append(np.zeros(int(okl.sum())))
+    return np.concatenate(blocks)
 
 
 def linear_evidence(v: np.ndarray, W: np.ndarray, prior_sd: np.ndarray,
@@ -213,11 +225,11 @@ class Shape(ABC):
 
     def fit(self, problem: Problem) -> ShapeFit:
         """The shape's evidence on ``problem``'s day, marginalised over its alternatives."""
-        base = problem.whitened(problem.baseline, "all")
-        v = np.concatenate(base)
+        v = np.concatenate(problem.whitened(problem.baseline, "all"))
+        residuals = problem.residuals(problem.baseline)
         logs, best = [], None
         for alt in self.alternatives(problem):
-            W = np.stack([whitened_shape(problem, alt.T[j], alt.lab[j])
+            W = np.stack([whitened_shape(problem, alt.T[j], alt.lab[j], residuals)
                           for j in range(alt.T.shape[0])], axis=1)
             if alt.fixed:
                 w = W[:, 0]
