@@ -12,9 +12,14 @@
    (:mod:`.verdict`); only the costly inlet-moisture filter is skipped when the residuals
    rule it out (:func:`implausible`);
 4. name the cause and write the evidence (:mod:`.evidence`);
-5. give every cause its probability (:mod:`.posterior`), with every cause's signature on this
-   day and the size the normal can see of it (:mod:`.detectability`), and say where the two
-   most probable causes cannot be told apart on this day's data and what data would.
+5. fit every cause's shape on the baseline's residuals against the normal (:mod:`.shapes`,
+   each with its exact marginal evidence) and give every cause its probability
+   (:mod:`.posterior`; a cause takes the larger of its extension's and its shape's
+   evidence), with every cause's signature on this day and the size the normal can see of it
+   (:mod:`.detectability`), and say where the two most probable causes cannot be told apart
+   on this day's data and what data would;
+6. when a shape has the most evidence of all, name its cause without a winning extension
+   (:func:`after_shapes`), unless the verdict's eligible extension is of that cause already.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
 (:meth:`Diagnosis.to_json`) and feeds the report page
