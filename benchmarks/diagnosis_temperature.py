@@ -19,8 +19,10 @@ again without diagnosing (the expensive part: about 10 min per plant on this mac
 
 The second form fits ``(T, eps)`` on the ``--refit`` (tuning) days
 (:func:`~softsensor.diagnosis.posterior.fit_calibration`) and gives, on the tuning and on
-the ``--check`` (fresh) days, at the fitted values, at the module's and before issue 39
-(a plain softmax at ``T = 8``, "cannot tell" only between two collinear extensions): the
+the ``--check`` (fresh) days, at the fitted values, at the module's and at the settings
+before issue 39 (``at_old_settings``: a plain softmax at ``T = 8``, "cannot tell" only
+between two collinear extensions, applied to the same stored candidates: with the shapes,
+the shapes scored at the old settings, not the diagnosis as it was before issue 39): the
 Brier score, the days right and with the right cause in the top two, "cannot tell" counted
 apart (days, how often the truth is in the pair, right when decided), the wrong verdicts
 above 0.9, and the reliability tables (predicted probability against observed frequency,
@@ -224,8 +226,9 @@ def true_index(rec: dict[str, Any]) -> int:
     return -1
 
 
-#: The contamination before issue 39 (a plain softmax at T = 8).
-BEFORE = {"extension": 0.0, "none": 0.0, "unexplained": 0.0}
+#: The contamination of the settings before issue 39 (a plain softmax at T = 8), applied
+#: to the stored candidates (``at_old_settings``).
+OLD_CONTAMINATION = {"extension": 0.0, "none": 0.0, "unexplained": 0.0}
 #: Edges of the reliability table's bins of predicted probability.
 BINS = (0.0, 0.1, 0.3, 0.5, 0.7, 0.9, 0.99, 1.0)
 
@@ -404,10 +407,12 @@ def main() -> int:
             "fitted": {"temperature": t, "contamination": eps},
             "tuning": {"fitted": evaluate(tuning, t, eps),
                        "module": evaluate(tuning, TEMPERATURE, CONTAMINATION),
-                       "before": evaluate(tuning, 8.0, BEFORE, old_rule=True)},
+                       "at_old_settings": evaluate(tuning, 8.0, OLD_CONTAMINATION,
+                                                   old_rule=True)},
             "fresh": {"fitted": evaluate(fresh, t, eps),
                       "module": evaluate(fresh, TEMPERATURE, CONTAMINATION),
-                      "before": evaluate(fresh, 8.0, BEFORE, old_rule=True)}
+                      "at_old_settings": evaluate(fresh, 8.0, OLD_CONTAMINATION,
+                                                  old_rule=True)}
             if fresh else None}
     text = json.dumps(doc, indent=1)
     if args.out:

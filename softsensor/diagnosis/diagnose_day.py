@@ -12,9 +12,14 @@
    (:mod:`.verdict`); only the costly inlet-moisture filter is skipped when the residuals
    rule it out (:func:`implausible`);
 4. name the cause and write the evidence (:mod:`.evidence`);
-5. give every cause its probability (:mod:`.posterior`), with every cause's signature on this
-   day and the size the normal can see of it (:mod:`.detectability`), and say where the two
-   most probable causes cannot be told apart on this day's data and what data would.
+5. fit every cause's shape on the baseline's residuals against the normal (:mod:`.shapes`,
+   each with its exact marginal evidence) and give every cause its probability
+   (:mod:`.posterior`; a cause takes the larger of its extension's and its shape's
+   evidence), with every cause's signature on this day and the size the normal can see of it
+   (:mod:`.detectability`), and say where the two most probable causes cannot be told apart
+   on this day's data and what data would;
+6. when a shape has the most evidence of all, name its cause without a winning extension
+   (:func:`after_shapes`), unless the verdict's eligible extension is of that cause already.
 
 The result, :class:`Diagnosis`, turns into the REPORT.json of CONTRACT section 5
 (:meth:`Diagnosis.to_json`) and feeds the report page
@@ -27,7 +32,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,9 +93,13 @@ class Diagnosis:
 
     @property
     def shape(self) -> ShapeFit | None:
-        """The shape that named the cause (None: an extension, or the baseline, did)."""
+        """The shape that named the cause (None: an extension, or the baseline, did; an
+        eligible extension that won the verdict keeps it even where its cause's shape has
+        the larger evidence, :func:`after_shapes`)."""
         c = self.candidates[0] if self.candidates else None
-        return self.shapes.get(c.cause) if c is not None and c.source == "shape" else None
+        if c is None or c.source != "shape" or self.verdict.winner is not None:
+            return None
+        return self.shapes.get(c.cause)
 
     @property
     def cause(self) -> str:
@@ -127,6 +136,9 @@ class Diagnosis:
                     "params_other_fold": {k: _num(x) for k, x in
                                           self.other_fold[cause].params.items()},
                     "channel": fitted.channel})
+            if cause in self.skipped:
+                entry.update({"eligible": False, "evidence": entry["evidence"]
+                              + f". Not fitted: {self.skipped[cause]}"})
             fit = self.shapes.get(cause)
             if fit is not None:
                 entry["evidence"] += f". Shape on the residuals: {shape_text(fit)}"
@@ -134,7 +146,10 @@ class Diagnosis:
                 if fit is self.shape:
                     entry.update({"params": dict(fit.params), "channel": fit.channel})
             ranking.append(entry)
+        ranked = {r[0] for r in v.ranking}
         for cause, reason in self.skipped.items():
+            if cause in ranked:  # named by a shape: every candidate ranked already
+                continue
             ranking.append({"cause": cause, "score": 0.0, "eligible": False,
                             "evidence": evidence_text(cause, self.summary, None, None)
                             + f". Not fitted: {reason}"})
@@ -338,18 +353,38 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     say("every cause's shape on the residuals")
     fits = {sh.cause: sh.fit(problem) for sh in shapes}
     cands = posterior(v, scores.values(), skipped, margin, shapes=fits.values())
-    if cands and cands[0].source == "shape":
-        v = named_by_shape(v, cands[0].cause, cands[0].probability, scores.get(cands[0].cause))
+    v = after_shapes(v, cands, scores, skipped)
     timings["probabilities"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
                      skipped, sigs, cands, cannot_tell(cands, sigs), fits)
 
 
-def named_by_shape(v: Verdict, cause: str, probability: float, sc: Score | None) -> Verdict:
-    """The verdict when a cause's shape (:mod:`.shapes`) has the most evidence of all: that
-    cause named first in the ranking at its probability, without a winning extension (its
-    model extension, where fitted, was not eligible: the held-out numbers stay the
-    baseline's)."""
-    rest = [r for r in v.ranking if r[0] != cause]
-    return Verdict(cause, None, [(cause, probability, sc), *rest], v.structure)
+def after_shapes(v: Verdict, cands: list[Candidate], scores: dict[str, Score],
+                 skipped: Iterable[str] = ()) -> Verdict:
+    """The verdict once the shapes have competed (:func:`~.posterior.posterior`'s
+    ``cands``, most probable first): named by the most probable candidate's shape when that
+    is a shape of another cause than the verdict's winning extension (:func:`named_by_shape`).
+    A shape larger than the winning extension of its own cause names nothing new: the
+    extension, held-out gain and all, stays the verdict (the probabilities keep the shape's
+    larger evidence)."""
+    if not cands or cands[0].source != "shape":
+        return v
+    if v.winner is not None and v.winner.cause == cands[0].cause:
+        return v
+    return named_by_shape(v, cands, scores, skipped)
+
+
+def named_by_shape(v: Verdict, cands: list[Candidate], scores: dict[str, Score],
+                   skipped: Iterable[str] = ()) -> Verdict:
+    """The verdict when a cause's shape (:mod:`.shapes`) has the most evidence of all
+    (``cands[0]``): that cause named without a winning extension (its model extension,
+    where fitted, was not eligible: the held-out numbers stay the baseline's), and the
+    ranking every candidate in ``cands``' order with its posterior probability as its
+    score, so that the scores are on one scale and sum to one (the verdict's own weights
+    are a softmax of the extensions' gains alone); a ``skipped`` cause (not fitted) ranks
+    with its probability too, without a score."""
+    gone = set(skipped)
+    ranking = [(c.cause, c.probability, None if c.cause in gone else scores.get(c.cause))
+               for c in cands]
+    return Verdict(cands[0].cause, None, ranking, v.structure)

@@ -56,7 +56,7 @@ import numpy as np
 from scipy.stats import multivariate_normal, norm
 
 from softsensor.diagnosis.extensions import TransferDrift
-from softsensor.diagnosis.problem import Problem
+from softsensor.diagnosis.problem import Problem, Residuals
 from softsensor.diagnosis.verdict import margins
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
 
@@ -67,8 +67,10 @@ _M_FIBER = INPUT_NAMES.index("m_fiber")
 T_COLD = 283.15
 #: Onsets of the step and ramp shapes, as shares of the day.
 ONSETS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7)
-#: Lab time shifts of the lab-delay shape. [min]
-LAB_SHIFTS_MIN = tuple(float(m) for m in np.arange(-90.0, 90.0 + 1e-9, 5.0) if m != 0.0)
+#: Lab time shifts of the lab-delay shape: a 5 min grid without the unshifted labs (a shift
+#: of 0 is the normal the shape is weighed against), not the residual statistics' 2 min grid
+#: :data:`~.residuals.LAB_SHIFTS_MIN`. [min]
+SHAPE_LAB_SHIFTS_MIN = tuple(float(m) for m in np.arange(-90.0, 90.0 + 1e-9, 5.0) if m != 0.0)
 
 
 @dataclass(frozen=True)
@@ -136,18 +138,30 @@ def _rounded(x: float, digits: int) -> float | None:
     return round(float(x), digits) if math.isfinite(x) else None
 
 
-def whitened_shape(problem: Problem, T: np.ndarray, lab: np.ndarray) -> np.ndarray:
+def whitened_shape(problem: Problem, T: np.ndarray, lab: np.ndarray,
+                   base: Residuals | None = None) -> np.ndarray:
     """A residual change ``T`` (K, 2), ``lab`` (L,) whitened as the baseline's residuals are
     over the whole day (:meth:`Problem.whitened <.problem.Problem.whitened>`, ``"all"``), with
-    the baseline's missing samples left out, as one vector in the same order."""
-    base = problem.residuals(problem.baseline)
-    T = np.where(np.isfinite(base.T), T, np.nan)
-    lab = np.where(np.isfinite(base.lab), lab, np.nan)
+    the baseline's missing samples left out, as one vector in the same order. ``base``: the
+    baseline's residuals, when the caller has them (a fit whitens dozens of alternatives).
+
+    The whitening is linear and keeps exactly the samples it is given, so an all-zero block
+    (the temperatures of a lab shift, the labs of a thermometer step) whitens to zeros
+    without running its filter."""
+    base = problem.residuals(problem.baseline) if base is None else base
+    okT, okl = np.isfinite(base.T), np.isfinite(base.lab)
     ce = problem.calibration_error
-    wT = ce.whiten_temperatures(T)
-    t_s = (problem.windows.lab_time_ns - problem.windows.start_ns) / 1e9
-    wl = ce.whiten_labs(lab, t_s)
-    return np.concatenate([p[np.isfinite(p)] for p in (wT[:, 0], wT[:, 1], wl)])
+    if np.any(T[okT]):
+        wT = ce.whiten_temperatures(np.where(okT, T, np.nan))
+        blocks = [wT[:, 0][okT[:, 0]], wT[:, 1][okT[:, 1]]]
+    else:
+        blocks = [np.zeros(int(okT[:, 0].sum())), np.zeros(int(okT[:, 1].sum()))]
+    if np.any(lab[okl]):
+        t_s = (problem.windows.lab_time_ns - problem.windows.start_ns) / 1e9
+        blocks.append(ce.whiten_labs(np.where(okl, lab, np.nan), t_s)[okl])
+    else:
+        blocks.append(np.zeros(int(okl.sum())))
+    return np.concatenate(blocks)
 
 
 def linear_evidence(v: np.ndarray, W: np.ndarray, prior_sd: np.ndarray,
@@ -205,16 +219,17 @@ class Shape(ABC):
     def alternatives(self, problem: Problem) -> Iterator[Alternative]:
         """Every member of the family on ``problem``'s day."""
 
+    @abstractmethod
     def describe(self, alt: Alternative, size: np.ndarray) -> str:
-        return f"{self.cause}: " + ", ".join(f"{k} {v:g}" for k, v in alt.params.items())
+        """The best alternative ``alt`` at its posterior mean ``size``, in words."""
 
     def fit(self, problem: Problem) -> ShapeFit:
         """The shape's evidence on ``problem``'s day, marginalised over its alternatives."""
-        base = problem.whitened(problem.baseline, "all")
-        v = np.concatenate(base)
+        v = np.concatenate(problem.whitened(problem.baseline, "all"))
+        residuals = problem.residuals(problem.baseline)
         logs, best = [], None
         for alt in self.alternatives(problem):
-            W = np.stack([whitened_shape(problem, alt.T[j], alt.lab[j])
+            W = np.stack([whitened_shape(problem, alt.T[j], alt.lab[j], residuals)
                           for j in range(alt.T.shape[0])], axis=1)
             if alt.fixed:
                 w = W[:, 0]
@@ -278,7 +293,7 @@ class LabDelayShape(Shape):
             return
         K = w.n_windows
         at = problem.baseline.lab
-        for m in LAB_SHIFTS_MIN:
+        for m in SHAPE_LAB_SHIFTS_MIN:
             moved = problem.baseline_labs(problem.lab_points(m * 60e9))
             # the residual of a sample taken at t + delta against the model at t
             g = moved - at
@@ -293,20 +308,20 @@ class LabDelayShape(Shape):
 
 
 class FoulingShape(Shape):
-    """``fouling_drift``: the transfer falls on a ramp from an onset to the day's end, and the
-    outputs move by the model's steady response to that loss (:meth:`TransferDrift.response
+    """``fouling_drift``: the transfer falls on a ramp from the day's start to its end, and
+    the outputs move by the model's steady response to that loss (:meth:`TransferDrift.response
     <.extensions.TransferDrift.response>`) scaled by the fibre load over its mean; one size,
-    the loss by the day's end."""
+    the loss by the day's end.
+
+    The ramp starts at the day's start only: fouling builds over days, and with the onsets
+    of the step shape as alternatives late ramps fitted the normal's own wander on clean
+    days (tuning plant 12, seed 300: 14.6 nats)."""
 
     cause = "fouling_drift"
     prior_sd = (0.3,)
     size_names = ("loss_by_end",)
     #: Fouling loses transfer; it never gains it.
     signs = (1,)
-    #: Where the ramp may start, as shares of the day: the day's start only. Fouling builds
-    #: over days; with the onsets of the step shape as alternatives, late ramps fitted the
-    #: normal's own wander on clean days (tuning plant 12, seed 300: 14.6 nats).
-    onsets: tuple[float, ...] = (0.0,)
 
     def alternatives(self, problem: Problem) -> Iterator[Alternative]:
         w = problem.windows
@@ -316,15 +331,13 @@ class FoulingShape(Shape):
         lab_k = np.clip(np.searchsorted(w.end_ns, w.lab_time_ns, side="left"), 0,
                         w.n_windows - 1)
         t_lab = w.lab_hours / float(w.hours[-1])
-        for on in self.onsets:
-            ramp = np.clip((t - on) / (1.0 - on), 0.0, None) * load
-            ramp_lab = np.clip((t_lab - on) / (1.0 - on), 0.0, None) * load[lab_k]
-            yield Alternative({"onset_h": on * float(w.hours[-1])}, None,
-                              (ramp[:, None] * S[:2])[None], (ramp_lab * S[2])[None])
+        ramp = np.clip(t, 0.0, None) * load
+        ramp_lab = np.clip(t_lab, 0.0, None) * load[lab_k]
+        yield Alternative({}, None, (ramp[:, None] * S[:2])[None], (ramp_lab * S[2])[None])
 
     def describe(self, alt: Alternative, size: np.ndarray) -> str:
-        return (f"tube transfer lost {size[0]:.0%} by the day's end on a ramp from "
-                f"{alt.params['onset_h']:.1f} h, its effect scaled by the fibre load")
+        return (f"tube transfer lost {size[0]:.0%} by the day's end on a ramp from the day's "
+                f"start, its effect scaled by the fibre load")
 
 
 class OffsetShape(Shape):

@@ -39,10 +39,15 @@ import sys
 import numpy as np
 import pytest
 
-from softsensor.diagnosis.diagnose_day import diagnose
+from softsensor.calibration.cost import Fit
+from softsensor.diagnosis.diagnose_day import Diagnosis, after_shapes, diagnose
+from softsensor.diagnosis.posterior import posterior
+from softsensor.diagnosis.shapes import ShapeFit
+from softsensor.diagnosis.verdict import Score, verdict
 from softsensor.estimation.settings import estimator_settings
 from softsensor.plant.effects import EFFECTS
 from softsensor.plant.simulator import simulate_day
+from softsensor.signals import OUTPUT_NAMES
 
 HOURS = 72.0
 SLOW_HOURS = 30.0
@@ -296,3 +301,60 @@ def test_the_reported_gain_is_cross_fitted_over_the_whole_day(cfg, offset_diagno
     assert rep["gain"] == pytest.approx(1 - eq4(r) / base)
     assert rep["gain"] > 0 and rep["held_out"]["split_gain"] > 0
     assert rep["extension"]["params_other_fold"]["offset_K"] == pytest.approx(3.0, abs=0.1)
+
+
+def _stub_score(cause: str, penalised: float, gain: float) -> Score:
+    """A made-up held-out score (eligible when ``penalised`` exceeds the verdict's charge
+    and ``gain`` is positive), as tests/diagnosis/test_posterior.py makes them."""
+    fit = Fit(rmse={n: 1.0 for n in OUTPUT_NAMES}, n={n: 10 for n in OUTPUT_NAMES}, cost=0.1)
+    return Score(cause, None, 1, fit, fit, gain, fit, fit, gain,
+                 {n: penalised / 3 for n in OUTPUT_NAMES}, penalised, (), 30.0, 1e-6)
+
+
+def _shape_named(scores: list[Score], shape: ShapeFit, skipped: tuple[str, ...] = ()
+                 ) -> Diagnosis:
+    """What :func:`diagnose` makes of ``scores``, the ``skipped`` causes and one cause's
+    ``shape`` on a day with unstructured residuals: the verdict after the shapes, with the
+    candidates (no day behind them: only the verdict, the candidates and the shapes are
+    read)."""
+    v = verdict(scores, None)
+    cands = posterior(v, scores, skipped, -5.0, shapes=[shape])
+    assert cands[0].cause == shape.cause and cands[0].source == "shape"
+    by_cause = {s.cause: s for s in scores}
+    return Diagnosis(None, None, {}, by_cause, {}, after_shapes(v, cands, by_cause, skipped),  # type: ignore[arg-type]
+                     np.ones(3), skipped={c: "ruled out" for c in skipped},
+                     candidates=cands, shapes={shape.cause: shape})
+
+
+def test_a_larger_shape_of_the_winning_extensions_cause_keeps_the_extension():
+    """Review of issue 39: a shape larger than the winning extension of its own cause used
+    to drop the winner (gain 0, no extension, "did not improve the held-out part") on 8 of
+    96 stored benchmark days; the winner and its held-out gain stay."""
+    scores = [_stub_score("fouling_drift", 40.0, 0.23), _stub_score("lab_delay", 2.0, 0.01)]
+    d = _shape_named(scores, ShapeFit("fouling_drift", None, 200.0, -5.0,
+                                      {"loss_by_end": 0.2}, "ramp"))
+    assert d.verdict.winner is scores[0] and d.verdict.winner.gain == 0.23
+    assert d.cause == "fouling_drift" and d.shape is None
+
+
+def test_a_shape_of_a_cause_without_an_eligible_extension_names_it():
+    scores = [_stub_score("fouling_drift", 40.0, 0.23), _stub_score("lab_delay", 2.0, 0.01),
+              _stub_score("ambient_heat_loss", 3.0, -0.02)]
+    assert not scores[2].eligible
+    shape = ShapeFit("ambient_heat_loss", None, 200.0, -5.0, {}, "cold")
+    d = _shape_named(scores, shape)
+    assert d.cause == "ambient_heat_loss" and d.verdict.winner is None and d.shape is shape
+
+
+def test_a_cause_named_by_its_shape_ranks_every_cause_by_one_posterior():
+    """Review of issue 39: the named cause took its posterior probability while the others
+    kept the verdict's softmax weights (summing to 1.9 on one day); every entry, the
+    skipped causes' too, now scores its probability in the same posterior."""
+    scores = [_stub_score("fouling_drift", 40.0, 0.23), _stub_score("lab_delay", 2.0, 0.01),
+              _stub_score("ambient_heat_loss", 3.0, -0.02)]
+    d = _shape_named(scores, ShapeFit("ambient_heat_loss", None, 200.0, -5.0, {}, "cold"),
+                     skipped=("inlet_moisture",))
+    weights = {c: w for c, w, _ in d.verdict.ranking}
+    assert sum(weights.values()) == pytest.approx(1.0, abs=1e-9)
+    assert weights == {c.cause: c.probability for c in d.candidates}
+    assert max(weights, key=weights.__getitem__) == d.verdict.ranking[0][0] == d.cause

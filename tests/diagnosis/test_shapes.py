@@ -43,14 +43,18 @@ def test_the_evidence_is_the_integral_of_the_likelihood_over_the_prior(signs):
     assert mean == pytest.approx(np.linalg.lstsq(W, v, rcond=None)[0], abs=0.05)
 
 
-def test_a_shape_is_whitened_as_the_residuals_are(cfg, model, day):
+@pytest.mark.parametrize("moved", ["both", "temperatures", "labs"])
+def test_a_shape_is_whitened_as_the_residuals_are(cfg, model, day, moved):
     """The evidence rests on the normal's whitening being linear: a change ``g`` of the
-    prediction moves the baseline's whitened residuals by exactly the whitened ``g``."""
+    prediction moves the baseline's whitened residuals by exactly the whitened ``g``, also
+    where ``g`` leaves the temperatures or the labs alone (whitened_shape skips their
+    filter)."""
     p = make_problem(cfg, model, day)
     K, L = p.windows.n_windows, p.windows.lab_value.size
     g_T = np.zeros((K, 2))
-    g_T[K // 3:, 1] = 0.7
-    g_lab = np.linspace(0.0, 0.004, L)
+    if moved != "labs":
+        g_T[K // 3:, 1] = 0.7
+    g_lab = np.linspace(0.0, 0.004, L) if moved != "temperatures" else np.zeros(L)
     base = np.concatenate(p.whitened(p.baseline, "all"))
     Y = p.baseline.Y.copy()
     Y[:, :2] -= g_T  # a prediction lower by g leaves residuals higher by g
