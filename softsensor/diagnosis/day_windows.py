@@ -129,6 +129,17 @@ class DayWindows:
         """Lab sample times in hours from the start. [h]"""
         return (self.lab_time_ns - self.start_ns) / 3.6e12
 
+    @property
+    def day_fraction(self) -> np.ndarray:
+        """Each window's middle as a fraction of the day (to its last window's end). [-]"""
+        return (self.hours - 0.5 * self.window_s / 3600.0) / float(self.hours[-1])
+
+    @property
+    def lab_window(self) -> np.ndarray:
+        """The window of each lab sample: the first ending at or after it (``n_windows``
+        for one after the last). [-]"""
+        return np.searchsorted(self.end_ns, self.lab_time_ns, side="left")
+
 
 def day_windows(day: DayLike, config: PlantConfig, source: str = "day") -> DayWindows:
     """Cut ``day`` into model windows (module docstring); ``source`` names it in errors.

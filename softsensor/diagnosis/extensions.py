@@ -346,13 +346,11 @@ class TransferDrift(Extension):
         first ``k_end`` windows (default all)."""
         w = problem.windows
         base = problem.baseline
-        length_h = float(w.hours[-1])
-        t_win = (w.hours - 0.5 * w.window_s / 3600.0) / length_h
-        t_lab = w.lab_hours / length_h
-        lab_window = np.searchsorted(w.end_ns, w.lab_time_ns, side="left")
+        t_win = w.day_fraction
+        t_lab = w.lab_hours / float(w.hours[-1])
         k = w.n_windows if k_end is None else int(k_end)
         Y = base.Y[:k] + d * t_win[:k, None] * S
-        lab = np.where(lab_window < k, base.lab + d * t_lab * S[2], np.nan)
+        lab = np.where(w.lab_window < k, base.lab + d * t_lab * S[2], np.nan)
         return Prediction(Y, lab)
 
     def probe(self, problem: Problem, channel: str | None = None) -> Prediction:

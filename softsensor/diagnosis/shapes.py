@@ -327,11 +327,9 @@ class FoulingShape(Shape):
         w = problem.windows
         S = TransferDrift().response(problem)
         load = w.U[:, _M_FIBER] / float(np.mean(w.U[:, _M_FIBER]))
-        t = (w.hours - 0.5 * w.window_s / 3600.0) / float(w.hours[-1])
-        lab_k = np.clip(np.searchsorted(w.end_ns, w.lab_time_ns, side="left"), 0,
-                        w.n_windows - 1)
+        lab_k = np.clip(w.lab_window, 0, w.n_windows - 1)
         t_lab = w.lab_hours / float(w.hours[-1])
-        ramp = np.clip(t, 0.0, None) * load
+        ramp = np.clip(w.day_fraction, 0.0, None) * load
         ramp_lab = np.clip(t_lab, 0.0, None) * load[lab_k]
         yield Alternative({}, None, (ramp[:, None] * S[:2])[None], (ramp_lab * S[2])[None])
 
@@ -351,7 +349,7 @@ class OffsetShape(Shape):
     def alternatives(self, problem: Problem) -> Iterator[Alternative]:
         w = problem.windows
         K, L = w.n_windows, w.lab_value.size
-        t = (w.hours - 0.5 * w.window_s / 3600.0) / float(w.hours[-1])
+        t = w.day_fraction
         for c, name in enumerate(KELVIN_CHANNELS):
             for on in ONSETS:
                 T = np.zeros((1, K, 2))
