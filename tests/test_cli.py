@@ -207,12 +207,11 @@ def test_health_imports_only_its_own_verbs():
     """``softsensor health`` took 2.9 to 5.8 s here against a daemon that answered at once:
     building the parser imported every verb module, the calibration's SciPy among them. A
     command line naming its verb imports that verb's module alone."""
-    code = ("import sys, time; from softsensor.cli import build_parser; "
-            "t = time.perf_counter(); p = build_parser(['health']); "
-            "print(time.perf_counter() - t, 'scipy.stats' in sys.modules, "
-            "'softsensor.apps.calibrate' in sys.modules)")
+    code = ("import sys; from softsensor.cli import build_parser; "
+            "p = build_parser(['health']); "
+            "print('scipy.stats' in sys.modules, 'softsensor.apps.calibrate' in sys.modules)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                        timeout=120)
-    seconds, scipy, calibrate = r.stdout.split()
+    scipy, calibrate = r.stdout.split()
+    # what it imports, not how long it took: the time depends on the machine's load (issue 49)
     assert (scipy, calibrate) == ("False", "False"), r.stdout
-    assert float(seconds) < 2.0

@@ -23,13 +23,13 @@ def test_json_goes_only_where_asked(tmp_path, capsys):
 
 
 def test_calibrate_refuses_a_folder_as_json_at_once(tmp_path, capsys):
-    t0 = time.monotonic()
     day = REPO / "replay" / "demo-day.mcap"
     rc = cli_main(["calibrate", str(day), "--out", str(tmp_path / "p.toml"),
                    "--json", str(tmp_path)])
     err = capsys.readouterr().err.strip()
+    # before any trial: the one line is all it said (no progress line, no "calibrate: ..."
+    # phase); a wall-time bound here depended on the machine's load (issue 49)
     assert rc == 2 and "is a directory" in err and "\n" not in err
-    assert time.monotonic() - t0 < 10  # before any trial
 
 
 def test_replay_progress_is_throttled(capsys, monkeypatch):

@@ -8,7 +8,6 @@ import re
 import socket
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -18,16 +17,15 @@ def test_plant_server_refuses_a_busy_port_before_it_simulates():
         busy.bind(("127.0.0.1", 0))
         busy.listen(1)
         port = busy.getsockname()[1]
-        t0 = time.monotonic()
         r = subprocess.run([sys.executable, "-m", "softsensor.cli", "plant-server", "--port",
                             str(port), "--hours", "48"], capture_output=True, text=True,
                            timeout=60)
-        took = time.monotonic() - t0
     assert r.returncode == 2, (r.returncode, r.stderr[-1000:])
+    # before it simulates: the one line is all it said, no "simulating ..." line first (a
+    # wall-time bound here depended on the machine's load, issue 49)
     assert r.stderr.strip().splitlines() == [
         f"softsensor: plant-server cannot listen on 127.0.0.1:{port}: Address already in use "
         "(another --port?)"], r.stderr
-    assert took < 15, took  # the 48 h day took 30 s to simulate before the refusal
 
 
 def test_plant_server_says_what_it_does_while_it_simulates(capsys, monkeypatch):

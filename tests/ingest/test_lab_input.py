@@ -223,7 +223,8 @@ def test_background_watcher_is_stoppable(tmp_path: Path) -> None:
     th.start()
     stop.set()
     th.join(5.0)
-    assert not th.is_alive() and time.monotonic() - t < 2.0
+    # before its first 10 s poll wait ends (the margin is for a loaded machine)
+    assert not th.is_alive() and time.monotonic() - t < 8.0
     assert [lab.sample_id for lab in got] == ["BG"]
 
 

@@ -252,7 +252,9 @@ def test_a_thousand_slow_clients_hold_no_more_threads_than_workers(tmp_path):
         for _ in range(5):  # within the header deadline: the slow ones still hold their slots
             t0 = time.monotonic()
             assert _get(f"http://127.0.0.1:{page.port}/healthz")[0] == 200
-            assert time.monotonic() - t0 < 1.0
+            # held up, it would wait for the 5 s header deadline; the margin is for a loaded
+            # machine (issue 49: no test depends on the load)
+            assert time.monotonic() - t0 < 3.0
             time.sleep(0.2)
         assert child.poll() is None  # the slow clients were still connected
     finally:
@@ -317,7 +319,9 @@ def test_clients_trickling_their_header_byte_by_byte_cannot_silence_healthz(tmp_
             assert _get(f"http://127.0.0.1:{page.port}/")[0] == 200
             waits.append(time.monotonic() - t0)
             time.sleep(0.4)
-        assert max(waits) < 1.0, waits
+        # held up, a request waits for a trickler's 3 s deadline; the margin is for a loaded
+        # machine (issue 49)
+        assert max(waits) < 2.0, waits
         lives = [float(x) for x in child.stdout.readline().split()]
         child.wait(20)
         expired = page.expired
@@ -327,7 +331,8 @@ def test_clients_trickling_their_header_byte_by_byte_cannot_silence_healthz(tmp_
         child.stdout.close()
         asyncio.run(page.stop())
     # each was closed at its header's deadline although it sent a byte every second
-    assert len(lives) == 8 and all(2.5 < x < 4.5 for x in lives), lives
+    # (not before it; well before the trickle's 12 s end, with room for a loaded machine)
+    assert len(lives) == 8 and all(2.5 < x < 8.0 for x in lives), lives
     assert expired == 8
 
 

@@ -98,7 +98,9 @@ def test_paced_replay(day: Path) -> None:
     stats = replay_day(day, sink, rate=2000.0, topics=[TOPIC_SCAN])  # 990 s of day in ~0.5 s
     elapsed = time.monotonic() - t
     assert stats.n_published == N
-    assert 0.45 < elapsed < 2.0
+    # never faster than the pace; the upper bound only catches a pace ignored (990 s in real
+    # time), with room for a loaded machine (issue 49: no test depends on the load)
+    assert 0.45 < elapsed < 30.0
 
 
 def test_stop_event_interrupts_a_wait(day: Path) -> None:
@@ -112,7 +114,7 @@ def test_stop_event_interrupts_a_wait(day: Path) -> None:
     finally:
         timer.cancel()
     assert stats.stopped and stats.n_published == 1
-    assert time.monotonic() - t < 1.0
+    assert time.monotonic() - t < 30.0  # not the 16 min of the day (a loaded machine's margin)
 
 
 def test_max_messages(day: Path) -> None:

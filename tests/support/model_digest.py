@@ -18,15 +18,18 @@ inputs and hashes the raw bytes of every array it returns:
 * a coarse grid (``n_d = 25``, one wall substep), and the two regression cases of
   ``tests/fixtures`` (a window near boiling; a cell the nested bisection solves).
 
-``tests/model/test_model_digest.py`` compares it with ``tests/fixtures/model_digest.json``. When the
-physics or the solver changes *on purpose* (the outputs are meant to move), regenerate the
-file and commit it with the change, saying why the numbers moved::
+``tests/fixtures/model_digest.json`` holds the digest and every number it hashes (6,614, to
+12 digits). ``tests/model/test_model_digest.py`` compares the numbers at the tolerance of
+:mod:`stored_numbers` (1e-9 relative): the digest is of one build (numba compiles for the
+host CPU and the system's ``libm``, so another machine may differ in the last bits), the
+numbers are what the physics computes. When the physics or the solver changes *on purpose*
+(the outputs are meant to move), regenerate the file and commit it with the change, saying
+why the numbers moved::
 
     .venv/bin/python tests/support/model_digest.py --write
 
-``python tests/support/model_digest.py`` prints the digest and whether it matches the stored one.
-The digest is of one build: numba compiles for the host CPU and the system's ``libm``, so
-another machine may differ in the last bit (the stored samples say by how much).
+``python tests/support/model_digest.py`` prints the digest, whether it matches the stored one
+bit for bit, and whether the numbers match within the tolerance.
 """
 
 from __future__ import annotations
@@ -36,11 +39,11 @@ import hashlib
 import json
 import sys
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from paths import FIXTURES, REPO
 from script_modules import load_script
+from stored_numbers import RTOL, differences, stored
 
 STORED = FIXTURES / "model_digest.json"
 
@@ -132,13 +135,9 @@ def digest(outputs: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def samples(outputs: dict[str, np.ndarray]) -> dict[str, list[float]]:
-    """A few outputs in full precision, to tell a last-bit difference from a real one."""
-    return {"bench_Y_last": outputs["bench_Y"][-1].tolist(),
-            "batch_Y_last": outputs["batch_Y"][:, -1].ravel().tolist(),
-            "lab_Y_37": outputs["lab_Y_37"].ravel().tolist(),
-            "plant_Y_last": outputs["plant_Y"][-1].tolist(),
-            "boiling_y": outputs["boiling_y"].tolist()}
+def numbers(outputs: dict[str, np.ndarray]) -> dict[str, list[float]]:
+    """Every output's numbers, flattened (C order), by name: what the reference stores."""
+    return {name: np.ascontiguousarray(a).ravel().tolist() for name, a in outputs.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,22 +147,29 @@ def main(argv: list[str] | None = None) -> int:
                         "purpose)")
     args = p.parse_args(argv)
     outputs = model_outputs()
-    return store_or_compare(digest(outputs), samples(outputs), STORED, args.write)
+    return store_or_compare(digest(outputs), numbers(outputs), STORED, args.write)
 
 
-def store_or_compare(d: str, samples_: Any, stored_path: Path, write: bool) -> int:
-    """Print digest ``d``; store it with ``samples_`` in ``stored_path`` when ``write``, else
-    compare with the stored one (exit status 1 when they differ). Shared with
-    ``tests/support/estimate_digest.py``."""
+def store_or_compare(d: str, numbers_: dict[str, list], stored_path: Path, write: bool) -> int:
+    """Print digest ``d``; store it with ``numbers_`` (``{field: values}``, floats to
+    :data:`stored_numbers.DIGITS` digits) in ``stored_path`` when ``write``, else compare
+    with the stored ones: exit status 1 when a number differs beyond the tolerance of
+    :mod:`stored_numbers` (a digest of other bits alone is round-off of another build).
+    Shared with ``tests/support/estimate_digest.py``."""
     print(d)
     if write:
-        stored_path.write_text(json.dumps({"sha256": d, "samples": samples_}, indent=1)
+        doc = {"sha256": d, "rtol": RTOL,
+               "numbers": {k: [stored(v) for v in vs] for k, vs in numbers_.items()}}
+        stored_path.write_text(json.dumps(doc, separators=(",", ":")).replace('],"', '],\n"')
                                + "\n")
         print(f"written to {stored_path}")
         return 0
-    stored = json.loads(stored_path.read_text())["sha256"] if stored_path.exists() else None
-    print("matches the stored digest" if d == stored else f"differs from the stored {stored}")
-    return 0 if d == stored else 1
+    doc = json.loads(stored_path.read_text())
+    print("matches the stored digest bit for bit" if d == doc["sha256"] else
+          f"differs from the stored digest {doc['sha256']} (another build, or a change)")
+    moved = differences(numbers_, doc["numbers"])
+    print("\n".join(moved) if moved else f"every number within {RTOL:g} relative of the stored")
+    return 1 if moved else 0
 
 
 if __name__ == "__main__":

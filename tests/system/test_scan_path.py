@@ -236,7 +236,8 @@ def test_one_message_at_a_time_reaches_the_outputs_whoever_publishes():
             pipe._q.put(_Call(lambda: stuck.wait(30)))
             t0 = time.monotonic()
             assert pipe.publish_aside(Health.from_body({"status": "stale"}, -999))
-            assert seen[-1] == -999 and time.monotonic() - t0 < 1.0
+            # at once, not after the stuck call's 30 s (the margin is for a loaded machine)
+            assert seen[-1] == -999 and time.monotonic() - t0 < 10.0
         finally:
             stuck.set()
             pipe.close()
