@@ -45,7 +45,8 @@ class _Parser(argparse.ArgumentParser):
 #: the calibration's, the plant's and the import's libraries (150 MB resident, issue 31).
 VERBS: dict[str, tuple[str, ...]] = {
     "softsensor.apps.virtual_plant": ("simulate", "plant-server"),
-    "softsensor.apps.calibrate": ("calibrate", "identify", "validate"),
+    "softsensor.apps.calibrate": ("calibrate", "identify"),
+    "softsensor.apps.validate": ("validate",),
     "softsensor.apps.streaming": ("run", "replay", "health"),
     "softsensor.apps.diagnose": ("diagnose",),
     "softsensor.apps.import_export": ("import", "export"),

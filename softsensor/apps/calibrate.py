@@ -1,8 +1,9 @@
-"""``softsensor calibrate | identify | validate``: argument parsing and output only.
+"""``softsensor calibrate | identify``: argument parsing and output only (``validate``:
+:mod:`softsensor.apps.validate`).
 
 The work is done by :mod:`softsensor.calibration.calibration_run`; the pages by
-:mod:`softsensor.presentation.calibration_report`. ``calibrate`` and ``validate``
-print one JSON document on stdout (progress and logging go to stderr); ``identify`` prints
+:mod:`softsensor.presentation.calibration_report`. ``calibrate`` prints one JSON document
+on stdout (progress and logging go to stderr); ``identify`` prints
 the table of what the data can and cannot pin down and writes JSON with ``--json``. Errors are
 :class:`~softsensor.errors.SoftsensorError` subclasses, which the ``softsensor`` command turns
 into one line on stderr and exit status 2.
@@ -23,7 +24,7 @@ from softsensor.apps.loading import load_config_and_params, read_day_inputs
 from softsensor.apps.verb_output import write_json
 from softsensor.calibration.dataset import Segment, segment_from_day
 from softsensor.calibration.identifiability import PAPER_CONDITION_NUMBER
-from softsensor.calibration.params_file import params_document, read_fit, write_params
+from softsensor.calibration.params_file import params_document, write_params
 from softsensor.calibration.selection import (
     DEFAULT_MIN_LABS,
     DEFAULT_WINDOW_HOURS,
@@ -475,127 +476,15 @@ def identify_main(args: argparse.Namespace) -> int:
     return 0
 
 
-# ---------------------------------------------------------------------------- validate
-def add_validate_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("days", nargs="+", metavar="DAY.mcap", help="independent recorded day(s)")
-    p.add_argument("--params", required=True, metavar="PARAMS.toml",
-                   help="calibrated parameters")
-    p.add_argument("--json", default=None, metavar="FILE",
-                   help="write the JSON summary here ('-': stdout)")
-    p.add_argument("--report", default=None, metavar="DIR",
-                   help="write Fig. 6 and an HTML page to DIR")
-    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
-    _add_objective_arguments(p)
-
-
-def validate_main(args: argparse.Namespace) -> int:
-    """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days of
-    ``--params``, open loop first (:mod:`softsensor.calibration.open_loop_errors`: the figure
-    ``diagnose`` reports too) with its verdict against the calibration's own held-out error,
-    then with the inlet moisture read from the temperatures, labelled; beside them the
-    config's default parameters on the same data."""
-    require_packages("validate", "optuna", "matplotlib")
-    from softsensor.calibration.open_loop_errors import displayed
-
-    check_target(args.json)
-    base, config = load_config_and_params(args)
-    fit = read_fit(args.params)
-    calibration = _calibration_settings(args, base)
-    if args.cost is None and isinstance(fit.get("cost_kind"), str) \
-            and fit["cost_kind"] in COSTS and not args.paper:
-        calibration = dataclasses.replace(calibration, cost=fit["cost_kind"])
-    raw = [load_segment(p, config) for p in args.days]
-    runs = _validation_runs(base, config, fit, calibration, raw)
-    text = _validation_text(runs, raw, base)
-    doc = _validation_doc(args, raw, runs, text)
-    if args.report:
-        from softsensor.presentation.calibration_report import validation_page
-
-        (open_loop, result), (_, default) = runs["params"], runs["default"]
-        shown = dataclasses.replace(result, segments=raw, runs=[
-            displayed(config, s, r) for s, r in zip(raw, result.runs, strict=True)])
-        doc["report"] = str(validation_page(shown, config, args.report, open_loop,
-                                            default=default, verdict=text))
-    write_json(doc, args.json)
-    print(f"validate: {len(raw)} day(s): {text}", file=sys.stderr)
-    return 0
-
-
-def _validation_runs(base: PlantConfig, config: PlantConfig, fit: dict[str, Any],
-                     calibration: CalibrationSettings, raw: Sequence[Segment]
-                     ) -> dict[str, tuple[Any, Any]]:
-    """``{"params": ..., "default": ...}``: for the parameters of ``--params`` (``config``,
-    its ``[fit]`` section ``fit``) and for the config's defaults, the open-loop summary and
-    the validation with the inlet moisture read from the temperatures, scored with the
-    objective of ``calibration``."""
-    from softsensor.calibration.calibration_run import objective_spec
-    from softsensor.calibration.open_loop_errors import open_loop_summary, prepared
-    from softsensor.calibration.validation import validate_many
-    from softsensor.model import DryerModel
-
-    model = DryerModel(config)
-    # the calibration cost of the parameters the file holds: the current ones when it kept them
-    cal_cost = fit.get("cost_at_current" if fit.get("deployed") == "current" else "cost")
-    cal_cost = float(cal_cost) if isinstance(cal_cost, (int, float)) else None
-    runs, spec = {}, None
-    for name, cfg, cost in (("params", config, cal_cost), ("default", base, None)):
-        segs = [prepared(cfg, s) for s in raw]
-        spec = spec or objective_spec(model, segs, base, calibration)
-        read = validate_many(segs, cfg, spec, [cfg.parameter_vector()], [cost], model)[0]
-        runs[name] = (open_loop_summary(cfg, raw, fit if cfg is config else None, model), read)
-    return runs
-
-
-def _validation_text(runs: dict[str, tuple[Any, Any]], raw: Sequence[Segment],
-                     base: PlantConfig) -> str:
-    """The verdict line of ``validate`` (:func:`~softsensor.presentation.verdicts.
-    validation_verdict`), with the config's default parameters beside unless they are the
-    ones validated."""
-    from softsensor.presentation.calibration_report import lab_reference
-    from softsensor.presentation.verdicts import validation_verdict
-
-    (open_loop, result), (d_open, default) = runs["params"], runs["default"]
-    x_ref, basis = lab_reference(raw), display_settings(base).moisture_basis
-    text = validation_verdict(open_loop, result.fit.rmse, x_ref, basis)
-    if np.array_equal(result.theta, default.theta) and open_loop["rmse"] == d_open["rmse"]:
-        return text + " They are the config's default parameters."
-    pts = moisture_pct_points(d_open["rmse"]["moisture_out"], x_ref, basis)
-    d = d_open["rmse"]
-    return text + (f" With the config's default parameters instead (open loop): dryer outlet "
-                   f"{d['T_dryer_out']:.2f} °C, cyclone outlet {d['T_cyclone_out']:.2f} °C "
-                   f"and outlet moisture {pts:.2f} % points.")
-
-
-def _validation_doc(args: argparse.Namespace, raw: Sequence[Segment],
-                    runs: dict[str, tuple[Any, Any]], text: str) -> dict[str, Any]:
-    """The JSON ``validate`` prints: open loop first (the headline), the inlet read from the
-    temperatures, the verdict, and the config's default parameters beside."""
-    (open_loop, result), (d_open, default) = runs["params"], runs["default"]
-    read = result.inlet_read()
-    read["moisture_worse_than_open_loop"] = bool(
-        read["rmse"]["moisture_out"] > open_loop["rmse"]["moisture_out"])
-    return {"days": [str(p) for p in args.days], "hours": float(sum(s.hours for s in raw)),
-            "headline": "open_loop", "open_loop": open_loop, "inlet_read": read,
-            "summary": text,
-            "default_parameters": {
-                "open_loop": {k: d_open[k] for k in ("rmse", "weighted_rmse", "cost",
-                                                     "inlet_moisture")},
-                "inlet_read": {k: v for k, v in default.inlet_read().items()
-                               if k in ("rmse", "weighted_rmse", "cost", "score")}}}
-
-
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Register ``calibrate``, ``identify`` and ``validate`` on the ``softsensor`` parser."""
+    """Register ``calibrate`` and ``identify`` on the ``softsensor`` parser."""
     p = sub.add_parser("calibrate", help="fit the seven Table 1 parameters to recorded days")
     add_calibrate_arguments(p)
     p.set_defaults(func=calibrate_main)
     p = sub.add_parser("identify", help="which parameters the data can pin down (FIM)")
     add_identify_arguments(p)
     p.set_defaults(func=identify_main)
-    p = sub.add_parser("validate", help="RMSE and eq. 4 cost of PARAMS.toml on other days")
-    add_validate_arguments(p)
-    p.set_defaults(func=validate_main)
 
 
 __all__ = ["add_calibrate_arguments", "add_commands", "add_identify_arguments",
-           "add_validate_arguments", "calibrate_main", "identify_main", "validate_main"]
+           "calibrate_main", "identify_main"]
