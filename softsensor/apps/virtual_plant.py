@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import dataclasses
 import logging
 import signal
 import sys
@@ -20,7 +21,8 @@ from pathlib import Path
 from softsensor.apps.loading import load_config_and_params
 from softsensor.errors import ConfigError
 from softsensor.files import writing
-from softsensor.plant.day import SimulatedDay
+from softsensor.messages import iso_utc
+from softsensor.plant.day import DEFAULT_START_NS, SimulatedDay
 from softsensor.plant.effects import EFFECTS
 from softsensor.plantconfig import PlantConfig
 
@@ -48,16 +50,20 @@ def load_plant(args: argparse.Namespace) -> PlantConfig:
     return load_config_and_params(args).config
 
 
-def simulate_plant(cfg: PlantConfig, args: argparse.Namespace) -> SimulatedDay:
-    """Run the plant chosen by ``args`` for ``args.hours``."""
+def simulate_plant(cfg: PlantConfig, args: argparse.Namespace, seed: int | None = None,
+                   start_ns: int = DEFAULT_START_NS) -> SimulatedDay:
+    """Run the plant chosen by ``args`` for ``args.hours`` from ``start_ns`` [ns since the
+    epoch, UTC], with ``seed`` (default ``args.seed``)."""
+    seed = args.seed if seed is None else seed
     if args.plant == "model":
         from softsensor.plant.simulator import simulate_day
 
-        return simulate_day(cfg, args.hours, args.seed, args.effect, args.magnitude)
+        return simulate_day(cfg, args.hours, seed, args.effect, args.magnitude,
+                            start_ns=start_ns)
     from softsensor.plant.independent import simulate_independent_day
 
-    return simulate_independent_day(cfg, args.hours, args.seed, args.effect, args.magnitude,
-                                    plant_seed=args.plant_seed)
+    return simulate_independent_day(cfg, args.hours, seed, args.effect, args.magnitude,
+                                    plant_seed=args.plant_seed, start_ns=start_ns)
 
 
 #: Wall seconds between the lines saying the plant is still being simulated.
@@ -132,19 +138,85 @@ def _plant_server(args: argparse.Namespace) -> int:
 
 
 def _simulate(args: argparse.Namespace) -> int:
+    from softsensor.service.day_replay import parse_time
+
+    start = parse_time(args.start, "--start")
+    if args.days < 1:
+        raise ConfigError(f"--days must be >= 1, got {args.days}")
     cfg = load_plant(args)
-    day = simulate_plant(cfg, args)
-    with writing(args.out) as tmp:  # a run stopped half-way leaves no half file
-        day.write(tmp)
+    if args.days == 1:
+        day = simulate_plant(cfg, args, start_ns=start)
+        with writing(args.out) as tmp:  # a run stopped half-way leaves no half file
+            day.write(tmp)
+        print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h from "
+              f"{iso_utc(start)}, {len(day.labs)} lab results, {_effect_words(day)}, seed "
+              f"{args.seed}, {_plant_words(args)}", file=sys.stderr)
+        return 0
+    return _simulate_history(cfg, args, start)
+
+
+def history_names(start_ns: int, hours: float, days: int) -> list[str]:
+    """The file names of ``simulate --days``: each record's UTC start,
+    ``2026-01-05T000000Z.mcap``, so that the names sort in time order (``calibrate
+    DIR/*.mcap`` reads them so)."""
+    step = round(hours * 3600e9)
+    return [iso_utc(start_ns + i * step).replace(":", "").removesuffix("Z") + "Z.mcap"
+            for i in range(days)]
+
+
+def _simulate_history(cfg: PlantConfig, args: argparse.Namespace, start: int) -> int:
+    """``--days N``: N consecutive records of ``--hours`` each into the folder ``--out``,
+    record ``i`` with seed ``--seed + i`` from ``--start + i --hours``: a history to try
+    ``calibrate`` on. Each record but the last is cut where the next begins, by log time (a
+    simulated record ends with the scan at its end time, and lab results come in after
+    their sample), as a historian's export split by day is; so the records do not overlap
+    and ``replay`` takes them as one stream. Each file is written whole (no half file when
+    stopped)."""
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: with --days {args.days}, --out is a folder for one "
+                          f"file a record, and {out} is a file")
+    step = round(args.hours * 3600e9)
+    names = history_names(start, args.hours, args.days)
+    scans = labs = 0
+    for i, name in enumerate(names):
+        day = simulate_plant(cfg, args, seed=args.seed + i, start_ns=start + i * step)
+        if i < args.days - 1:
+            day = _cut(day, start + (i + 1) * step)
+        if i == 0:  # after the first record: bad --hours or --effect create no folder
+            try:
+                out.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise ConfigError(f"--out {out}: cannot create the folder: "
+                                  f"{exc.strerror}") from exc
+        with writing(out / name) as tmp:
+            day.write(tmp)
+        scans, labs = scans + len(day.scans), labs + len(day.labs)
+        effect = _effect_words(day)
+    print(f"wrote {args.days} consecutive records of {args.hours:g} h to {out}/ ({names[0]} "
+          f"to {names[-1]}): {scans} scans, {labs} lab results, {effect}, seeds {args.seed} "
+          f"to {args.seed + args.days - 1}, {_plant_words(args)}", file=sys.stderr)
+    return 0
+
+
+def _cut(day: SimulatedDay, end_ns: int) -> SimulatedDay:
+    """``day`` without what was logged at or after ``end_ns`` [ns]."""
+    return dataclasses.replace(day, scans=day.scans[day.scans.index < end_ns],
+                               truth=day.truth[day.truth.index < end_ns],
+                               labs=day.labs[day.labs["log_time_ns"] < end_ns]
+                               .reset_index(drop=True))
+
+
+def _effect_words(day: SimulatedDay) -> str:
     eff = day.effect
-    what = "clean day" if eff["effect"] == "none" else (
+    return "clean day" if eff["effect"] == "none" else (
         f"effect {eff['effect']} magnitude {eff['magnitude']:g} {eff['unit']}"
         + (f" on {eff['channel']}" if eff.get("channel") else ""))
-    plant = ("plant independent, plant seed " + str(args.plant_seed)
-             if args.plant == "independent" else "plant model")
-    print(f"wrote {args.out}: {len(day.scans)} scans over {args.hours:g} h, "
-          f"{len(day.labs)} lab results, {what}, seed {args.seed}, {plant}", file=sys.stderr)
-    return 0
+
+
+def _plant_words(args: argparse.Namespace) -> str:
+    return ("plant independent, plant seed " + str(args.plant_seed)
+            if args.plant == "independent" else "plant model")
 
 
 def _add_simulate(sub: argparse._SubParsersAction) -> None:
@@ -157,7 +229,16 @@ def _add_simulate(sub: argparse._SubParsersAction) -> None:
                    help="size of the effect (units and ranges: softsensor.plant.effects)")
     add_plant_options(p)
     p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
-    p.add_argument("--out", required=True, metavar="DAY.mcap", help="MCAP file to write")
+    p.add_argument("--start", default=iso_utc(DEFAULT_START_NS),
+                   help="first log time, ISO-8601 (UTC) or ns (default "
+                        f"{iso_utc(DEFAULT_START_NS)})")
+    p.add_argument("--days", type=int, default=1, metavar="N",
+                   help="N consecutive records of --hours each, record i with seed --seed + i "
+                        "from --start + i x --hours: a history for calibrate; --out is then a "
+                        "folder, one file a record named by its UTC start "
+                        "(2026-01-05T000000Z.mcap), which sort in time order (default 1)")
+    p.add_argument("--out", required=True, metavar="DAY.mcap",
+                   help="MCAP file to write (with --days N > 1: a folder)")
     p.set_defaults(func=_simulate)
 
 

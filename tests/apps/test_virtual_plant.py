@@ -63,3 +63,67 @@ def test_cli_bad_input_is_one_line(tmp_path, args, needle):
     assert r.returncode == 2
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and needle in lines[0], r.stderr
+
+
+def test_simulate_start_and_days_write_a_consecutive_history(tmp_path, capsys):
+    """Issue 49: every simulated day started 2026-01-05, so no consecutive history could be
+    made for ``calibrate``. ``--start`` sets the first log time; ``--days N`` writes N records
+    of ``--hours`` into a folder, record i with seed ``--seed + i`` from ``--start + i x
+    --hours``, named by their UTC start so that they sort in time order, and ``replay`` takes
+    them as one stream (it refuses days out of time order)."""
+    from softsensor.cli import main
+    from softsensor.recording.mcap_day import read_day
+
+    h = 3600 * 10**9
+    start = 1_772_344_800 * 10**9  # 2026-03-01T06:00:00Z
+    one = tmp_path / "one.mcap"
+    assert main(["simulate", "--plant", "model", "--hours", "1", "--seed", "4", "--start",
+                 "2026-03-01T06:00:00Z", "--out", str(one)]) == 0
+    assert "from 2026-03-01T06:00:00Z" in capsys.readouterr().err
+    assert int(read_day(one).scans.index[0]) == start
+    folder = tmp_path / "history"
+    assert main(["simulate", "--plant", "model", "--hours", "2", "--seed", "4", "--days", "3",
+                 "--start", "2026-03-01T06:00:00Z", "--out", str(folder)]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith(f"wrote 3 consecutive records of 2 h to {folder}"), err
+    names = sorted(p.name for p in folder.iterdir())
+    assert names == ["2026-03-01T060000Z.mcap", "2026-03-01T080000Z.mcap",
+                     "2026-03-01T100000Z.mcap"]
+    days = [read_day(folder / n) for n in names]
+    for i, d in enumerate(days):
+        t = d.scans.index.to_numpy()
+        # each record but the last is cut where the next begins (no overlap: replay and
+        # calibrate take them as one history); the last ends with the scan at its end
+        end = start + (i + 1) * 2 * h
+        assert t[0] == start + i * 2 * h and (t[-1] < end if i < 2 else t[-1] == end)
+        assert (d.labs["log_time_ns"] < end).all() or i == 2
+    # one seed a record: the days differ (not one day copied three times)
+    assert not days[0].scans["T_dryer_out"].to_numpy()[:100].tolist() == \
+        days[1].scans["T_dryer_out"].to_numpy()[:100].tolist()
+    assert main(["replay", *[str(folder / n) for n in names], "--out",
+                 str(tmp_path / "est.mcap"), "--quiet"]) == 0
+    assert "37 ticks" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("args,needle", [
+    (["--days", "0"], "--days must be >= 1, got 0"),
+    (["--start", "yesterday"], "--start must be ns since the epoch or an ISO-8601 time"),
+])
+def test_simulate_bad_start_or_days_is_one_line(tmp_path, capsys, args, needle):
+    from softsensor.cli import main
+
+    assert main(["simulate", "--hours", "1", *args, "--out", str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and needle in err[0], err
+    assert not (tmp_path / "x.mcap").exists()
+
+
+def test_simulate_days_into_a_file_is_refused(tmp_path, capsys):
+    from softsensor.cli import main
+
+    (tmp_path / "f.mcap").write_bytes(b"x")
+    assert main(["simulate", "--plant", "model", "--hours", "1", "--days", "2", "--out",
+                 str(tmp_path / "f.mcap")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is a folder for one file a record" in err[0], err
