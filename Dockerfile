@@ -29,8 +29,8 @@ RUN python -m venv /opt/softsensor \
         cycler pyparsing setuptools pip \
     && find /opt/softsensor -depth \( -name __pycache__ -o -name tests \) \
         -type d -path "*/site-packages/*" -exec rm -rf {} +
-# filterpy declares Matplotlib for its plotting helpers, which the daemon never calls (removed
-# above, about 75 MB; setuptools and pip are not used at run time either). Extension modules
+# Matplotlib and its kin are removed in case a dependency declares them (filterpy did, until it
+# moved to the offline extra; about 75 MB); setuptools and pip are not used at run time either. Extension modules
 # shipped with their symbols (LLVM, zstd, Zenoh, many of NumPy's and SciPy's) are stripped
 # where the base has apt: about 70 MB less, the code unchanged. (Not the wheels' bundled
 # *.libs: auditwheel rewrote those, and strip breaks them.)

@@ -39,8 +39,9 @@ class MissingPackageError(SoftsensorError):
 
 
 #: The extra of pyproject.toml that holds what only the offline studies use: Optuna
-#: (calibration), Matplotlib (report figures), PyArrow (Parquet tables), about 250 MB that
-#: the daemon's install and container image leave out.
+#: (calibration), Matplotlib (report figures), PyArrow (Parquet tables), filterpy (the
+#: diagnosis's Kalman steps), about 250 MB that the daemon's install and container image
+#: leave out.
 OFFLINE_EXTRA = "offline"
 
 

@@ -83,7 +83,7 @@ def _check_paths(args: argparse.Namespace) -> None:
 
 def diagnose_main(args: argparse.Namespace) -> int:
     """``softsensor diagnose``: calibrate (or load), diagnose, write REPORT.json (and DIR)."""
-    require_packages("diagnose", "optuna", "matplotlib")
+    require_packages("diagnose", "optuna", "matplotlib", "filterpy")
     from softsensor.calibration.open_loop_errors import open_loop_summary
     from softsensor.diagnosis.diagnose_day import diagnose
     from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION
