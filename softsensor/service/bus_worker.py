@@ -151,6 +151,7 @@ class BusWorker:
         self.n_errors = 0  #: messages whose processing raised
         self.last_tick_s: float | None = None  #: wall time of the last message that ticked
         self.last_tick_at: float = time.monotonic()  #: when the last estimate went out
+        self.first_input_at: float | None = None  #: when the first input was queued
         self.limits = limits or InputLimits()
         self.dropped: dict[str, int] = {"queue_full": 0, "rate": 0, "too_large": 0,
                                         "shutdown": 0, "other_sender": 0}
@@ -183,6 +184,8 @@ class BusWorker:
         full (the thread must never starve)."""
         if message.kind == "lab":
             self.n_labs_received += 1
+        if self.first_input_at is None:
+            self.first_input_at = time.monotonic()
         origin = OTHER if self.origin is None else self.origin(message)
         plc = origin == PLC
         bucket = None if plc else self._buckets.get(message.kind)

@@ -481,7 +481,7 @@ class Daemon:
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
         self.watchdog = Watchdog(window_wall, grace, lambda: worker.last_tick_at,
-                                 lambda: worker.pending)
+                                 lambda: worker.pending, lambda: worker.first_input_at)
         return worker
 
     def _recording(self) -> str | None:

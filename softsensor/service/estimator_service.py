@@ -367,10 +367,14 @@ class EstimatorService:
             if reason is None:
                 self.stats.labs_accepted += 1
                 self._lab_since = window.end_ns
-                log.info("%s %s accepted: moisture_out %.4f kg/kg sampled at %s",
-                         "synthetic warm-up lab" if self.synthetic else "lab",
-                         outside_text(lab.sample_id), lab.moisture_out,
-                         iso_utc(lab.sample_time_ns))
+                if self.synthetic:  # the warm-up's made-up result: no plant lab was taken
+                    log.debug("warm-up: the synthetic lab result (moisture_out %.4f kg/kg, "
+                              "made up at %s) compiled the lab update; not a plant result",
+                              lab.moisture_out, iso_utc(lab.sample_time_ns))
+                else:
+                    log.info("lab %s accepted: moisture_out %.4f kg/kg sampled at %s",
+                             outside_text(lab.sample_id), lab.moisture_out,
+                             iso_utc(lab.sample_time_ns))
             else:
                 self._refuse(reason, window.end_ns)
                 self._free(lab.sample_id)

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -55,23 +56,45 @@ class Watchdog:
         ``time.monotonic()`` of the last estimate published.
     pending : callable
         Input messages waiting for the thread.
+    first_input_at : callable, optional
+        ``time.monotonic()`` of the first input message the worker queued, None before one.
+        Given, the first estimate is awaited from it, with one window more (issue 49: on a
+        normal start the ERROR ``estimator_stalled`` came before the first window, the wait
+        measured from before the outputs and the PLC connection were up): before any input
+        there is nothing the estimator could be late with (the input's health says "no
+        scans"), and the first window closes up to one window after the first scan.
     """
 
     def __init__(self, window_wall_s: float, grace_wall_s: float,
-                 last_tick_at: Callable[[], float], pending: Callable[[], int]) -> None:
+                 last_tick_at: Callable[[], float], pending: Callable[[], int],
+                 first_input_at: Callable[[], float | None] | None = None) -> None:
         self.window_wall_s = float(window_wall_s)
         self.limit_s = 2.0 * self.window_wall_s + float(grace_wall_s)
         self._last_tick_at = last_tick_at
         self._pending = pending
+        self._first_input_at = first_input_at
+        self._start_mark = last_tick_at()  # unchanged until the first estimate goes out
         self.stalled = False
         self.n_stalls = 0
         self._announced: float | None = None
 
+    def _lateness(self, now: float) -> tuple[float, float] | None:
+        """How late the next estimate is and the limit it is held to; None when no estimate
+        is due yet (no input before the first one)."""
+        last = self._last_tick_at()
+        if self._first_input_at is None or last != self._start_mark:
+            return now - last, self.limit_s
+        first = self._first_input_at()
+        if first is None:
+            return None
+        return now - first, self.limit_s + self.window_wall_s
+
     def check(self, now: float | None = None) -> Stall | None:
         """The stall to say when one is due now, else None."""
         now = time.monotonic() if now is None else now
-        late = now - self._last_tick_at()
-        if late <= self.limit_s:
+        due = self._lateness(now)
+        late, limit = (0.0, math.inf) if due is None else due
+        if late <= limit:
             if self.stalled:
                 event(log, "estimator_recovered", late_s=round(late, 1))
             self.stalled, self._announced = False, None

@@ -424,12 +424,25 @@ def test_a_refused_lab_result_is_told_by_its_sample_id() -> None:
     assert svc.stats.labs_accepted == 1 and svc.stats.labs_refused == 2
 
 
-def test_the_warm_up_lab_is_logged_as_synthetic_with_a_readable_time(caplog) -> None:
+def test_the_warm_up_lab_is_not_logged_as_an_accepted_lab(caplog) -> None:
     """Issue 40: the warm-up's made-up lab result was logged like a plant's, with a raw
-    nanosecond timestamp four days before the plant clock."""
-    caplog.set_level(logging.INFO, logger="softsensor.service.estimator_service")
+    nanosecond timestamp four days before the plant clock; issue 49: then as "synthetic
+    warm-up lab warm-up accepted" at INFO, beside the real ones. Now no line an operator
+    reads says a lab was accepted: one DEBUG line says what the made-up result did, with a
+    readable time; a real lab's line is unchanged."""
+    caplog.set_level(logging.DEBUG, logger="softsensor.service.estimator_service")
     warm_up(lambda: EstimatorService(FakeEstimator()), load_plant_config())
-    lines = [r.getMessage() for r in caplog.records if "accepted" in r.getMessage()]
-    assert len(lines) == 1, lines
-    assert re.fullmatch(r"synthetic warm-up lab warm-up accepted: moisture_out 0\.1000 kg/kg "
-                        r"sampled at \d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ", lines[0]), lines
+    info = [r.getMessage() for r in caplog.records if r.levelno >= logging.INFO]
+    assert not [m for m in info if "accepted" in m or "lab" in m], info
+    debug = [r.getMessage() for r in caplog.records if "synthetic lab" in r.getMessage()]
+    assert len(debug) == 1, debug
+    assert re.fullmatch(r"warm-up: the synthetic lab result \(moisture_out 0\.1000 kg/kg, made "
+                        r"up at \d{4}-\d\d-\d\dT\d\d:\d\d:\d\dZ\) compiled the lab update; not "
+                        r"a plant result", debug[0]), debug
+    caplog.clear()
+    svc = EstimatorService(FakeEstimator())
+    feed(svc, [("lab", T0 + 100 * S, lab("L1", 50)), *(("scan", t, b) for t, b in
+                                                      scans(10, 700))])
+    accepted = [r.getMessage() for r in caplog.records if r.levelno == logging.INFO
+                and "accepted" in r.getMessage()]
+    assert len(accepted) == 1 and accepted[0].startswith("lab L1 accepted: "), accepted
