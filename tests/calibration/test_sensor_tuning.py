@@ -1,0 +1,104 @@
+"""What the sensor learns of its plant from the history (issue 47 items 2 and 3,
+:mod:`softsensor.calibration.sensor_tuning`).
+
+The blend's fit and the noise search are tested on days whose outcome is known by
+construction (recorded ticks of a physics that is off by a set amount, or a lab score peaked
+at a set noise), so the test takes milliseconds and asserts what the learning must find; the
+end-to-end run through the filter, the PARAMS.toml round trip and the estimator reading the
+learned values are tested on a short virtual-plant history.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from softsensor.calibration.sensor_score import DayRun
+from softsensor.calibration.sensor_tuning import (
+    NOISE_KEYS,
+    blend_errors,
+    fit_blend,
+    fit_noise,
+)
+from softsensor.estimation.settings import EstimatorSettings
+from softsensor.messages import LabResult, Window
+
+T0 = 1_767_571_200 * 10**9
+W = 600 * 10**9
+SHIPPED = dataclasses.replace(EstimatorSettings(), peer_blend=True, band_conformal=False)
+
+
+def _day(seed: int, physics_offset: float, n: int = 288, every: int = 6) -> DayRun:
+    """A day of ``n`` ticks: a true outlet moisture that wanders, the physics publishing it
+    plus ``physics_offset`` (sd 0.004), a lab result every ``every`` ticks (lab noise
+    0.003)."""
+    rng = np.random.default_rng(seed)
+    truth = 0.10 + 0.01 * np.sin(np.arange(n) / 40.0 + seed) + np.cumsum(
+        rng.normal(0, 0.0008, n))
+    windows = [Window(T0 + k * W, T0 + (k + 1) * W, {}, 60, {}, False, {}) for k in range(n)]
+    physics = [(float(truth[k] + physics_offset), 0.004) for k in range(n)]
+    ks = np.arange(3, n, every)
+    labs = [LabResult(int(windows[k].end_ns - W // 2), float(truth[k] + rng.normal(0, 0.003)),
+                      f"L{seed}-{k}", int(windows[k].end_ns)) for k in ks]
+    return DayRun(windows, physics, labs, ks, [None] * len(labs), [None] * len(labs))
+
+
+def test_the_blend_is_replayed_from_the_recorded_ticks():
+    """With the physics' prior at all but nothing and no evidence, the blend is the
+    physics: its errors are the labs' distance from it."""
+    day = _day(1, 0.02)
+    s = dataclasses.replace(SHIPPED, peer_prior_physics=0.999999, peer_evidence=0.0)
+    e = blend_errors(day, s)
+    assert e.size == len(day.labs) and abs(np.mean(e) + 0.02) < 0.002
+
+
+def test_a_physics_that_is_off_loses_its_weight_to_the_hold_out_of_fold():
+    days = [_day(s, 0.03) for s in range(4)]
+    tuned, check, verdict = fit_blend(days, SHIPPED)
+    assert verdict.startswith("learned")
+    # the shipped evidence already leans to the hold; the learned prior does better still
+    assert check["rmse_learned_held_out"] < check["rmse_shipped"] < 0.03
+    assert tuned.peer_prior_physics < SHIPPED.peer_prior_physics
+
+
+def test_a_physics_that_holds_keeps_its_weight():
+    days = [_day(s, 0.0) for s in range(4)]
+    tuned, check, _ = fit_blend(days, SHIPPED)
+    assert check["rmse_learned_held_out"] <= check["rmse_shipped"] * 1.05
+    assert tuned.peer_prior_physics >= 0.7 or tuned.peer_evidence > 0
+
+
+def _score_days(truth: dict[str, float], width: float = 0.5):
+    """A stand-in for filtering the tuning days: 200 lab log densities peaked at the noise
+    ``truth`` (in log space, ``width`` wide), so the search's answer is known."""
+    calls = []
+
+    def run_days(s: EstimatorSettings) -> list[DayRun]:
+        calls.append(s)
+        miss = sum((math.log(getattr(s, k) / v) / width) ** 2 for k, v in truth.items())
+        run = _day(0, 0.0)
+        return [dataclasses.replace(run, log_density=[-0.5 * miss] * 200)]
+
+    return run_days, calls
+
+
+def test_the_noise_search_finds_a_plant_whose_noise_is_four_times_the_shipped():
+    s = EstimatorSettings()
+    truth = {"moisture_in_walk": 4 * s.moisture_in_walk,
+             "inlet_gain_walk": s.inlet_gain_walk / 4,
+             "transient_fraction": s.transient_fraction}
+    run_days, calls = _score_days(truth)
+    learned, se, _ = fit_noise(run_days, s)
+    for k, v in truth.items():
+        assert 1 / 1.5 <= getattr(learned, k) / v <= 1.5, k
+    assert set(se) == set(NOISE_KEYS) and all(v > 1 for v in se.values())
+    assert len(calls) <= 1 + 2 * len(NOISE_KEYS)
+
+
+def test_the_shipped_noise_stays_when_the_plant_is_the_shipped():
+    s = EstimatorSettings()
+    run_days, _ = _score_days({k: getattr(s, k) for k in NOISE_KEYS})
+    learned, _, _ = fit_noise(run_days, s)
+    assert all(getattr(learned, k) == getattr(s, k) for k in NOISE_KEYS)
