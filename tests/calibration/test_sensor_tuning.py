@@ -14,6 +14,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from softsensor.calibration.sensor_score import DayRun
 from softsensor.calibration.sensor_tuning import (
@@ -102,3 +103,43 @@ def test_the_shipped_noise_stays_when_the_plant_is_the_shipped():
     run_days, _ = _score_days({k: getattr(s, k) for k in NOISE_KEYS})
     learned, _, _ = fit_noise(run_days, s)
     assert all(getattr(learned, k) == getattr(s, k) for k in NOISE_KEYS)
+
+
+def _params_with_sensor(tmp_path, values, name="p.toml"):
+    from softsensor.calibration.params_file import params_document, write_params
+    from softsensor.plantconfig import PARAMETER_NAMES, load_plant_config
+
+    base = load_plant_config()
+    doc = params_document(base, dict(zip(PARAMETER_NAMES, base.parameter_vector().tolist(),
+                                         strict=True)), {"objective": 0.0})
+    doc["sensor"] = {"days": 4, "labs": 40, "values": values, "shipped": {}, "deployed": {}}
+    path = tmp_path / name
+    write_params(path, doc)
+    return base, path
+
+
+def test_the_learned_values_reach_the_estimator_and_its_fingerprint(tmp_path):
+    """PARAMS.toml's ``[sensor].values`` replace the shipped ``[estimator]`` defaults; a key
+    the plant config sets itself wins; a change of them is a change of calibration for a
+    checkpoint (``made_with``)."""
+    import dataclasses as dc
+
+    from softsensor.errors import ConfigError
+    from softsensor.estimation.settings import estimator_settings
+    from softsensor.plantconfig import load_parameters, made_with
+
+    base, path = _params_with_sensor(tmp_path, {"moisture_in_walk": 0.03,
+                                                "peer_prior_physics": 0.4,
+                                                "peer_prior_hold": 0.1, "peer_evidence": 0.5})
+    cfg = load_parameters(path, base)
+    s = estimator_settings(cfg)
+    assert (s.moisture_in_walk, s.peer_prior_physics, s.peer_prior_hold, s.peer_evidence) == (
+        0.03, 0.4, 0.1, 0.5)
+    own = dc.replace(base, extra={**base.extra, "estimator": {"moisture_in_walk": 0.02}})
+    assert estimator_settings(load_parameters(path, own)).moisture_in_walk == 0.02
+    _, other = _params_with_sensor(tmp_path, {"moisture_in_walk": 0.01}, "q.toml")
+    a, b = made_with(cfg), made_with(load_parameters(other, base))
+    assert a["sensor"] != b["sensor"] and a["parameters"] == b["parameters"]
+    _, bad = _params_with_sensor(tmp_path, {"moisture_in_walk": -1.0}, "r.toml")
+    with pytest.raises(ConfigError, match="estimator.moisture_in_walk"):
+        estimator_settings(load_parameters(bad, base))

@@ -183,7 +183,7 @@ def _weights_after_labs(s: EstimatorSettings, n: int = 6) -> dict[str, float]:
         w = window(t)
         labs = (LabResult(w.end_ns - W // 2, 0.15, f"L{t}", w.end_ns),)
         state, body = published(s, None, state, w, labs, 0.10, 0.005)
-    return {k: v["weight"] for k, v in body["blend"]["sources"].items()}
+    return {k: v["weight"] for k, v in body["sources"].items()}
 
 
 def test_the_prior_weights_are_the_settings_and_the_evidence_can_be_tempered_away():
