@@ -371,8 +371,8 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
                 f"the current ones ({errors}), and {learned}.{bounds}")
     worse = ("" if old is None or not new.fit.rmse["moisture_out"]
              > old.fit.rmse["moisture_out"] else
-             " Worse on the outlet moisture than the parameters it replaces: accepted on the "
-             "weighted cost of all three channels, not on the moisture.")
+             " Worse on the held-out outlet moisture than the parameters it replaces; "
+             f"deployed because the sensor's own lab score says better ({hist.reason}).")
     return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
             f"{where}: {errors}.{worse}{bounds}" if errors else
             f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")
