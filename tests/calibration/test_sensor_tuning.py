@@ -143,3 +143,46 @@ def test_the_learned_values_reach_the_estimator_and_its_fingerprint(tmp_path):
     _, bad = _params_with_sensor(tmp_path, {"moisture_in_walk": -1.0}, "r.toml")
     with pytest.raises(ConfigError, match="estimator.moisture_in_walk"):
         estimator_settings(load_parameters(bad, base))
+
+
+@pytest.mark.parametrize("part", ["parameters", "structure", "discrepancy", "model_error",
+                                  "regression", "sensor"])
+def test_every_part_of_a_calibration_is_in_the_checkpoints_fingerprint(part):
+    """A checkpoint made under one calibration is not continued under another as if nothing
+    had changed (issue 47: a fingerprint cut to the parameters alone went unnoticed): each
+    part, changed alone, changes its own digest and no other."""
+    from softsensor.plantconfig import load_plant_config, made_with, with_table
+
+    base = load_plant_config()
+    if part == "parameters":
+        other = base.with_parameters(base.parameter_vector() * 1.1)
+    elif part == "structure":
+        other = base.with_keys({"fiber.critical_moisture": base.fiber.critical_moisture * 0.9})
+    else:
+        other = with_table(base, part, {"changed": 1})
+    a, b = made_with(base), made_with(other)
+    assert [k for k in a if a[k] != b[k]] == [part]
+    assert set(a) == {"parameters", "structure", "discrepancy", "model_error", "regression",
+                      "sensor"}
+
+
+def test_the_sensor_score_is_the_filters(tmp_path):
+    """The prequential lab score runs the filter: the same day scores differently when the
+    filter's noise differs, and every lab handed over is scored once."""
+    from softsensor.calibration.dataset import segment_from_day
+    from softsensor.calibration.sensor_score import filter_day
+    from softsensor.estimation.settings import estimator_settings
+    from softsensor.plant.simulator import simulate_day
+    from softsensor.plantconfig import load_plant_config
+
+    base = load_plant_config()
+    seg = segment_from_day(simulate_day(base, 6.0, 11, effect="inlet_moisture",
+                                        magnitude=0.15), base, source="day")
+    s = dataclasses.replace(estimator_settings(base), peer_blend=False, band_conformal=False)
+    a = filter_day(base, seg, s)
+    b = filter_day(base, seg, dataclasses.replace(s, moisture_in_walk=s.moisture_in_walk * 9))
+    assert len(a.labs) == len(a.log_density) > 0
+    assert [x is None for x in a.log_density] == [x is None for x in b.log_density]
+    scored = [(x, y) for x, y in zip(a.log_density, b.log_density, strict=True)
+              if x is not None]
+    assert scored and any(abs(x - y) > 1e-6 for x, y in scored)
