@@ -329,7 +329,7 @@ def made_with(cfg: PlantConfig) -> dict[str, str]:
     return {"parameters": digest(cfg.parameter_vector().tolist()),
             "structure": digest({k: repr(getattr(cfg, k)) for k in MODEL_SECTIONS}),
             **{k: digest(cfg.extra.get(k)) for k in ("discrepancy", "model_error",
-                                                      "regression")}}
+                                                      "regression", "sensor")}}
 
 
 def with_table(cfg: PlantConfig, name: str, table: dict[str, Any]) -> PlantConfig:
@@ -489,6 +489,23 @@ def dotted_keys(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
+def _learned_values(sensor: Any, path: str) -> dict[str, float]:
+    """PARAMS.toml's ``[sensor].values``: the ``[estimator]`` keys the calibration learned
+    from the history (:mod:`softsensor.calibration.sensor_tuning`). They take the place of
+    the shipped defaults; a key the plant config's own ``[estimator]`` sets wins (the
+    engineer's word). Their ranges are checked where ``[estimator]`` is built, naming
+    ``estimator.<key>``."""
+    if not isinstance(sensor, dict):
+        raise ConfigError(f"{path}: [sensor] must be a table")
+    values = sensor.get("values", {})
+    if not isinstance(values, dict):
+        raise ConfigError(f"{path}: sensor.values must be a table")
+    for k, v in values.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise ConfigError(f"{path}: sensor.values.{k} must be a finite number, got {v!r}")
+    return dict(values)
+
+
 def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     """Apply a ``PARAMS.toml`` (written by ``softsensor calibrate``) to ``config``.
 
@@ -539,6 +556,11 @@ def load_parameters(path: str | Path, config: PlantConfig) -> PlantConfig:
     regression = data.get("regression")
     if regression is not None:  # built and checked by estimation.lab_regression
         extra["regression"] = regression
+    sensor = data.get("sensor")
+    if sensor is not None:
+        extra["sensor"] = sensor
+        extra["estimator"] = {**_learned_values(sensor, str(path)),
+                              **config.extra.get("estimator", {})}
     out = _keeping_tables(cfg, dataclasses.replace(cfg, extra=extra,
                                                    source=f"{config.source} + {path}"))
     out._tables.update(built)

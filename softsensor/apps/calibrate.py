@@ -196,6 +196,9 @@ def add_calibrate_arguments(p: argparse.ArgumentParser) -> None:
                    help="search the model's structural alternatives on the history and adopt "
                         "one where the held-out evidence says so (default: on with several "
                         "days, off with one)")
+    p.add_argument("--sensor", action=argparse.BooleanOptionalAction, default=None,
+                   help="learn the sensor's noise and blend on the latest days of the history "
+                        "(PARAMS.toml's [sensor]; default: on with several days)")
     p.add_argument("--report", default=None, metavar="DIR",
                    help="write an HTML page with the figures to DIR")
     p.add_argument("--json", default=None, metavar="FILE",
@@ -234,7 +237,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
     selection = _selection(args)
     settings = _study_settings(args, out)
     optuna.logging.set_verbosity(optuna.logging.WARNING)  # the progress bar says enough
-    days, regression, no_regression = _history(args.days, base)
+    days, regression, no_regression, lab_rows = _history(args.days, base)
     validation = [load_segment(p, base) for p in args.validate_on] if args.validate_on else None
 
     def progress(phase: str) -> None:
@@ -256,8 +259,15 @@ def calibrate_main(args: argparse.Namespace) -> int:
     if regression is not None:
         doc["regression"] = regression.to_table()
     write_params(out, doc, _params_comment(calibration, hist))
+    if args.sensor if args.sensor is not None else len(days) > 1:
+        from softsensor.calibration.sensor_tuning import tune_deployed
+
+        doc["sensor"] = tune_deployed(out, base, days, lab_rows, regression,
+                                      progress).to_table()
+        write_params(out, doc, _params_comment(calibration, hist))
     outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis)
-    write_json(_calibrate_summary(args, out, hist, outcome), args.json)
+    write_json({**_calibrate_summary(args, out, hist, outcome),
+                "sensor": doc.get("sensor")}, args.json)
     _say_outcome(hist, outcome, no_regression)
     return 0
 
@@ -277,11 +287,13 @@ def _study_settings(args: argparse.Namespace, out: Path) -> Any:
 
 
 def _history(paths: Sequence[str | Path], base: PlantConfig
-             ) -> tuple[list[Segment], Any, str | None]:
-    """The history's days as model windows and the lab regression fitted on them (or None
-    and why not, :func:`~softsensor.calibration.history_calibration.history_regression`):
-    each day read once, for both."""
+             ) -> tuple[list[Segment], Any, str | None, list[Any] | None]:
+    """The history's days as model windows, the lab regression fitted on them (or None
+    and why not, :func:`~softsensor.calibration.history_calibration.history_regression`)
+    and each day's regression rows (for the sensor's out-of-fold regressions): each day
+    read once, for all."""
     from softsensor.calibration.history_calibration import history_regression
+    from softsensor.estimation.lab_regression import lab_features
 
     days, rows = [], []
     for p in paths:
@@ -289,7 +301,9 @@ def _history(paths: Sequence[str | Path], base: PlantConfig
         days.append(segment_from_day(day, base, source=str(p)))
         rows.append(day)
     regression, no_regression = history_regression(rows)
-    return days, regression, no_regression
+    lab_rows = (None if regression is None else
+                [lab_features(d.scans, d.labs, regression.signals) for d in rows])
+    return days, regression, no_regression, lab_rows
 
 
 def _calibrate_summary(args: argparse.Namespace, out: Path, hist: Any, outcome: str
@@ -358,8 +372,8 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
                 f"the current ones ({errors}), and {learned}.{bounds}")
     worse = ("" if old is None or not new.fit.rmse["moisture_out"]
              > old.fit.rmse["moisture_out"] else
-             " Worse on the outlet moisture than the parameters it replaces: accepted on the "
-             "weighted cost of all three channels, not on the moisture.")
+             " Worse on the held-out outlet moisture than the parameters it replaces; "
+             f"deployed because the sensor's own lab score says better ({hist.reason}).")
     return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
             f"{where}: {errors}.{worse}{bounds}" if errors else
             f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")

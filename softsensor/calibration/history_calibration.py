@@ -194,10 +194,23 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
               f"ones ({result.verdict_line()})" if kept else
               "calibrated" + ("" if result.accepted else " (forced, though they predict the "
                                                          "held-out data worse)"))
-    search = None
     # what sensor_decides learned for each side, by name ("baseline" or the alternative's),
     # and the side deployed
     learned: dict[str, tuple[list[float], ModelError]] = {}
+    if not kept and not force and labs_worse(result):
+        # accepted on the weighted cost of all channels while its held-out labs got worse:
+        # the sensor's own lab score on the latest days decides (issue 47)
+        with phase("sensor_accept", timings, say):
+            better, why = sensor_accepts(days, config, model, result,
+                                         np.asarray(current_theta, float), learned)
+        if not better:
+            kept, theta = True, np.asarray(current_theta, float)
+            reason = ("the calibrated parameters predict the held-out lab results worse than "
+                      f"the current ones and the sensor's lab score does not say they are "
+                      f"better ({why})")
+        else:
+            reason = f"calibrated (held-out labs worse, the sensor's lab score better: {why})"
+    search = None
     deployed = "baseline"
     # only against a polished baseline: from a study stopped short of the optimum, any change
     # of structure can look better (measured: 3 trials without the polish on a matched plant
@@ -244,6 +257,41 @@ def learned_error(model: DryerModel, days: Sequence[Segment], theta: np.ndarray,
     latest = levels[int(np.argmax([d.start_ns for d in days]))]
     return levels, fit_model_error(model, days, theta, float(np.mean(levels)),
                                    float(np.std(levels)) if len(levels) > 1 else 0.0, latest)
+
+
+def labs_worse(result: CalibrationResult) -> bool:
+    """True when the calibrated parameters predict the held-out lab results worse than the
+    current ones (the validation's outlet-moisture RMSE)."""
+    new, old = result.validation, result.current_validation
+    if new is None or old is None:
+        return False
+    a, b = new.fit.rmse.get("moisture_out"), old.fit.rmse.get("moisture_out")
+    return a is not None and b is not None and math.isfinite(a) and math.isfinite(b) and a > b
+
+
+def sensor_accepts(days: Sequence[Segment], config: PlantConfig, model: DryerModel,
+                   result: CalibrationResult, current_theta: np.ndarray,
+                   learned: dict[str, tuple[list[float], ModelError]]) -> tuple[bool, str]:
+    """Whether the estimator does better with the calibrated parameters than with the current
+    ones on the latest days (:mod:`.sensor_score`, lab by lab): a mean log density higher by
+    more than the difference's standard error, and no more results it failed to predict.
+    Each side deployed as PARAMS.toml would deploy it, its own model error learned on the
+    history; the side that wins goes into ``learned`` as ``"baseline"`` (the structure
+    search's starting point)."""
+    sides = {}
+    for name, th, kept in (("calibrated", result.theta, False),
+                           ("current", current_theta, True)):
+        levels, me = learned_error(model, days, th, result)
+        sides[name] = ((levels, me),
+                       sensor_score(deployable(config, th, me, deployed_discrepancy(result,
+                                                                                     kept)),
+                                    latest_days(days)))
+    p = paired(sides["calibrated"][1], sides["current"][1])
+    better = p.failed_a <= p.failed_b and p.n > 0 and p.diff > p.se
+    learned["baseline"] = sides["calibrated" if better else "current"][0]
+    return better, (f"{p.diff:+.3f} +- {p.se:.3f} per result on {p.n} results, RMSE "
+                    f"{sides['calibrated'][1].rmse:.4f} against "
+                    f"{sides['current'][1].rmse:.4f} kg/kg")
 
 
 def sensor_decides(search: StructureSearch, days: Sequence[Segment], config: PlantConfig,
@@ -298,5 +346,5 @@ def history_regression(days: Sequence[DayLike]) -> tuple[LabRegression | None, s
 
 
 __all__ = ["MIN_VALIDATION_HOURS", "HistoryResult", "calibrate_history", "choose_windows",
-           "deployed_discrepancy", "history_regression", "inlet_levels", "learned_error",
-           "sensor_decides", "validation_pieces"]
+           "deployed_discrepancy", "history_regression", "inlet_levels", "labs_worse",
+           "learned_error", "sensor_accepts", "sensor_decides", "validation_pieces"]

@@ -37,8 +37,9 @@ import numpy as np
 from softsensor.calibration.dataset import Segment
 from softsensor.errors import SoftsensorError
 from softsensor.estimation.interface import LabResult, Window
+from softsensor.estimation.lab_regression import LabRegression
 from softsensor.estimation.model_error import ModelError
-from softsensor.estimation.settings import estimator_settings
+from softsensor.estimation.settings import EstimatorSettings, estimator_settings
 from softsensor.estimation.ukf import UkfEstimator
 from softsensor.jsonable import finite_or_none
 from softsensor.plantconfig import DiscrepancyPrior, PlantConfig, with_table
@@ -136,41 +137,82 @@ def deployable(config: PlantConfig, theta: np.ndarray, model_error: ModelError,
     return out
 
 
+@dataclass
+class DayRun:
+    """One day filtered as :func:`sensor_score` runs it: per tick its window and the
+    estimate published (mean and band sd [kg/kg], None where it published none), the day's
+    lab results with the window each was sampled in, each result's log density under the
+    estimate published for that window before it was handed over (None: not predicted), and
+    the lab regression the day's peers run with (None: without)."""
+
+    windows: list[Window]
+    physics: list[tuple[float, float] | None]
+    labs: list[LabResult]
+    lab_window: np.ndarray
+    log_density: list[float | None]
+    errors: list[float | None]
+    regression: LabRegression | None = None
+
+
+def filter_day(config: PlantConfig, seg: Segment, s: EstimatorSettings,
+               delay_ticks: int = DELAY_TICKS, regression: LabRegression | None = None
+               ) -> DayRun:
+    """Run the UKF with settings ``s`` over one day from a fresh start, every lab result
+    handed over ``delay_ticks`` after its sample window, and score each result before it is
+    applied (module docstring). ``regression`` is carried for the peers' replay
+    (:mod:`.sensor_tuning`); the filter itself publishes what ``s`` says."""
+    lab_var = s.lab_std ** 2
+    est = UkfEstimator(config, s)
+    windows = day_windows(seg, window_settings(config).scan_period_s)
+    published: list[tuple[float, float] | None] = []
+    labs: list[LabResult] = []
+    logs: list[float | None] = []
+    errs: list[float | None] = []
+    due: dict[int, list[int]] = {}
+    for j, k in enumerate(seg.lab_window):
+        due.setdefault(int(k) + delay_ticks, []).append(j)
+    order: list[int] = []
+    for k, w in enumerate(windows):
+        for j in due.get(k, []):
+            pred = published[int(seg.lab_window[j])]
+            value = float(seg.lab_value[j])
+            lab = LabResult(int(seg.lab_time_ns[j]), value, str(seg.lab_id[j]), w.start_ns)
+            order.append(j)
+            labs.append(lab)
+            if pred is not None:
+                mean, sd = pred
+                var = sd * sd + lab_var
+                logs.append(-0.5 * (math.log(2 * math.pi * var) + (value - mean) ** 2 / var))
+                errs.append(value - mean)
+            else:
+                logs.append(None)
+                errs.append(None)
+            est.add_lab(lab)
+        try:
+            e = est.tick(w)
+            published.append((e.moisture_out, e.moisture_out_std)
+                             if e.moisture_out is not None and e.moisture_out_std
+                             else None)
+        except (SoftsensorError, ArithmeticError, ValueError):
+            published.append(None)
+    lab_window = np.asarray([int(seg.lab_window[j]) for j in order], dtype=int)
+    return DayRun(windows, published, labs, lab_window, logs, errs, regression)
+
+
 def sensor_score(config: PlantConfig, days: Sequence[Segment],
                  delay_ticks: int = DELAY_TICKS) -> SensorScore:
     """The filter's prequential lab score on ``days`` (module docstring)."""
     s = replace(estimator_settings(config), peer_blend=False, band_conformal=False)
-    lab_var = s.lab_std ** 2
     logs: list[float] = []
     errs: list[float] = []
     per_lab: dict[str, float | None] = {}
     for i, seg in enumerate(days):
-        est = UkfEstimator(config, s)
-        published: list[tuple[float, float] | None] = []
-        due: dict[int, list[int]] = {}
-        for j, k in enumerate(seg.lab_window):
-            due.setdefault(int(k) + delay_ticks, []).append(j)
-        for k, w in enumerate(day_windows(seg, window_settings(config).scan_period_s)):
-            for j in due.get(k, []):
-                pred = published[int(seg.lab_window[j])]
-                value = float(seg.lab_value[j])
-                key = f"{i}:{seg.lab_id[j]}"
-                per_lab[key] = None
-                if pred is not None:
-                    mean, sd = pred
-                    var = sd * sd + lab_var
-                    logs.append(-0.5 * (math.log(2 * math.pi * var) + (value - mean) ** 2 / var))
-                    errs.append(value - mean)
-                    per_lab[key] = logs[-1]
-                t = int(seg.lab_time_ns[j])
-                est.add_lab(LabResult(t, value, str(seg.lab_id[j]), w.start_ns))
-            try:
-                e = est.tick(w)
-                published.append((e.moisture_out, e.moisture_out_std)
-                                 if e.moisture_out is not None and e.moisture_out_std
-                                 else None)
-            except (SoftsensorError, ArithmeticError, ValueError):
-                published.append(None)
+        run = filter_day(config, seg, s, delay_ticks)
+        for lab, lp, err in zip(run.labs, run.log_density, run.errors, strict=True):
+            per_lab[f"{i}:{lab.sample_id}"] = lp
+            if lp is not None and err is not None:
+                logs.append(lp)
+                errs.append(err)
     if not logs:
         return SensorScore(-math.inf, math.nan, 0, per_lab)
     return SensorScore(float(np.mean(logs)), float(np.sqrt(np.mean(np.square(errs)))),
@@ -182,5 +224,6 @@ def latest_days(days: Sequence[Segment], n: int = SCORE_DAYS) -> list[Segment]:
     return sorted(days, key=lambda d: d.start_ns)[-n:]
 
 
-__all__ = ["DELAY_TICKS", "SCORE_DAYS", "Paired", "SensorScore", "day_windows", "deployable",
+__all__ = ["DELAY_TICKS", "SCORE_DAYS", "DayRun", "Paired", "SensorScore", "day_windows",
+           "deployable", "filter_day",
            "latest_days", "not_worse", "paired", "sensor_score"]

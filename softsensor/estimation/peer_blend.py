@@ -76,11 +76,17 @@ class Source:
 
 
 def prior_log_weights(s: EstimatorSettings, reg: LabRegression | None) -> np.ndarray:
-    """Log prior weights of :data:`SOURCES` (the regression's at a finite nothing, -690,
-    without a fit: the state stays JSON)."""
-    peers = 2 if reg is not None else 1
-    rest = (1.0 - s.peer_prior_physics) / peers
-    p = np.array([s.peer_prior_physics, rest, rest if reg is not None else 0.0])
+    """Log prior weights of :data:`SOURCES`: ``peer_prior_physics`` on the physics,
+    ``peer_prior_hold`` on the hold (None: the peers share the rest), the rest on the
+    regression (at a finite nothing, -690, without a fit: the state stays JSON)."""
+    rest = 1.0 - s.peer_prior_physics
+    if reg is None:
+        p = np.array([s.peer_prior_physics, rest, 0.0])
+    elif s.peer_prior_hold is None:
+        p = np.array([s.peer_prior_physics, rest / 2, rest / 2])
+    else:
+        hold = min(s.peer_prior_hold, rest)
+        p = np.array([s.peer_prior_physics, hold, rest - hold])
     return np.log(np.maximum(p, 1e-300))
 
 
@@ -245,7 +251,8 @@ def _score(s: EstimatorSettings, reg: LabRegression | None, prior: np.ndarray,
         spread = np.sqrt(np.maximum(scored.msz, 1.0))
         ll = np.array([_log_density(lab.moisture_out, src, k) if src.ok else 0.0
                        for src, k in zip(sources, spread, strict=True)])
-        log_w = log_w + np.where(ok, ll, 0.0)
+        # tempered (``peer_evidence``): 0 keeps the learned stacking weights of the prior
+        log_w = log_w + s.peer_evidence * np.where(ok, ll, 0.0)
         log_w = np.maximum(log_w - np.max(log_w), _LOG_FLOOR)
         scored.msz = np.where(ok, s.peer_forgetting * scored.msz
                               + (1.0 - s.peer_forgetting) * z2, scored.msz)

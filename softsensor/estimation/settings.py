@@ -153,8 +153,16 @@ class EstimatorSettings:
         history's lab regression) by their recent lab likelihood and publish the weighted
         estimate (:mod:`softsensor.estimation.peer_blend`); false publishes the physics alone.
     peer_prior_physics : float
-        Prior weight of the physics (the peers share the rest): where the weights return when
-        the labs say nothing. [-]
+        Prior weight of the physics: where the weights return when the labs say nothing. [-]
+    peer_prior_hold : float or None
+        Prior weight of the held lab; the regression takes the rest (without a regression the
+        hold takes all the physics leaves). Default (None): the two peers share the rest
+        equally. A calibration from history learns the prior weights out of fold
+        (:mod:`softsensor.calibration.sensor_tuning`, PARAMS.toml's ``[sensor]``). [-]
+    peer_evidence : float
+        Tempering of each lab result's evidence on the weights: its log likelihood is
+        multiplied by this (0: the weights stay at the prior, a fixed stacking of the sources;
+        1: dynamic model averaging's full evidence). [-]
     peer_forgetting : float
         How much of the weights' log evidence each lab result keeps of what came before
         (dynamic model averaging's forgetting factor; 0.85 keeps a result's evidence at half
@@ -215,6 +223,8 @@ class EstimatorSettings:
     sigma_kappa: float = num(1.0, ge=0)
     peer_blend: bool = True
     peer_prior_physics: float = num(0.9, gt=0, lt=1)
+    peer_prior_hold: float | None = num(None, ge=0, lt=1)
+    peer_evidence: float = num(1.0, ge=0, le=1)
     peer_forgetting: float = num(0.85, ge=0, le=1)
     band_conformal: bool = True
     band_step: float = num(0.3, gt=0, le=5)
@@ -243,6 +253,10 @@ class EstimatorSettings:
         if self.lab_envelope_max <= self.lab_envelope_min:
             return (f"lab_envelope_max must be > lab_envelope_min ({self.lab_envelope_min:g}), "
                     f"got {self.lab_envelope_max:g}")
+        if (self.peer_prior_hold is not None
+                and self.peer_prior_physics + self.peer_prior_hold > 1.0 + 1e-9):
+            return (f"peer_prior_hold must be at most 1 - peer_prior_physics "
+                    f"({1.0 - self.peer_prior_physics:g}), got {self.peer_prior_hold:g}")
         if 2.5 * self.inlet_margin > self.moisture_in_max - self.moisture_in_min:
             return (f"inlet_margin must be below 0.4 of the inlet range, got "
                     f"{self.inlet_margin:g}")

@@ -81,6 +81,26 @@ MODEL_STATES: tuple[int, ...] = (X_IN, X_HEAT)
 #: unset), and the one that holds it at zero without one [-].
 DEFAULT_INLET_GAIN_STD = 1.0
 HELD_INLET_GAIN_STD = 1e-9
+#: Smallest response of the plant's outlet moisture to its inlet moisture, as a share of the
+#: model's (``1 + inlet_gain``): a wetter feed never leaves a drier fibre (the drying rate
+#: falls as the fibre dries, so the outlet moisture rises with the inlet's, Wood Handbook
+#: ch. 13; a response near zero is a dryer that takes any feed to equilibrium) [-].
+GAIN_RESPONSE_FLOOR = 0.05
+#: Sharpness of the soft floor (per unit of response): within 1e-3 of the identity 0.35 above
+#: the floor.
+_GAIN_SHARPNESS = 20.0
+
+
+def gain_response(g: np.ndarray | float) -> np.ndarray:
+    """The response ``1 + inlet_gain`` bounded below by :data:`GAIN_RESPONSE_FLOOR`,
+    smoothly (a softplus): the identity while the response is well above the floor, so the
+    filter's mean and the sigma points far from the floor are unchanged, and never an
+    inverted response however far a sigma point reaches (issue 47: 1 + g = -1.65 was seen).
+    [-]"""
+    z = (1.0 + np.asarray(g, float) - GAIN_RESPONSE_FLOOR) * _GAIN_SHARPNESS
+    return GAIN_RESPONSE_FLOOR + np.logaddexp(0.0, z) / _GAIN_SHARPNESS
+
+
 #: Adaptive channels: the two outlet temperatures and the lab moisture.
 ADAPT_CHANNELS: tuple[str, ...] = ("T_dryer_out", "T_cyclone_out", "moisture_out")
 
@@ -268,7 +288,8 @@ class AdaptiveNoise:
         return cls(np.array(d["factor"], float))
 
 
-__all__ = ["ADAPT_CHANNELS", "ERROR_STATES", "MODEL_STATES", "STATE_NAMES", "STATE_UNITS",
+__all__ = ["ADAPT_CHANNELS", "ERROR_STATES", "GAIN_RESPONSE_FLOOR", "MODEL_STATES",
+           "STATE_NAMES", "STATE_UNITS",
            "X_BIAS", "X_GAIN", "X_HEAT", "X_IN", "X_TCYC", "X_TDRY",
            "AdaptiveNoise", "ErrorPriors", "InletTransform", "error_decay", "error_noise",
-           "process_noise", "transition"]
+           "gain_response", "process_noise", "transition"]

@@ -288,8 +288,10 @@ class UkfEstimator(ModelEstimator):
                                   f"({n}, {n}) and ({m},)")
         _check_state(state.x, state.P, hold)
         old = snapshot.get("made_with")  # absent from checkpoints before issue 38
+        # a part the checkpoint's writer did not fingerprint yet (PARAMS.toml's [sensor],
+        # issue 47) is not a change
         changed = [] if old is None else [k for k, v in self._made_with.items()
-                                          if old.get(k) != v]
+                                          if k in old and old[k] != v]
         if changed:
             fresh = self._initial_state()
             state = self._reseeded(fresh, state)

@@ -38,6 +38,7 @@ from softsensor.estimation.state_space import (
     AdaptiveNoise,
     ErrorPriors,
     InletTransform,
+    gain_response,
 )
 from softsensor.estimation.tick_history import FilterState
 from softsensor.estimation.unscented import MerweScaledSigmaPoints, unscented_transform
@@ -314,7 +315,7 @@ def _sigma_outputs(filt: FilterModel, x: np.ndarray, P: np.ndarray, u: np.ndarra
     d = [(out[probe[2 * j]] - out[probe[2 * j + 1]]) / (2.0 * _FD_STEP[i])
          for j, i in enumerate(MODEL_STATES)]
     # the moisture rows respond to the inlet moisture through the inlet gain
-    d[0] = d[0] * np.r_[1.0, 1.0, np.full(1 + len(steps.dt), 1.0 + x[X_GAIN])]
+    d[0] = d[0] * np.r_[1.0, 1.0, np.full(1 + len(steps.dt), gain_response(x[X_GAIN]))]
     return (_Sigma(Y[index[:n]], Y[ref], np.asarray(walls)[index[:n]], lab[index[:n]],
                    lab[ref], d[0], d[1]), sigmas, "")
 
@@ -331,7 +332,8 @@ def _model_inputs(u: np.ndarray, moisture_in: np.ndarray, heat: np.ndarray) -> n
 def _moisture(y: np.ndarray, y_ref: np.ndarray, sigmas: np.ndarray) -> np.ndarray:
     """Outlet moisture at the sigma points with the inlet gain and the bias (module
     docstring of :mod:`.state_space`)."""
-    return y + sigmas[:, X_GAIN] * (y - y_ref) + sigmas[:, X_BIAS]
+    # the response 1 + g bounded below: a sigma point far out never inverts it
+    return y_ref + gain_response(sigmas[:, X_GAIN]) * (y - y_ref) + sigmas[:, X_BIAS]
 
 
 def _measurement_sigmas(sigmas: np.ndarray, sig: _Sigma, rows: list[int]) -> np.ndarray:

@@ -173,3 +173,40 @@ def test_the_regression_source_is_the_regression_at_the_window_plus_the_last_lab
     want = reg.at_means(w_next.means) + (0.125 - 0.11)  # 0.09 + 0.015
     assert body["sources"]["regression"]["moisture_out"] == pytest.approx(want, abs=1e-12)
     assert want == pytest.approx(0.105)
+
+
+def _weights_after_labs(s: EstimatorSettings, n: int = 6) -> dict[str, float]:
+    """The weights after ``n`` labs that sit on the held lab and 0.05 off the physics."""
+    state = fresh(s, None)
+    body = None
+    for t in range(n):
+        w = window(t)
+        labs = (LabResult(w.end_ns - W // 2, 0.15, f"L{t}", w.end_ns),)
+        state, body = published(s, None, state, w, labs, 0.10, 0.005)
+    return {k: v["weight"] for k, v in body["sources"].items()}
+
+
+def test_the_prior_weights_are_the_settings_and_the_evidence_can_be_tempered_away():
+    """``peer_prior_hold`` places the prior; ``peer_evidence`` = 0 is a fixed stacking at
+    it (the labs do not move the weights), 1 the full evidence (they do)."""
+    from softsensor.estimation.peer_blend import prior_log_weights
+
+    reg = LabRegression(("T_air_in",), np.zeros(1), np.ones(1), np.zeros(2), 0.01, 0.01, 9)
+    s = dataclasses.replace(EstimatorSettings(), peer_prior_physics=0.6, peer_prior_hold=0.1)
+    assert np.exp(prior_log_weights(s, reg)) == pytest.approx([0.6, 0.1, 0.3])
+    assert np.exp(prior_log_weights(s, None))[:2] == pytest.approx([0.6, 0.4])
+    even = dataclasses.replace(s, peer_prior_hold=None)
+    assert np.exp(prior_log_weights(even, reg)) == pytest.approx([0.6, 0.2, 0.2])
+    fixed = _weights_after_labs(dataclasses.replace(s, peer_evidence=0.0))
+    assert fixed["physics"] == pytest.approx(0.6) and fixed["hold"] == pytest.approx(0.4)
+    full = _weights_after_labs(dataclasses.replace(s, peer_evidence=1.0))
+    assert full["hold"] > 0.9  # the labs sit on the hold, 10 sd off the physics
+
+
+def test_a_prior_that_leaves_the_regression_less_than_nothing_is_refused():
+    from softsensor.configfile import build_section
+    from softsensor.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="peer_prior_hold must be at most"):
+        build_section(EstimatorSettings, {"peer_prior_physics": 0.8, "peer_prior_hold": 0.3},
+                      "estimator", "test.toml")

@@ -102,3 +102,16 @@ def test_adaptive_noise_integrates_the_normalised_innovations():
     assert a.factor[1] == 25.0  # never above the limit
     a.factor[:] = [2.0, 3.0, 4.0]
     np.testing.assert_array_equal(a.inflation(), [2.0, 2.0, 3.0, 4.0, 4.0])
+
+
+def test_the_inlet_gain_response_is_never_inverted_and_is_the_identity_near_one():
+    """``1 + inlet_gain`` bounded below (issue 47: a sigma point reached -1.65): never
+    under the floor however far out, unchanged within 1e-6 while the response is above 0.7."""
+    from softsensor.estimation.state_space import GAIN_RESPONSE_FLOOR, gain_response
+
+    g = np.linspace(-10.0, 3.0, 2001)
+    r = gain_response(g)
+    assert np.all(r >= GAIN_RESPONSE_FLOOR) and np.all(np.diff(r) >= 0)
+    near = g[g > -0.3]
+    assert np.allclose(gain_response(near), 1.0 + near, atol=1e-6, rtol=0)
+    assert gain_response(-2.65) < 0.06  # the reported sigma point: a dryer at equilibrium
