@@ -17,7 +17,11 @@ one segment got one answer, and a request to unit 0 logged a traceback with a fr
 * a connection without a request for ``idle_timeout_s`` (60 s) is closed;
 * at most ``max_connections`` (32) are open: a new one closes the oldest that never sent a
   request, else the one that has waited longest since its last request;
-* a client that does not read its answers is not read from until it does.
+* a client that does not read its answers is not read from until it does;
+* a connection is answered at most :data:`TURN_BUDGET` requests per turn of the event loop
+  and ``max_requests_per_s`` (100) a second, bursts of :data:`BURST_S` seconds' worth
+  allowed: the server shares the daemon's event loop with the PLC poller, which a flood of
+  valid reads must not starve (issue 49: four clients sending 256 kB reads stopped the scans).
 
 The softsensor's Modbus client to the PLC is a different program path and never writes either.
 """
@@ -63,6 +67,10 @@ HEALTH_CODES: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
 NO_ESTIMATE = 3
 #: The kernel's queue before accept.
 LISTEN_BACKLOG = 128
+#: Requests of one connection answered in one turn of the event loop at most.
+TURN_BUDGET = 32
+#: A connection's bucket holds this many seconds of ``max_requests_per_s`` (a burst).
+BURST_S = 10.0
 
 
 def _words(value: float | int, kind: str) -> list[int]:
@@ -101,7 +109,13 @@ def estimate_registers(body: Mapping[str, Any], time_ns: int, counter: int,
 
 
 class _Connection(asyncio.Protocol):
-    """One client: bytes to :class:`RegisterProtocol`, its answers back, in order."""
+    """One client: bytes to :class:`RegisterProtocol`, its answers back, in order.
+
+    The requests are answered at most :data:`TURN_BUDGET` per turn of the event loop and at
+    most ``max_requests_per_s`` a second (a token bucket holding :data:`BURST_S` seconds of
+    them): while requests wait, the socket is not read, so a client flooding valid reads
+    (a 256 kB read is 21,000 of them) costs the loop a bounded share and the PLC poller on
+    the same loop keeps its pace (issue 49)."""
 
     def __init__(self, server: EstimateModbusServer) -> None:
         self.server = server
@@ -109,6 +123,12 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.last_active = time.monotonic()
         self.answered = False  #: it has sent a request (a client, not just a socket)
+        rate = server.settings.max_requests_per_s
+        self._rate, self._burst = rate, max(rate * BURST_S, float(TURN_BUDGET))
+        self._tokens, self._filled = self._burst, time.monotonic()
+        self._writing_paused = False  #: the kernel has not taken our answers
+        self._backlog = False  #: requests wait for their turn (reading paused)
+        self._turn: asyncio.Handle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -117,8 +137,23 @@ class _Connection(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         self.last_active = time.monotonic()
+        self._serve(data)
+
+    def _allowance(self) -> int:
+        """Requests this turn may answer: the per-turn budget and the bucket's whole tokens."""
+        now = time.monotonic()
+        self._tokens = min(self._burst, self._tokens + (now - self._filled) * self._rate)
+        self._filled = now
+        return min(TURN_BUDGET, int(self._tokens))
+
+    def _serve(self, data: bytes = b"") -> None:
+        """Answer the requests the budget allows; the rest wait for a later turn."""
+        self._turn = None
+        if self.transport is None:
+            return
+        allowed = self._allowance()
         try:
-            answers = self.protocol.feed(data)
+            answers = self.protocol.feed(data, max_requests=allowed)
         except FramingError:
             self.server.framing_errors += 1
             self.close()
@@ -126,23 +161,48 @@ class _Connection(asyncio.Protocol):
         finally:
             self.server.refused += self.protocol.refused
             self.protocol.refused = 0
-        if answers and self.transport is not None:
+        self._tokens -= len(answers)
+        if answers:
             self.answered = True
             self.transport.write(b"".join(answers))
+        if self.transport is None or self.transport.is_closing():
+            return
+        self._backlog = self.protocol.waiting
+        if self._backlog:  # the next turn, or when the bucket holds a token again
+            wait = 0.0 if self._tokens >= 1 else (1 - self._tokens) / self._rate
+            loop = asyncio.get_running_loop()
+            self._turn = loop.call_later(wait, self._serve) if wait > 0 \
+                else loop.call_soon(self._serve)
+        self._reading()
+
+    def _reading(self) -> None:
+        """Read the socket only while nothing waits: neither answers for the kernel nor
+        requests for their turn."""
+        t = self.transport
+        if t is None or t.is_closing():
+            return
+        if self._writing_paused or self._backlog:
+            if t.is_reading():
+                t.pause_reading()
+        elif not t.is_reading():
+            t.resume_reading()
 
     # a client that sends requests without reading the answers: stop reading until the
     # kernel takes them, so its answers cannot pile up in memory
     def pause_writing(self) -> None:
-        if self.transport is not None:
-            self.transport.pause_reading()
+        self._writing_paused = True
+        self._reading()
 
     def resume_writing(self) -> None:
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.resume_reading()
+        self._writing_paused = False
+        self._reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.server._open.pop(self, None)
         self.transport = None
+        if self._turn is not None:
+            self._turn.cancel()
+            self._turn = None
 
     def close(self) -> None:
         """Close at once (the descriptor freed now, whatever is unsent)."""
@@ -251,5 +311,5 @@ class EstimateModbusServer:
                 await asyncio.wait_for(server.wait_closed(), 5.0)
 
 
-__all__ = ["HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE", "REGISTERS",
-           "EstimateModbusServer", "estimate_registers"]
+__all__ = ["BURST_S", "HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE",
+           "REGISTERS", "TURN_BUDGET", "EstimateModbusServer", "estimate_registers"]

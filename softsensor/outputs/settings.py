@@ -44,6 +44,9 @@ class ModbusOutputSettings:
     idle_timeout_s: float = num(60.0, gt=0, le=3600)
     # connections open at once; a new one closes the one idle longest
     max_connections: int = num(32, ge=1, le=1024)
+    # requests answered per second and connection at most (10 s of them at once); a DCS
+    # reads the block every few seconds, a flood waits its turn
+    max_requests_per_s: float = num(100.0, gt=0, le=100_000)
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:
