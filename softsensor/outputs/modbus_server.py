@@ -15,8 +15,11 @@ pymodbus' server did not (issue 40: 2,000 idle clients held 2,036 descriptors, t
 one segment got one answer, and a request to unit 0 logged a traceback with a frame dump):
 
 * a connection without a request for ``idle_timeout_s`` (60 s) is closed;
-* at most ``max_connections`` (32) are open: a new one closes the oldest that never sent a
-  request, else the one that has waited longest since its last request;
+* at most ``max_connections`` (32) are open: a new one closes one of the address holding the
+  most connections (the oldest that never sent a request, else the one idle longest), never
+  one of the plant's own clients (``plant_clients``) for another address; a new one from
+  elsewhere when only they hold slots is closed (:func:`evictee`; issue 49: a peer keeping 31
+  busy connections got the DCS evicted before each of its polls);
 * a client that does not read its answers is not read from until it does;
 * a connection is answered at most :data:`TURN_BUDGET` requests per turn of the event loop
   and ``max_requests_per_s`` (100) a second, bursts of :data:`BURST_S` seconds' worth
@@ -30,14 +33,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import math
 import os
 import struct
 import threading
 import time
+from collections import Counter
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate, Health
@@ -108,6 +113,41 @@ def estimate_registers(body: Mapping[str, Any], time_ns: int, counter: int,
     return words
 
 
+def _normal(address: str) -> str:
+    """An IP address in one spelling (an IPv4-mapped IPv6 address as IPv4)."""
+    try:
+        ip = ipaddress.ip_address(address.split("%")[0])
+    except ValueError:
+        return address
+    mapped = getattr(ip, "ipv4_mapped", None)
+    return str(mapped or ip)
+
+
+class _Slot(Protocol):
+    address: str
+    answered: bool
+    last_active: float
+
+
+S = TypeVar("S", bound=_Slot)
+
+
+def evictee(open_: list[S], newcomer: str, plant: frozenset[str]) -> S | None:
+    """The connection to close for a new one from ``newcomer`` when every slot is taken:
+    one of the plant's clients (``plant``) only for another of them and when they hold every
+    slot; among the others, one
+    of the address holding the most (a peer keeping many busy connections gives up its own,
+    not the DCS's one), the one that never sent a request first, else the one idle longest.
+    None: only the plant's clients hold slots and the newcomer is not one (it is refused)."""
+    pool = [c for c in open_ if c.address not in plant]
+    if not pool:
+        if newcomer not in plant:
+            return None
+        pool = open_
+    held = Counter(c.address for c in pool)
+    return min(pool, key=lambda c: (-held[c.address], c.answered, c.last_active))
+
+
 class _Connection(asyncio.Protocol):
     """One client: bytes to :class:`RegisterProtocol`, its answers back, in order.
 
@@ -123,6 +163,7 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.last_active = time.monotonic()
         self.answered = False  #: it has sent a request (a client, not just a socket)
+        self.address = ""  #: the client's IP address
         rate = server.settings.max_requests_per_s
         self._rate, self._burst = rate, max(rate * BURST_S, float(TURN_BUDGET))
         self._tokens, self._filled = self._burst, time.monotonic()
@@ -133,6 +174,8 @@ class _Connection(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.address = _normal(peer[0]) if peer else ""
         self.server._admit(self)
 
     def data_received(self, data: bytes) -> None:
@@ -226,6 +269,9 @@ class EstimateModbusServer:
         self.framing_errors = 0  #: connections closed for bytes that are not Modbus TCP
         self.idle_closed = 0  #: connections closed after ``idle_timeout_s`` without a request
         self.evicted = 0  #: connections closed to make room for a new one
+        #: new connections closed at once (every slot held by the plant's clients)
+        self.refused_connections = 0
+        self._plant = frozenset(_normal(a) for a in settings.plant_clients)
         self._words = estimate_registers({}, 0, 0, display)
         self._lock = threading.Lock()  # the estimator's thread and the loop's write words
         self._open: dict[_Connection, None] = {}  # insertion order: the oldest first
@@ -243,14 +289,16 @@ class EstimateModbusServer:
         return self._words
 
     def _admit(self, conn: _Connection) -> None:
-        """A new connection; when ``max_connections`` are open, one is closed first: the
-        oldest that never sent a request, else the one that has waited longest since its last
-        request (a DCS polls every few seconds, so it is never that one while idle sockets
-        hold slots)."""
+        """A new connection; when ``max_connections`` are open, one is closed first (see
+        :func:`evictee`), or the new one when only the plant's clients hold the slots."""
         if len(self._open) >= self.settings.max_connections:
-            stalest = min(self._open, key=lambda c: (c.answered, c.last_active))
+            victim = evictee(list(self._open), conn.address, self._plant)
+            if victim is None:
+                self.refused_connections += 1
+                conn.close()
+                return
             self.evicted += 1
-            stalest.close()
+            victim.close()
         self._open[conn] = None
 
     async def _sweep(self) -> None:
@@ -312,4 +360,4 @@ class EstimateModbusServer:
 
 
 __all__ = ["BURST_S", "HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE",
-           "REGISTERS", "TURN_BUDGET", "EstimateModbusServer", "estimate_registers"]
+           "REGISTERS", "TURN_BUDGET", "EstimateModbusServer", "estimate_registers", "evictee"]
