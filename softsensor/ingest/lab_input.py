@@ -61,6 +61,7 @@ from softsensor.errors import IngestError, one_line
 from softsensor.files import atomic_path
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
 from softsensor.ingest.lab_files import MAX_BYTES, parse_lab_file, read_untrusted
+from softsensor.log_throttle import Throttle
 from softsensor.messages import LabResult, lab_from_body
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,7 @@ class LabInput:
         self._sink = sink
         self._seen: set[str] = set(known_ids)
         self._lock = threading.Lock()
+        self._throttle = Throttle()  # a peer may repeat a bad or duplicate result endlessly
         self.clock = clock
         self.n_accepted = 0
         self.n_duplicates = 0
@@ -121,7 +123,7 @@ class LabInput:
             if lab.sample_id in self._seen:
                 self.n_duplicates += 1
                 reason = f"duplicate sample_id {lab.sample_id!r} ignored"
-                log.info("lab %s", reason)
+                self._throttle.log(log, "duplicate", logging.INFO, "lab %s", reason)
                 return reason
             self._seen.add(lab.sample_id)
             self.n_accepted += 1
@@ -144,7 +146,7 @@ class LabInput:
         except IngestError as exc:
             with self._lock:
                 self.n_rejected += 1
-            log.warning("%s", exc)
+            self._throttle.log(log, "bad body", logging.WARNING, "%s", exc)
             return str(exc)
         return self.submit(lab)
 
@@ -301,6 +303,9 @@ class LabFolderWatcher:
         self.zone = zone  # the clock of ISO times without an offset (the plant's)
         self.lab_map = lab_map
         self.budget = _Budget(rate_per_s)
+        #: lines a broken folder or disk would repeat every poll (issue 49: "cannot list
+        #: folder: Too many open files" 1,064 times a minute) come once in a while, counted
+        self._throttle = Throttle()
         self.processed_dir = self.folder / "processed"
         self.rejected_dir = self.folder / "rejected"
         for d in (self.processed_dir, self.rejected_dir):
@@ -358,7 +363,9 @@ class LabFolderWatcher:
             with self._ids_lock:
                 self._append_line(json.dumps(record))
         except OSError as exc:
-            log.warning("lab sample id %r not remembered: %s", sample_id, exc.strerror)
+            self._throttle.log(log, "remember", logging.WARNING,
+                               "lab sample id %r not remembered: %s", one_line(sample_id, 100),
+                               exc.strerror)
 
     def _append_line(self, line: str) -> None:
         fd = os.open(self.seen_ids_file, os.O_WRONLY | os.O_CREAT | os.O_APPEND
@@ -530,12 +537,12 @@ class LabFolderWatcher:
             except OSError as exc:
                 msg = f"{path.name}: cannot move or write: {exc}"
                 report.reasons.append(msg)
-                log.error("%s", msg)
+                self._throttle.log(log, "move", logging.ERROR, "%s", msg)
             except Exception as exc:  # noqa: BLE001 - the sink failed: keep the file, retry
                 msg = f"{path.name}: left for the next poll, delivery failed: {exc}"
                 report.reasons.append(msg)
                 report.waiting.append(path)
-                log.error("%s", msg)
+                self._throttle.log(log, "deliver", logging.ERROR, "%s", msg)
         return report
 
     # -- loop
@@ -548,7 +555,7 @@ class LabFolderWatcher:
             try:
                 self.poll_once()
             except IngestError as exc:  # folder vanished: report and keep trying
-                log.error("%s", exc)
+                self._throttle.log(log, "list", logging.ERROR, "%s", exc)
             polls += 1
             if max_polls is not None and polls >= max_polls:
                 return

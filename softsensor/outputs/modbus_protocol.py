@@ -97,12 +97,23 @@ class RegisterProtocol:
         self.refused = 0  #: requests answered with an exception
         self._buffer = bytearray()
 
-    def feed(self, data: bytes) -> list[bytes]:
-        """The answer frames to every request completed by ``data``, in order; raises
-        :class:`FramingError` on a header that cannot be framed."""
+    @property
+    def waiting(self) -> bool:
+        """Whether a whole request is buffered, not yet answered (a ``feed`` with
+        ``max_requests`` left it)."""
+        if len(self._buffer) < _MBAP.size:
+            return False
+        _transaction, _protocol, length = _MBAP.unpack_from(self._buffer)
+        return len(self._buffer) >= _MBAP.size + length
+
+    def feed(self, data: bytes, max_requests: int | None = None) -> list[bytes]:
+        """The answer frames to the requests completed by ``data``, in order: every one, or
+        the first ``max_requests`` (the rest stay buffered for the next call, see
+        :attr:`waiting`); raises :class:`FramingError` on a header that cannot be framed."""
         self._buffer += data
         out: list[bytes] = []
-        while len(self._buffer) >= _MBAP.size:
+        while len(self._buffer) >= _MBAP.size and (max_requests is None
+                                                   or len(out) < max_requests):
             transaction, protocol, length = _MBAP.unpack_from(self._buffer)
             if protocol != 0 or not 2 <= length <= MAX_LENGTH:
                 self._buffer.clear()

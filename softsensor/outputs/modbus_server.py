@@ -15,9 +15,16 @@ pymodbus' server did not (issue 40: 2,000 idle clients held 2,036 descriptors, t
 one segment got one answer, and a request to unit 0 logged a traceback with a frame dump):
 
 * a connection without a request for ``idle_timeout_s`` (60 s) is closed;
-* at most ``max_connections`` (32) are open: a new one closes the oldest that never sent a
-  request, else the one that has waited longest since its last request;
-* a client that does not read its answers is not read from until it does.
+* at most ``max_connections`` (32) are open: a new one closes one of the address holding the
+  most connections (the oldest that never sent a request, else the one idle longest), never
+  one of the plant's own clients (``plant_clients``) for another address; a new one from
+  elsewhere when only they hold slots is closed (:func:`evictee`; issue 49: a peer keeping 31
+  busy connections got the DCS evicted before each of its polls);
+* a client that does not read its answers is not read from until it does;
+* a connection is answered at most :data:`TURN_BUDGET` requests per turn of the event loop
+  and ``max_requests_per_s`` (100) a second, bursts of :data:`BURST_S` seconds' worth
+  allowed: the server shares the daemon's event loop with the PLC poller, which a flood of
+  valid reads must not starve (issue 49: four clients sending 256 kB reads stopped the scans).
 
 The softsensor's Modbus client to the PLC is a different program path and never writes either.
 """
@@ -26,14 +33,16 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import logging
 import math
 import os
 import struct
 import threading
 import time
+from collections import Counter
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, Protocol, TypeVar
 
 from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate, Health
@@ -63,6 +72,10 @@ HEALTH_CODES: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
 NO_ESTIMATE = 3
 #: The kernel's queue before accept.
 LISTEN_BACKLOG = 128
+#: Requests of one connection answered in one turn of the event loop at most.
+TURN_BUDGET = 32
+#: A connection's bucket holds this many seconds of ``max_requests_per_s`` (a burst).
+BURST_S = 10.0
 
 
 def _words(value: float | int, kind: str) -> list[int]:
@@ -100,8 +113,49 @@ def estimate_registers(body: Mapping[str, Any], time_ns: int, counter: int,
     return words
 
 
+def _normal(address: str) -> str:
+    """An IP address in one spelling (an IPv4-mapped IPv6 address as IPv4)."""
+    try:
+        ip = ipaddress.ip_address(address.split("%")[0])
+    except ValueError:
+        return address
+    mapped = getattr(ip, "ipv4_mapped", None)
+    return str(mapped or ip)
+
+
+class _Slot(Protocol):
+    address: str
+    answered: bool
+    last_active: float
+
+
+S = TypeVar("S", bound=_Slot)
+
+
+def evictee(open_: list[S], newcomer: str, plant: frozenset[str]) -> S | None:
+    """The connection to close for a new one from ``newcomer`` when every slot is taken:
+    one of the plant's clients (``plant``) only for another of them and when they hold every
+    slot; among the others, one
+    of the address holding the most (a peer keeping many busy connections gives up its own,
+    not the DCS's one), the one that never sent a request first, else the one idle longest.
+    None: only the plant's clients hold slots and the newcomer is not one (it is refused)."""
+    pool = [c for c in open_ if c.address not in plant]
+    if not pool:
+        if newcomer not in plant:
+            return None
+        pool = open_
+    held = Counter(c.address for c in pool)
+    return min(pool, key=lambda c: (-held[c.address], c.answered, c.last_active))
+
+
 class _Connection(asyncio.Protocol):
-    """One client: bytes to :class:`RegisterProtocol`, its answers back, in order."""
+    """One client: bytes to :class:`RegisterProtocol`, its answers back, in order.
+
+    The requests are answered at most :data:`TURN_BUDGET` per turn of the event loop and at
+    most ``max_requests_per_s`` a second (a token bucket holding :data:`BURST_S` seconds of
+    them): while requests wait, the socket is not read, so a client flooding valid reads
+    (a 256 kB read is 21,000 of them) costs the loop a bounded share and the PLC poller on
+    the same loop keeps its pace (issue 49)."""
 
     def __init__(self, server: EstimateModbusServer) -> None:
         self.server = server
@@ -109,16 +163,40 @@ class _Connection(asyncio.Protocol):
         self.transport: asyncio.Transport | None = None
         self.last_active = time.monotonic()
         self.answered = False  #: it has sent a request (a client, not just a socket)
+        self.address = ""  #: the client's IP address
+        rate = server.settings.max_requests_per_s
+        self._rate, self._burst = rate, max(rate * BURST_S, float(TURN_BUDGET))
+        self._tokens, self._filled = self._burst, time.monotonic()
+        self._writing_paused = False  #: the kernel has not taken our answers
+        self._backlog = False  #: requests wait for their turn (reading paused)
+        self._turn: asyncio.Handle | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.address = _normal(peer[0]) if peer else ""
         self.server._admit(self)
 
     def data_received(self, data: bytes) -> None:
         self.last_active = time.monotonic()
+        self._serve(data)
+
+    def _allowance(self) -> int:
+        """Requests this turn may answer: the per-turn budget and the bucket's whole tokens."""
+        now = time.monotonic()
+        self._tokens = min(self._burst, self._tokens + (now - self._filled) * self._rate)
+        self._filled = now
+        return min(TURN_BUDGET, int(self._tokens))
+
+    def _serve(self, data: bytes = b"") -> None:
+        """Answer the requests the budget allows; the rest wait for a later turn."""
+        self._turn = None
+        if self.transport is None:
+            return
+        allowed = self._allowance()
         try:
-            answers = self.protocol.feed(data)
+            answers = self.protocol.feed(data, max_requests=allowed)
         except FramingError:
             self.server.framing_errors += 1
             self.close()
@@ -126,23 +204,48 @@ class _Connection(asyncio.Protocol):
         finally:
             self.server.refused += self.protocol.refused
             self.protocol.refused = 0
-        if answers and self.transport is not None:
+        self._tokens -= len(answers)
+        if answers:
             self.answered = True
             self.transport.write(b"".join(answers))
+        if self.transport is None or self.transport.is_closing():
+            return
+        self._backlog = self.protocol.waiting
+        if self._backlog:  # the next turn, or when the bucket holds a token again
+            wait = 0.0 if self._tokens >= 1 else (1 - self._tokens) / self._rate
+            loop = asyncio.get_running_loop()
+            self._turn = loop.call_later(wait, self._serve) if wait > 0 \
+                else loop.call_soon(self._serve)
+        self._reading()
+
+    def _reading(self) -> None:
+        """Read the socket only while nothing waits: neither answers for the kernel nor
+        requests for their turn."""
+        t = self.transport
+        if t is None or t.is_closing():
+            return
+        if self._writing_paused or self._backlog:
+            if t.is_reading():
+                t.pause_reading()
+        elif not t.is_reading():
+            t.resume_reading()
 
     # a client that sends requests without reading the answers: stop reading until the
     # kernel takes them, so its answers cannot pile up in memory
     def pause_writing(self) -> None:
-        if self.transport is not None:
-            self.transport.pause_reading()
+        self._writing_paused = True
+        self._reading()
 
     def resume_writing(self) -> None:
-        if self.transport is not None and not self.transport.is_closing():
-            self.transport.resume_reading()
+        self._writing_paused = False
+        self._reading()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.server._open.pop(self, None)
         self.transport = None
+        if self._turn is not None:
+            self._turn.cancel()
+            self._turn = None
 
     def close(self) -> None:
         """Close at once (the descriptor freed now, whatever is unsent)."""
@@ -166,6 +269,9 @@ class EstimateModbusServer:
         self.framing_errors = 0  #: connections closed for bytes that are not Modbus TCP
         self.idle_closed = 0  #: connections closed after ``idle_timeout_s`` without a request
         self.evicted = 0  #: connections closed to make room for a new one
+        #: new connections closed at once (every slot held by the plant's clients)
+        self.refused_connections = 0
+        self._plant = frozenset(_normal(a) for a in settings.plant_clients)
         self._words = estimate_registers({}, 0, 0, display)
         self._lock = threading.Lock()  # the estimator's thread and the loop's write words
         self._open: dict[_Connection, None] = {}  # insertion order: the oldest first
@@ -183,14 +289,16 @@ class EstimateModbusServer:
         return self._words
 
     def _admit(self, conn: _Connection) -> None:
-        """A new connection; when ``max_connections`` are open, one is closed first: the
-        oldest that never sent a request, else the one that has waited longest since its last
-        request (a DCS polls every few seconds, so it is never that one while idle sockets
-        hold slots)."""
+        """A new connection; when ``max_connections`` are open, one is closed first (see
+        :func:`evictee`), or the new one when only the plant's clients hold the slots."""
         if len(self._open) >= self.settings.max_connections:
-            stalest = min(self._open, key=lambda c: (c.answered, c.last_active))
+            victim = evictee(list(self._open), conn.address, self._plant)
+            if victim is None:
+                self.refused_connections += 1
+                conn.close()
+                return
             self.evicted += 1
-            stalest.close()
+            victim.close()
         self._open[conn] = None
 
     async def _sweep(self) -> None:
@@ -251,5 +359,5 @@ class EstimateModbusServer:
                 await asyncio.wait_for(server.wait_closed(), 5.0)
 
 
-__all__ = ["HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE", "REGISTERS",
-           "EstimateModbusServer", "estimate_registers"]
+__all__ = ["BURST_S", "HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE",
+           "REGISTERS", "TURN_BUDGET", "EstimateModbusServer", "estimate_registers", "evictee"]

@@ -26,10 +26,21 @@ Example ``config/dryer1.toml`` fragment::
 
 from __future__ import annotations
 
+import ipaddress
 from dataclasses import dataclass
 
 from softsensor.configfile import num
 from softsensor.plantconfig import PlantConfig, section_of
+
+
+def _addresses_problem(addresses: tuple[str, ...]) -> str | None:
+    """What is wrong with ``plant_clients`` (each an IPv4 or IPv6 address), or None."""
+    for i, a in enumerate(addresses):
+        try:
+            ipaddress.ip_address(a)
+        except ValueError:
+            return f"plant_clients[{i}] must be an IP address, got {a!r}"
+    return None
 
 
 @dataclass(frozen=True)
@@ -44,13 +55,19 @@ class ModbusOutputSettings:
     idle_timeout_s: float = num(60.0, gt=0, le=3600)
     # connections open at once; a new one closes the one idle longest
     max_connections: int = num(32, ge=1, le=1024)
+    # requests answered per second and connection at most (10 s of them at once); a DCS
+    # reads the block every few seconds, a flood waits its turn
+    max_requests_per_s: float = num(100.0, gt=0, le=100_000)
+    # IP addresses of the plant's own clients (the DCS): their connections are never closed
+    # to make room for another address's, which is refused when only theirs are open
+    plant_clients: tuple[str, ...] = ()
 
     def check(self) -> str | None:
         if not 0 <= self.port <= 65535:
             return f"port must be in 0..65535 (0: any free port), got {self.port}"
         if not 1 <= self.unit_id <= 247:
             return f"unit_id must be in 1..247, got {self.unit_id}"
-        return None
+        return _addresses_problem(self.plant_clients)
 
 
 @dataclass(frozen=True)

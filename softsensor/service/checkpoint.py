@@ -15,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import stat
 import time
 from pathlib import Path
 from typing import Any
@@ -23,6 +24,9 @@ from softsensor.errors import ConfigError
 
 FORMAT = "softsensor-checkpoint"
 VERSION = 2  # 2: with the sha256 of the service state; 1 (no checksum) is still read
+#: The largest checkpoint read [bytes]: one of the built-in plant is about 52 kB, so 300
+#: times that; a path pointing at an endless file cannot grow the process (issue 49).
+MAX_BYTES = 16 * 1024 * 1024
 
 
 def state_digest(service_state: Any) -> str:
@@ -51,13 +55,13 @@ class CheckpointStore:
         Raises :class:`ConfigError` naming the file when it exists but cannot be used.
         """
         try:
-            text = self.path.read_text(encoding="utf-8")
+            data = self._read()
         except FileNotFoundError:
             return None
         except OSError as exc:
             raise ConfigError(f"{self.path}: cannot read checkpoint: {exc.strerror}") from exc
         try:
-            doc = json.loads(text)
+            doc = json.loads(data.decode("utf-8"))
         except ValueError as exc:
             raise ConfigError(f"{self.path}: checkpoint is not valid JSON (delete it or run "
                               f"with --no-resume)") from exc
@@ -74,6 +78,20 @@ class CheckpointStore:
         if not isinstance(t, int) or isinstance(t, bool) or not 0 < t < 2**63:
             raise ConfigError(f"{self.path}: checkpoint saved_at_ns is not a time")
         return doc
+
+    def _read(self) -> bytes:
+        """The file's bytes: a regular file (not a device or a FIFO, which is not waited
+        on) of at most :data:`MAX_BYTES`, else a one-line :class:`ConfigError`."""
+        fd = os.open(self.path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                raise ConfigError(f"{self.path}: not a regular file, so not a checkpoint "
+                                  f"(delete it or run with --no-resume)")
+            data = f.read(MAX_BYTES + 1)
+        if len(data) > MAX_BYTES:
+            raise ConfigError(f"{self.path}: more than {MAX_BYTES} bytes, far more than a "
+                              f"checkpoint holds (delete it or run with --no-resume)")
+        return data
 
     def move_aside(self) -> Path | None:
         """Rename an unusable checkpoint to ``<path>.bad-<ns>`` (kept for a post-mortem)."""
@@ -145,4 +163,4 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-__all__ = ["CheckpointStore", "check_fits", "checkpoint_time_ns"]
+__all__ = ["MAX_BYTES", "CheckpointStore", "check_fits", "checkpoint_time_ns"]

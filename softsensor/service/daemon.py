@@ -244,6 +244,7 @@ class Daemon:
             session = open_session(mode=s.zenoh_mode, listen=listen,
                                    connect=list(s.connect), **bus_options(s, self.unit))
             stack.callback(session.close)
+            stack.callback(self.descriptors.close)  # its reserve descriptor
             if s.record:
                 self._record(stack, session, gate)
             self.worker = worker = self._worker(session, service)

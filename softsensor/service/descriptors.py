@@ -6,7 +6,8 @@ can no longer write its checkpoint, list the lab folder or accept a connection (
 files`` while health said ``ok``). The servers now bound their connections; this watch is the
 last line: health says ``degraded`` with the count once more than :data:`NEAR` of the limit
 is open, and ``ok`` again below :data:`CLEAR` (a margin, so a count hovering at the line does
-not flap).
+not flap); a count that fails is said too, and a descriptor is kept in reserve for it
+(:class:`DescriptorWatch`).
 """
 
 from __future__ import annotations
@@ -22,13 +23,20 @@ CLEAR = 0.70
 _FD_DIR = "/proc/self/fd"
 
 
+class CountFailed(OSError):
+    """The descriptors could not be counted although the system tells them (``/proc`` is
+    there): at the limit, listing ``/proc/self/fd`` itself needs a descriptor."""
+
+
 def open_descriptors() -> int | None:
-    """Descriptors open in this process now; None where the system does not tell
-    (no ``/proc``)."""
+    """Descriptors open in this process now; None where the system does not tell (no
+    ``/proc``); :class:`CountFailed` when it does but the count failed."""
     try:
         return len(os.listdir(_FD_DIR))
-    except OSError:
+    except FileNotFoundError:
         return None
+    except OSError as exc:
+        raise CountFailed(exc.errno, os.strerror(exc.errno or 0)) from exc
 
 
 def descriptor_limit() -> int | None:
@@ -39,21 +47,63 @@ def descriptor_limit() -> int | None:
 
 class DescriptorWatch:
     """Says when the open descriptors near the limit (module docstring); :meth:`check`
-    returns the health's words (None: nothing to say)."""
+    returns the health's words (None: nothing to say).
+
+    It holds one descriptor in reserve (``/dev/null``) for its own count: when every other
+    one is taken, the count closes it, lists ``/proc/self/fd`` with the one freed and takes
+    it back, so the watch still sees the limit it watches for (issue 49: the count failed
+    there and health said ``ok`` for 55 s while checkpoints failed). A count that fails even
+    so is itself the news: health says the descriptors could not be counted."""
 
     def __init__(self, count: Callable[[], int | None] = open_descriptors,
                  limit: Callable[[], int | None] = descriptor_limit) -> None:
         self._count, self._limit = count, limit
         self.said: str | None = None  #: the words of the last check (None: not near)
+        self._reserve: int | None = None
+        self._take_reserve()
+
+    def _take_reserve(self) -> None:
+        if self._reserve is None:
+            try:
+                self._reserve = os.open(os.devnull, os.O_RDONLY | os.O_CLOEXEC)
+            except OSError:
+                self._reserve = None
+
+    def close(self) -> None:
+        """Give the reserve descriptor back (idempotent)."""
+        fd, self._reserve = self._reserve, None
+        if fd is not None:
+            os.close(fd)
 
     @property
     def near(self) -> bool:
         """Whether the last check found the descriptors near the limit."""
         return self.said is not None
 
+    def _counted(self) -> int | None:
+        """The count, with the reserve descriptor freed for it when it failed without."""
+        try:
+            return self._count()
+        except CountFailed:
+            if self._reserve is None:
+                raise
+        os.close(self._reserve)
+        self._reserve = None
+        try:
+            return self._count()
+        finally:
+            self._take_reserve()
+
     def check(self) -> str | None:
         """Count now; the words for health while near the limit, else None."""
-        n, limit = self._count(), self._limit()
+        limit = self._limit()
+        try:
+            n = self._counted()
+        except CountFailed as exc:
+            self.said = (f"{exc.strerror} while counting the open file descriptors (limit "
+                         f"{limit}): at the process limit, at which checkpoints, the lab "
+                         f"folder and new connections fail")
+            return self.said
         if n is None or not limit:
             self.said = None
             return None
@@ -65,4 +115,5 @@ class DescriptorWatch:
         return self.said
 
 
-__all__ = ["CLEAR", "NEAR", "DescriptorWatch", "descriptor_limit", "open_descriptors"]
+__all__ = ["CLEAR", "NEAR", "CountFailed", "DescriptorWatch", "descriptor_limit",
+           "open_descriptors"]

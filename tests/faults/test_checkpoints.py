@@ -109,3 +109,41 @@ def test_a_daemon_whose_checkpoint_was_rejected_does_not_say_it_resumed(saved, t
     asyncio.run(asyncio.wait_for(main(), 120))
     assert got["resumed"] is False
     assert len(list(tmp_path.glob("ckpt.json.bad-*"))) == 1
+
+
+_ENDLESS = """
+import resource, sys
+from softsensor.errors import ConfigError
+from softsensor.service.checkpoint import CheckpointStore
+resource.setrlimit(resource.RLIMIT_AS, (1 << 31, 1 << 31))
+try:
+    CheckpointStore(sys.argv[1]).load()
+except ConfigError as exc:
+    print("ConfigError", exc)
+except BaseException as exc:
+    print(type(exc).__name__, exc)
+"""
+
+
+@pytest.mark.parametrize("kind", ["endless", "huge"])
+def test_a_checkpoint_is_read_with_a_size_cap(tmp_path, kind):
+    """Issue 49 (fifth probe): a checkpoint pointing at an endless file grew ``replay`` to
+    13 GB. Now a checkpoint is read to a cap (a real one is about 50 kB) and a file that is
+    not a regular one is refused; both with a one-line error naming the file."""
+    import subprocess
+    import sys
+
+    from softsensor.service.checkpoint import MAX_BYTES
+
+    path = tmp_path / "checkpoint.json"
+    if kind == "endless":
+        path.symlink_to("/dev/zero")
+    else:
+        with path.open("wb") as f:  # sparse: no disk taken
+            f.truncate(4 * MAX_BYTES)
+    r = subprocess.run([sys.executable, "-c", _ENDLESS, str(path)], capture_output=True,
+                       text=True, timeout=120)
+    said = r.stdout.strip()
+    assert said.startswith(f"ConfigError {path}: "), (said, r.stderr[-500:])
+    assert ("not a regular file" if kind == "endless" else f"more than {MAX_BYTES}") in said
+    assert len(said.splitlines()) == 1

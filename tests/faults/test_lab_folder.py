@@ -272,3 +272,20 @@ def test_the_daemon_reads_the_lims_file_and_applies_every_result_of_a_flood(tmp_
     when = datetime.fromtimestamp(got["lims_sample"] // 10**9, UTC).astimezone(
         ZoneInfo("Europe/Madrid")).isoformat(timespec="seconds")
     assert lab["sample_time"] == when and when.endswith("+01:00"), (lab, when)
+
+
+def test_a_folder_that_cannot_be_listed_is_said_once_in_a_while(tmp_path: Path, caplog):
+    """Issue 49 (fifth probe): "cannot list folder: Too many open files" came once a poll,
+    1,064 lines (156 kB) a minute; now once per throttle period with a count."""
+    caplog.set_level(logging.INFO)
+    folder = tmp_path / "lab"
+    w = _watcher(folder, [])
+    w.poll_s = 0.0
+    for sub in (w.processed_dir, w.rejected_dir):
+        sub.rmdir()
+    folder.rmdir()  # (as root a chmod cannot take it away)
+    w.run(max_polls=500)
+    said = [r for r in caplog.records if "cannot list folder" in r.getMessage()]
+    assert 1 <= len(said) <= 2, len(said)
+    folder.mkdir()
+    w.run(max_polls=1)

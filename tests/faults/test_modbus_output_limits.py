@@ -121,3 +121,74 @@ def test_connections_beyond_the_cap_close_the_idlest_and_the_dcs_keeps_reading()
             assert _closed_by_peer(idle[0], 1.0)
         for s in idle:
             s.close()
+
+
+def _from(address: str, port: int) -> socket.socket:
+    """A connection from ``address`` (any of 127.0.0.0/8 on Linux's loopback)."""
+    return socket.create_connection(("127.0.0.1", port), timeout=5,
+                                    source_address=(address, 0))
+
+
+def _still_open(s: socket.socket) -> bool:
+    """Whether the server has not closed ``s`` (closed ones are closed here too)."""
+    closed = _closed_by_peer(s, 0.05)
+    s.settimeout(5)
+    if closed:
+        s.close()
+    return not closed
+
+
+def test_a_peer_holding_busy_connections_evicts_its_own_not_the_dcs():
+    """Issue 49 (fifth probe): a peer keeping 31 busy connections and opening one every 0.5 s
+    got the DCS evicted before every poll (the DCS had waited longest); now the address
+    with the most connections gives one up."""
+    with _server(max_connections=8) as server:
+        dcs = _from("127.0.0.2", server.port)
+        peer: list[socket.socket] = []
+        answered = 0
+        try:
+            for tid in range(1, 11):
+                dcs.sendall(_read(tid))
+                answered += _answers(dcs, 1)[0][0] == tid
+                for s in peer:  # the peer's connections busy after the DCS's poll
+                    s.sendall(_read(tid))
+                    _answers(s, 1)
+                for _ in range(8 - len(peer) if tid == 1 else 2):  # then new ones
+                    peer.append(_from("127.0.0.1", server.port))
+                    peer[-1].sendall(_read(tid))
+                    _answers(peer[-1], 1)
+                peer = [s for s in peer if _still_open(s)]
+            assert answered == 10
+            assert server.evicted >= 18 and server.connections <= 8
+        finally:
+            dcs.close()
+            for s in peer:
+                s.close()
+
+
+def test_the_plant_clients_are_never_evicted_for_a_stranger():
+    with _server(max_connections=4, plant_clients=("127.0.0.2",)) as server:
+        plant = [_from("127.0.0.2", server.port) for _ in range(3)]
+        stranger = _from("127.0.0.3", server.port)
+        try:
+            for s in (*plant, stranger):
+                s.sendall(_read(1))
+                _answers(s, 1)
+            with _from("127.0.0.4", server.port) as other:  # the stranger's slot
+                other.sendall(_read(2))
+                assert _answers(other, 1)[0][0] == 2
+                assert _closed_by_peer(stranger, 1.0)
+                for s in plant:
+                    s.sendall(_read(3))
+                    assert _answers(s, 1)[0][0] == 3
+                plant.append(_from("127.0.0.2", server.port))  # a plant client: other goes
+                assert _closed_by_peer(other, 1.0)
+            with _from("127.0.0.5", server.port) as late:  # only plant clients: refused
+                assert _closed_by_peer(late, 1.0)
+            for s in plant:
+                s.sendall(_read(4))
+                assert _answers(s, 1)[0][0] == 4
+        finally:
+            stranger.close()
+            for s in plant:
+                s.close()

@@ -78,6 +78,20 @@ def test_pipelined_requests_are_answered_in_order_and_a_split_one_when_complete(
     assert p.feed(b"") == []
 
 
+def test_a_budget_answers_that_many_and_keeps_the_rest_waiting_in_order():
+    p = RegisterProtocol(1, lambda: BLOCK)
+    stream = b"".join(_read(tid, 0, 1) for tid in range(1, 101))
+    got = p.feed(stream[:-3], max_requests=32)
+    assert [_answer(a)[0] for a in got] == list(range(1, 33)) and p.waiting
+    got += p.feed(b"", max_requests=60)
+    got += p.feed(b"", max_requests=32)  # 7 whole ones left, the last still cut
+    assert len(got) == 99 and not p.waiting
+    got += p.feed(stream[-3:], max_requests=0)
+    assert len(got) == 99 and p.waiting
+    got += p.feed(b"", max_requests=5)
+    assert [_answer(a)[0] for a in got] == list(range(1, 101)) and not p.waiting
+
+
 @pytest.mark.parametrize("head", [struct.pack(">HHHB", 1, 7, 6, 1),  # protocol id 7
                                   struct.pack(">HHHB", 1, 0, 1, 1),  # no function code
                                   struct.pack(">HHHB", 1, 0, 300, 1)])  # beyond 254

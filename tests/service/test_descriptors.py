@@ -48,3 +48,47 @@ def test_the_process_own_descriptors_are_counted_against_its_limit():
     assert r.returncode == 0, r.stderr
     first, said = r.stdout.strip().split(" ", 1)
     assert first == "True" and " of 200 file descriptors open" in said, r.stdout
+
+
+_EXHAUSTED = """
+import errno, resource, socket
+from softsensor.service.descriptors import DescriptorWatch
+resource.setrlimit(resource.RLIMIT_NOFILE, (64, 64))
+watch = DescriptorWatch()
+held = []
+while True:  # every descriptor taken, as a flood of clients takes them
+    try:
+        held.append(socket.socket())
+    except OSError as exc:
+        assert exc.errno == errno.EMFILE, exc
+        break
+print(watch.check())
+"""
+
+
+def test_descriptors_all_taken_is_a_fault_not_silence():
+    """Issue 49 (fifth probe): at the limit, listing /proc/self/fd needs a descriptor, the
+    count failed and health said ``ok`` for 55 s while checkpoints failed."""
+    r = subprocess.run([sys.executable, "-c", _EXHAUSTED], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    said = r.stdout.strip()
+    assert said != "None", "health would say ok with every descriptor taken"
+    assert "of 64 file descriptors open" in said, said
+
+
+def test_a_count_that_fails_even_with_the_reserve_is_said_in_health():
+    import errno
+
+    from softsensor.service.descriptors import CountFailed
+
+    def fails():
+        raise CountFailed(errno.EMFILE, "Too many open files")
+
+    watch = DescriptorWatch(count=fails, limit=lambda: 1000)
+    said = watch.check()
+    watch.close()
+    assert said is not None and said.startswith("Too many open files while counting the open "
+                                                "file descriptors (limit 1000)"), said
+    ok = Health(5, "dryer1", "ukf", Reason("ok", "fit"), Reason("ok", ""), Reason("ok", ""))
+    assert ok.at(6, resources=said).status == "degraded"
