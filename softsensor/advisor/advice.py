@@ -181,7 +181,8 @@ def _refused(s: Situation, why: str, cfg: AdvisorSettings, **known: Any) -> Advi
 def precheck(s: Situation, cfg: AdvisorSettings, env: Envelope) -> str:
     """Why no advice can be given at ``s`` before the model is asked ('' when none)."""
     if s.health != "ok":
-        return f"health is {s.health}: {s.health_detail}"
+        first = s.health_detail.split("; ")[0]
+        return f"health is {s.health}: {first if len(first) <= 160 else first[:157] + '...'}"
     if s.moisture_out is None or s.moisture_in is None:
         return "no estimate of the outlet or inlet moisture this tick"
     if s.moisture_out_std is None or not s.moisture_out_std > 0:
