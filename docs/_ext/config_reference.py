@@ -134,6 +134,179 @@ FILES: tuple[ConfigFile, ...] = (
 WRAPPED_TARGET = re.compile(r"(:[a-z]+:`[~.]?[\w.]*\.)\n\s*(?=\w)")
 _BOUND_SIGNS = {"gt": ">", "ge": "≥", "lt": "<", "le": "≤"}
 _PLAIN_UNITS = {"s", "K", "m", "kg", "Pa", "W", "J", "%", "h", "min", "ns", "bytes"}
+#: The unit column of a key that is no quantity (a name, a switch, a table, a list of names).
+NO_UNIT = "—"
+#: Key types that are no quantity: their unit is :data:`NO_UNIT` unless the source says one.
+NOT_QUANTITIES = {"string", "boolean", "table", "array of string", "list", "Any"}
+#: What each signal of CONTRACT section 1 is (the nominal operating point's keys).
+SIGNAL_MEANINGS = {
+    "T_air_in": "hot air temperature entering the dryer tube (after the mixing flaps)",
+    "m_air": "dry-air mass flow through the tube",
+    "m_fiber": "dry fibre mass flow (production rate)",
+    "T_fiber_in": "fibre temperature at the injection point",
+    "m_steam": "steam injected with the fibre",
+    "T_amb": "ambient air temperature",
+    "H_amb": "ambient specific humidity",
+    "flap_cmd": "PID output to the mixing-air flaps",
+    "T_sp": "set point of the outlet-temperature loop",
+    "T_dryer_out": "air temperature at the dryer tube outlet",
+    "T_cyclone_out": "air temperature at the cyclone outlet",
+    "moisture_in": "fibre moisture at the dryer inlet, dry basis",
+    "moisture_out": "fibre moisture at the cyclone outlet, dry basis",
+}
+
+
+#: What the source leaves unsaid of a key, by ``Class.field``: ``(unit, meaning)``, either
+#: empty where the source says it. The source (the class's ``Attributes`` section or the
+#: comment on the field) comes first; this table holds what it lacks in modules where a
+#: docstring would push the module past the house's 600 lines (``plantconfig.py``) or into
+#: another change's lines, and ``tests/docs/test_config_reference.py`` refuses an entry the
+#: source has made redundant, so that the two cannot disagree. Units: SI symbols; ``1`` a
+#: ratio, fraction or multiplier; ``count`` a number of things; ``—`` no quantity (a name, a
+#: switch, an address).
+SUPPLEMENT: dict[str, tuple[str, str]] = {
+    # the plant config: softsensor/plantconfig.py (issue 49: 93 keys had no meaning)
+    "Unit.name": ("", "the unit's name: the ``<unit>`` of the Zenoh keys and the label of "
+                      "every output"),
+    "Tube.length": ("", "length of the dryer tube, from the fibre injection to the cyclone"),
+    "Tube.wall_thickness": ("", "thickness of the tube's steel wall"),
+    "Tube.n_cells": ("count", "finite volumes the tube is divided into along its length"),
+    "Tube.wall_heat_capacity": ("", "specific heat capacity of the wall's steel"),
+    "Tube.wall_conductivity": ("", "thermal conductivity of the wall's steel"),
+    "Tube.wall_emissivity": ("1", "emissivity of the wall's outer surface (radiation to the "
+                                  "surroundings)"),
+    "Tube.deposit_conductivity": ("", "thermal conductivity of that deposit"),
+    "Cyclone.count": ("count", "cyclones in parallel"),
+    "Cyclone.diameter": ("", "diameter of one cyclone"),
+    "Cyclone.height": ("", "height of one cyclone"),
+    "Cyclone.n_cells": ("count", "well-mixed cells of the lumped cyclone model"),
+    "Cyclone.shell_thickness": ("", "thickness of the cyclones' steel shell"),
+    "Cyclone.shell_density": ("", "density of the shell's steel"),
+    "Cyclone.shell_heat_capacity": ("", "specific heat capacity of the shell's steel"),
+    "Cyclone.inner_heat_transfer": ("", "heat transfer coefficient from the air to the shell"),
+    "Fiber.diameter": ("", "diameter of a fibre (a cylinder)"),
+    "Fiber.length": ("", "length of a fibre"),
+    "Fiber.saturation_point": ("", "fibre saturation point: the moisture below which water is "
+                                   "bound in the cell wall, dry basis"),
+    "Fiber.critical_moisture": ("", "critical moisture of the drying-rate law: the falling "
+                                    "rate begins below it, dry basis"),
+    "Fiber.critical_width": ("", "width of the double sigmoid's step at the critical "
+                                 "moisture (paper's eq. 2)"),
+    "Fiber.bound_fraction": ("1", "the drying rate's bound-water plateau, as a fraction of the "
+                                  "free-water rate (paper's eq. 2)"),
+    "Fiber.equilibrium_width": ("", "width of the double sigmoid's step at the equilibrium "
+                                    "moisture (paper's eq. 2)"),
+    "Fiber.cdc_exponent": ("1", ""),
+    "Fiber.rea_c": ("1", ""),
+    "HotGas.temperature": ("", "temperature of the combustion gas before the mixing flaps"),
+    "HotGas.humidity": ("", "specific humidity of the combustion gas"),
+    "HotGas.fraction_min": ("1", "hot-gas share of the mixed air with the flaps at 0 %"),
+    "HotGas.fraction_max": ("1", "hot-gas share of the mixed air with the flaps at 100 %"),
+    "Environment.pressure": ("", "absolute pressure of the air in the dryer"),
+    "Environment.wind_speed": ("", "wind speed outside (convective heat loss)"),
+    "Solver.wall_substeps": ("count", "Crank-Nicolson substeps of the wall temperature per "
+                                      "window"),
+    "Solver.min_good_fraction": ("1", ""),
+    "Cost.T_dryer_out": ("1/K", "weight WF of the dryer outlet temperature's RMSE in the "
+                                "paper's eq. 4"),
+    "Cost.T_cyclone_out": ("1/K", "weight WF of the cyclone outlet temperature's RMSE in the "
+                                  "paper's eq. 4"),
+    "Cost.moisture_out": ("1/(kg/kg)", "weight WF of the outlet moisture's RMSE in the paper's "
+                                       "eq. 4"),
+    "ParameterSpec.value": ("Table 1's (1 for the multipliers)",
+                            "the parameter's value (one of the paper's Table 1)"),
+    "ParameterSpec.low": ("the parameter's", "lower bound of the calibration's search"),
+    "ParameterSpec.high": ("the parameter's", "upper bound of the calibration's search"),
+    "ParameterSpec.log": ("", "search and prior on the logarithm of the parameter"),
+    # the daemon and the estimator
+    "ServiceSettings.checkpoint_every": ("count", ""),
+    "ServiceSettings.max_message_bytes": ("bytes", ""),
+    "ServiceSettings.max_queue": ("count", ""),
+    "ServiceSettings.max_queue_bytes": ("bytes", ""),
+    "EstimatorSettings.sigma_alpha": ("1", ""),
+    "EstimatorSettings.sigma_beta": ("1", ""),
+    "EstimatorSettings.sigma_kappa": ("1", ""),
+    "CalibrationSettings.holdout_fraction": ("1", ""),
+    "CalibrationSettings.bound_margin": ("1", ""),
+    "CalibrationSettings.search_wall_substeps": ("count", ""),
+    "CalibrationSettings.polish_passes": ("count", ""),
+    "CalibrationSettings.polish_evaluations": ("count", ""),
+    # the operator outputs
+    **{f"{cls}.{key}": value for cls in ("ModbusOutputSettings", "MetricsSettings",
+                                         "WebSettings", "OpcUaSettings")
+       for key, value in (("enabled", ("", "serve this output")),
+                          ("host", ("", "address to listen on (127.0.0.1: this machine "
+                                        "only; 0.0.0.0: every interface)")),
+                          ("port", ("—", "TCP port to listen on")))},
+    "ModbusOutputSettings.unit_id": ("—", "Modbus unit id the server answers as"),
+    "ModbusOutputSettings.max_connections": ("count", ""),
+    "MetricsSettings.backlog": ("count", "connections beyond the workers that may wait"),
+    "MetricsSettings.timeout_s": ("s", "deadline for a request's whole header, and for the "
+                                       "client to take the answer"),
+    "WebSettings.history_h": ("h", ""),
+    "WebSettings.workers": ("count", ""),
+    "WebSettings.backlog": ("count", ""),
+    "OpcUaSettings.history_h": ("h", ""),
+    "OpcUaSettings.idle_timeout_s": ("s", "a session idle this long is closed"),
+    # the plausibility screen
+    "PlausibilityTable.hold_s": ("s", "how long a suspect signal's new level must hold steady "
+                                      "before it is believed"),
+    **{f"PlausibilityTable.{name}": ("", f"limits of {name}, replacing the defaults' keys "
+                                         f"given (``[plausibility.<signal>]``)")
+       for name in ("T_air_in", "m_air", "m_fiber", "T_fiber_in", "m_steam", "T_amb", "H_amb",
+                    "flap_cmd", "T_sp", "T_dryer_out", "T_cyclone_out")},
+    # the virtual plant
+    "VirtualPlantSettings.ti": ("", "integral time of the outlet-temperature PI loop"),
+    "VirtualPlantSettings.noise_lab": ("", "standard deviation of a lab result's error"),
+    "VirtualPlantSettings.lab_interval_max": ("", "longest time between two lab samples"),
+    "VirtualPlantSettings.lab_delay_min": ("", "shortest delay of a lab result after its "
+                                               "sample"),
+    "VirtualPlantSettings.lab_delay_max": ("", "longest delay of a lab result after its "
+                                               "sample"),
+    "VirtualPlantSettings.m_fiber_max": ("kg/s", "highest production rate drawn"),
+    "VirtualPlantSettings.production_hold_max": ("s", "longest time between production "
+                                                      "changes"),
+    "VirtualPlantSettings.setpoint_change_probability": ("1", ""),
+    "VirtualPlantSettings.ambient_amplitude_max": ("K", "largest daily swing of the ambient "
+                                                        "temperature drawn"),
+    "VirtualPlantSettings.ambient_mean_min": ("", "lowest mean ambient temperature drawn"),
+    "VirtualPlantSettings.ambient_mean_max": ("K", "highest mean ambient temperature drawn"),
+    # the tag map and the historian map
+    "ModbusSettings.port": ("—", ""),
+    "ModbusSettings.retries": ("count", ""),
+    "ModbusSettings.max_gap_registers": ("count", ""),
+    "ModbusSettings.max_registers_per_read": ("count", ""),
+    "TagSpec.unit_id": ("—", ""),
+    "TagSpec.address": ("—", ""),
+    "TagSpec.scale": ("engineering unit per count", ""),
+    "TagSpec.offset": ("", "added after the scale: eng = raw * scale + offset"),
+    "ClockSpec.unit_id": ("—", ""),
+    "ClockSpec.address": ("—", ""),
+    "SourceMap.good_quality": ("", "quality codes whose rows are taken (the rest dropped)"),
+    "SourceMap.skip_rows": ("count", ""),
+    "SourceMap.max_rows": ("count", ""),
+    "LabMap.skip_rows": ("count", ""),
+    "SignalMap.constant": ("the signal's, as the column's unit", ""),
+    # PARAMS.toml
+    "DiscrepancyPrior.n_windows": ("count", ""),
+    "DiscrepancyPrior.n_labs": ("count", ""),
+    "ModelError.mean": ("each feature's SI unit", ""),
+    "ModelError.scale": ("each feature's SI unit", ""),
+    "ModelError.days": ("count", ""),
+    "ModelError.hours": ("h", ""),
+    "ChannelError.samples": ("count", ""),
+    "LabRegression.signals": ("", "the scan signals the regression reads, in order"),
+    "LabRegression.mean": ("each signal's SI unit", "each signal's mean over the history's "
+                                                    "lab windows"),
+    "LabRegression.scale": ("each signal's SI unit", "each signal's standard deviation over "
+                                                     "them (the standardisation)"),
+    "LabRegression.coef": ("kg/kg", "intercept, then one slope per standardised signal"),
+    "LabRegression.step_sd": ("kg/kg", "standard deviation of the bias-updated regression's "
+                                       "error from one lab result to the next"),
+    "LabRegression.hold_sd": ("kg/kg", "standard deviation of holding the last lab result "
+                                       "until the next"),
+    "LabRegression.n_labs": ("count", "lab results the regression was fitted on"),
+}
 
 
 def resolve(path: str) -> type:
@@ -166,8 +339,13 @@ def _attribute_docs(cls: type) -> dict[str, str]:
     for param in NumpyDocString(doc)["Attributes"]:
         # a role whose dotted target the source wraps after a dot is one name (conf.py)
         text = " ".join(WRAPPED_TARGET.sub(r"\1", "\n".join(param.desc)).split())
-        for name in param.name.split(","):
-            out[name.strip()] = text
+        names = [n.strip() for n in param.name.split(",")]
+        units = re.findall(r"\[([^\[\]]+)\]", text)
+        for i, name in enumerate(names):
+            # names described together with one unit each, in order ("Standard deviation
+            # [unit] and correlation time [h]"): each its own
+            own = f" [{units[i]}]" if len(names) > 1 and len(units) == len(names) else ""
+            out[name] = text + own
     return out
 
 
@@ -201,13 +379,22 @@ def _comment_docs(cls: type) -> dict[str, tuple[str, str]]:
 
 
 def split_unit(text: str, from_comment: bool) -> tuple[str, str]:
-    """(unit, description) of a key's text: a trailing ``[unit]``; in a comment also a
-    leading unit (``m, inner``; ``s between production changes``)."""
+    """(unit, description) of a key's text: a trailing ``[unit]``, else the first bracketed
+    one (``Their correlation times [h]. ...``); in a comment also a leading unit (``m,
+    inner``; ``s between production changes``; ``kg/m3 (steel 7850)``)."""
     text = text.strip()
     bracket = re.search(r"\s*\[([^\[\]]+)\]\.?$", text)
     if bracket:
         return bracket.group(1), text[:bracket.start()].rstrip(" .,;:")
+    if not from_comment:
+        inner = re.search(r"\[([^\[\]]+)\]", text)
+        if inner:
+            return inner.group(1), text
     if from_comment and text:
+        first = re.split(r"[\s(]", text, maxsplit=1)[0].rstrip(",;")
+        if (first in _PLAIN_UNITS or "/" in first or re.fullmatch(r"[a-zA-Z]+\d", first)) \
+                and looks_like_unit(first):
+            return first, text[len(first):].strip(" ,;")
         head, _, rest = text.partition(",")
         if looks_like_unit(head):
             return head.strip(), rest.strip()
@@ -307,6 +494,12 @@ def table_keys(cls: type, signal_units: bool = False
             text = "; ".join(t for t in (above, text) if t)
         if signal_units and not unit:
             unit = units.get(f.name, "")
+        if signal_units and not text and f.name in SIGNAL_MEANINGS:
+            text = SIGNAL_MEANINGS[f.name]
+        more_unit, more_text = SUPPLEMENT.get(f"{cls.__qualname__}.{f.name}", ("", ""))
+        unit, text = unit or more_unit, text or more_text
+        if not unit and _type_name(typ).split(" (")[0] in NOT_QUANTITIES:
+            unit = NO_UNIT
         keys.append(Key(f.metadata.get(TOML_KEY, f.name), _type_name(typ), _default(f),
                         _rules(f), unit, text))
     return keys, subs

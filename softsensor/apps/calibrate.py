@@ -226,6 +226,7 @@ def calibrate_main(args: argparse.Namespace) -> int:
     import optuna
 
     from softsensor.calibration.history_calibration import calibrate_history
+    from softsensor.presentation.deployed_model import deployed_model
 
     base, current = load_config_and_params(args)
     calibration = _calibration_settings(args, base)
@@ -255,7 +256,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
                              structure=default_structure(base, len(args.days), args.structure))
     for c in hist.calibration.choices:
         print(f"calibrate: {c.reason}", file=sys.stderr)
-    doc = _params_doc(base, hist)
+    deployed = deployed_model(hist, base, calibration, identify_result=not args.no_identify)
+    doc = _params_doc(base, hist, deployed)
     if regression is not None:
         doc["regression"] = regression.to_table()
     write_params(out, doc, _params_comment(calibration, hist))
@@ -265,8 +267,8 @@ def calibrate_main(args: argparse.Namespace) -> int:
         doc["sensor"] = tune_deployed(out, base, days, lab_rows, regression,
                                       progress).to_table()
         write_params(out, doc, _params_comment(calibration, hist))
-    outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis)
-    write_json({**_calibrate_summary(args, out, hist, outcome),
+    outcome = calibration_outcome(hist, out, display_settings(base).moisture_basis, deployed)
+    write_json({**_calibrate_summary(args, out, hist, outcome, deployed),
                 "sensor": doc.get("sensor")}, args.json)
     _say_outcome(hist, outcome, no_regression)
     return 0
@@ -306,18 +308,20 @@ def _history(paths: Sequence[str | Path], base: PlantConfig
     return days, regression, no_regression, lab_rows
 
 
-def _calibrate_summary(args: argparse.Namespace, out: Path, hist: Any, outcome: str
-                       ) -> dict[str, Any]:
+def _calibrate_summary(args: argparse.Namespace, out: Path, hist: Any, outcome: str,
+                       deployed: Any) -> dict[str, Any]:
     """The JSON ``calibrate`` prints: where PARAMS.toml went, the outcome, the calibration's
-    and the history's summaries, and the report page when ``--report`` asked for one."""
+    and the history's summaries, the model deployed (PARAMS.toml's ``[fit.deployed_model]``),
+    and the report page when ``--report`` asked for one."""
     result = hist.calibration
     summary = {"out": str(out), "outcome": outcome, **result.summary(),
-               "history": hist.summary()}
+               "history": hist.summary(), "deployed_model": deployed.fit_table()}
     if args.report:
         from softsensor.presentation.calibration_report import calibration_page
 
         summary["report"] = str(calibration_page(result, args.report, verdict=outcome,
-                                                 structure=hist.structure, params_path=out))
+                                                 structure=hist.structure, params_path=out,
+                                                 deployed=deployed))
     return summary
 
 
@@ -346,54 +350,71 @@ def _errors(new: dict[str, float], old: dict[str, float], x_ref: float, basis: s
             f"{pts(new['moisture_out']):.2f} % points ({basis} basis)")
 
 
-def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
+def calibration_outcome(hist: Any, out: Path, basis: str, deployed: Any = None) -> str:
     """What ``calibrate`` wrote and why, for a person: the file to deploy, which parameters
-    it holds and the errors before and after, in plant units. The terminal's last line and
-    the report page's verdict say this same text."""
+    (and structure) it holds and the errors before and after, in plant units: those of the
+    model deployed (``deployed``, a :class:`~softsensor.presentation.deployed_model.
+    DeployedModel`: an adopted structure's own held-out errors, not the study's paper form;
+    None: the study's). The terminal's last line and the report page's verdict say this same
+    text."""
     from softsensor.presentation.calibration_report import lab_reference
+    from softsensor.presentation.deployed_model import PAPER_FORM
 
     result, n = hist.calibration, hist.model_error.days
     new, old, where = result.validation, result.current_validation, "held-out data"
     if new is None or old is None:
         new, old, where = result, result.current_evaluation, "calibration data"
-    errors = ("" if old is None else
-              _errors(new.fit.rmse, old.fit.rmse, lab_reference(result.segments), basis))
+    x_ref = lab_reference(result.segments)
+    new_rmse = None if old is None else new.fit.rmse
+    old_rmse = None if old is None else old.fit.rmse
+    errors = "" if old is None else _errors(new_rmse, old_rmse, x_ref, basis)
     learned = f"the model error learned from {n} day(s)"
     if hist.kept_current:
         return (f"Deploy {out}: it holds the current parameters, kept because the calibrated "
                 f"ones predict the {where} worse ({errors}), and {learned}; --force writes the "
                 f"calibrated ones instead.")
-    flags = result.at_bounds
+    flags, what = result.at_bounds, "the calibrated parameters"
+    if deployed is not None:
+        flags, where = deployed.at_bounds, deployed.where
+        new_rmse, old_rmse = deployed.rmse, deployed.current_rmse
+        errors = ("" if new_rmse is None or old_rmse is None else
+                  _errors(new_rmse, old_rmse, x_ref, basis))
+        if deployed.structure != PAPER_FORM:
+            what = f"the parameters calibrated with the structure '{deployed.structure}'"
     bounds = (f" At a search bound (not pinned by the data): {', '.join(flags)}."
               if flags else "")
     if not result.accepted:
         return (f"Deploy {out} only if you trust it: it holds the calibrated parameters, "
                 f"written because --force asked though they predict the {where} worse than "
                 f"the current ones ({errors}), and {learned}.{bounds}")
-    worse = ("" if old is None or not new.fit.rmse["moisture_out"]
-             > old.fit.rmse["moisture_out"] else
+    accepted_by = (getattr(hist, "sensor_accept", None)
+                   or "the weighted cost of all three channels says better")
+    worse = ("" if not errors or not new_rmse["moisture_out"] > old_rmse["moisture_out"] else
              " Worse on the held-out outlet moisture than the parameters it replaces; "
-             f"deployed because the sensor's own lab score says better ({hist.reason}).")
-    return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
+             f"deployed because {accepted_by}.")
+    return (f"Deploy {out}: it holds {what} and {learned}. Errors on the "
             f"{where}: {errors}.{worse}{bounds}" if errors else
-            f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")
+            f"Deploy {out}: it holds {what} and {learned}.{bounds}")
 
 
-def _params_doc(base: PlantConfig, hist: Any) -> dict[str, Any]:
-    """PARAMS.toml of a calibration from history: the deployed parameters, the study's fit
-    with whether they were kept, the discrepancy and the model error."""
+def _params_doc(base: PlantConfig, hist: Any, deployed: Any = None) -> dict[str, Any]:
+    """PARAMS.toml of a calibration from history: the deployed parameters with their own
+    identifiability verdicts and bound flags, the study's fit with whether they were kept,
+    the deployed model's own errors (``[fit.deployed_model]``, :class:`~softsensor.
+    presentation.deployed_model.DeployedModel`; default: gathered without a new
+    identifiability analysis), the discrepancy and the model error."""
+    from softsensor.presentation.deployed_model import deployed_model
+
     result = hist.calibration
-    verdicts = None
-    if result.identifiability is not None and not hist.kept_current:
-        verdicts = {v.name: v.verdict for v in result.identifiability.verdicts}
-    fit = {**result.fit_section(), "deployed": "current" if hist.kept_current else "calibrated",
+    if deployed is None:
+        deployed = deployed_model(hist, base, result.calibration, identify_result=False)
+    fit = {**result.fit_section(), "deployed": deployed.parameters,
            "deployed_reason": hist.reason,
            "calibrated_values": result.params,
-           "inlet_levels": hist.inlet_levels}
-    at = [] if hist.kept_current else result.at_bounds
-    adopted = None if hist.structure is None else hist.structure.adopted
-    deployed = base if adopted is None else base.with_keys(adopted.keys)
-    return params_document(deployed, hist.params, fit, verdicts, at,
+           "inlet_levels": hist.inlet_levels,
+           "deployed_model": deployed.fit_table()}
+    return params_document(deployed.config, hist.params, fit, deployed.verdicts,
+                           deployed.at_bounds,
                            None if hist.discrepancy is None else hist.discrepancy.as_table(),
                            hist.model_error.to_table(),
                            None if hist.structure is None else hist.structure.params_table())

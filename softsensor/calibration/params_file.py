@@ -8,11 +8,16 @@ Layout (loadable by :func:`softsensor.plantconfig.load_parameters`, which reads 
     low = 0.01                 the bounds searched
     high = 5.0
     log = true
-    verdict = "identifiable"   when an identifiability analysis ran
+    verdict = "identifiable"   when an identifiability analysis ran (of the model deployed)
     at_bound = true            when the value ended within the bound margin (flagged)
 
-    [fit]                      objective, cost kind, trials, seed, data, chosen window(s) and
-                               why, parameters at a bound, validation against the current ones
+    [fit]                      the study's (paper's form): objective, cost kind, trials, seed,
+                               data, chosen window(s) and why, its parameters at a bound,
+                               validation against the current ones
+    [fit.deployed_model]       the model this file deploys (structure, which parameters, its
+                               held-out RMSE, open loop and the current ones' on the same
+                               data, its bound flags and identifiability), which the report
+                               page reads (:mod:`softsensor.presentation.deployed_model`)
     [fit.rmse]                 per channel: T_dryer_out [K], T_cyclone_out [K],
                                moisture_out [kg/kg]
     [fit.weighted_rmse]        WF_m * RMSE_m, the numbers the paper quotes

@@ -75,4 +75,20 @@ def operator_outputs(settings: OutputSettings, display: DisplaySettings, unit: s
     return out
 
 
-__all__ = ["OperatorOutput", "operator_outputs"]
+def lab_refused(forget: Callable[[str], None], outputs: Mapping[str, OperatorOutput]
+                ) -> Callable[[str], None]:
+    """What the estimator service calls with the sample id of a lab result it refused:
+    ``forget`` it (the lab input's or the lab folder's: a corrected result with that id is
+    then taken, in the folder's ``.seen-ids`` too), then tell each output that marks refused
+    results (``on_lab_refused``: the live page, whose "Last lab result" is the last one taken,
+    issue 49)."""
+    def refused(sample_id: str) -> None:
+        forget(sample_id)
+        for output in outputs.values():
+            tell = getattr(output, "on_lab_refused", None)
+            if tell is not None:
+                tell(sample_id)
+    return refused
+
+
+__all__ = ["OperatorOutput", "lab_refused", "operator_outputs"]

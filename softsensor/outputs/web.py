@@ -7,9 +7,12 @@ plant networks are closed), drawn on the server as inline SVG and reloaded by th
 * the health in plain words (:func:`softsensor.presentation.verdicts.health_words`), the technical
   detail beside it in small type;
 * the outlet and inlet moisture now, with their 95 % band, the target and acceptable band of
-  the ``[display]`` table, the last lab result, and the age of each value; the last lab
-  result or lab file refused, with why and when (the health's ``last_lab_refusal``);
-* trends of the outlet moisture (95 % band, lab results at their sample times, the target line
+  the ``[display]`` table, the last lab result taken (a result the estimator refused is not
+  it, issue 49: a 0.30 kg/kg outlier refused at 32.5 sigma was shown as the last lab
+  result), and the age of each value; the last lab result refused, marked so, and the last
+  lab result or lab file refused, with why and when (the health's ``last_lab_refusal``);
+* trends of the outlet moisture (95 % band, lab results at their sample times, refused ones
+  drawn apart and named so in the legend, the target line
   and the acceptable band), the outlet temperatures measured beside the model's, and the inlet
   moisture; the time axis spans the data, or the range chosen with ``?range=2h|8h|48h`` (links
   on the page), with ticks on round clock times and round values (:mod:`.web_charts`);
@@ -71,6 +74,9 @@ WINDOW_NS = 600 * NS
 LINE = "#1f77b4"
 BAND = "#c6dbef"
 LAB = "#2ca02c"
+LAB_REFUSED = "#d62728"
+#: Refused sample ids the page remembers (a few a day; a flood keeps the latest).
+MAX_REFUSED_IDS = 1000
 INLET = "#d62728"
 MEASURED = "#ff7f0e"
 MODEL = "#6a3d9a"
@@ -96,6 +102,8 @@ class LivePage:
         self._lock = threading.Lock()
         self._est: deque[tuple[int, dict[str, Any]]] = deque()
         self._labs: deque[tuple[int, float, str]] = deque()
+        #: sample ids the estimator refused (:meth:`on_lab_refused`), the latest kept
+        self._refused: deque[str] = deque(maxlen=MAX_REFUSED_IDS)
         self._health: dict[str, Any] = {"status": "stale", "detail": "no estimate yet"}
         self._diagnosis: str | None = None
         self._last_arrival: float | None = None
@@ -124,6 +132,12 @@ class LivePage:
                                str(lab.sample_id)))
             self._labs = deque(sorted(self._labs))
 
+    def on_lab_refused(self, sample_id: str) -> None:
+        """The estimator refused the lab result ``sample_id`` (the daemon wires the
+        service's ``on_lab_refused`` here): it is no longer the last result taken."""
+        with self._lock:
+            self._refused.append(str(sample_id))
+
     def on_health(self, health: Health) -> None:
         with self._lock:
             self._health = health.to_body()
@@ -134,9 +148,12 @@ class LivePage:
 
     # -- reading (server threads) ----------------------------------------------------------
     def snapshot(self) -> tuple[list, list, dict, str | None]:
+        """The estimates, the lab results ``(sample_time_ns, moisture_out, sample_id,
+        refused)``, the health and the diagnosis line."""
         with self._lock:
             diag = self._diagnosis
-            est, labs, health = list(self._est), list(self._labs), dict(self._health)
+            est, health, refused = list(self._est), dict(self._health), set(self._refused)
+            labs = [(t, x, sid, sid in refused) for t, x, sid in self._labs]
         return est, labs, health, diag if diag is not None else self._report()
 
     def _report(self) -> str | None:
@@ -280,12 +297,19 @@ def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> 
         return "n/a" if v is None else f"{float(v) - 273.15:.1f} °C"
 
     when = html.escape(local_clock(t, display))
-    lab = "no lab result yet"
-    if labs:
-        ts, x, sid = labs[-1]
-        lab = (f"{moisture_pct(x, basis):.2f} {unit} ({html.escape(sid)}), sampled "
-               f"{html.escape(local_clock(ts, display))}, <span class='age'>"
-               f"{age(now_ns, ts)}</span>")
+
+    def said(item: tuple) -> str:
+        ts, x, sid = item[:3]
+        return (f"{moisture_pct(x, basis):.2f} {unit} ({html.escape(sid)}), sampled "
+                f"{html.escape(local_clock(ts, display))}, <span class='age'>"
+                f"{age(now_ns, ts)}</span>")
+
+    taken = [item for item in labs if not _refused(item)]
+    lab = said(taken[-1]) if taken else "no lab result taken yet"
+    refused = ""
+    if labs and _refused(labs[-1]):  # the latest result was refused: said, and marked
+        refused = (f"<p id='last-lab-refused' class='refusal'>Last lab result refused by the "
+                   f"estimator (not used): {said(labs[-1])}</p>")
     return (f"<p class='big' id='now'>Outlet moisture <b id='moisture-out'>"
             f"{pct('moisture_out')}</b> &nbsp; Inlet moisture <b id='moisture-in'>"
             f"{pct('moisture_in')}</b></p>"
@@ -296,7 +320,12 @@ def _now_block(est: list, labs: list, display: DisplaySettings, now_ns: int) -> 
             f"<p id='temperatures'>Outlet temperatures, measured / model: dryer "
             f"{deg('T_dryer_out_measured')} / {deg('T_dryer_out_model')}, cyclone "
             f"{deg('T_cyclone_out_measured')} / {deg('T_cyclone_out_model')}</p>"
-            f"<p id='last-lab'>Last lab result: {lab}</p>")
+            f"<p id='last-lab'>Last lab result: {lab}</p>" + refused)
+
+
+def _refused(item: tuple) -> bool:
+    """Whether a lab item of :meth:`LivePage.snapshot` was refused (a 3-tuple: not known)."""
+    return len(item) > 3 and bool(item[3])
 
 
 #: How an operator reads the blend's sources (softsensor.estimation.peer_blend).
@@ -342,8 +371,12 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
     t = np.array([x for x, _b in est], dtype=np.int64)
     mo, mo_sd = _series(est, "moisture_out"), _series(est, "moisture_out_std")
     mi, mi_sd = _series(est, "moisture_in"), _series(est, "moisture_in_std")
-    t_lab = np.array([x[0] for x in labs], dtype=np.int64)
-    v_lab = np.array([x[1] for x in labs], dtype=float)
+    taken = [x for x in labs if not _refused(x)]
+    refused = [x for x in labs if _refused(x)]
+    t_lab = np.array([x[0] for x in taken], dtype=np.int64)
+    v_lab = np.array([x[1] for x in taken], dtype=float)
+    t_ref = np.array([x[0] for x in refused], dtype=np.int64)
+    v_ref = np.array([x[1] for x in refused], dtype=float)
 
     def pct(x: np.ndarray) -> np.ndarray:
         return np.asarray(moisture_pct(x, basis), dtype=float)
@@ -357,7 +390,8 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
     outlet.series += [
         Series("band", t, pct(mo_low), BAND, "band", pct(mo_high)),
         Series("moisture_out", t, pct(mo), LINE),
-        Series("lab", t_lab, pct(v_lab), LAB, "points")]
+        Series("lab", t_lab, pct(v_lab), LAB, "points"),
+        Series("lab_refused", t_ref, pct(v_ref), LAB_REFUSED, "points")]
     temps = Chart("temperatures", "°C", t0, t1)
     for name, dashed in (("T_dryer_out", False), ("T_cyclone_out", True)):
         temps.series += [
@@ -372,6 +406,7 @@ def _charts(est: list, labs: list, display: DisplaySettings, t0: int, t1: int) -
     return ("<h2>Outlet moisture</h2>" + svg(outlet, display)
             + legend([("estimate", LINE), ("95 % band", BAND), ("lab result at its sample "
                                                                  "time", LAB),
+                      *([("lab result refused (not used)", LAB_REFUSED)] if refused else []),
                       ("target", "#238b45"), ("acceptable", "#e5f5e0")])
             + "<h2>Outlet temperatures</h2>" + svg(temps, display)
             + legend([("measured", MEASURED), ("model", MODEL),

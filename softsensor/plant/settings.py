@@ -22,8 +22,8 @@ class VirtualPlantSettings:
     actuator_rate: float = num(0.5, gt=0)                # %/s, flap drive rate limit
     # sensor noise, 1 sigma (CONTRACT section 6)
     noise_temperature: float = num(0.5, ge=0)            # K
-    noise_flow: float = num(0.01, ge=0)                  # relative
-    noise_humidity: float = num(0.02, ge=0)              # relative
+    noise_flow: float = num(0.01, ge=0)                  # 1, flows' noise, relative
+    noise_humidity: float = num(0.02, ge=0)              # 1, humidity's noise, relative
     noise_lab: float = num(0.003, ge=0)                  # kg/kg
     # laboratory schedule
     lab_interval_min: float = num(2.0 * 3600, gt=0)      # s

@@ -9,6 +9,7 @@ the validation page (Fig. 6).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -24,13 +25,14 @@ from softsensor.calibration.identifiability import (
 )
 from softsensor.calibration.settings import calibration_settings
 from softsensor.calibration.structure_search import StructureSearch
-from softsensor.calibration.trade_off import TradeOff
+from softsensor.calibration.trade_off import FrontPoint, TradeOff
 from softsensor.calibration.validation import ValidationResult
 from softsensor.configfile import read_toml
 from softsensor.errors import ConfigError
 from softsensor.model import DryerModel
 from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig, dotted_keys
 from softsensor.presentation import calibration_figures as figures
+from softsensor.presentation.deployed_model import PAPER_FORM, DeployedModel
 from softsensor.presentation.display import (
     DisplaySettings,
     display_settings,
@@ -185,45 +187,112 @@ def deployed_table(params_path: str | Path) -> str:
     return text
 
 
+def deployed_errors_table(params_path: str | Path, display: DisplaySettings, x_ref: float
+                          ) -> str:
+    """The deployed model's own errors, read back from PARAMS.toml's ``[fit.deployed_model]``
+    (:meth:`~softsensor.presentation.deployed_model.DeployedModel.fit_table`), beside the
+    current parameters' on the same data, in plant units (issue 49: the page gave the study's
+    paper-form errors while the file deployed another structure)."""
+    dep = read_toml(params_path).get("fit", {}).get("deployed_model", {})
+    rmse, cur, ol = dep.get("rmse"), dep.get("current_rmse"), dep.get("open_loop_rmse")
+    if not rmse:
+        return "The file holds no errors of the deployed model."
+
+    def cell(table: dict[str, float] | None, n: str) -> str:
+        return "" if not table else f"{plant_error(n, float(table[n]), x_ref, display)[0]:.3g}"
+
+    rows = [(n, plant_error(n, 0.0, x_ref, display)[1], cell(cur, n), cell(rmse, n),
+             cell(ol, n)) for n in OUTPUT_NAMES]
+    return (f"The model `{params_path}` deploys ({dep.get('structure')}, "
+            f"{dep.get('parameters')} parameters) on the {dep.get('where')}, from its "
+            f"`[fit.deployed_model]`:\n\n"
+            + figures.markdown_table(("channel", "unit", "current parameters, RMSE",
+                                      "deployed, RMSE", "deployed, open loop"), rows)
+            + "\n\nRMSE: the inlet moisture read from the temperatures, the labs out of "
+              "sample (what the sensor does); open loop: the inlet moisture held at the "
+              "nominal level.")
+
+
+def deployed_front(trade: TradeOff, params_path: str | Path) -> TradeOff:
+    """The front as PARAMS.toml deploys it: when the file deploys the study's parameters in
+    the paper's form, ``trade`` as it is; otherwise the study's point renamed and the star
+    ("deployed") on the model the file deploys, the current parameters kept or an adopted
+    structure's own held-out errors (``[fit.deployed_model]``)."""
+    doc = read_toml(params_path)
+    dep = doc.get("fit", {}).get("deployed_model", {})
+    structure, which = dep.get("structure", PAPER_FORM), dep.get("parameters", "calibrated")
+    if structure == PAPER_FORM and which == "calibrated":
+        return trade
+    points = []
+    for p in trade.points:
+        if p.label == "deployed":
+            p = dataclasses.replace(p, label="study (paper's form)")
+        elif p.label == "current" and structure == PAPER_FORM:
+            p = dataclasses.replace(p, label="deployed")  # the current parameters, kept
+        points.append(p)
+    if structure != PAPER_FORM and dep.get("rmse"):
+        theta = np.array([float(doc["parameters"][n]["value"]) for n in PARAMETER_NAMES])
+        points.append(FrontPoint("deployed", theta, None,  # type: ignore[arg-type]
+                                 {n: float(dep["rmse"][n]) for n in OUTPUT_NAMES},
+                                 None if not dep.get("open_loop_rmse") else
+                                 {n: float(dep["open_loop_rmse"][n]) for n in OUTPUT_NAMES}))
+    return dataclasses.replace(trade, points=points)
+
+
 def calibration_page(result: CalibrationResult, directory: str | Path,
                      verdict: str | None = None,
                      structure: StructureSearch | None = None,
-                     params_path: str | Path | None = None) -> Path:
+                     params_path: str | Path | None = None,
+                     deployed: DeployedModel | None = None) -> Path:
     """Figures and tables of a calibration (Figs. 2 to 5) under ``verdict`` (default: the
     shared calibration verdict of :mod:`softsensor.presentation.verdicts`); with
-    ``params_path``, first what that PARAMS.toml deploys (:func:`deployed_table`), and the
-    study's own values named as such."""
+    ``params_path``, first what that PARAMS.toml deploys (:func:`deployed_table`) and the
+    deployed model's own errors (:func:`deployed_errors_table`), the front's star on it
+    (:func:`deployed_front`), and the study's own values named as such; with ``deployed``
+    (the model the file deploys, :func:`~softsensor.presentation.deployed_model.
+    deployed_model`), its identifiability, trajectories and profiles rather than the
+    study's."""
     d = _dir(directory)
     cfg = result.config
-    model = DryerModel(cfg)
+    shown = deployed.config if deployed is not None else cfg
+    theta = deployed.theta if deployed is not None else result.theta
+    other = deployed is not None and (deployed.structure != PAPER_FORM
+                                      or deployed.parameters != "calibrated")
+    model = DryerModel(shown)
     sections: list[tuple[str, str]] = []
+    disp, x_ref = display_settings(cfg), lab_reference(result.segments)
     if params_path is not None:
         sections.append(("Deployed parameters (PARAMS.toml)", deployed_table(params_path)))
+        sections.append(("Errors of the deployed model (PARAMS.toml)",
+                         deployed_errors_table(params_path, disp, x_ref)))
     rows = [(n, f"{result.theta[i]:.5g}", f"{cfg.parameters[n].value:.5g}",
              f"[{cfg.parameters[n].low:g}, {cfg.parameters[n].high:g}]")
             for i, n in enumerate(PARAMETER_NAMES)]
-    sections.append(("The study's fit (before the deploy decision and the structure search)"
-                     if params_path is not None else "Calibrated parameters",
+    sections.append(("The study's fit (paper's form, before the deploy decision and the "
+                     "structure search)" if params_path is not None else "Calibrated parameters",
                      figures.markdown_table(("parameter", "study's fit", "config", "bounds"),
                                             rows)))
     cur = result.current_evaluation
-    disp, x_ref = display_settings(cfg), lab_reference(result.segments)
-    sections.append(("Fit on the calibration data", fit_table(result.fit, cfg.cost.weights(),
-                                                              disp, x_ref)
+    sections.append(("The study's fit on the calibration data (paper's form)" if other else
+                     "Fit on the calibration data",
+                     fit_table(result.fit, cfg.cost.weights(), disp, x_ref)
                      + "\n\nEq. 4 at the current parameters: "
                      + ("n/a" if cur is None else f"{cur.fit.cost:.4g}")
-                     + f"\n\n{result.verdict_line()}"))
+                     + f"\n\n{'The study: ' if other else ''}{result.verdict_line()}"))
     if result.trade_off is not None:
-        figures.front_figure(result.trade_off, disp, x_ref, d / "front.png")
+        trade = (result.trade_off if params_path is None
+                 else deployed_front(result.trade_off, params_path))
+        figures.front_figure(trade, disp, x_ref, d / "front.png")
         sections.append(("Temperatures against moisture: the multipliers' front",
-                         "![](front.png)\n\n"
-                         + trade_off_table(result.trade_off, disp, x_ref)))
+                         "![](front.png)\n\n" + trade_off_table(trade, disp, x_ref)))
     if structure is not None:
         sections.append(("The model's structure, chosen by evidence from history",
                          structure_table(structure, disp, x_ref)))
     sections.append(("Calibration window", "\n".join(f"- {c.reason}" for c in result.choices)
                      or "- " + ", ".join(s.source for s in result.segments)))
-    figures.trajectory_figure(result.segments, result.runs, d / "fig5_calibration.png",
+    runs = deployed.runs if deployed is not None and deployed.runs is not None else result.runs
+    figures.trajectory_figure(result.segments, runs, d / "fig5_calibration.png",
+                              "Calibration: the deployed model vs measurements" if other else
                               "Calibration: model at the calibrated parameters vs measurements",
                               display_settings(cfg))
     sections.append(("Calibration trajectories (Fig. 5)", "![](fig5_calibration.png)"))
@@ -234,13 +303,19 @@ def calibration_page(result: CalibrationResult, directory: str | Path,
                      f"{result.tpe_best['trial']} (objective "
                      f"{result.tpe_best['objective']:.4g}); after the local polish: "
                      f"{result.evaluation.objective:.4g}."))
-    if result.identifiability is not None and result.sensitivities:
-        figures.sensitivity_figure(result.sensitivities[0], d / "fig2_sensitivity.png")
+    ident, sens = result.identifiability, result.sensitivities
+    if deployed is not None:
+        ident, sens = deployed.identifiability, deployed.sensitivities
+    if ident is not None and sens:
+        figures.sensitivity_figure(sens[0], d / "fig2_sensitivity.png")
         sections.append(("Sensitivity trajectories (Fig. 2)", "![](fig2_sensitivity.png)"))
-        sections += identifiability_sections(result.identifiability, cfg, result.importance,
+        sections += identifiability_sections(ident, shown, None if other else result.importance,
                                              x_ref)
+    elif other:
+        sections.append(("What the data can and cannot pin down",
+                         "Not analysed for the deployed model (`--no-identify`)."))
     u = np.median(result.segments[0].U, axis=0)
-    figures.profile_step_figure(model, result.theta, u, d / "fig3_profile_steps.png")
+    figures.profile_step_figure(model, theta, u, d / "fig3_profile_steps.png")
     sections.append(("Axial profile response to steps in T_air_in (Fig. 3)",
                      "![](fig3_profile_steps.png)"))
     verdict = verdict or calibration_result_verdict(result, display_settings(cfg).moisture_basis)
@@ -327,5 +402,6 @@ def identifiability_verdict(ident: Identifiability) -> str:
     return text
 
 
-__all__ = ["calibration_page", "deployed_table", "fit_table", "identifiability_table",
+__all__ = ["calibration_page", "deployed_errors_table", "deployed_front", "deployed_table",
+           "fit_table", "identifiability_table",
            "identify_page", "lab_reference", "noise_line", "validation_page"]

@@ -51,7 +51,7 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.messages import lab_body
-from softsensor.outputs.operator_output import OperatorOutput, operator_outputs
+from softsensor.outputs.operator_output import OperatorOutput, lab_refused, operator_outputs
 from softsensor.outputs.settings import output_settings
 from softsensor.plantconfig import PlantConfig
 from softsensor.presentation.display import (
@@ -369,8 +369,8 @@ class Daemon:
 
         self.lab_input = LabInput(_lab_sink, clock=clock.now_ns)
         assert self.worker is not None
-        # a result the estimator refuses frees its id: the corrected one is then taken
-        self.worker.service.on_lab_refused = self.lab_input.forget
+        # a result the estimator refuses frees its id (a corrected one is then taken)
+        self.worker.service.on_lab_refused = lab_refused(self.lab_input.forget, self.outputs)
         if s.lab_dir is not None:
             watcher = LabFolderWatcher(s.lab_dir, self.lab_input,
                                        poll_s=max(s.lab_poll_s / s.time_scale, 0.05),
@@ -381,7 +381,7 @@ class Daemon:
                                            s.max_lab_rate_per_h, self._window_s(),
                                            s.time_scale),
                                        on_reject=self._lab_file_rejected).start()
-            self.worker.service.on_lab_refused = watcher.forget  # also in its .seen-ids
+            self.worker.service.on_lab_refused = lab_refused(watcher.forget, self.outputs)
             stack.callback(watcher.close)
 
     def _lab_file_rejected(self, reason: str) -> None:

@@ -69,8 +69,14 @@ def cdc_history():
     return _history(truth)
 
 
-def test_a_hidden_drying_law_is_named_and_deployed(cdc_history, tmp_path):
-    hist = _calibrate(cdc_history, _library(LIBRARY))
+@pytest.fixture(scope="module")
+def cdc_calibrated(cdc_history):
+    """The history of the hidden drying law, calibrated with the search (adopts it)."""
+    return _calibrate(cdc_history, _library(LIBRARY))
+
+
+def test_a_hidden_drying_law_is_named_and_deployed(cdc_calibrated, tmp_path):
+    hist = cdc_calibrated
     search = hist.structure
     assert search is not None and search.adopted is not None, search.as_dict()
     assert search.adopted.candidate.name == LIBRARY[0], search.line()
@@ -179,3 +185,82 @@ def test_held_out_score_is_the_profile_likelihood():
     want = 5 * math.log(0.25) + 5 * math.log(4.0) + 2 * math.log(0.005**2)
     assert score == pytest.approx(want)
     assert np.isfinite(score)
+
+
+def test_the_calibration_page_describes_the_model_params_toml_deploys(cdc_calibrated,
+                                                                      tmp_path):
+    """Issue 49 (the third time): with a structure adopted, the page's headline errors, the
+    front's "deployed" star, the identifiability verdicts and the "at a bound" column all
+    described the study's paper-form fit, not the model PARAMS.toml deploys. Here the page
+    and the file are read back and every number compared: the headline, the deployed
+    parameters, their verdicts and bound flags (and the flags against the file's own values
+    and bounds), the deployed model's errors, the front's deployed point, the
+    identifiability table."""
+    from calibration_page import read_page
+
+    from softsensor.apps.calibrate import _params_doc, calibration_outcome
+    from softsensor.configfile import read_toml
+    from softsensor.presentation.calibration_report import calibration_page
+    from softsensor.presentation.deployed_model import deployed_model
+    from softsensor.presentation.display import display_settings, lab_reference, plant_error
+
+    hist = cdc_calibrated
+    assert hist.structure.adopted is not None  # the case of the issue
+    calibration = hist.calibration.calibration
+    deployed = deployed_model(hist, BASE, calibration, identify_result=True)
+    path = write_params(tmp_path / "p.toml", _params_doc(BASE, hist, deployed))
+    outcome = calibration_outcome(hist, path, "wet", deployed)
+    page = calibration_page(hist.calibration, tmp_path / "report", verdict=outcome,
+                            structure=hist.structure, params_path=path, deployed=deployed)
+    doc, got = read_toml(path), read_page(page)
+    params, dep = doc["parameters"], doc["fit"]["deployed_model"]
+    assert dep["structure"] == LIBRARY[0] and dep["parameters"] == "calibrated"
+    disp, x_ref = display_settings(BASE), lab_reference(hist.calibration.segments)
+
+    def shown(name: str, value: float, fmt: str) -> str:
+        return format(plant_error(name, float(value), x_ref, disp)[0], fmt)
+
+    # the headline: current -> deployed, the deployed model's own held-out errors
+    want = [shown(n, dep[k][n], ".2f") for n in ("T_dryer_out", "T_cyclone_out",
+                                                  "moisture_out")
+            for k in ("current_rmse", "rmse")]
+    assert got.headline_errors == want, (got.verdict, want)
+    # every deployed parameter: value, bounds, verdict, at a bound; the flags are the file's
+    # values against the file's bounds (mult_p 4.9963 against 5 was not flagged)
+    (table, *_) = got.tables["Deployed parameters (PARAMS.toml)"]
+    margin = calibration.bound_margin
+    for row in table:
+        spec = params[row["parameter"]]
+        assert row["deployed"] == f"{spec['value']:.5g}"
+        assert row["bounds"] == f"[{spec['low']:g}, {spec['high']:g}]"
+        assert row["verdict"] == spec.get("verdict", "") != ""
+        at = spec["value"] <= spec["low"] * (1 + margin) or \
+            spec["value"] >= spec["high"] / (1 + margin)
+        assert (row["at a bound"] == "yes") == bool(spec.get("at_bound")) == at, row
+    assert [r["parameter"] for r in table] == list(params)
+    # the deployed model's errors, in plant units
+    (errors,) = got.tables["Errors of the deployed model (PARAMS.toml)"]
+    for row in errors:
+        n = row["channel"]
+        assert row["current parameters, RMSE"] == shown(n, dep["current_rmse"][n], ".3g")
+        assert row["deployed, RMSE"] == shown(n, dep["rmse"][n], ".3g")
+        assert row["deployed, open loop"] == shown(n, dep["open_loop_rmse"][n], ".3g")
+    # the front: one point called deployed, with the deployed model's held-out errors
+    (front,) = got.tables["Temperatures against moisture: the multipliers' front"]
+    (star,) = [r for r in front if r["point"] == "deployed"]
+    assert [star["held-out T_dryer_out"], star["held-out T_cyclone_out"]] == [
+        shown(n, dep["rmse"][n], ".3g") for n in ("T_dryer_out", "T_cyclone_out")]
+    assert star["held-out lab % points (wet basis)"] == shown("moisture_out",
+                                                             dep["rmse"]["moisture_out"], ".3g")
+    # the identifiability table is the deployed model's: its values, bounds and verdicts
+    (ident,) = got.tables["What the data can and cannot pin down"]
+    for row in ident:
+        spec = params[row["parameter"]]
+        assert row["value"] == f"{spec['value']:.5g}"
+        assert row["bounds"] == f"[{spec['low']:g}, {spec['high']:g}]"
+        assert row["verdict"] == spec["verdict"]
+    assert sorted(dep["identifiable"] + dep["poorly_identifiable"]) == sorted(params)
+    assert set(dep["identifiable"]) == {n for n, s in params.items()
+                                        if s["verdict"] == "identifiable"}
+    # the study's own line is named as the study's
+    assert "The study: validation on" in got.text

@@ -135,6 +135,54 @@ def test_every_key_is_rendered_with_its_default_and_rules(config_reference):
             assert f"``[{table.name}]``" in rst
 
 
+def _all_keys(config_reference) -> list[tuple[str, type, object]]:
+    """``(dotted table, class, Key)`` of every key the reference renders, sub-tables too."""
+    out = []
+
+    def walk(name: str, cls: type, signal_units: bool) -> None:
+        keys, subs = config_reference.table_keys(cls, signal_units)
+        out.extend((name, cls, k) for k in keys)
+        for sub_name, sub_cls in subs:
+            walk(f"{name}.{sub_name}", sub_cls, False)
+
+    for cf in config_reference.FILES:
+        for table in cf.tables:
+            walk(table.name, config_reference.resolve(table.cls), table.signal_units)
+    return out
+
+
+def test_every_key_has_a_meaning_and_a_unit(config_reference):
+    """Issue 49: the reference had 385 keys, 93 without a meaning and 228 without a unit. Every
+    key now says what it is and in what unit (``1`` a ratio, ``count`` a number of things,
+    ``—`` no quantity), from its source or :data:`SUPPLEMENT`."""
+    rows = _all_keys(config_reference)
+    assert len(rows) > 300
+    bare = [f"{name}.{k.key}: {'no meaning' if not k.description.strip() else ''} "
+            f"{'no unit' if not k.unit.strip() else ''}"
+            for name, _cls, k in rows if not (k.description.strip() and k.unit.strip())]
+    assert not bare, ("keys without a meaning or a unit (say it in the class's Attributes "
+                      f"section or the field's comment): {bare}")
+
+
+def test_the_supplement_says_only_what_the_source_does_not(config_reference, monkeypatch):
+    """:data:`SUPPLEMENT` fills what a key's source leaves unsaid; an entry for a key that is
+    gone, or that repeats a unit or a meaning the source now gives, is refused (the two would
+    drift apart)."""
+    supplement = dict(config_reference.SUPPLEMENT)
+    monkeypatch.setattr(config_reference, "SUPPLEMENT", {})
+    own = {f"{cls.__qualname__}.{k.key}": k for _name, cls, k in _all_keys(config_reference)}
+    gone = sorted(set(supplement) - set(own))
+    assert not gone, f"SUPPLEMENT entries for keys that are not rendered: {gone}"
+    redundant = []
+    for key, (unit, meaning) in supplement.items():
+        src = own[key]
+        if unit and src.unit.strip() and src.unit != config_reference.NO_UNIT:
+            redundant.append(f"{key}: unit {unit!r}, the source says {src.unit!r}")
+        if meaning and src.description.strip():
+            redundant.append(f"{key}: its meaning, the source says {src.description[:40]!r}")
+    assert not redundant, redundant
+
+
 @pytest.mark.parametrize(("text", "comment", "unit", "rest"), [
     ("Uncompressed MCAP chunk size of the recorder [bytes]", False, "bytes",
      "Uncompressed MCAP chunk size of the recorder"),
@@ -144,6 +192,9 @@ def test_every_key_is_rendered_with_its_default_and_rules(config_reference):
     ("s between production changes", True, "s", "between production changes"),
     ("Chen's b [(kg/kg)^-c]", True, "(kg/kg)^-c", "Chen's b"),
     ("relative", True, "", "relative"),
+    ("kg/m3 (steel 7850)", True, "kg/m3", "(steel 7850)"),
+    ("Their default correlation times [h]. The calibration sets them", False, "h",
+     "Their default correlation times [h]. The calibration sets them"),
     ("a table another part of the program builds", True, "", "a table another part of the "
      "program builds"),
 ])

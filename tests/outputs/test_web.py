@@ -47,7 +47,18 @@ DEGRADED = {"status": "degraded",
             "detail": "innovations inconsistent (NIS 75.6 > 51.2 over 12 ticks, 24 dof) <b>x</b>"}
 
 
-def _page(tmp_path: Path, history: bool = True, diagnosis: bool = True, **web) -> LivePage:
+#: The health of the docs' screenshot: what a control room sees (DEGRADED carries a markup
+#: probe, ``<b>x</b>``, which the page must escape; issue 49: the screenshot showed it).
+DOCS_HEALTH = {"status": "degraded",
+               "detail": "innovations inconsistent (NIS 75.6 > 51.2 over 12 ticks, 24 dof)"}
+#: Where the docs' screenshot's outlet moisture comes from (the estimate's ``sources``).
+DOCS_SOURCES = {"source": "physics",
+                "sources": {"physics": {"weight": 0.82}, "hold": {"weight": 0.12},
+                            "regression": {"weight": 0.06}}}
+
+
+def _page(tmp_path: Path, history: bool = True, diagnosis: bool = True, docs: bool = False,
+          **web) -> LivePage:
     report = tmp_path / "latest.json"
     if diagnosis:
         report.write_text(json.dumps(REPORT))
@@ -63,10 +74,10 @@ def _page(tmp_path: Path, history: bool = True, diagnosis: bool = True, **web) -
                 "status": "ok", "lab_updated": k == 9,
                 "T_dryer_out_model": 348.15, "T_cyclone_out_model": 345.65,
                 "T_dryer_out_measured": 348.65 + 0.3 * np.sin(k),
-                "T_cyclone_out_measured": 345.15}))
+                "T_cyclone_out_measured": 345.15, **(DOCS_SOURCES if docs else {})}))
         for k in (3, 9, 15):
             page.on_lab(LabResult(T0 + k * W_NS, 0.103 + 0.01 * np.sin(k / 3), f"L{k}"))
-    page.on_health(Health.from_body(DEGRADED, NOW))
+    page.on_health(Health.from_body(DOCS_HEALTH if docs else DEGRADED, NOW))
     return page
 
 
@@ -208,7 +219,20 @@ def test_chromium_screenshot_shows_the_fitted_trend_target_band_and_temperatures
     assert counts["lab"] > 3 * 60 and counts["target"] > 400, counts
     assert counts["measured"] > 1500 and counts["model"] > 1500, counts
     if os.environ.get("SOFTSENSOR_WRITE_DOCS") == "1":
-        shutil.copyfile(shot, REPO / "docs" / "web-page.png")
+        # the docs' picture: the same page as a control room sees it (no markup probe in the
+        # health, the moisture's sources shown)
+        (tmp_path / "docs").mkdir()
+        docs_page = _page(tmp_path / "docs", docs=True)
+        asyncio.run(docs_page.start())
+        try:
+            docs_shot = tmp_path / "docs.png"
+            r = chromium(f"http://127.0.0.1:{docs_page.port}/", f"--screenshot={docs_shot}")
+            assert docs_shot.is_file(), r.stderr[-2000:]
+            dom = chromium_dom(f"http://127.0.0.1:{docs_page.port}/")
+        finally:
+            asyncio.run(docs_page.stop())
+        assert "&lt;b&gt;" not in dom and 'id="moisture-source"' in dom, dom[:2000]
+        shutil.copyfile(docs_shot, REPO / "docs" / "web-page.png")
 
 
 _SLOW_CLIENTS = """
@@ -423,3 +447,38 @@ def test_the_page_says_which_source_the_published_moisture_comes_from(tmp_path):
                     "result held 60 %, the model (physics) 25 %, the lab regression 15 %)")
     latest = json.loads(page.latest_json())["estimate"]
     assert latest["source"] == "hold" and latest["sources"]["hold"]["weight"] == 0.6
+
+
+def test_a_refused_lab_is_not_the_last_lab_result_and_is_drawn_apart(tmp_path):
+    """Issue 49: a 0.30 kg/kg outlier the estimator refused at 32.5 sigma was shown as the
+    "Last lab result" (23.08 % wb) and plotted like an accepted one. The last result an
+    operator reads is the last one taken; a refused one is said to be refused and drawn in
+    its own colour, named in the legend."""
+    from softsensor.outputs.operator_output import lab_refused
+
+    page = _page(tmp_path)
+    page.on_lab(LabResult(T0 + 16 * W_NS, 0.30, "OUTLIER"))
+    forgotten: list[str] = []
+    # the daemon's wiring: the service's on_lab_refused frees the id and tells the outputs
+    # (an output without on_lab_refused, as Modbus, is passed over)
+    tell = lab_refused(forgotten.append, {"web": page, "modbus": object()})
+    html_before = page.page()
+    assert re.search(r"id='last-lab'>Last lab result: 23\.08 % wb \(OUTLIER\)", html_before)
+    tell("OUTLIER")
+    assert forgotten == ["OUTLIER"]
+    html = page.page()
+    # the last one taken (L15), not the refused one
+    assert re.search(r"id='last-lab'>Last lab result: [\d.]+ % wb \(L15\), sampled ", html), \
+        html[:3000]
+    refused = re.search(r"id='last-lab-refused' class='refusal'>Last lab result refused by the "
+                        r"estimator \(not used\): 23\.08 % wb \(OUTLIER\), sampled ", html)
+    assert refused, html[:3000]
+    points = dict.fromkeys(("lab", "lab_refused"), 0)
+    for name in re.findall(r'class="series point" data-name="(lab|lab_refused)"', html):
+        points[name] += 1
+    assert points == {"lab": 3, "lab_refused": 1}, points
+    assert "lab result refused (not used)" in html
+    # no refused result: no refusal line, no legend entry
+    (tmp_path / "plain").mkdir()
+    plain = _page(tmp_path / "plain").page()
+    assert "last-lab-refused" not in plain and "refused (not used)" not in plain
