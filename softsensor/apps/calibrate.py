@@ -372,7 +372,7 @@ def calibration_outcome(hist: Any, out: Path, basis: str) -> str:
     worse = ("" if old is None or not new.fit.rmse["moisture_out"]
              > old.fit.rmse["moisture_out"] else
              " Worse on the held-out outlet moisture than the parameters it replaces; "
-             f"deployed because the sensor's own lab score says better ({hist.reason}).")
+             f"deployed because {hist.sensor_accept or 'the weighted cost says better'}.")
     return (f"Deploy {out}: it holds the calibrated parameters and {learned}. Errors on the "
             f"{where}: {errors}.{worse}{bounds}" if errors else
             f"Deploy {out}: it holds the calibrated parameters and {learned}.{bounds}")
