@@ -387,7 +387,7 @@ def calibration_outcome(hist: Any, out: Path, basis: str, deployed: Any = None) 
         return (f"Deploy {out} only if you trust it: it holds the calibrated parameters, "
                 f"written because --force asked though they predict the {where} worse than "
                 f"the current ones ({errors}), and {learned}.{bounds}")
-    accepted_by = (getattr(hist, "sensor_accept", None)
+    accepted_by = (hist.sensor_accept
                    or "the weighted cost of all three channels says better")
     worse = ("" if not errors or not new_rmse["moisture_out"] > old_rmse["moisture_out"] else
              " Worse on the held-out outlet moisture than the parameters it replaces; "

@@ -78,7 +78,9 @@ class HistoryResult:
     ``kept_current`` and ``reason``: whether and why the current ones were kept;
     ``inlet_levels``: each day's fitted inlet moisture [kg/kg]; ``model_error``: learned at
     ``theta``; ``discrepancy``: what ``theta`` leaves on the held-out data (the heat input's
-    prior); ``structure``: the structural search (:mod:`.structure_search`), when it ran.
+    prior); ``structure``: the structural search (:mod:`.structure_search`), when it ran;
+    ``sensor_accept``: why the sensor's lab score let a fit whose held-out labs got worse be
+    deployed, or kept the current parameters (None when the labs did not get worse).
     """
 
     calibration: CalibrationResult
@@ -90,6 +92,7 @@ class HistoryResult:
     discrepancy: DiscrepancyPrior | None
     timings: dict[str, float] = field(default_factory=dict)
     structure: StructureSearch | None = None
+    sensor_accept: str | None = None
 
     @property
     def params(self) -> dict[str, float]:
@@ -110,6 +113,7 @@ class HistoryResult:
                            "noise": me.channel(c).noise}
                        for c in ("T_dryer_out", "T_cyclone_out", "moisture_out")}},
                 "structure": None if self.structure is None else self.structure.as_dict(),
+                "sensor_accept": self.sensor_accept,
                 "timings_s": {k: round(v, 2) for k, v in self.timings.items()}}
 
 
@@ -197,6 +201,7 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     # what sensor_decides learned for each side, by name ("baseline" or the alternative's),
     # and the side deployed
     learned: dict[str, tuple[list[float], ModelError]] = {}
+    accept_why = None
     if not kept and not force and labs_worse(result):
         # accepted on the weighted cost of all channels while its held-out labs got worse:
         # the sensor's own lab score on the latest days decides (issue 47)
@@ -205,11 +210,11 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
                                          np.asarray(current_theta, float), learned)
         if not better:
             kept, theta = True, np.asarray(current_theta, float)
-            reason = ("the calibrated parameters predict the held-out lab results worse than "
-                      f"the current ones and the sensor's lab score does not say they are "
-                      f"better ({why})")
+            reason = accept_why = (
+                "the calibrated parameters predict the held-out lab results worse than the "
+                f"current ones and the sensor's lab score does not say they are better ({why})")
         else:
-            reason = f"calibrated (held-out labs worse, the sensor's lab score better: {why})"
+            accept_why = f"the sensor's lab score on the latest days is better: {why}"
     search = None
     deployed = "baseline"
     # only against a polished baseline: from a study stopped short of the optimum, any change
@@ -237,7 +242,8 @@ def calibrate_history(days: Sequence[Segment], config: PlantConfig, settings: St
     disc = deployed_discrepancy(result, kept)
     timings["history_total"] = time.perf_counter() - t0
     timings["history_total_cpu"] = time.process_time() - c0
-    return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search)
+    return HistoryResult(result, theta, kept, reason, levels, me, disc, timings, search,
+                         accept_why)
 
 
 def deployed_discrepancy(result: CalibrationResult, kept: bool) -> DiscrepancyPrior | None:
