@@ -232,15 +232,19 @@ def test_the_headline_says_when_the_deployed_fit_is_worse_on_the_moisture(tmp_pa
         return SimpleNamespace(fit=SimpleNamespace(rmse={"T_dryer_out": t1, "T_cyclone_out": t2,
                                                          "moisture_out": mo}))
 
-    def hist(new_mo: float):
+    def hist(new_mo: float, accept: str | None = None):
         result = SimpleNamespace(validation=ev(0.3, 0.4, new_mo),
                                  current_validation=ev(1.2, 1.5, 0.0040), segments=[],
                                  at_bounds=[], accepted=True)
         return SimpleNamespace(calibration=result, model_error=SimpleNamespace(days=3),
-                               kept_current=False)
+                               kept_current=False, sensor_accept=accept)
 
     worse = calibration_outcome(hist(0.0150), tmp_path / "p.toml", "wet")
     assert "outlet moisture 0.33 -> 1.22 % points" in worse, worse
-    assert "Worse on the outlet moisture than the parameters it replaces" in worse
+    assert "Worse on the held-out outlet moisture than the parameters it replaces" in worse
+    assert "the weighted cost of all three channels says better" in worse
+    # issue 47: deployed only because the sensor's own lab score said so, and the line says it
+    why = "the sensor's lab score on the latest days is better: +0.120 +- 0.030"
+    assert why in calibration_outcome(hist(0.0150, why), tmp_path / "p.toml", "wet")
     better = calibration_outcome(hist(0.0030), tmp_path / "p.toml", "wet")
     assert "Worse" not in better, better
