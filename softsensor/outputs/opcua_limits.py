@@ -15,6 +15,12 @@ timeout). :class:`OpcUaConnections` runs beside the server, on its loop, and eve
   plant's own clients (``plant_clients``) for another address, whose newcomer is closed
   instead when only they hold the slots.
 
+The standard address space (about 58 MB of Python objects, 17-22 s to build on the
+development machine) is read from a shelf on disk instead, nodes loaded as they are asked
+for (asyncua's ``shelf_file``), which :func:`standard_space_shelf` keeps beside the package
+like numba's cache: the first start builds it, later ones take 2 MB (issue 49: 383 MB
+resident with the four outputs).
+
 It reads asyncua's ``BinaryServer.clients`` (each an ``OPCUAProtocol`` with its
 ``transport``, ``peer_name`` and ``processor``): asyncua 2.1's names, checked by
 ``tests/outputs/test_opcua_server.py``.
@@ -25,8 +31,12 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
+import shutil
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from softsensor.outputs.modbus_server import _normal, evictee
@@ -57,6 +67,42 @@ class _Slot:
         session = None if proc is None else getattr(proc, "session", None)
         return cls(protocol, _normal(peer[0]) if peer else "", session is not None,
                    opened if last is None else last)
+
+
+def standard_space_shelf(folder: Path | None = None) -> tuple[Path | None, Callable[[], None]]:
+    """Where asyncua's standard address space is shelved, and what to call once the server
+    has initialised; ``(None, no-op)`` where no folder can be written (then asyncua builds
+    it in memory, as before).
+
+    A shelf is built in a folder of this process and renamed into place whole, so a
+    concurrent start or a killed one never leaves half a shelf; it is marked complete by an
+    empty file at its path, which asyncua checks (``dbm.dumb``, the one ``dbm`` everywhere,
+    names its files ``<path>.dat`` and ``<path>.dir``)."""
+    import asyncua
+
+    base = folder or Path(__file__).parent / "__pycache__"
+    ready = base / f"opcua-aspace-{getattr(asyncua, '__version__', 'x')}"
+    if (ready / "aspace").is_file():
+        return ready / "aspace", lambda: None
+    building = base / f"{ready.name}.tmp-{os.getpid()}"
+    try:
+        building.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        return None, lambda: None
+
+    def done() -> None:
+        shelf = building / "aspace"
+        try:
+            if not shelf.exists() and any(building.glob("aspace.*")):
+                shelf.touch()  # complete: asyncua reads it from now on
+            if shelf.is_file():
+                os.rename(building, ready)
+                return
+        except OSError:  # another start put one in place first
+            pass
+        shutil.rmtree(building, ignore_errors=True)
+
+    return building / "aspace", done
 
 
 class OpcUaConnections:
@@ -119,4 +165,4 @@ class OpcUaConnections:
                 return
 
 
-__all__ = ["HEADROOM", "SWEEP_S", "OpcUaConnections"]
+__all__ = ["HEADROOM", "SWEEP_S", "OpcUaConnections", "standard_space_shelf"]

@@ -262,3 +262,30 @@ def test_a_timed_out_session_has_its_connection_closed():
     with _ServerThread(idle_timeout_s=5) as t:
         closed, after = asyncio.run(asyncio.wait_for(silent_session(t.server.endpoint), 60))
     assert closed and after < 9, (closed, after)
+
+
+def test_the_standard_address_space_is_shelved_and_read_lazily(tmp_path):
+    """Issue 49 (fifth probe, 383 MB at rest with the four outputs): asyncua built its
+    standard address space in memory at every start (about 58 MB); the first start now
+    shelves it on disk and later starts read nodes from the shelf as they are asked for."""
+    from softsensor.outputs.opcua_limits import standard_space_shelf
+
+    first, done = standard_space_shelf(tmp_path)
+    assert first is not None and "tmp-" in first.parent.name
+
+    async def start_and_read(shelf):
+        from asyncua import Server
+
+        server = Server()
+        await server.init(shelf)
+        return len(server.iserver.aspace._nodes.cache) if hasattr(
+            server.iserver.aspace._nodes, "cache") else None
+
+    assert asyncio.run(start_and_read(first)) is None  # built in memory, shelved
+    done()
+    second, done2 = standard_space_shelf(tmp_path)
+    assert second is not None and second.is_file() and "tmp-" not in second.parent.name
+    cached = asyncio.run(start_and_read(second))
+    done2()
+    assert cached is not None and cached < 1000  # lazily: the nodes asked for only
+    assert not list(tmp_path.glob("*.tmp-*"))
