@@ -106,8 +106,16 @@ def _check_value(value: Any, typ: Any, key: str, source: str, meta: dict) -> Any
               "le": value <= bound}[op]
         if not ok:
             sym = {"gt": ">", "ge": ">=", "lt": "<", "le": "<="}[op]
-            raise ConfigError(f"{source}: {key} must be {sym} {bound:g}, got {value!r}")
+            raise ConfigError(f"{source}: {key} must be {sym} {bound:g}, got {value!r}"
+                              f"{_range_text(meta)}")
     return value
+
+
+def _range_text(meta: dict) -> str:
+    """`` (its range: lo to hi)`` for a field bounded both ways, else empty."""
+    lo = next((meta[op] for op in ("gt", "ge") if op in meta), None)
+    hi = next((meta[op] for op in ("lt", "le") if op in meta), None)
+    return "" if lo is None or hi is None else f" (its range: {lo:g} to {hi:g})"
 
 
 def _check_tuple(value: Any, args: tuple[Any, ...], key: str, source: str, meta: dict

@@ -43,35 +43,48 @@ class Unit:
     name: str = "dryer1"
 
 
+# Physical ranges of a dryer, not of a number (issue 49: 29 of 100 extreme values a PARAMS.toml
+# or config may hold published ``ok`` estimates far off; ``tube.length = 1e-9`` crashed the
+# model and ``solver.scan_period = 1e-9`` hung it). Each range holds the published envelope of
+# MDF flash dryers with a margin of about a factor of three: tube 30 to 60 m, air 15 to 25 m/s,
+# residence about 5 s, outlet air 66 to 88 degC, fibre out 8 to 12 % (../shared/STACK.md,
+# after Fritzell et al. 2009 and the paper's dryer); the other limits are cited where set.
+
+
 @dataclass(frozen=True)
 class Tube:
-    length: float = num(gt=0, le=500)         # m
-    diameter: float = num(gt=0, le=10)        # m, inner
-    wall_thickness: float = num(gt=0, le=0.1)  # m
+    length: float = num(ge=5, le=200)         # m (MDF tubes 30 to 60 m)
+    diameter: float = num(ge=0.2, le=6)       # m, inner (2 to 3 m at 15 to 25 m/s air)
+    wall_thickness: float = num(ge=1e-3, le=0.05)  # m (sheet steel, 3 to 10 mm)
     n_cells: int = num(ge=2, le=2000)
-    wall_density: float = num(gt=0, le=20_000)           # kg/m3 (steel 7850)
-    wall_heat_capacity: float = num(gt=0, le=5000)       # J/(kg K)
-    wall_conductivity: float = num(gt=0, le=500)         # W/(m K)
+    # a metal wall: aluminium 2700 kg/m3, 900 J/(kg K), 200 W/(m K); stainless steel 8000,
+    # 500, 15; carbon steel 7850, 490, 45 (engineering handbooks)
+    wall_density: float = num(ge=1000, le=10_000)        # kg/m3
+    wall_heat_capacity: float = num(ge=200, le=2000)     # J/(kg K)
+    wall_conductivity: float = num(ge=1, le=450)         # W/(m K)
     wall_emissivity: float = num(ge=0, le=1)
     # fibre and resin deposit on the inside of the tube wall (cleaned at shutdowns)
     deposit_thickness: float = num(0.0015, ge=0, lt=0.05)  # m
-    deposit_conductivity: float = num(0.12, gt=0, le=10)    # W/(m K)
+    # W/(m K): wood and resin 0.1 to 0.4, a porous fibre cake down to about 0.05
+    deposit_conductivity: float = num(0.12, ge=0.02, le=10)
 
 
 @dataclass(frozen=True)
 class Cyclone:
     count: int = num(ge=1, le=20)
-    diameter: float = num(gt=0, le=20)        # m
-    height: float = num(gt=0, le=60)          # m
-    volume: float = num(gt=0, le=20_000)      # m3, all cyclones together
+    diameter: float = num(ge=0.3, le=15)      # m (the reference plant's 5 m)
+    height: float = num(ge=1, le=60)          # m
+    volume: float = num(ge=1, le=10_000)      # m3, all cyclones together
     n_cells: int = num(ge=1, le=100)
-    shell_thickness: float = num(gt=0, le=0.1)        # m
-    shell_density: float = num(gt=0, le=20_000)       # kg/m3
-    shell_heat_capacity: float = num(gt=0, le=5000)   # J/(kg K)
-    inner_heat_transfer: float = num(gt=0, le=1000)   # W/(m2 K)
+    shell_thickness: float = num(ge=1e-3, le=0.05)    # m, as the tube's wall
+    shell_density: float = num(ge=1000, le=10_000)    # kg/m3
+    shell_heat_capacity: float = num(ge=200, le=2000)  # J/(kg K)
+    # gas to shell: forced convection of swirling gas, 5 to 100 W/(m2 K) (the plant's 15)
+    inner_heat_transfer: float = num(ge=1, le=500)    # W/(m2 K)
     # s, fibre residence in the cyclones: the reference plant's (config/dryer1.toml), the
-    # paper's form of the structural library (softsensor.model.structure)
-    hold_up_time: float = num(4.0, gt=0, le=120)
+    # paper's form of the structural library (softsensor.model.structure), which searches
+    # 1 to 30 s
+    hold_up_time: float = num(4.0, ge=0.5, le=120)
 
 
 #: The drying-rate laws the model compiles (``fiber.drying_law``; the model's law index is the
@@ -82,19 +95,26 @@ DRYING_LAWS: tuple[str, ...] = ("double_sigmoid", "cdc", "rea")
 
 @dataclass(frozen=True)
 class Fiber:
-    # physical ranges (issue 40: a PARAMS.toml [structure] fiber.critical_moisture = 1e6 was
-    # taken, and estimates went out ok with 5 times the error): wood's cell wall is about
-    # 1500 kg/m3, and no fibre holds more than about 3 kg of water per kg (spruce, saturated:
-    # about 2.3)
-    dry_density: float = num(gt=0, le=1600)            # kg/m3
-    diameter: float = num(gt=0, le=1e-3)               # m
-    length: float = num(gt=0, le=0.05)                 # m
-    specific_surface: float = num(gt=0, le=1e5)        # m2/kg dry fibre
-    saturation_point: float = num(gt=0, lt=1)          # kg/kg
-    critical_moisture: float = num(gt=0, le=3.0)       # kg/kg
-    critical_width: float = num(gt=0, le=1.0)          # kg/kg
-    bound_fraction: float = num(gt=0, le=1)
-    equilibrium_width: float = num(gt=0, le=1.0)       # kg/kg
+    # physical ranges (issues 40 and 49: a PARAMS.toml [structure] fiber.critical_moisture =
+    # 1e6, then 3.0, was taken, and estimates went out ok far off): wood's cell wall is about
+    # 1500 kg/m3 and wood 300 to 900 kg/m3; a wood fibre is 15 to 50 um across and 1 to 5 mm
+    # long, MDF fibre bundles to about 0.3 mm across (Kollmann & Cote, Principles of Wood
+    # Science); the fibre saturation point is 0.25 to 0.35 kg/kg, lower when hot (Siau, Wood:
+    # Influence of Moisture); the largest water a fibre holds is 1/rho - 1/1500 m3/kg, 2.2
+    # kg/kg at 350 kg/m3, and spruce MDF fibre dries at a constant rate down to about 1.25
+    # kg/kg (Fritzell et al. 2009), which the structure search varies from 0.8 to 2.0
+    dry_density: float = num(ge=150, le=1500)          # kg/m3
+    diameter: float = num(ge=5e-6, le=3e-4)            # m
+    length: float = num(ge=1e-4, le=1e-2)              # m
+    # 4 / (dry_density diameter) over those ranges: 9 to 5300
+    specific_surface: float = num(ge=5, le=6000)       # m2/kg dry fibre
+    saturation_point: float = num(ge=0.15, le=0.45)    # kg/kg
+    critical_moisture: float = num(ge=0.4, le=2.5)     # kg/kg
+    # the sigmoids' widths and the bound-water fraction: the structure search's ranges
+    # (softsensor.model.structure: 0.03-0.5, 0.02-0.3, 1e-4-2e-2) with a margin
+    critical_width: float = num(ge=0.005, le=1.0)      # kg/kg
+    bound_fraction: float = num(ge=1e-6, le=0.2)
+    equilibrium_width: float = num(ge=0.005, le=1.0)   # kg/kg
     # the drying-rate law (a structural choice, softsensor.model.structure) and the shape
     # parameters of the alternatives; each law reads only its own
     drying_law: str = choice(DRYING_LAWS, "double_sigmoid")
@@ -107,8 +127,12 @@ class Fiber:
 
 @dataclass(frozen=True)
 class HotGas:
-    temperature: float = num(gt=300, lt=2000)  # K
-    humidity: float = num(ge=0, lt=1)          # kg/kg
+    # burner gas before the mixing flaps: 600 to 1200 degC (the plant's 900 K); adiabatic
+    # flame temperatures stay below about 2200 K and no burner of a dryer runs near them
+    temperature: float = num(ge=400, le=1700)  # K
+    # water of combustion: natural gas at stoichiometry gives about 0.12 kg per kg dry gas,
+    # wet wood fuel about 0.2; with excess air less (the plant's 0.06)
+    humidity: float = num(ge=0, le=0.3)        # kg/kg
     fraction_min: float = num(ge=0, le=1)
     fraction_max: float = num(gt=0, le=1)
 
@@ -121,7 +145,9 @@ class HotGas:
 
 @dataclass(frozen=True)
 class Environment:
-    pressure: float = num(gt=5e4, lt=2e5)      # Pa
+    # the atmosphere from sea level (101.3 kPa) to 4000 m (61.6 kPa, ISO 2533), a fan's few
+    # kPa below or above it
+    pressure: float = num(ge=6e4, le=1.1e5)    # Pa
     wind_speed: float = num(ge=0, lt=50)       # m/s
     # outside heat loss grows by this per K of ambient below 283.15 K (a structural choice of
     # the heat-loss law, softsensor.model.structure; the diagnosis's ambient_heat_loss
@@ -131,28 +157,35 @@ class Environment:
 
 @dataclass(frozen=True)
 class Nominal:
-    m_fiber: float = num(gt=0, le=100)        # kg/s
-    moisture_in: float = num(gt=0, lt=5)
-    m_air: float = num(gt=0, le=1000)         # kg/s
-    T_air_in: float = num(gt=273.15, lt=1000)
-    T_fiber_in: float = num(gt=273.15, lt=450)
+    # MDF lines dry 2 to 15 kg/s of fibre at inlet moistures of 0.8 to 1.5 kg/kg with air
+    # at 150 to 250 degC (some to 350), 8 to 15 kg of air per kg of fibre; outdoor air from
+    # -50 to +60 degC, saturated at 40 degC holds 0.049 kg/kg; outlet set points 66 to 88 degC
+    # (the reference plant: 6 kg/s, 1.0 kg/kg, 82 kg/s, 210 degC)
+    m_fiber: float = num(ge=0.1, le=50)       # kg/s
+    moisture_in: float = num(ge=0.3, le=3)    # kg/kg
+    m_air: float = num(ge=1, le=500)          # kg/s
+    T_air_in: float = num(ge=323.15, le=723.15)  # K
+    T_fiber_in: float = num(gt=273.15, lt=450)   # K
     m_steam: float = num(ge=0, le=20)         # kg/s
-    T_amb: float = num(gt=200, lt=340)
-    H_amb: float = num(ge=0, lt=0.1)
-    T_sp: float = num(gt=273.15, lt=450)
+    T_amb: float = num(ge=223.15, le=333.15)  # K
+    H_amb: float = num(ge=0, le=0.05)         # kg/kg
+    T_sp: float = num(ge=303.15, le=423.15)   # K
 
 
 @dataclass(frozen=True)
 class Solver:
     """How data become model windows and how the model steps through them."""
 
-    window: float = num(600.0, gt=0)           # s, model window (estimator tick)
+    # s, model window (estimator tick): a minute (the fibre's residence is seconds, the
+    # wall's response minutes) to an hour (the labs come every one to four hours)
+    window: float = num(600.0, ge=60, le=3600)
     wall_substeps: int = num(4, ge=1, le=1000)
     # s, period of the plant's scans; None (the key absent): measured from each recorded day
-    # (the median spacing of its scans), the Modbus poll period live
-    scan_period: float | None = num(None, gt=0, le=600)
+    # (the median spacing of its scans), the Modbus poll period live; a PLC or historian
+    # scans every 0.1 s at the fastest (issue 49: 1e-9 s hung the windowing)
+    scan_period: float | None = num(None, ge=0.1, le=600)
     min_good_fraction: float = num(0.5, ge=0, le=1)  # of a window's expected scans to use it
-    lab_span: float = num(120.0, gt=0, le=3600)  # s of scans before a lab sample: its inputs
+    lab_span: float = num(120.0, ge=1, le=3600)  # s of scans before a lab sample: its inputs
 
     def check(self) -> str | None:
         if self.scan_period is not None and self.scan_period > self.window:

@@ -32,7 +32,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from softsensor.errors import IngestError
-from softsensor.ingest.cells import delimiter_hint
 from softsensor.ingest.historian_map import DEFAULT_LAB_MAP, LabMap
 from softsensor.messages import LabResult
 
@@ -64,6 +63,9 @@ def _zone_name(zone: tzinfo | str | None) -> str:
 def _csv_frame(text: str, where: str, delimiter: str = ",") -> pd.DataFrame:
     """A CSV lab file as text cells (fields split at the ``[lab]`` table's ``delimiter``);
     blank lines skipped."""
+    # (with pandas, as parse_lab_text's converter: not with the daemon, issue 49)
+    from softsensor.ingest.cells import delimiter_hint
+
     reader = csv.reader(io.StringIO(text.lstrip("\ufeff")), delimiter=delimiter)
     rows: list[list[str]] = []
     try:

@@ -404,8 +404,8 @@ class LabFolderWatcher:
                    "\n".join(reasons) + "\n")
         report.rejected.append(dest)
         report.reasons.extend(reasons)
-        for r in reasons:
-            log.warning("lab file rejected: %s", r)
+        for r in reasons:  # a flood of bad files must not become a flood of lines
+            self._throttle.log(log, "rejected", logging.WARNING, "lab file rejected: %s", r)
         if self.on_reject is not None:
             try:
                 self.on_reject(reasons[0])

@@ -14,7 +14,8 @@ answered in order. This module moves bytes and keeps the connections in bounds, 
 pymodbus' server did not (issue 40: 2,000 idle clients held 2,036 descriptors, two requests in
 one segment got one answer, and a request to unit 0 logged a traceback with a frame dump):
 
-* a connection without a request for ``idle_timeout_s`` (60 s) is closed;
+* a connection without a request for ``idle_timeout_s`` (60 s) is closed (bytes that do
+  not complete a request do not count: issue 49);
 * at most ``max_connections`` (32) are open: a new one closes one of the address holding the
   most connections (the oldest that never sent a request, else the one idle longest), never
   one of the plant's own clients (``plant_clients``) for another address; a new one from
@@ -72,6 +73,14 @@ HEALTH_CODES: dict[str, int] = {"ok": 0, "degraded": 1, "stale": 2}
 NO_ESTIMATE = 3
 #: The kernel's queue before accept.
 LISTEN_BACKLOG = 128
+#: The server's abuse counters, by attribute: what each counts (``/metrics`` and health).
+ABUSE_COUNTERS: dict[str, str] = {
+    "refused": "Modbus requests answered with an exception (writes, other tables)",
+    "framing_errors": "Modbus connections closed for bytes that are not Modbus TCP",
+    "evicted": "Modbus connections closed to make room for a new one",
+    "idle_closed": "Modbus connections closed after idle_timeout_s without a request",
+    "refused_connections": "Modbus connections refused (every slot held by plant clients)",
+}
 #: Requests of one connection answered in one turn of the event loop at most.
 TURN_BUDGET = 32
 #: A connection's bucket holds this many seconds of ``max_requests_per_s`` (a burst).
@@ -179,7 +188,6 @@ class _Connection(asyncio.Protocol):
         self.server._admit(self)
 
     def data_received(self, data: bytes) -> None:
-        self.last_active = time.monotonic()
         self._serve(data)
 
     def _allowance(self) -> int:
@@ -205,7 +213,8 @@ class _Connection(asyncio.Protocol):
             self.server.refused += self.protocol.refused
             self.protocol.refused = 0
         self._tokens -= len(answers)
-        if answers:
+        if answers:  # idle is measured from the last request, not the last byte
+            self.last_active = time.monotonic()
             self.answered = True
             self.transport.write(b"".join(answers))
         if self.transport is None or self.transport.is_closing():
@@ -278,6 +287,10 @@ class EstimateModbusServer:
         self._server: asyncio.Server | None = None
         self._sweeper: asyncio.Task | None = None
         self.port = settings.port
+
+    def abuse(self) -> dict[str, int]:
+        """What clients were refused or closed for, by counter (:data:`ABUSE_COUNTERS`)."""
+        return {name: int(getattr(self, name)) for name in ABUSE_COUNTERS}
 
     @property
     def connections(self) -> int:
@@ -359,5 +372,6 @@ class EstimateModbusServer:
                 await asyncio.wait_for(server.wait_closed(), 5.0)
 
 
-__all__ = ["BURST_S", "HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS", "NO_ESTIMATE",
-           "REGISTERS", "TURN_BUDGET", "EstimateModbusServer", "estimate_registers", "evictee"]
+__all__ = ["ABUSE_COUNTERS", "BURST_S", "HEALTH_CODES", "LISTEN_BACKLOG", "N_REGISTERS",
+           "NO_ESTIMATE", "REGISTERS", "TURN_BUDGET", "EstimateModbusServer",
+           "estimate_registers", "evictee"]

@@ -37,6 +37,7 @@ from asyncua.common.instantiate_util import instantiate
 from softsensor.errors import ConfigError
 from softsensor.estimate import Estimate, Health
 from softsensor.messages import LabResult
+from softsensor.outputs.opcua_limits import HEADROOM, OpcUaConnections, standard_space_shelf
 from softsensor.outputs.settings import OpcUaSettings
 from softsensor.presentation.display import DisplaySettings, moisture_pct
 
@@ -204,14 +205,17 @@ class EstimateOpcUaServer:
     async def start(self) -> str:
         """Serve the variables; what it serves: the endpoint."""
         server = Server()
-        await server.init()
+        shelf, shelved = standard_space_shelf()  # 58 MB less resident (opcua_limits)
+        await server.init(shelf)
+        shelved()
         server.set_endpoint(self.endpoint)
         server.set_server_name(f"softsensor {self.unit}")
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         # asyncua's own bounds, tightened (issue 40): 1,000 connections, 30 s to activate a
         # session and sessions kept for 10 min by default
         limits = server.iserver
-        limits.max_connections = self.settings.max_connections
+        # more than max_connections admitted: the sweep (opcua_limits) evicts by its rule
+        limits.max_connections = self.settings.max_connections + HEADROOM
         limits.max_pending_activation_seconds = min(self.settings.idle_timeout_s,
                                                     PENDING_ACTIVATION_S)
         limits.max_session_timeout_ms = 1000 * self.settings.idle_timeout_s
@@ -225,6 +229,8 @@ class EstimateOpcUaServer:
                               f"{self.settings.port}: "
                               f"{getattr(exc, 'strerror', None) or exc}") from exc
         self._server, self._loop = server, asyncio.get_running_loop()
+        self.connections = OpcUaConnections(server.bserver, self.settings)
+        self._sweeper = asyncio.create_task(self.connections.run(), name="opcua-connections")
         log.info("estimate served on %s (anonymous, no encryption: keep it on loopback or "
                  "behind the site's OPC UA gateway)", self.endpoint)
         return self.endpoint
@@ -256,6 +262,9 @@ class EstimateOpcUaServer:
 
     async def stop(self) -> None:
         server, self._server = self._server, None
+        sweeper, self._sweeper = getattr(self, "_sweeper", None), None
+        if sweeper is not None:
+            sweeper.cancel()
         if server is not None:
             with contextlib.suppress(Exception):
                 await server.stop()

@@ -17,7 +17,7 @@ from typing import Protocol
 from softsensor.estimate import Estimate, Health
 from softsensor.messages import LabResult
 from softsensor.outputs.metrics import DaemonMetrics
-from softsensor.outputs.modbus_server import EstimateModbusServer
+from softsensor.outputs.modbus_server import ABUSE_COUNTERS, EstimateModbusServer
 from softsensor.outputs.settings import OutputSettings
 from softsensor.outputs.web import LivePage
 from softsensor.presentation.display import DisplaySettings
@@ -61,7 +61,9 @@ def operator_outputs(settings: OutputSettings, display: DisplaySettings, unit: s
     ``tick_seconds``: the wall time of the last tick [s]."""
     out: list[OperatorOutput] = []
     if settings.modbus.enabled:
-        out.append(EstimateModbusServer(settings.modbus, display))
+        modbus = EstimateModbusServer(settings.modbus, display)
+        out.append(modbus)
+        counters = {**counters, **modbus_counters(modbus)}
     if settings.prometheus.enabled:
         out.append(DaemonMetrics(settings.prometheus, counters, unit=unit, display=display,
                                  tick_seconds=tick_seconds))
@@ -91,4 +93,16 @@ def lab_refused(forget: Callable[[str], None], outputs: Mapping[str, OperatorOut
     return refused
 
 
-__all__ = ["OperatorOutput", "lab_refused", "operator_outputs"]
+def modbus_counters(server: EstimateModbusServer
+                    ) -> dict[str, tuple[str, Callable[[], float]]]:
+    """The Modbus server's abuse counters for Prometheus (``softsensor_modbus_<name>``)."""
+    return {f"softsensor_modbus_{name}": (text, lambda name=name: getattr(server, name))
+            for name, text in ABUSE_COUNTERS.items()}
+
+
+def abuse(outputs: Mapping[str, OperatorOutput]) -> dict[str, dict[str, int]]:
+    """What the outputs refused or closed, by output and counter (for health)."""
+    return {name: o.abuse() for name, o in outputs.items() if hasattr(o, "abuse")}
+
+
+__all__ = ["OperatorOutput", "abuse", "lab_refused", "modbus_counters", "operator_outputs"]

@@ -101,11 +101,14 @@ class OpcUaSettings:
     # min(idle_timeout_s, 10 s) is closed, and a session idle for idle_timeout_s [s]
     max_connections: int = num(32, ge=1, le=1024)
     idle_timeout_s: float = num(60.0, ge=5, le=3600)
+    # as [outputs.modbus]: the plant's own clients, whose connections a stranger's never
+    # displaces (beyond max_connections the address holding most gives one up)
+    plant_clients: tuple[str, ...] = ()
 
     def check(self) -> str | None:
         if not 1 <= self.port <= 65535:
             return f"port must be in 1..65535, got {self.port}"
-        return None
+        return _addresses_problem(self.plant_clients)
 
 
 @dataclass(frozen=True)

@@ -51,7 +51,12 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.messages import lab_body
-from softsensor.outputs.operator_output import OperatorOutput, lab_refused, operator_outputs
+from softsensor.outputs.operator_output import (
+    OperatorOutput,
+    abuse,
+    lab_refused,
+    operator_outputs,
+)
 from softsensor.outputs.settings import output_settings
 from softsensor.plantconfig import PlantConfig
 from softsensor.presentation.display import (
@@ -522,8 +527,8 @@ class Daemon:
         self.worker.publish_aside(self.latest_health.at(self.clock.now_ns()))
 
     def _health_answer(self) -> dict[str, Any]:
-        """A health query's answer: the last health body, with the watchdog's verdict and the
-        inputs' counters now."""
+        """A health query's answer: the last health body, with the watchdog's verdict, the
+        inputs' counters and the outputs' abuse counters now."""
         latest = self.latest_health
         doc = ({"status": "stale", "detail": "no estimate yet", "unit": self.unit}
                if latest is None else latest.to_body())
@@ -532,7 +537,7 @@ class Daemon:
                 "last_tick_age_s": None if p is None
                 else round(time.monotonic() - p.last_tick_at, 1),
                 "pending": None if p is None else p.pending,
-                "dropped": None if p is None else dict(p.dropped)}
+                "dropped": None if p is None else dict(p.dropped), "abuse": abuse(self.outputs)}
 
     def _watch(self) -> None:
         """Publish ``stalled`` health when the estimator thread is late (:class:`Watchdog`),

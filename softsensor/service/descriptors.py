@@ -12,6 +12,7 @@ not flap); a count that fails is said too, and a descriptor is kept in reserve f
 
 from __future__ import annotations
 
+import contextlib
 import os
 import resource
 from collections.abc import Callable
@@ -74,6 +75,10 @@ class DescriptorWatch:
         fd, self._reserve = self._reserve, None
         if fd is not None:
             os.close(fd)
+
+    def __del__(self) -> None:  # a watch dropped without close (a daemon never run)
+        with contextlib.suppress(Exception):
+            self.close()
 
     @property
     def near(self) -> bool:

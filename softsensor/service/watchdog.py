@@ -35,6 +35,7 @@ from typing import Any
 import zenoh
 
 from softsensor.estimate import Stall
+from softsensor.log_throttle import Throttle
 from softsensor.service.logs import event
 
 log = logging.getLogger(__name__)
@@ -118,6 +119,7 @@ class HealthQueryable:
                  answer: Callable[[], dict[str, Any]]) -> None:
         self.key = f"softsensor/{unit}/health"
         self._answer_now = answer
+        self._throttle = Throttle()  # a failing answer, asked in a loop, said once a while
         self._queryable = session.declare_queryable(self.key, self._answer)
 
     def _answer(self, query: zenoh.Query) -> None:
@@ -126,7 +128,8 @@ class HealthQueryable:
             doc["answered_ns"] = time.time_ns()
             query.reply(self.key, json.dumps(doc, allow_nan=False, default=str).encode())
         except Exception:  # noqa: BLE001 - must not escape into zenoh's thread
-            log.exception("health query not answered")
+            self._throttle.log(log, "answer", logging.ERROR, "health query not answered",
+                               exc_info=True)
 
     def close(self) -> None:
         """Undeclare the queryable (idempotent)."""

@@ -872,3 +872,22 @@ def test_the_learned_discrepancy_is_taken_off_the_measurements(tmp_path):
     # moisture come out alike either way (the offset state absorbs the 2 K), so they are not
     # what this checks
     assert abs(bodies[-1]["T_dryer_out_offset"]) < 0.2, bodies[-1]["T_dryer_out_offset"]
+
+
+def test_the_first_lab_of_a_fresh_estimator_meets_the_gate_of_the_calibration():
+    """Issue 49 (fifth probe): a fresh daemon's first lab at the envelope's low edge (0.02
+    kg/kg, the estimate 0.11) was taken, the estimate's spread being the fresh filter's wide
+    one, and moved the published moisture for six windows; 42 results later the same value
+    was refused at 17.8 sigma. The gate now judges the first results with the spread the
+    calibration's history gives the model's outlet moisture (the bias state's prior) too."""
+    wins, truth = synthetic_day(12, seed=11)
+    est, ref = make(), make()
+    run(est, wins[:3], {})
+    run(ref, wins[:3], {})
+    first = est.tick(wins[3]).to_body()
+    ref.tick(wins[3])
+    assert first["moisture_out_std"] > 0.015  # a fresh filter: wide
+    value = 0.02  # the envelope's low edge, 0.07 below the estimate
+    reason = est.add_lab(lab(3, value, "LOW"))
+    assert reason is not None and "rejected as an outlier" in reason, first
+    assert run(est, wins[4:], {}) == run(ref, wins[4:], {})

@@ -289,3 +289,17 @@ def test_a_folder_that_cannot_be_listed_is_said_once_in_a_while(tmp_path: Path, 
     assert 1 <= len(said) <= 2, len(said)
     folder.mkdir()
     w.run(max_polls=1)
+
+
+def test_a_flood_of_bad_files_is_a_few_lines(tmp_path: Path, caplog):
+    """Issue 49 (every repeated line throttled): 200 unusable files dropped at once are each
+    rejected, with one line for the lot, not one each."""
+    caplog.set_level(logging.INFO)
+    folder = tmp_path / "lab"
+    w = _watcher(folder, [])
+    for i in range(200):
+        (folder / f"bad{i:03d}.json").write_text("not json")
+    _poll(w)
+    assert len(list(w.rejected_dir.glob("bad*.json"))) == 200
+    said = [r for r in caplog.records if "lab file rejected" in r.getMessage()]
+    assert 1 <= len(said) <= 2, len(said)

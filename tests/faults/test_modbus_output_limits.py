@@ -192,3 +192,65 @@ def test_the_plant_clients_are_never_evicted_for_a_stranger():
             stranger.close()
             for s in plant:
                 s.close()
+
+
+def test_bytes_that_never_make_a_request_do_not_keep_a_connection_open():
+    """Issue 49 (fifth probe): the idle timeout was reset by any byte, so a client trickling
+    one byte of a never-finished frame every few seconds held its slot for ever; idle is now
+    measured from the last request."""
+    with _server(idle_timeout_s=0.4) as server, \
+            socket.create_connection(("127.0.0.1", server.port), timeout=5) as s:
+        s.sendall(struct.pack(">HHHB", 1, 0, 254, 1))  # a header promising 253 bytes
+        closed_at = None
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 2.0:
+            try:
+                s.sendall(b"\x00")
+            except OSError:
+                closed_at = time.monotonic() - t0
+                break
+            if _closed_by_peer(s, 0.1):
+                closed_at = time.monotonic() - t0
+                break
+        assert closed_at is not None and closed_at < 1.5, closed_at
+        assert server.idle_closed == 1
+
+
+def test_the_abuse_counters_are_in_metrics_and_health(tmp_path):
+    """Issue 49 (fifth probe): the counters of refused requests, framing errors, evictions
+    and idle closes were exported nowhere."""
+    import asyncio as aio
+
+    from clients import scrape_metrics
+    from daemon_harness import running_daemon
+
+    got: dict = {}
+    outputs = ("[outputs.modbus]\nenabled = true\nport = 0\nmax_connections = 2\n"
+               "[outputs.prometheus]\nenabled = true\nport = 0\n")
+
+    def abuse(port: int) -> None:
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+            s.sendall(frame(1, 1, struct.pack(">BHH", 6, 0, 1)))  # a write: exception 1
+            assert _answers(s, 1)[0][1] == b"\x86\x01"
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as s:
+            s.sendall(struct.pack(">HHHB", 1, 9, 6, 1))  # protocol id 9: closed
+            assert _closed_by_peer(s, 2.0)
+        held = [socket.create_connection(("127.0.0.1", port), timeout=5) for _ in range(3)]
+        time.sleep(0.3)  # the third evicted one of the first two
+        for s in held:
+            s.close()
+
+    async def run() -> None:
+        async with running_daemon(tmp_path, ticks=0, config_extra=outputs) as r:
+            out = r.daemon.outputs
+            await aio.to_thread(abuse, out["modbus"].port)
+            got["metrics"] = await aio.to_thread(scrape_metrics, out["prometheus"].port)
+            got["health"] = r.daemon._health_answer()["abuse"]
+
+    aio.run(aio.wait_for(run(), 120))
+    m = got["metrics"]
+    assert m["softsensor_modbus_refused_total"] == 1.0, m
+    assert m["softsensor_modbus_framing_errors_total"] == 1.0
+    assert m["softsensor_modbus_evicted_total"] >= 1.0
+    assert "softsensor_modbus_idle_closed_total" in m
+    assert got["health"]["modbus"]["refused"] == 1 and got["health"]["modbus"]["evicted"] >= 1

@@ -128,9 +128,9 @@ def test_rea_surface_factor_follows_chens_activation_energy():
 @pytest.mark.parametrize("key, value, message", [
     ("drying_law", "page",
      "fiber.drying_law must be one of double_sigmoid, cdc, rea, got 'page'"),
-    ("cdc_exponent", 0.5, "fiber.cdc_exponent must be >= 1, got 0.5"),
-    ("rea_b", 1000.0, "fiber.rea_b must be <= 100, got 1000.0"),
-    ("rea_c", 0.5, "fiber.rea_c must be >= 1, got 0.5"),
+    ("cdc_exponent", 0.5, "fiber.cdc_exponent must be >= 1, got 0.5 (its range: 1 to 5)"),
+    ("rea_b", 1000.0, "fiber.rea_b must be <= 100, got 1000.0 (its range: 0.5 to 100)"),
+    ("rea_c", 0.5, "fiber.rea_c must be >= 1, got 0.5 (its range: 1 to 3)"),
 ])
 def test_bad_law_key_is_one_line_naming_the_dotted_key(key, value, message):
     doc = read_toml(default_config_path())

@@ -147,7 +147,7 @@ def test_connections_are_capped_and_idle_ones_bounded_in_time():
                 pass
             except ConnectionResetError:
                 closed += 1
-        assert closed == 6  # the first four hold their slots until their activation deadline
+        assert closed == 6  # four hold their slots until their activation deadline
     finally:
         for s in held:
             s.close()
@@ -155,3 +155,137 @@ def test_connections_are_capped_and_idle_ones_bounded_in_time():
         loop.call_soon_threadsafe(loop.stop)
         thread.join(10)
         loop.close()
+
+
+class _ServerThread:
+    """The OPC UA output on its own loop and thread, as in the daemon."""
+
+    def __init__(self, **settings):
+        self.server = EstimateOpcUaServer(OpcUaSettings(enabled=True, port=free_port(),
+                                                        **settings), DisplaySettings())
+        self.loop = asyncio.new_event_loop()
+        self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+
+    def run(self, coro, timeout=30.0):
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout)
+
+    def __enter__(self):
+        self.thread.start()
+        self.run(self.server.start())
+        return self
+
+    def __exit__(self, *exc):
+        self.run(self.server.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self.thread.join(10)
+        self.loop.close()
+
+
+async def _read_twice(endpoint: str) -> list:
+    """The health read by one session twice, a second apart (the sweep has run between)."""
+    from asyncua import Client
+
+    from softsensor.outputs.opcua_server import NAMESPACE
+
+    async with Client(endpoint, timeout=5) as client:
+        idx = await client.get_namespace_index(NAMESPACE)
+        node = await client.nodes.objects.get_child([f"{idx}:dryer1", f"{idx}:health"])
+        first = await node.read_value()
+        await asyncio.sleep(1.0)
+        return [first, await node.read_value()]
+
+
+def test_connections_held_by_a_stranger_do_not_lock_a_client_out():
+    """Issue 49 (fifth probe): asyncua's cap refused the 33rd client and evicted no one, so
+    32 connections from anyone locked every other client out (0 of 36 fresh reads); now the
+    address holding the most gives one up, as on the Modbus output."""
+    import socket
+
+    with _ServerThread(max_connections=4) as t:
+        port = t.server.settings.port
+        held = [socket.create_connection(("127.0.0.1", port), timeout=5,
+                                         source_address=("127.0.0.3", 0)) for _ in range(4)]
+        try:
+            reads = asyncio.run(asyncio.wait_for(_read_twice(t.server.endpoint), 30))
+            assert all(r is not None for r in reads), reads
+            assert t.server.connections.evicted == 1  # one of the stranger's four
+        finally:
+            for s in held:
+                s.close()
+
+
+def test_the_plant_clients_of_the_opcua_output_keep_their_slots():
+    import socket
+
+    with _ServerThread(max_connections=2, plant_clients=("127.0.0.2",)) as t:
+        port = t.server.settings.port
+        plant = [socket.create_connection(("127.0.0.1", port), timeout=5,
+                                          source_address=("127.0.0.2", 0)) for _ in range(2)]
+        try:
+            import time
+            time.sleep(0.5)
+            with socket.create_connection(("127.0.0.1", port), timeout=5,
+                                          source_address=("127.0.0.3", 0)) as stranger:
+                stranger.settimeout(2.0)
+                assert stranger.recv(1) == b""  # closed: only plant clients hold the slots
+            for s in plant:
+                s.settimeout(0.5)
+                with pytest.raises(TimeoutError):
+                    s.recv(1)  # still open
+            assert t.server.connections.refused_connections == 1
+        finally:
+            for s in plant:
+                s.close()
+
+
+def test_a_timed_out_session_has_its_connection_closed():
+    """Issue 49 (fifth probe): a session asyncua timed out at 60 s kept its TCP connection
+    past 90 s; now it is closed with the session."""
+    from asyncua import Client
+
+    async def silent_session(endpoint: str) -> tuple[bool, float]:
+        client = Client(endpoint, timeout=5)
+        await client.connect()
+        for name in ("_monitor_server_task", "_renew_channel_task", "_supervisor_task",
+                     "_stale_watchdog_task"):  # the client goes silent, its socket open
+            task = getattr(client, name, None)
+            if task is not None:
+                task.cancel()
+        reader = client.uaclient.protocol.transport
+        t0 = asyncio.get_running_loop().time()
+        while asyncio.get_running_loop().time() - t0 < 15:
+            if reader.is_closing():
+                return True, asyncio.get_running_loop().time() - t0
+            await asyncio.sleep(0.1)
+        return False, 15.0
+
+    with _ServerThread(idle_timeout_s=5) as t:
+        closed, after = asyncio.run(asyncio.wait_for(silent_session(t.server.endpoint), 60))
+    assert closed and after < 9, (closed, after)
+
+
+def test_the_standard_address_space_is_shelved_and_read_lazily(tmp_path):
+    """Issue 49 (fifth probe, 383 MB at rest with the four outputs): asyncua built its
+    standard address space in memory at every start (about 58 MB); the first start now
+    shelves it on disk and later starts read nodes from the shelf as they are asked for."""
+    from softsensor.outputs.opcua_limits import standard_space_shelf
+
+    first, done = standard_space_shelf(tmp_path)
+    assert first is not None and "tmp-" in first.parent.name
+
+    async def start_and_read(shelf):
+        from asyncua import Server
+
+        server = Server()
+        await server.init(shelf)
+        return len(server.iserver.aspace._nodes.cache) if hasattr(
+            server.iserver.aspace._nodes, "cache") else None
+
+    assert asyncio.run(start_and_read(first)) is None  # built in memory, shelved
+    done()
+    second, done2 = standard_space_shelf(tmp_path)
+    assert second is not None and second.is_file() and "tmp-" not in second.parent.name
+    cached = asyncio.run(start_and_read(second))
+    done2()
+    assert cached is not None and cached < 1000  # lazily: the nodes asked for only
+    assert not list(tmp_path.glob("*.tmp-*"))

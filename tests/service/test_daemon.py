@@ -284,3 +284,27 @@ def test_run_takes_the_tag_map_beside_the_config_also_with_params(tmp_path):
     base, cfg, settings = run_settings(args)
     assert cfg.parameters["mult_D"].value == 0.9 and base.source == str(site / "dryer1.toml")
     assert daemon_tagmap(settings).modbus.port == 15021
+
+
+_IMPORTS = """
+import sys
+import softsensor.cli, softsensor.service.daemon, softsensor.outputs.opcua_server
+import softsensor.outputs.web, softsensor.outputs.metrics, softsensor.outputs.modbus_server
+print(sorted(m for m in ("pandas", "pyarrow", "matplotlib", "scipy.stats", "scipy.linalg")
+             if m in sys.modules))
+"""
+
+
+def test_the_daemon_with_every_output_imports_no_table_or_plot_library():
+    """Issue 49 (fifth probe): resident memory 383 MB at rest with all four outputs. The
+    daemon's modules and its outputs' must not load pandas and pyarrow (62 MB resident): the
+    lab files' cell converter loaded them with its delimiter hint at import although the lab
+    files load pandas only with the first file. (The estimator's lab regression still loads
+    them when the service is built, and the first lab file does: issue 49's report.)"""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _IMPORTS], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "[]", r.stdout

@@ -92,3 +92,15 @@ def test_a_count_that_fails_even_with_the_reserve_is_said_in_health():
                                                 "file descriptors (limit 1000)"), said
     ok = Health(5, "dryer1", "ukf", Reason("ok", "fit"), Reason("ok", ""), Reason("ok", ""))
     assert ok.at(6, resources=said).status == "degraded"
+
+
+def test_a_dropped_watch_gives_its_reserve_back():
+    import gc
+    import os
+
+    before = len(os.listdir("/proc/self/fd"))
+    watches = [DescriptorWatch() for _ in range(50)]
+    assert len(os.listdir("/proc/self/fd")) >= before + 50
+    del watches
+    gc.collect()
+    assert len(os.listdir("/proc/self/fd")) <= before + 2
