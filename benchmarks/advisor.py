@@ -145,6 +145,42 @@ def score(day0: SimulatedDay, day1: SimulatedDay, advices, sits, cfg) -> dict:
     }
 
 
+def summary(doc: dict) -> str:
+    """The results page's tables from a run's JSON: per day and target, and the model's
+    gain against the plant's from the hours advised at both targets."""
+    rows = ["| seed | cause | target | hours advised | true <= max, advised hours: original / "
+            "advised | true heat saved [kWh/t] | hours outside the band |",
+            "|---|---|---|---|---|---|---|"]
+    for e in doc["days"]:
+        o, a = e["true_moisture_original_advised_hours"], e["true_moisture_advised_advised_hours"]
+        share = "-" if o is None else f"{o['at_or_below_max']:.3f} / {a['at_or_below_max']:.3f}"
+        saved = e["true_heat_saved_kwh_per_t"]
+        rows.append(f"| {e['seed']} | {e['effect']} | {e['moisture_target']:.2f} | "
+                    f"{e['hours_advised']} of {e['hours']} | {share} | "
+                    f"{'-' if saved is None else f'{saved:+.1f}'} | {e['hours_outside_band']} |")
+    # the same hour advised at two targets: the true and the predicted change per K
+    by = {}
+    for e in doc["days"]:
+        for h in e["per_hour"]:
+            by.setdefault((e["seed"], h["time_h"]), {})[e["moisture_target"]] = h
+    ratios = []
+    for pair in by.values():
+        if len(pair) == 2:
+            lo, hi = (pair[t] for t in sorted(pair))
+            dsp = lo["T_sp_advised"] - hi["T_sp_advised"]
+            if abs(dsp) > 0.3:
+                ratios.append((lo["true_last_half_hour"] - hi["true_last_half_hour"])
+                              / (lo["predicted"] - hi["predicted"]))
+    n_adv = sum(e["hours_advised"] for e in doc["days"])
+    n_out = sum(e["hours_outside_band"] for e in doc["days"])
+    lines = ["\n".join(rows), "",
+             f"hours advised {n_adv}, outside the band {n_out}; true over predicted change of "
+             f"the outlet moisture between the two targets' set points, {len(ratios)} paired "
+             f"hours: median {np.median(ratios):.2f}, quartiles {np.percentile(ratios, 25):.2f}"
+             f" to {np.percentile(ratios, 75):.2f}" if ratios else "no paired hours"]
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--plant-seed", type=int, default=1697822559)
@@ -158,7 +194,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tuning-seed", type=int, default=9101,
                     help="day seed of the tuning day the covariance is taken on")
     ap.add_argument("--out", default=str(REPO / "benchmarks/results/advisor_independent.json"))
+    ap.add_argument("--summary", default=None, metavar="JSON",
+                    help="print the results page's tables from a run's JSON and stop")
     args = ap.parse_args(argv)
+    if args.summary:
+        print(summary(json.loads(Path(args.summary).read_text())))
+        return 0
     seeds = [int(s) for s in args.seeds.split(",")]
     effects = [None, *INJECTABLE_EFFECTS][:len(seeds)]
     base = load_plant_config()

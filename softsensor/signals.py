@@ -47,13 +47,17 @@ TOPIC_LAB = "/plant/lab"
 TOPIC_ESTIMATE = "/softsensor/estimate"
 TOPIC_HEALTH = "/softsensor/health"
 TOPIC_TRUTH = "/truth/plant"
+#: The set-point advisor's advice (the project's own topic, docs/interface.md).
+TOPIC_ADVICE = "/softsensor/advice"
 
 HEALTH_STATES: tuple[str, ...] = ("ok", "degraded", "stale")
 
 
 def zenoh_key(kind: str, unit: str = "dryer1") -> str:
-    """Zenoh key expression of CONTRACT section 3 for ``kind`` in scan/lab/estimate/health."""
-    prefix = {"scan": "plant", "lab": "plant", "estimate": "softsensor", "health": "softsensor"}
+    """Zenoh key expression of CONTRACT section 3 for ``kind`` in scan/lab/estimate/health,
+    and the project's own ``advice`` (``softsensor/<unit>/advice``, docs/interface.md)."""
+    prefix = {"scan": "plant", "lab": "plant", "estimate": "softsensor", "health": "softsensor",
+              "advice": "softsensor"}
     if kind not in prefix:
         raise ValueError(f"unknown Zenoh key kind {kind!r}")
     return f"{prefix[kind]}/{unit}/{kind}"

@@ -118,13 +118,13 @@ class Curves:
                 np.array([np.interp(T_air_in, g, m) for m in self.moisture_out]))
 
 
-def _steady_grid(model: DryerModel, u: np.ndarray, thetas: np.ndarray, grid: np.ndarray
-                 ) -> Curves:
+def _steady_grid(model: DryerModel, u: np.ndarray, thetas: np.ndarray, grid: np.ndarray,
+                 monotone: bool = True) -> Curves:
     U = np.broadcast_to(np.asarray(u, float), (grid.size, len(INPUT_NAMES))).copy()
     U[:, _TA] = grid
     _, y = model.steady_state(U[None], thetas[:, None, :])
     T, m = y[..., _TD], y[..., _MO]
-    if not np.all(np.diff(T, axis=1) > 0):
+    if monotone and not np.all(np.diff(T, axis=1) > 0):
         raise SolverError("the model's outlet temperature does not rise with T_air_in over "
                           f"{grid[0]:.1f} to {grid[-1]:.1f} K")
     return Curves(grid, T, m, np.asarray(u, float))
@@ -145,10 +145,15 @@ def curves(model: DryerModel, u: np.ndarray, theta: np.ndarray, lo: float, hi: f
     if not hi > lo:
         raise ValueError(f"T_air_in grid needs hi > lo, got {lo:g} to {hi:g}")
     theta = np.asarray(theta, float)
-    coarse = _steady_grid(model, u, theta[None], np.linspace(lo, hi, GRID_POINTS))
-    T_now = float(np.interp(float(u[_TA]), coarse.T_air_in, coarse.T_dryer_out[0]))
+    coarse = _steady_grid(model, u, theta[None], np.linspace(lo, hi, GRID_POINTS),
+                          monotone=False)
+    T_c = coarse.T_dryer_out[0]
+    T_now = float(np.interp(float(u[_TA]), coarse.T_air_in, T_c))
     want = T_now + np.array([sp_lo, sp_hi]) - T_dryer_out_now
-    ta = np.interp(want, coarse.T_dryer_out[0], coarse.T_air_in)
+    # locating only: a dip of the coarse curve (a coarse tube at low T_air_in) must not stop
+    # it; the fine grid, which the search reads, must rise
+    ta = np.interp(want, np.maximum.accumulate(T_c) + 1e-9 * np.arange(T_c.size),
+                   coarse.T_air_in)
     a = max(lo, min(ta[0], float(u[_TA])) - LOCAL_PAD)
     b = min(hi, max(ta[1], float(u[_TA])) + LOCAL_PAD)
     return _steady_grid(model, u, members(theta), np.linspace(a, b, LOCAL_POINTS))

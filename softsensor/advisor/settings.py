@@ -53,6 +53,11 @@ class AdvisorSettings:
         within this fraction of the move from its new steady value. [-]
     settle_horizon : float
         Longest settling time simulated; a slower settle is reported as longer than it. [s]
+    enabled : bool
+        The daemon advises at every tick and publishes on ``softsensor/<unit>/advice``.
+    identify : str
+        The daemon's parameter covariance: the JSON of ``softsensor identify --json`` (a path;
+        relative to the working directory). Required when ``enabled``.
     """
 
     moisture_target: float = num(0.10, gt=0, lt=1)
@@ -65,8 +70,12 @@ class AdvisorSettings:
     max_step: float = num(10.0, gt=0)
     settle_fraction: float = num(0.1, gt=0, lt=1)
     settle_horizon: float = num(6 * 3600.0, gt=0)
+    enabled: bool = False
+    identify: str = ""
 
     def check(self) -> str | None:
+        if self.enabled and not self.identify:
+            return "identify must name the JSON of softsensor identify when enabled"
         if self.moisture_max <= self.moisture_target:
             return (f"moisture_max ({self.moisture_max:g}) must be above moisture_target "
                     f"({self.moisture_target:g})")

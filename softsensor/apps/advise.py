@@ -18,7 +18,6 @@ written to the PLC.
 from __future__ import annotations
 
 import argparse
-import json
 import tempfile
 from collections.abc import Sequence
 from pathlib import Path
@@ -34,24 +33,6 @@ from softsensor.plantconfig import PARAMETER_NAMES, PlantConfig
 from softsensor.signals import TOPIC_ESTIMATE, TOPIC_HEALTH, TOPIC_LAB, TOPIC_SCAN
 
 VERB = "advise"
-
-
-def covariance_from_identify(path: str | Path) -> np.ndarray:
-    """The parameters' covariance in ln(theta) (7, 7) from ``softsensor identify --json``:
-    ``diag(se) R diag(se)``."""
-    try:
-        doc = json.loads(Path(path).read_text())
-        se = np.array([float(doc["verdicts"][n]["relative_se"]) for n in PARAMETER_NAMES])
-        R = np.asarray(doc["correlation"], float)
-    except FileNotFoundError as exc:
-        raise ConfigError(f"--identify {path}: no such file") from exc
-    except (ValueError, KeyError, TypeError) as exc:
-        raise ConfigError(f"--identify {path}: not the JSON of softsensor identify "
-                          f"({type(exc).__name__}: {exc})") from exc
-    if R.shape != (len(PARAMETER_NAMES),) * 2 or not np.all(np.isfinite(se)):
-        raise ConfigError(f"--identify {path}: correlation must be 7 x 7 and every "
-                          "relative_se finite")
-    return np.outer(se, se) * R
 
 
 def covariance_on_day(day: str | Path, base: PlantConfig, config: PlantConfig) -> np.ndarray:
@@ -140,6 +121,8 @@ def _main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="softsensor-advise-") as tmp:
         paths = recordings(days, config, Path(tmp))
         if args.identify is not None:
+            from softsensor.service.advisor_tap import covariance_from_identify
+
             cov, cov_source = covariance_from_identify(args.identify), str(args.identify)
         else:
             say(VERB, f"the parameters' covariance: identifiability analysis on {paths[0]}")
@@ -207,5 +190,5 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_main)
 
 
-__all__ = ["add_commands", "covariance_from_identify", "covariance_on_day", "load_situations",
+__all__ = ["add_commands", "covariance_on_day", "load_situations",
            "recordings"]

@@ -130,6 +130,14 @@ class DaemonMetrics:
                                     "deprecated: use softsensor_window_end_timestamp_seconds")
         self.health = gauge("softsensor_health", "1 for the current health status",
                             ("status",))
+        # the set-point advisor's (softsensor.service.advisor_tap), NaN until it advises
+        self.advice = {k: gauge(f"softsensor_advice_{k}", doc, extra) for k, doc, extra in (
+            ("given", "1 when the advisor gives advice, 0 when it refuses", ()),
+            ("setpoint_celsius", "outlet-temperature set point now and advised [°C]",
+             ("which",)),
+            ("heat_kwh_per_tonne", "burner heat per tonne of dry fibre now and at the advised "
+             "set point [kWh/t]", ("which",)),
+            ("settle_seconds", "time to settle at the advised set point [s]", ()))}
         self.tick = Histogram("softsensor_tick_duration_seconds",
                               "wall time the estimator took for one tick [s]", lab,
                               buckets=(0.01, 0.05, 0.1, 0.5, 1, 5, 30, 60, 300, 600, 1200),
@@ -201,6 +209,17 @@ class DaemonMetrics:
 
     def on_health(self, health: Health) -> None:
         self._set_health(health.status)
+
+    def on_advice(self, advice: Any) -> None:
+        """Set the advisor's gauges (an :class:`~softsensor.advisor.advice.Advice`; its
+        numbers NaN when it refuses)."""
+        lab, g = self.labels, self.advice
+        g["given"].labels(**lab).set(1.0 if advice.advised else 0.0)
+        for which, sp, q in (("now", advice.T_sp, advice.duty_kwh_per_t),
+                             ("advised", advice.T_sp_advised, advice.duty_advised_kwh_per_t)):
+            g["setpoint_celsius"].labels(**lab, which=which).set(_num(sp) - 273.15)
+            g["heat_kwh_per_tonne"].labels(**lab, which=which).set(_num(q))
+        g["settle_seconds"].labels(**lab).set(_num(advice.settle_s))
 
     def on_lab(self, lab: LabResult) -> None:
         """Lab results are counted by the service (its counters), not here."""

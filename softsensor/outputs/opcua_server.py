@@ -4,7 +4,8 @@ An OPC UA server at ``opc.tcp://host:port/softsensor/`` holds, under ``Objects/<
 namespace ``urn:softsensor``, one read-only variable per value: the outlet and inlet moisture
 and their standard deviations [kg/kg dry basis], both moistures in % on the display basis,
 the outlet temperatures measured and modelled [°C], the window end [DateTime, UTC], the health
-[String] and its code [UInt16], and whether a lab result corrected the window [Boolean].
+[String] and its code [UInt16], and whether a lab result corrected the window [Boolean]; with
+the set-point advisor on, its advice (``advice_*``: advisory only).
 
 The numeric values are ``AnalogItemType`` variables (OPC UA Part 8) of type Double, each with
 its ``EURange`` (the range a SCADA scales a bar or trend to) and ``EngineeringUnits`` (an
@@ -94,6 +95,16 @@ VARIABLES: dict[str, tuple[ua.VariantType, str | None, str | None, tuple[float, 
                     "0 ok, 1 degraded, 2 stale, 3 no estimate yet"),
     "lab_updated": (ua.VariantType.Boolean, None, None, None,
                     "a lab result corrected this window"),
+    # the set-point advisor's (softsensor.service.advisor_tap): advisory only
+    "advice_given": (ua.VariantType.Boolean, None, None, None,
+                     "the advisor gives advice (else advice_reason says why not)"),
+    "advice_reason": (ua.VariantType.String, None, None, None,
+                      "the advice, or why there is none, in one line"),
+    "advice_T_sp": (ua.VariantType.Double, "°C", "CEL", (0.0, 200.0),
+                    "advised outlet-temperature set point"),
+    "advice_saving_kwh_per_t": (ua.VariantType.Double, "kWh/t", None, (-200.0, 200.0),
+                                "burner heat saved per tonne of dry fibre at the advised "
+                                "set point"),
 }
 _CODES = {"ok": 0, "degraded": 1, "stale": 2}
 #: The status of a value by the health of its window.
@@ -256,6 +267,18 @@ class EstimateOpcUaServer:
             asyncio.run_coroutine_threadsafe(
                 self._write({"health": status, "health_code": _CODES.get(status, 3)}, status,
                             datetime.now(UTC)), self._loop)
+
+    def on_advice(self, advice: Any) -> None:
+        """Serve the advisor's latest (an :class:`~softsensor.advisor.advice.Advice`),
+        stamped with the end of its window."""
+        if self._loop is not None:
+            values = {"advice_given": bool(advice.advised), "advice_reason": str(advice.reason),
+                      "advice_T_sp": math.nan if advice.T_sp_advised is None
+                      else advice.T_sp_advised - 273.15,
+                      "advice_saving_kwh_per_t": math.nan if advice.saving_kwh_per_t is None
+                      else float(advice.saving_kwh_per_t)}
+            asyncio.run_coroutine_threadsafe(self._write(
+                values, "ok", datetime.fromtimestamp(advice.time_ns / 1e9, UTC)), self._loop)
 
     def on_lab(self, lab: LabResult) -> None:
         """Lab results are not served as variables."""

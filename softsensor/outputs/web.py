@@ -106,6 +106,7 @@ class LivePage:
         self._refused: deque[str] = deque(maxlen=MAX_REFUSED_IDS)
         self._health: dict[str, Any] = {"status": "stale", "detail": "no estimate yet"}
         self._diagnosis: str | None = None
+        self._advice: dict[str, Any] | None = None  #: the set-point advisor's latest body
         self._last_arrival: float | None = None
         self._server: DeadlineHTTPServer | None = None
         self.port = settings.port
@@ -141,6 +142,12 @@ class LivePage:
     def on_health(self, health: Health) -> None:
         with self._lock:
             self._health = health.to_body()
+
+    def on_advice(self, advice: Any) -> None:
+        """The set-point advisor's latest (an :class:`~softsensor.advisor.advice.Advice`),
+        shown under the charts and in /api/latest.json. Advisory only."""
+        with self._lock:
+            self._advice = advice.to_body()
 
     def set_diagnosis(self, text: str | None) -> None:
         with self._lock:
@@ -180,7 +187,7 @@ class LivePage:
         est, _labs, health, diag = self.snapshot()
         last = None if not est else {"window_end_ns": est[-1][0], **est[-1][1]}
         return dumps({"unit": self.unit, "estimate": last, "health": health,
-                      "diagnosis": diag})
+                      "diagnosis": diag, "advice": self._advice})
 
     def healthy(self) -> bool:
         """Estimates arrive: the last came within three windows of wall time."""
@@ -190,8 +197,14 @@ class LivePage:
 
     def page(self, range_key: str | None = None) -> str:
         est, labs, health, diag = self.snapshot()
-        return render_page(est, labs, health, diag, self.display, self.settings, self.unit,
+        text = render_page(est, labs, health, diag, self.display, self.settings, self.unit,
                            now_ns=self.clock(), range_key=range_key)
+        adv = self._advice
+        if adv is None:
+            return text
+        line = ("advice: " if adv.get("advised") else "no advice: ") + str(adv.get("reason"))
+        return text.replace("</body>", "<h2>Set-point advice (advisory only)</h2><p id='advice'>"
+                            f"{html.escape(line)}</p></body>", 1)
 
     # -- serving ---------------------------------------------------------------------------
     def answer(self, target: str) -> Response:

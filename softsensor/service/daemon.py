@@ -67,6 +67,7 @@ from softsensor.presentation.display import (
     moisture_pct_points,
 )
 from softsensor.recording.recorder import Recorder
+from softsensor.service.advisor_tap import admitted_chain, advisor_tap
 from softsensor.service.build import make_service
 from softsensor.service.bus_recorder import BusRecorder
 from softsensor.service.bus_worker import BusWorker, InputLimits
@@ -79,12 +80,7 @@ from softsensor.service.heap import TRIM_EVERY_S, trim
 from softsensor.service.logs import event
 from softsensor.service.plc_scans import HOLD_SCANS, PlcScans
 from softsensor.service.scan_publisher import ScanPublisher
-from softsensor.service.settings import (
-    PLC_CLOCK,
-    ServiceSettings,
-    bus_options,
-    resolve_unit,
-)
+from softsensor.service.settings import PLC_CLOCK, ServiceSettings, bus_options, resolve_unit
 from softsensor.service.time_gate import TimeGate
 from softsensor.service.warmup import warm_up
 from softsensor.service.watchdog import HealthQueryable, Watchdog
@@ -190,6 +186,7 @@ class Daemon:
         self.display = display_settings(config)
         self.output_settings = output_settings(config)
         self.lab_map = plant_lab_map(config)  # the lab folder's files: [lab], checked now
+        self.advisor = advisor_tap(config)  # [advisor] enabled: the advice at every tick
         #: the operator outputs that run, by their table's name (``[outputs.<name>]``)
         self.outputs: dict[str, OperatorOutput] = {}
         #: the health last published (the watchdog's and the recorder's news build on it)
@@ -218,6 +215,9 @@ class Daemon:
                   window_end_ns=out.time_ns)
             for output in self.outputs.values():
                 output.on_estimate(out)
+            if self.advisor is not None and self.worker is not None:
+                self.advisor.after(out, self.latest_health, self.worker.publisher.put,
+                                   self.outputs.values())
             return
         event(log, "health", time_ns=out.time_ns, status=out.status, detail=out.detail)
         self.latest_health = out
@@ -481,8 +481,7 @@ class Daemon:
                              checkpoints=self.store, checkpoint_every=s.checkpoint_every,
                              on_output=self._on_output, limits=limits,
                              decorate=self._decorate,
-                             on_admitted=None if self.bus_recorder is None
-                             else self.bus_recorder.record,
+                             on_admitted=admitted_chain(self.advisor, self.bus_recorder),
                              origin=self.plc_scans.origin)
         window_wall = service.window.period_s / s.time_scale
         grace = (s.gap_after_s + s.tick_delay_s) / s.time_scale
