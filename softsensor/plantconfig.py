@@ -385,6 +385,7 @@ class PlantFile(PlantSections):
     outputs: dict[str, Any] | None = _raw()
     plausibility: dict[str, Any] | None = _raw()
     lab: dict[str, Any] | None = _raw()
+    diagnosis: dict[str, Any] | None = _raw()
 
 
 #: Sections built by other parts of the program (:func:`built_table`), kept as read.

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from softsensor.calibration.settings import calibration_settings
+from softsensor.diagnosis.settings import diagnosis_settings
 from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.settings import estimator_settings
 from softsensor.outputs.settings import output_settings
@@ -51,6 +52,7 @@ TABLES: dict[str, Callable[[PlantConfig], object]] = {
     "outputs": output_settings, "virtual_plant": virtual_plant_settings,
     "plausibility": plausibility_from_config, "lab": _lab_map,
     "discrepancy": discrepancy_of, "model_error": model_error_of,
+    "diagnosis": diagnosis_settings,
 }
 assert set(TABLES) == {*EXTRA_SECTIONS, "discrepancy", "model_error"}
 
