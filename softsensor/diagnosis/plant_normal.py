@@ -36,9 +36,9 @@ of p values for testing precise null hypotheses", The American Statistician 55, 
 the candidate's Bayes factor against ``none`` is the smaller of that and the model's own
 ``exp(e)`` less what a typical healthy day of this plant reaches (``exp(e - m)`` where ``m``
 is positive: far out, where the tail bound no longer binds, the evidence counts only beyond
-the plant's usual level). A healthy day two spreads out then carries a factor of at most 4, three spreads out
-41, four 1200: with the prior's one day in ten shared by seven causes, a cause reaches a
-probability of one half only beyond three spreads.
+the plant's usual level). A healthy day two spreads out then carries a factor of at most
+4, three spreads out 41, four 1200: with the prior's one day in ten shared by seven causes,
+a cause reaches a probability of one half only beyond three spreads.
 """
 
 from __future__ import annotations
