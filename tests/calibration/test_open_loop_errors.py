@@ -73,7 +73,7 @@ def test_validate_and_diagnose_report_the_same_open_loop_figure(params, validate
 
     doc, _ = validated
     ol = doc["open_loop"]
-    assert doc["headline"] == "open_loop" and ol["normal"] is True
+    assert doc["headline"] == "inlet_read" and ol["normal"] is True
     assert ol["inlet_moisture"] == pytest.approx(LEVEL)
     # what diagnose builds (diagnose_main): the day's windows, its baseline, its open loop
     cfg = load_parameters(params, load_plant_config())
