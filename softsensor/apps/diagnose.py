@@ -92,15 +92,13 @@ def diagnose_main(args: argparse.Namespace) -> int:
     cfg = load_config_and_params(args).config
     t0 = time.perf_counter()
     calibration: dict[str, Any]
-    normal = None
+    normal, why_not = None, None
     if args.params:
         from softsensor.calibration.params_file import read_fit
         from softsensor.diagnosis.plant_normal import read_plant_normal
 
         fit = read_fit(args.params)
         normal, why_not = read_plant_normal(args.params)
-        if why_not and not args.quiet:
-            print(f"diagnose: {why_not}", file=sys.stderr)
         rmse = fit.get("rmse") if isinstance(fit.get("rmse"), dict) else None
         calibration = {"params_file": str(args.params), "rmse": rmse,
                        "discrepancy": cfg.extra.get("discrepancy")}
@@ -123,6 +121,8 @@ def diagnose_main(args: argparse.Namespace) -> int:
 
         doc["report"] = str(write_report(d, args.report, doc))
     write_json(doc, args.json)
+    if why_not and not args.quiet:
+        print(f"diagnose: {why_not}", file=sys.stderr)
     x_ref = lab_reference([d.problem.windows])
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
