@@ -1,8 +1,8 @@
 """The ``softsensor`` command: wires configuration, sources, estimators and sinks together.
 
 Verbs (CONTRACT section 4 and the project's own): ``simulate``, ``calibrate``, ``identify``,
-``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``import``, ``export``,
-``design``, ``advise``.
+``validate``, ``replay``, ``run``, ``plant-server``, ``diagnose``, ``learn-normal``,
+``import``, ``export``, ``design``, ``advise``.
 Each verb lives in a module of :mod:`softsensor.apps` (:data:`VERBS`); a command line
 naming its verb imports that verb's module alone, any other (``--help``) all of them. A
 module that fails to import stops the command with one line naming it (exit status 1)
@@ -48,7 +48,7 @@ VERBS: dict[str, tuple[str, ...]] = {
     "softsensor.apps.calibrate": ("calibrate", "identify"),
     "softsensor.apps.validate": ("validate",),
     "softsensor.apps.streaming": ("run", "replay", "health"),
-    "softsensor.apps.diagnose": ("diagnose",),
+    "softsensor.apps.diagnose": ("diagnose", "learn-normal"),
     "softsensor.apps.import_export": ("import", "export"),
     "softsensor.apps.design": ("design",),
     "softsensor.apps.advise": ("advise",),
@@ -64,7 +64,7 @@ _BUG = ("a bug (one line; -v shows the traceback), a module that cannot be impor
 EXIT_CODES: dict[str, dict[int, str]] = {
     **{verb: {0: "done", 1: _BUG, 2: _BAD_INPUT, 130: "interrupted, Ctrl-C or SIGTERM"}
        for verb in ("simulate", "import", "export", "identify", "validate", "diagnose",
-                    "design", "advise")},
+                    "learn-normal", "design", "advise")},
     "calibrate": {0: "wrote --out: the calibrated parameters, or the current ones kept with "
                      "the model error learned when the calibrated predict the held-out data "
                      "worse; the last line says which and to deploy it",

@@ -419,6 +419,7 @@ class PlantFile(PlantSections):
     plausibility: dict[str, Any] | None = _raw()
     lab: dict[str, Any] | None = _raw()
     advisor: dict[str, Any] | None = _raw()
+    diagnosis: dict[str, Any] | None = _raw()
 
 
 #: Sections built by other parts of the program (:func:`built_table`), kept as read.

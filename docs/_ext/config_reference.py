@@ -99,7 +99,8 @@ FILES: tuple[ConfigFile, ...] = (
          Table("lab", "softsensor.ingest.historian_map.LabMap",
                "The LIMS file's layout for the daemon's lab folder: the same table as a "
                "historian map's ``[lab]``."),
-         Table("virtual_plant", "softsensor.plant.settings.VirtualPlantSettings"))),
+         Table("virtual_plant", "softsensor.plant.settings.VirtualPlantSettings"),
+         Table("diagnosis", "softsensor.diagnosis.settings.DiagnosisSettings"))),
     ConfigFile(
         "The tag map", "config/tagmap_dryer1.toml",
         "Where each signal lives in the PLC (read by ``run`` and ``plant-server``; "

@@ -92,10 +92,13 @@ def diagnose_main(args: argparse.Namespace) -> int:
     cfg = load_config_and_params(args).config
     t0 = time.perf_counter()
     calibration: dict[str, Any]
+    normal, why_not = None, None
     if args.params:
         from softsensor.calibration.params_file import read_fit
+        from softsensor.diagnosis.plant_normal import read_plant_normal
 
         fit = read_fit(args.params)
+        normal, why_not = read_plant_normal(args.params)
         rmse = fit.get("rmse") if isinstance(fit.get("rmse"), dict) else None
         calibration = {"params_file": str(args.params), "rmse": rmse,
                        "discrepancy": cfg.extra.get("discrepancy")}
@@ -104,7 +107,7 @@ def diagnose_main(args: argparse.Namespace) -> int:
     t_cal = time.perf_counter() - t0
     day = read_day_inputs(args.day)
     d = diagnose(cfg, day, source=str(args.day),
-                 fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION,
+                 fit_fraction=args.fit_fraction or DEFAULT_FIT_FRACTION, normal=normal,
                  progress=None if args.quiet else _progress("diagnose"))
     doc = d.to_json()
     # the open-loop errors on the whole day, by the one function ``validate`` reports them with
@@ -118,6 +121,8 @@ def diagnose_main(args: argparse.Namespace) -> int:
 
         doc["report"] = str(write_report(d, args.report, doc))
     write_json(doc, args.json)
+    if why_not and not args.quiet:
+        print(f"diagnose: {why_not}", file=sys.stderr)
     x_ref = lab_reference([d.problem.windows])
     print(f"diagnose: {args.day}: cause {doc['cause']}"
           + (f" on {doc['channel']}" if doc.get("channel") else "")
@@ -182,11 +187,48 @@ def _calibrate(cfg, args: argparse.Namespace
     return cal_cfg, summary, result.fit_section()
 
 
+def add_learn_normal_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("days", nargs="+", metavar="DAY.mcap",
+                   help="the history days PARAMS.toml was calibrated on")
+    p.add_argument("--params", required=True, metavar="PARAMS.toml",
+                   help="calibrated parameters (with the history's [model_error])")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.add_argument("--config", default=None, help="plant config (default: built-in dryer1)")
+
+
+def learn_normal_main(args: argparse.Namespace) -> int:
+    """``softsensor learn-normal``: diagnose and validate every history day against the
+    plant's normal learned without it (:func:`~softsensor.diagnosis.plant_normal.
+    learn_plant_normal`) and keep the result beside PARAMS.toml, where ``diagnose`` and
+    ``validate`` judge every later day against it."""
+    require_packages("learn-normal", "optuna")
+    from softsensor.diagnosis.plant_normal import learn_plant_normal
+
+    for v in [args.params, *args.days]:
+        if not Path(v).is_file():
+            raise ConfigError(f"{v}: no such file")
+    cfg = load_config_and_params(args).config
+    days = [read_day_inputs(p) for p in args.days]
+    normal = learn_plant_normal(cfg, days, args.params, sources=[str(p) for p in args.days],
+                                progress=None if args.quiet else _progress("learn-normal"))
+    path = normal.write(args.params)
+    named = [d.named for d in normal.days]
+    print(f"learn-normal: {normal.n_days} history day(s) judged in {normal.seconds:.0f} s "
+          f"(named on their own evidence: {', '.join(named)}); written to {path}",
+          file=sys.stderr)
+    return 0
+
+
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    """Register ``diagnose`` on the ``softsensor`` parser."""
+    """Register ``diagnose`` and ``learn-normal`` on the ``softsensor`` parser."""
     p = sub.add_parser("diagnose", help="find what the calibrated model gets wrong on a day")
     add_diagnose_arguments(p)
     p.set_defaults(func=diagnose_main)
+    p = sub.add_parser("learn-normal", help="judge the history days of PARAMS.toml against "
+                                            "a normal without each, for diagnose and validate")
+    add_learn_normal_arguments(p)
+    p.set_defaults(func=learn_normal_main)
 
 
-__all__ = ["add_commands", "add_diagnose_arguments", "diagnose_main"]
+__all__ = ["add_commands", "add_diagnose_arguments", "add_learn_normal_arguments",
+           "diagnose_main", "learn_normal_main"]

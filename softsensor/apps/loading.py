@@ -16,6 +16,7 @@ from typing import NamedTuple
 
 from softsensor.advisor.settings import advisor_settings
 from softsensor.calibration.settings import calibration_settings
+from softsensor.diagnosis.settings import diagnosis_settings
 from softsensor.estimation.model_error import model_error_of
 from softsensor.estimation.settings import estimator_settings
 from softsensor.outputs.settings import output_settings
@@ -53,6 +54,7 @@ TABLES: dict[str, Callable[[PlantConfig], object]] = {
     "plausibility": plausibility_from_config, "lab": _lab_map,
     "discrepancy": discrepancy_of, "model_error": model_error_of,
     "advisor": advisor_settings,
+    "diagnosis": diagnosis_settings,
 }
 assert set(TABLES) == {*EXTRA_SECTIONS, "discrepancy", "model_error"}
 

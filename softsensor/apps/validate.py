@@ -47,12 +47,11 @@ def add_validate_arguments(p: argparse.ArgumentParser) -> None:
 
 def validate_main(args: argparse.Namespace) -> int:
     """``softsensor validate``: per-channel RMSE and eq. 4 cost on other days of
-    ``--params``, open loop first (:mod:`softsensor.calibration.open_loop_errors`: the figure
-    ``diagnose`` reports too) with its verdict against the calibration's own held-out error,
-    then with the inlet moisture read from the temperatures, labelled; beside them the
-    config's default parameters on the same data."""
+    ``--params`` in the sensor's mode (the inlet read from the temperatures) with its verdict
+    against the plant's history days, open loop beside it, then the config's defaults."""
     require_packages("validate", "optuna", "matplotlib")
     from softsensor.calibration.open_loop_errors import displayed
+    from softsensor.diagnosis.plant_normal import history_checks
 
     check_target(args.json)
     base, config = load_config_and_params(args)
@@ -63,8 +62,9 @@ def validate_main(args: argparse.Namespace) -> int:
         calibration = dataclasses.replace(calibration, cost=fit["cost_kind"])
     raw = [load_segment(p, config) for p in args.days]
     runs = _validation_runs(base, config, fit, calibration, raw)
-    text = _validation_text(runs, raw, base)
-    doc = _validation_doc(args, raw, runs, text)
+    history = history_checks(args.params, runs["params"][1].fit.rmse, runs["params"][0]["rmse"])
+    text = _validation_text(runs, raw, base, history["sensor"])
+    doc = {**_validation_doc(args, raw, runs, text), "history": history}
     if args.report:
         from softsensor.presentation.calibration_report import validation_page
 
@@ -104,7 +104,7 @@ def _validation_runs(base: PlantConfig, config: PlantConfig, fit: dict[str, Any]
 
 
 def _validation_text(runs: dict[str, tuple[Any, Any]], raw: Sequence[Segment],
-                     base: PlantConfig) -> str:
+                     base: PlantConfig, history: dict[str, Any]) -> str:
     """The verdict line of ``validate`` (:func:`~softsensor.presentation.verdicts.
     validation_verdict`), with the config's default parameters beside unless they are the
     ones validated."""
@@ -113,7 +113,7 @@ def _validation_text(runs: dict[str, tuple[Any, Any]], raw: Sequence[Segment],
 
     (open_loop, result), (d_open, default) = runs["params"], runs["default"]
     x_ref, basis = lab_reference(raw), display_settings(base).moisture_basis
-    text = validation_verdict(open_loop, result.fit.rmse, x_ref, basis)
+    text = validation_verdict(open_loop, result.fit.rmse, x_ref, basis, history)
     if np.array_equal(result.theta, default.theta) and open_loop["rmse"] == d_open["rmse"]:
         return text + " They are the config's default parameters."
     pts = moisture_pct_points(d_open["rmse"]["moisture_out"], x_ref, basis)
@@ -132,7 +132,7 @@ def _validation_doc(args: argparse.Namespace, raw: Sequence[Segment],
     read["moisture_worse_than_open_loop"] = bool(
         read["rmse"]["moisture_out"] > open_loop["rmse"]["moisture_out"])
     return {"days": [str(p) for p in args.days], "hours": float(sum(s.hours for s in raw)),
-            "headline": "open_loop", "open_loop": open_loop, "inlet_read": read,
+            "headline": "inlet_read", "open_loop": open_loop, "inlet_read": read,
             "summary": text,
             "default_parameters": {
                 "open_loop": {k: d_open[k] for k in ("rmse", "weighted_rmse", "cost",

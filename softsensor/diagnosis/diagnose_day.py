@@ -29,6 +29,7 @@ ground truth a simulated day may carry.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
@@ -42,9 +43,12 @@ from softsensor.diagnosis.day_windows import DayLike, DayWindows, day_windows
 from softsensor.diagnosis.detectability import Signature, signatures
 from softsensor.diagnosis.evidence import ResidualSummary, evidence_text, shape_text
 from softsensor.diagnosis.extensions import EXTENSIONS, Extension, Fitted, LabTimeShift
+from softsensor.diagnosis.instrument import offset_contradiction
+from softsensor.diagnosis.plant_normal import PlantNormal
 from softsensor.diagnosis.posterior import Candidate, cannot_tell, posterior
 from softsensor.diagnosis.problem import DEFAULT_FIT_FRACTION, Prediction, Problem, choose_split
 from softsensor.diagnosis.residuals import LAB_SHIFTS_MIN, channel_stats, lab_stats
+from softsensor.diagnosis.settings import DiagnosisSettings, diagnosis_settings
 from softsensor.diagnosis.shapes import SHAPES, Shape, ShapeFit
 from softsensor.diagnosis.verdict import (
     Score,
@@ -90,6 +94,9 @@ class Diagnosis:
     candidates: list[Candidate] = field(default_factory=list)
     undecided: dict[str, Any] | None = None
     shapes: dict[str, ShapeFit] = field(default_factory=dict)
+    #: How the probabilities were judged (:func:`normal_note`): against the plant's own
+    #: history days, and whether there were enough of them.
+    normal: dict[str, Any] = field(default_factory=dict)
 
     @property
     def shape(self) -> ShapeFit | None:
@@ -135,7 +142,7 @@ class Diagnosis:
                     "params": {k: _num(x) for k, x in fitted.params.items()},
                     "params_other_fold": {k: _num(x) for k, x in
                                           self.other_fold[cause].params.items()},
-                    "channel": fitted.channel})
+                    "channel": fitted.channel, "contradicted": sc.contradicted})
             if cause in self.skipped:
                 entry.update({"eligible": False, "evidence": entry["evidence"]
                               + f". Not fitted: {self.skipped[cause]}"})
@@ -203,6 +210,7 @@ class Diagnosis:
             "noise_levels": {k: _num(x) for k, x in zip(OUTPUT_NAMES, self.sigma, strict=True)},
             "structure": v.structure,
             "probabilities": [c.to_json() for c in self.candidates],
+            "plant_normal": self.normal,
             "shape": None if self.shape is None else self.shape.to_json(),
             "shapes": {c: f.to_json() for c, f in self.shapes.items()},
             "cannot_tell": [] if self.undecided is None else self.undecided["causes"],
@@ -277,6 +285,29 @@ def implausible(cause: str, summary: ResidualSummary) -> str | None:
     return None
 
 
+#: The labs' whitened log-likelihood gain under the inlet-moisture extension below which
+#: they do not follow the outlet moisture its inlet estimate implies. [nats] Two: a
+#: likelihood ratio of about 7 in favour of the estimate's outlet moisture at the lab times.
+LABS_FOLLOW = 2.0
+
+
+def labs_refute_inlet(sc: Score) -> str | None:
+    """Why an inlet-moisture verdict is refused (None: the labs follow it). The filter reads
+    the inlet moisture from the outlet temperatures alone; an unmeasured change of air flow
+    or heat input moves them the same way, and only the labs tell the two apart: the inlet
+    estimate implies an outlet moisture at every lab time, and unless the labs follow it
+    (their log-likelihood gains at least :data:`LABS_FOLLOW` on the cross-fitted
+    prediction) the day is not named ``inlet_moisture`` (issue 48: a day whose air flow
+    oscillated behind a flat meter was named ``inlet_moisture`` at 0.917 while the labs never
+    followed an estimate running from 0.98 to 1.17 kg/kg)."""
+    gain = sc.loglik.get("moisture_out", math.nan)
+    if sc.baseline.n.get("moisture_out", 0) and gain >= LABS_FOLLOW:
+        return None
+    return (f"the labs do not follow the outlet moisture this inlet estimate implies (their "
+            f"log-likelihood {gain:+.1f}, needed {LABS_FOLLOW:g}): an unmeasured change of "
+            f"air flow or heat input moves the outlet temperatures the same way")
+
+
 def _fit_extensions(problem: Problem, summary: ResidualSummary,
                     extensions: tuple[Extension, ...], say: Callable[[str], None],
                     timings: dict[str, float]
@@ -299,6 +330,12 @@ def _fit_extensions(problem: Problem, summary: ResidualSummary,
         f, b = ext.fit_both(problem)
         fitted[f.cause], other_fold[f.cause] = f, b
         scores[f.cause] = score(problem, f, b)
+        if f.cause == "sensor_bias" and f.channel is not None:
+            scores[f.cause] = dataclasses.replace(
+                scores[f.cause], contradicted=offset_contradiction(problem, f.channel))
+        elif f.cause == "inlet_moisture":
+            scores[f.cause] = dataclasses.replace(
+                scores[f.cause], contradicted=labs_refute_inlet(scores[f.cause]))
         timings[f.cause] = time.perf_counter() - t1
         log.debug("diagnose %s: %s; penalised gain %.1f", f.cause, f.description,
                   scores[f.cause].penalised)
@@ -310,6 +347,7 @@ def diagnose(config: PlantConfig, day: DayLike, *,
              extensions: tuple[Extension, ...] = EXTENSIONS, source: str = "day",
              shapes: tuple[Shape, ...] = SHAPES,
              model: DryerModel | None = None,
+             normal: PlantNormal | None = None,
              progress: Callable[[str], None] | None = None) -> Diagnosis:
     """Diagnose ``day`` with the calibrated ``config`` (module docstring).
 
@@ -326,6 +364,12 @@ def diagnose(config: PlantConfig, day: DayLike, *,
         Share of the windows the extensions are fitted on.
     shapes : tuple of Shape
         The causes' shapes on the residuals (:mod:`.shapes`), ranked with the extensions.
+    normal : PlantNormal, optional
+        The plant's own history days as judged against a normal that did not see them
+        (:mod:`.plant_normal`): the probabilities are judged against it, with the prior of
+        the config's ``[diagnosis]`` (:mod:`.settings`). Without it, or with fewer history
+        days than ``[diagnosis]`` ``min_history_days``, the verdict says there is too little
+        history and no cause gets more than ``cap_without_history``.
     progress : callable, optional
         Called with a short phase description as each phase starts (the verb prints them:
         a diagnosis takes minutes).
@@ -352,27 +396,51 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     margin = max((m for m, _, _ in structure_margins(problem).values()), default=-math.inf)
     say("every cause's shape on the residuals")
     fits = {sh.cause: sh.fit(problem) for sh in shapes}
-    cands = posterior(v, scores.values(), skipped, margin, shapes=fits.values())
+    settings = diagnosis_settings(config)
+    cands = posterior(v, scores.values(), skipped, margin, shapes=fits.values(),
+                      normal=normal, settings=settings)
     v = after_shapes(v, cands, scores, skipped)
     timings["probabilities"] = time.perf_counter() - t1
     timings["total"] = time.perf_counter() - t0
+    judged = normal is not None and normal.n_days >= 2
     return Diagnosis(problem, summary, fitted, scores, other_fold, v, sigma, timings, source,
-                     skipped, sigs, cands, cannot_tell(cands, sigs), fits)
+                     skipped, sigs, cands, cannot_tell(cands, sigs, by_probability=judged),
+                     fits, normal_note(normal, settings))
+
+
+def normal_note(normal: PlantNormal | None, settings: DiagnosisSettings) -> dict[str, Any]:
+    """REPORT.json's ``plant_normal``: how many history days the probabilities were judged
+    against, whether that is enough to know the plant's normal (``enough``), the prior base
+    rate and the cap that held without enough of them."""
+    n = 0 if normal is None else normal.n_days
+    enough = n >= settings.min_history_days
+    return {"history_days": n, "min_history_days": settings.min_history_days,
+            "enough": enough, "healthy_base_rate": settings.healthy_base_rate,
+            "cap": None if enough else settings.cap_without_history,
+            "judged_by": ("the plant's history days" if n >= 2 else
+                          "fallback constants fitted on the virtual plant (posterior."
+                          "TEMPERATURE, CONTAMINATION)"),
+            "method": None if normal is None else normal.method}
 
 
 def after_shapes(v: Verdict, cands: list[Candidate], scores: dict[str, Score],
                  skipped: Iterable[str] = ()) -> Verdict:
-    """The verdict once the shapes have competed (:func:`~.posterior.posterior`'s
-    ``cands``, most probable first): named by the most probable candidate's shape when that
-    is a shape of another cause than the verdict's winning extension (:func:`named_by_shape`).
-    A shape larger than the winning extension of its own cause names nothing new: the
-    extension, held-out gain and all, stays the verdict (the probabilities keep the shape's
-    larger evidence)."""
-    if not cands or cands[0].source != "shape":
+    """The verdict once the shapes have competed and the probabilities are judged
+    (:func:`~.posterior.posterior`'s ``cands``, most probable first): the most probable
+    candidate names the cause. Where that is the verdict's own cause (a shape larger than
+    the winning extension of its own cause names nothing new: the extension, held-out gain
+    and all, stays the verdict) nothing changes; an eligible extension of another cause
+    becomes the winner; otherwise the cause is named without a winning extension
+    (:func:`named_by_shape`: a shape, or ``none`` or ``unexplained`` where the plant's
+    normal says the day's evidence is what its healthy days show)."""
+    if not cands or cands[0].cause == v.cause:
         return v
-    if v.winner is not None and v.winner.cause == cands[0].cause:
-        return v
-    return named_by_shape(v, cands, scores, skipped)
+    top = cands[0]
+    named = named_by_shape(v, cands, scores, skipped)
+    sc = scores.get(top.cause)
+    if top.source == "extension" and sc is not None and sc.eligible:
+        return Verdict(top.cause, sc, named.ranking, v.structure)
+    return named
 
 
 def named_by_shape(v: Verdict, cands: list[Candidate], scores: dict[str, Score],

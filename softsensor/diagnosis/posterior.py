@@ -83,6 +83,8 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from softsensor.diagnosis.detectability import Signature, collinearity
+from softsensor.diagnosis.plant_normal import PlantNormal
+from softsensor.diagnosis.settings import DiagnosisSettings
 from softsensor.diagnosis.shapes import ShapeFit
 from softsensor.diagnosis.verdict import MIN_PENALISED, Score, Verdict
 
@@ -224,18 +226,79 @@ def probabilities(L: np.ndarray, temperature: float = TEMPERATURE,
 def posterior(verdict: Verdict, scores: Iterable[Score], skipped: Iterable[str],
               structure: float, temperature: float = TEMPERATURE,
               contamination: Mapping[str, float] = CONTAMINATION,
-              shapes: Iterable[ShapeFit] = ()) -> list[Candidate]:
+              shapes: Iterable[ShapeFit] = (), normal: PlantNormal | None = None,
+              settings: DiagnosisSettings | None = None) -> list[Candidate]:
     """Every candidate with its probability, most probable first (the named cause first
-    among equals); ``contamination`` by :func:`kind` of the named cause: the verdict's, or
-    the cause whose shape (:mod:`.shapes`) has the largest log-evidence of all."""
+    among equals).
+
+    With a plant ``normal`` of at least two history days the probabilities are judged
+    against it (:func:`normal_probabilities`, the prior of ``settings``); without one, by
+    the fallback softmax at ``temperature`` with ``contamination`` by :func:`kind` of the
+    named cause (the verdict's, or the cause whose shape, :mod:`.shapes`, has the largest
+    log-evidence of all): constants fitted on the virtual plant, a fallback only. With fewer
+    history days than ``settings.min_history_days`` no cause is given more than
+    ``settings.cap_without_history`` (:func:`capped`)."""
+    settings = settings or DiagnosisSettings()
     ev = log_evidence(scores, skipped, structure, shapes)
     L = np.array([e[2] for e in ev])
     leader = ev[int(np.argmax(L))]
     named = leader[0] if leader[3] == "shape" else verdict.cause
-    p = probabilities(L, temperature, contamination[kind(named)])
+    if normal is not None and normal.n_days >= 2:
+        p = normal_probabilities(ev, normal, settings.healthy_base_rate)
+    else:
+        p = probabilities(L, temperature, contamination[kind(named)])
+    i_none = [e[0] for e in ev].index("none")
+    if normal is None or normal.n_days < settings.min_history_days:
+        p = capped(p, i_none, settings.cap_without_history)
+    causes = [e[0] for e in ev]
+    if p[causes.index(named)] < float(np.max(p)) - 1e-12:
+        named = causes[int(np.argmax(p))]
     cands = [Candidate(c, ch, Lc, float(q), src)
              for (c, ch, Lc, src), q in zip(ev, p, strict=True)]
     return sorted(cands, key=lambda c: (-c.probability, c.cause != named))
+
+
+def normal_probabilities(ev: Sequence[tuple[str, str | None, float, str]],
+                         normal: PlantNormal, base_rate: float) -> np.ndarray:
+    """Probabilities of the candidates ``ev`` (``(cause, channel, L, source)``, one of them
+    ``none``) judged against the plant's normal (:mod:`.plant_normal`): each candidate's
+    Bayes factor against ``none`` is the smaller of the model's own (``L - L_none``) and the
+    largest one its tail probability among this plant's healthy history days can carry
+    (:meth:`PlantNormal.log_bayes_bound <.plant_normal.PlantNormal.log_bayes_bound>`; a
+    candidate the history never scored gets at most 1); the prior gives ``none``
+    ``base_rate`` and shares the rest evenly, so ``p_c = pi_c B_c / sum_j pi_j B_j``."""
+    causes = [e[0] for e in ev]
+    L_none = ev[causes.index("none")][2]
+    n_other = max(len(ev) - 1, 1)
+    logp = np.empty(len(ev))
+    for i, (c, _, L, _) in enumerate(ev):
+        if c == "none":
+            logp[i] = math.log(base_rate)
+            continue
+        e = L - L_none
+        b = normal.log_bayes_bound(c, e)
+        b = min(e, 0.0) if b is None else b
+        logp[i] = math.log((1.0 - base_rate) / n_other) + (b if math.isfinite(b) else -math.inf)
+    return softmax(logp, 1.0)
+
+
+def capped(p: np.ndarray, i_none: int, cap: float) -> np.ndarray:
+    """``p`` with no candidate but ``i_none`` above ``cap``: what is taken off is shared by
+    the others in proportion to their probability (evenly where all of them are 0), until
+    none is above (the order below the cap kept)."""
+    p = np.asarray(p, float).copy()
+    for _ in range(p.size):
+        over = (p > cap + 1e-12)
+        over[i_none] = False
+        if not over.any():
+            break
+        excess = float(np.sum(p[over] - cap))
+        p[over] = cap
+        rest = ~over & (p < cap)
+        rest[i_none] = True
+        w = p[rest] if p[rest].sum() > 0 else np.ones(int(rest.sum()))
+        p[rest] += excess * w / w.sum()
+    return p / p.sum()
 
 
 def separating_data(a: str, b: str) -> str:
@@ -252,16 +315,21 @@ def undecided(L_first: float, L_second: float, temperature: float = TEMPERATURE,
 
 
 def cannot_tell(cands: Sequence[Candidate], sigs: Mapping[str, Signature],
-                odds: float = CANNOT_TELL_ODDS, temperature: float = TEMPERATURE
-                ) -> dict[str, object] | None:
+                odds: float = CANNOT_TELL_ODDS, temperature: float = TEMPERATURE,
+                by_probability: bool = False) -> dict[str, object] | None:
     """The two most probable candidates when this day cannot tell them apart (module
-    docstring, :func:`undecided`): ``{"causes": [...], "collinearity": |cos| or None,
-    "separate": words}``, else None. ``collinearity`` is given for two causes with
-    signatures (None when either is ``none`` or ``unexplained``)."""
+    docstring, :func:`undecided`; with ``by_probability``, judged against the plant's
+    normal, when the first is less than ``odds`` times as probable as the second):
+    ``{"causes": [...], "collinearity": |cos| or None, "separate": words}``, else None.
+    ``collinearity`` is given for two causes with signatures (None when either is ``none``
+    or ``unexplained``)."""
     if len(cands) < 2:
         return None
     a, b = cands[0], cands[1]
-    if not undecided(a.log_evidence, b.log_evidence, temperature, odds):
+    if by_probability:
+        if not a.probability < odds * b.probability:
+            return None
+    elif not undecided(a.log_evidence, b.log_evidence, temperature, odds):
         return None
     cos = (round(collinearity(sigs[a.cause], sigs[b.cause]), 4)
            if a.cause in sigs and b.cause in sigs else None)

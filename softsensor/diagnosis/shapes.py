@@ -25,7 +25,9 @@ fouling_drift      a ramp from the day's start to its end, times the fibre load 
                    the ramp fitted a gain)
 sensor_bias        a step from an onset on the grid to the day's end on one thermometer alone
                    (the offset does not scale with load), one coefficient; the channel and the
-                   onset are alternatives
+                   onset are alternatives, each only where the raw residuals allow an offset
+                   on that channel from that onset (:mod:`.instrument`: not both
+                   thermometers off together, not the other one off more)
 ================== ==========================================================================
 
 The whitening through the normal (:class:`~.calibration_error.CalibrationErrorModel`) is
@@ -56,6 +58,7 @@ import numpy as np
 from scipy.stats import multivariate_normal, norm
 
 from softsensor.diagnosis.extensions import TransferDrift
+from softsensor.diagnosis.instrument import offset_contradiction
 from softsensor.diagnosis.problem import Problem, Residuals
 from softsensor.diagnosis.verdict import margins
 from softsensor.signals import INPUT_NAMES, KELVIN_CHANNELS
@@ -352,6 +355,10 @@ class OffsetShape(Shape):
         t = w.day_fraction
         for c, name in enumerate(KELVIN_CHANNELS):
             for on in ONSETS:
+                # both thermometers off together, or the other one off more: not an offset
+                # on this one (:mod:`.instrument`)
+                if offset_contradiction(problem, name, on * float(w.hours[-1])) is not None:
+                    continue
                 T = np.zeros((1, K, 2))
                 T[0, :, c] = (t >= on).astype(float)
                 yield Alternative({"onset_h": on * float(w.hours[-1])}, name, T,

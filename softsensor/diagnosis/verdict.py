@@ -122,6 +122,9 @@ class Score:
     worse: tuple[str, ...]
     lr: float
     p_value: float
+    #: Why the residuals rule this extension's cause out before its fit counts (an offset on
+    #: a thermometer while both are off together, :mod:`.instrument`); None: they do not.
+    contradicted: str | None = None
 
     @property
     def relative(self) -> dict[str, float]:
@@ -134,7 +137,7 @@ class Score:
     @property
     def eligible(self) -> bool:
         return (self.p_value < ALPHA and self.penalised >= MIN_PENALISED
-                and not self.worse and self.gain > MIN_GAIN)
+                and not self.worse and self.gain > MIN_GAIN and self.contradicted is None)
 
     def failed_checks(self) -> list[tuple[str, str]]:
         """The eligibility checks this extension fails, each as (a few words, in full)."""
@@ -151,6 +154,8 @@ class Score:
             out.append(("makes " + ", ".join(self.worse) + " worse", "it makes " + ", ".join(
                 f"{c} worse (log-likelihood {self.loglik[c]:+.1f}, RMSE "
                 f"{-self.relative[c]:+.0%})" for c in self.worse)))
+        if self.contradicted is not None:
+            out.append(("ruled out by the residuals", self.contradicted))
         if not self.gain > MIN_GAIN:
             out.append((f"eq. 4 gain {self.gain:+.3f} <= {MIN_GAIN:g}",
                         f"its cross-fitted gain under eq. 4, {self.gain:+.3f}, is not above "

@@ -34,6 +34,14 @@ def _sensor_bias(p: Mapping[str, float], doc: Mapping[str, Any]) -> str:
     b = float(p.get("offset_K", math.nan))
     name = SENSOR_NAMES.get(str(doc.get("channel")), f"{doc.get('channel')} thermometer")
     side = "high" if b > 0 else "low"
+    if doc.get("channel") == "T_dryer_out":
+        # the loop's own thermometer: the loop holds its reading, so the process moves
+        run = "colder" if b > 0 else "hotter"
+        return (f"The {name}, the one the outlet-temperature loop holds at its set point, "
+                f"reads {abs(b):.1f} °C {side}: the loop then runs the dryer about "
+                f"{abs(b):.1f} °C {run} than the set point, and the cyclone outlet and the labs "
+                f"follow that process, not the reading. Check the thermometer (calibration, "
+                f"thermowell, wiring) before trusting the loop or the estimates that use it.")
     return (f"The {name} reads {abs(b):.1f} °C {side}: check it (calibration, thermowell, "
             f"wiring) before trusting it or the estimates that use it.")
 
@@ -110,9 +118,28 @@ def cannot_tell_sentence(doc: Mapping[str, Any]) -> str:
 
 def diagnosis_verdict(doc: Mapping[str, Any]) -> str:
     """The diagnosis (REPORT.json, docs/interface.md section 5) as one or two sentences;
-    where the record cannot tell two causes apart, that is said first."""
+    with too little history to know the plant's normal, that is said first (and a cause
+    only leaned to); where the record cannot tell two causes apart, that is said next."""
     undecided = cannot_tell_sentence(doc)
-    return (undecided + " " + _named_verdict(doc)) if undecided else _named_verdict(doc)
+    text = (undecided + " " + _named_verdict(doc)) if undecided else _named_verdict(doc)
+    short = too_little_history_sentence(doc)
+    if short is None:
+        return text
+    lean = "" if doc.get("cause") == "none" else "The evidence leans to this, no more: "
+    return f"{short} {lean}{text}"
+
+
+def too_little_history_sentence(doc: Mapping[str, Any]) -> str | None:
+    """What REPORT.json's ``plant_normal`` says when there were too few history days to
+    know the plant's normal (None when there were enough, or no such field)."""
+    note = doc.get("plant_normal")
+    if not note or note.get("enough", True):
+        return None
+    n, need = int(note.get("history_days", 0)), int(note.get("min_history_days", 0))
+    cap = note.get("cap")
+    capped = "" if cap is None else f"; no cause is given a probability above {float(cap):.2f}"
+    return (f"Too little history to know this plant's normal ({n} history day(s) judged, "
+            f"{need} needed: `softsensor learn-normal`){capped}.")
 
 
 def _named_verdict(doc: Mapping[str, Any]) -> str:
@@ -121,8 +148,15 @@ def _named_verdict(doc: Mapping[str, Any]) -> str:
         return ("The calibrated model explains this record to within the sensors' noise: "
                 "nothing to check.")
     if cause == "unexplained":
-        return ("The model misses this record in a way none of the known causes explains: "
+        text = ("The model misses this record in a way none of the known causes explains: "
                 "look at the residual figures below and at what changed in the plant.")
+        refuted = next((r.get("contradicted") for r in doc.get("ranking", [])
+                        if r.get("cause") == "inlet_moisture" and r.get("contradicted")), None)
+        if refuted:
+            text += (" The outlet temperatures moved as an inlet-moisture change would move "
+                     "them, but the labs did not follow: look first for an unmeasured change "
+                     "of air flow (fan, dampers, a flow meter stuck) or of heat input.")
+        return text
     sentence = _SENTENCES.get(str(cause))
     if sentence is None:
         return f"Cause found: {cause}."
@@ -184,9 +218,12 @@ def open_loop_sentence(summary: Mapping[str, Any], x_ref: float, basis: str = "w
             f"{_errors(summary['rmse'], x_ref, basis)}.")
 
 
-def held_out_verdict(summary: Mapping[str, Any]) -> str:
+def held_out_verdict(summary: Mapping[str, Any], decisive: bool = True) -> str:
     """Each channel's open-loop error against the calibration's own held-out error
-    (``summary['verdict']``, :func:`softsensor.calibration.open_loop_errors.channel_verdicts`)."""
+    (``summary['verdict']``, :func:`softsensor.calibration.open_loop_errors.channel_verdicts`).
+    Not ``decisive`` (the sensor's mode is judged beside it, :func:`validation_verdict`): a
+    channel off by more than one day scatters says open loop misses these data, never that
+    the model does not hold."""
     checks = summary.get("verdict") or {}
     if summary.get("reference") is None:
         return ("No verdict: the parameter file holds no held-out error of its calibration "
@@ -204,23 +241,62 @@ def held_out_verdict(summary: Mapping[str, Any]) -> str:
         else:
             parts.append(f"{words} {ratio:.1f} times worse")
             worse.append(words)
-    tail = (f": the model does not hold on these data ({', '.join(worse)})." if worse
-            else ".")
+    if worse and decisive:
+        tail = f": the model does not hold on these data ({', '.join(worse)})."
+    elif worse:
+        tail = (f": open loop misses these data ({', '.join(worse)}); the verdict is the "
+                f"sensor's mode.")
+    else:
+        tail = "."
     return "Against the calibration's held-out error: " + "; ".join(parts) + tail
 
 
+def history_verdict(checks: Mapping[str, Mapping[str, Any]] | None) -> str:
+    """The sensor's-mode errors against the plant's own history days in the same mode
+    (:func:`softsensor.diagnosis.plant_normal.history_check`), in words: the model holds
+    unless a channel lies beyond what the history days showed."""
+    known = {n: c for n, c in (checks or {}).items() if c.get("verdict") != "unknown"}
+    if not known:
+        return ("No verdict: no history days were judged for these parameters in this mode "
+                "(`softsensor learn-normal` keeps them beside PARAMS.toml).")
+    days = max(int(c.get("days", 0)) for c in known.values())
+    parts, beyond = [], []
+    for name, words in _CHANNEL_WORDS.items():
+        c = known.get(name)
+        if c is None:
+            parts.append(f"{words} not known")
+            continue
+        if name == "moisture_out":
+            a, b = f"{c['rmse']:.4f}", f"{c['upper']:.4f} kg/kg"
+        else:
+            a, b = f"{c['rmse']:.2f}", f"{c['upper']:.2f} °C"
+        parts.append(f"{words} {a} against up to {b}")
+        if c["verdict"] == "beyond":
+            beyond.append(words)
+    tail = (f": the model does not hold on these data ({', '.join(beyond)} beyond its "
+            f"history)." if beyond else ": within this plant's history, the model holds.")
+    return (f"Against this plant's {days} history days in the same mode: "
+            + "; ".join(parts) + tail)
+
+
 def validation_verdict(open_loop: Mapping[str, Any], inlet_read: Mapping[str, float] | None,
-                       x_ref: float, basis: str = "wet") -> str:
-    """What a validation found, in plant units: open loop first
-    (:func:`open_loop_sentence`), its verdict against the calibration's held-out error
-    (:func:`held_out_verdict`), then the errors with the inlet moisture read from the
-    temperatures, labelled, and one sentence when that reading makes the outlet moisture
-    worse than open loop. The ``validate`` line and the validation page say this text."""
-    text = f"{open_loop_sentence(open_loop, x_ref, basis)} {held_out_verdict(open_loop)}"
+                       x_ref: float, basis: str = "wet",
+                       history: Mapping[str, Mapping[str, Any]] | None = None) -> str:
+    """What a validation found, in plant units. With the errors in the sensor's mode
+    (``inlet_read``: the inlet moisture read from the temperatures, what the sensor does)
+    the verdict is theirs, against the spread of the plant's own history days in that mode
+    (``history``, :func:`history_verdict`); open loop follows beside it
+    (:func:`open_loop_sentence`, against the calibration's held-out error but never
+    decisive), then one sentence when the sensor's reading makes the outlet moisture worse
+    than open loop. Without ``inlet_read``, open loop and its verdict alone. The
+    ``validate`` line and the validation page say this text."""
     if inlet_read is None:
-        return text
-    text += (f" With the inlet moisture read from the temperatures instead: "
-             f"{_errors(inlet_read, x_ref, basis)}.")
+        return f"{open_loop_sentence(open_loop, x_ref, basis)} {held_out_verdict(open_loop)}"
+    text = (f"In the sensor's mode (the inlet moisture read from the temperatures) the "
+            f"model's errors (RMSE) are {_errors(inlet_read, x_ref, basis)}. "
+            f"{history_verdict(history)} Beside it, open loop: "
+            f"{open_loop_sentence(open_loop, x_ref, basis)} "
+            f"{held_out_verdict(open_loop, decisive=False)}")
     m_open, m_read = open_loop["rmse"]["moisture_out"], inlet_read["moisture_out"]
     if m_read > m_open:
         a, b = (moisture_pct_points(m, x_ref, basis) for m in (m_open, m_read))
@@ -284,4 +360,5 @@ def health_words(body: Mapping[str, Any]) -> str:
 
 __all__ = ["SENSOR_NAMES", "calibration_result_verdict", "calibration_verdict",
            "cannot_tell_sentence", "diagnosis_verdict", "health_words", "held_out_verdict",
-           "open_loop_sentence", "validation_verdict"]
+           "history_verdict", "open_loop_sentence", "too_little_history_sentence",
+           "validation_verdict"]

@@ -153,7 +153,8 @@ def test_validate_shows_the_defaults_beside_in_the_pages_sentence(days, tmp_path
     from softsensor.apps.calibrate import load_segment
 
     x_ref = lab_reference([load_segment(d2, load_plant_config())])
-    verdict = validation_verdict(doc["open_loop"], doc["inlet_read"]["rmse"], x_ref, "wet")
+    verdict = validation_verdict(doc["open_loop"], doc["inlet_read"]["rmse"], x_ref, "wet",
+                                 doc["history"]["sensor"])
     assert line.startswith(f"validate: 1 day(s): {verdict} With the config's default "
                            f"parameters instead (open loop): "), line
     d = doc["default_parameters"]["open_loop"]["rmse"]

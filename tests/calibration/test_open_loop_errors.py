@@ -73,7 +73,7 @@ def test_validate_and_diagnose_report_the_same_open_loop_figure(params, validate
 
     doc, _ = validated
     ol = doc["open_loop"]
-    assert doc["headline"] == "open_loop" and ol["normal"] is True
+    assert doc["headline"] == "inlet_read" and ol["normal"] is True
     assert ol["inlet_moisture"] == pytest.approx(LEVEL)
     # what diagnose builds (diagnose_main): the day's windows, its baseline, its open loop
     cfg = load_parameters(params, load_plant_config())
@@ -91,7 +91,7 @@ def test_validate_and_diagnose_report_the_same_open_loop_figure(params, validate
     assert max(abs(bare["rmse"][n] / ol["rmse"][n] - 1) for n in OUTPUT_NAMES) > 0.05
 
 
-def test_validate_json_names_both_modes_and_the_line_puts_open_loop_first(validated):
+def test_validate_json_names_both_modes_and_the_line_puts_the_sensors_mode_first(validated):
     doc, line = validated
     assert set(doc["inlet_read"]["rmse"]) == set(OUTPUT_NAMES)
     assert doc["inlet_read"]["rmse"] != doc["open_loop"]["rmse"]
@@ -99,10 +99,14 @@ def test_validate_json_names_both_modes_and_the_line_puts_open_loop_first(valida
     ref = doc["open_loop"]["reference"]
     assert ref is not None and "[model_error]" in ref["source"]
     body = line.removeprefix("validate: 1 day(s): ")
-    assert body.startswith(f"Open loop (inlet moisture held at {LEVEL:.2f} kg/kg, the "
-                           f"calibration's level, with the history's normal)"), line
-    assert body.index("Against the calibration's held-out error") \
-        < body.index("With the inlet moisture read from the temperatures instead")
+    # issue 48 item 5: the verdict is the sensor's mode's, open loop beside it
+    assert doc["headline"] == "inlet_read"
+    assert body.startswith("In the sensor's mode (the inlet moisture read from the "
+                           "temperatures)"), line
+    assert f"Beside it, open loop: Open loop (inlet moisture held at {LEVEL:.2f} kg/kg, the " \
+           f"calibration's level, with the history's normal)" in body, line
+    assert body.index("In the sensor's mode") < body.index("Against the calibration's held-out")
+    assert doc["history"]["history_days"] == 0 and "learn-normal" in doc["history"]["note"]
     worse = doc["inlet_read"]["moisture_worse_than_open_loop"]
     assert worse == (doc["inlet_read"]["rmse"]["moisture_out"]
                      > doc["open_loop"]["rmse"]["moisture_out"])
@@ -126,15 +130,33 @@ def test_the_verdict_against_the_held_out_error_and_its_labels():
                                   "moisture_out": 0.02}, 0.1, "dry")
     assert "dryer outlet within it (0.8 times)" in text
     assert "cyclone outlet 1.8 times, within what one day scatters" in text
-    assert "outlet moisture 3.0 times worse: the model does not hold on these data " \
-           "(outlet moisture)." in text
-    assert "With the inlet moisture read from the temperatures instead: dryer outlet " \
-           "0.30 °C" in text
+    # open loop beside the sensor's mode is never the verdict (issue 48 item 5)
+    assert "outlet moisture 3.0 times worse: open loop misses these data (outlet " \
+           "moisture); the verdict is the sensor's mode." in text
+    assert "does not hold" not in text
+    assert text.startswith("In the sensor's mode (the inlet moisture read from the "
+                           "temperatures) the model's errors (RMSE) are dryer outlet 0.30 °C")
+    assert "No verdict: no history days were judged for these parameters" in text
+    # without the sensor's mode, open loop is the verdict
+    alone = validation_verdict(s, None, 0.1, "dry")
+    assert "the model does not hold on these data (outlet moisture)." in alone
     assert "Reading the inlet moisture from the temperatures makes the outlet moisture " \
            "worse than open loop (1.20 -> 2.00 % points)" in text
     better = validation_verdict(s, {**rmse, "moisture_out": 0.001}, 0.1, "dry")
     assert "worse than open loop" not in better
     none = validation_verdict(_summary(rmse, None), None, 0.1, "dry")
+    # judged against the plant's own history days in the sensor's mode
+    within = {n: {"rmse": 0.3, "upper": 0.4, "days": 8, "verdict": "within"}
+              for n in OUTPUT_NAMES}
+    held = validation_verdict(s, {"T_dryer_out": 0.3, "T_cyclone_out": 0.3,
+                                  "moisture_out": 0.02}, 0.1, "dry", within)
+    assert "Against this plant's 8 history days in the same mode" in held
+    assert "within this plant's history, the model holds." in held
+    beyond = {**within, "moisture_out": {"rmse": 0.02, "upper": 0.01, "days": 8,
+                                         "verdict": "beyond"}}
+    off = validation_verdict(s, {"T_dryer_out": 0.3, "T_cyclone_out": 0.3,
+                                 "moisture_out": 0.02}, 0.1, "dry", beyond)
+    assert "the model does not hold on these data (outlet moisture beyond its history)" in off
     assert "No verdict: the parameter file holds no held-out error" in none
 
 
