@@ -22,15 +22,17 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from softsensor.errors import ConfigError
 from softsensor.plantconfig import PlantConfig, built_table
 from softsensor.signals import SCAN_SIGNALS
 from softsensor.windows.accumulator import window_end
+
+if TYPE_CHECKING:  # the frames are the callers': the daemon runs without pandas (issue 49)
+    import pandas as pd
 
 #: Signals of the regression: every scanned signal (a spreadsheet takes them all).
 REGRESSION_SIGNALS: tuple[str, ...] = tuple(SCAN_SIGNALS)

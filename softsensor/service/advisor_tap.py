@@ -23,10 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from softsensor.advisor.advice import Advice, Envelope, advise
-from softsensor.advisor.replay import situations
 from softsensor.advisor.settings import AdvisorSettings, advisor_settings
 from softsensor.errors import ConfigError
 from softsensor.estimate import SEVERITY, Estimate, Health
@@ -83,6 +81,11 @@ class AdvisorTap:
 
     def on_estimate(self, est: Estimate, health: Health | None) -> Advice:
         """The advice at ``est`` with the health in force (the estimate's own when None)."""
+        # here: pandas (about 60 MB resident) only in a daemon that advises (issue 49)
+        import pandas as pd
+
+        from softsensor.advisor.replay import situations
+
         with self._lock:
             rows = list(self._scans)
         scans = pd.DataFrame([r for _, r in rows], index=[t for t, _ in rows],

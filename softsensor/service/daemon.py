@@ -51,12 +51,7 @@ from softsensor.ingest.lab_input import LabFolderWatcher, LabInput, folder_rate
 from softsensor.ingest.modbus_poller import ModbusPoller
 from softsensor.ingest.tagmap import TagMap, load_tagmap
 from softsensor.messages import lab_body
-from softsensor.outputs.operator_output import (
-    OperatorOutput,
-    abuse,
-    lab_refused,
-    operator_outputs,
-)
+from softsensor.outputs.operator_output import OperatorOutput, abuse, lab_refused, operator_outputs
 from softsensor.outputs.settings import output_settings
 from softsensor.plantconfig import PlantConfig
 from softsensor.presentation.display import (
