@@ -100,7 +100,8 @@ FILES: tuple[ConfigFile, ...] = (
                "The LIMS file's layout for the daemon's lab folder: the same table as a "
                "historian map's ``[lab]``."),
          Table("virtual_plant", "softsensor.plant.settings.VirtualPlantSettings"),
-         Table("diagnosis", "softsensor.diagnosis.settings.DiagnosisSettings"))),
+         Table("diagnosis", "softsensor.diagnosis.settings.DiagnosisSettings"),
+         Table("advisor", "softsensor.advisor.settings.AdvisorSettings"))),
     ConfigFile(
         "The tag map", "config/tagmap_dryer1.toml",
         "Where each signal lives in the PLC (read by ``run`` and ``plant-server``; "
@@ -169,41 +170,31 @@ SUPPLEMENT: dict[str, tuple[str, str]] = {
     # the plant config: softsensor/plantconfig.py (issue 49: 93 keys had no meaning)
     "Unit.name": ("", "the unit's name: the ``<unit>`` of the Zenoh keys and the label of "
                       "every output"),
-    "Tube.length": ("", "length of the dryer tube, from the fibre injection to the cyclone"),
-    "Tube.wall_thickness": ("", "thickness of the tube's steel wall"),
     "Tube.n_cells": ("count", "finite volumes the tube is divided into along its length"),
     "Tube.wall_heat_capacity": ("", "specific heat capacity of the wall's steel"),
     "Tube.wall_conductivity": ("", "thermal conductivity of the wall's steel"),
     "Tube.wall_emissivity": ("1", "emissivity of the wall's outer surface (radiation to the "
                                   "surroundings)"),
-    "Tube.deposit_conductivity": ("", "thermal conductivity of that deposit"),
+    "Tube.deposit_conductivity": ("W/(m K)", ""),
     "Cyclone.count": ("count", "cyclones in parallel"),
-    "Cyclone.diameter": ("", "diameter of one cyclone"),
     "Cyclone.height": ("", "height of one cyclone"),
     "Cyclone.n_cells": ("count", "well-mixed cells of the lumped cyclone model"),
-    "Cyclone.shell_thickness": ("", "thickness of the cyclones' steel shell"),
     "Cyclone.shell_density": ("", "density of the shell's steel"),
     "Cyclone.shell_heat_capacity": ("", "specific heat capacity of the shell's steel"),
-    "Cyclone.inner_heat_transfer": ("", "heat transfer coefficient from the air to the shell"),
     "Fiber.diameter": ("", "diameter of a fibre (a cylinder)"),
     "Fiber.length": ("", "length of a fibre"),
     "Fiber.saturation_point": ("", "fibre saturation point: the moisture below which water is "
                                    "bound in the cell wall, dry basis"),
     "Fiber.critical_moisture": ("", "critical moisture of the drying-rate law: the falling "
                                     "rate begins below it, dry basis"),
-    "Fiber.critical_width": ("", "width of the double sigmoid's step at the critical "
-                                 "moisture (paper's eq. 2)"),
     "Fiber.bound_fraction": ("1", "the drying rate's bound-water plateau, as a fraction of the "
                                   "free-water rate (paper's eq. 2)"),
     "Fiber.equilibrium_width": ("", "width of the double sigmoid's step at the equilibrium "
                                     "moisture (paper's eq. 2)"),
     "Fiber.cdc_exponent": ("1", ""),
     "Fiber.rea_c": ("1", ""),
-    "HotGas.temperature": ("", "temperature of the combustion gas before the mixing flaps"),
-    "HotGas.humidity": ("", "specific humidity of the combustion gas"),
     "HotGas.fraction_min": ("1", "hot-gas share of the mixed air with the flaps at 0 %"),
     "HotGas.fraction_max": ("1", "hot-gas share of the mixed air with the flaps at 100 %"),
-    "Environment.pressure": ("", "absolute pressure of the air in the dryer"),
     "Environment.wind_speed": ("", "wind speed outside (convective heat loss)"),
     "Solver.wall_substeps": ("count", "Crank-Nicolson substeps of the wall temperature per "
                                       "window"),
@@ -219,6 +210,7 @@ SUPPLEMENT: dict[str, tuple[str, str]] = {
     "ParameterSpec.low": ("the parameter's", "lower bound of the calibration's search"),
     "ParameterSpec.high": ("the parameter's", "upper bound of the calibration's search"),
     "ParameterSpec.log": ("", "search and prior on the logarithm of the parameter"),
+    "ModbusOutputSettings.max_requests_per_s": ("1/s", ""),
     # the daemon and the estimator
     "ServiceSettings.checkpoint_every": ("count", ""),
     "ServiceSettings.max_message_bytes": ("bytes", ""),

@@ -131,7 +131,7 @@ MUTATIONS: tuple[Mutation, ...] = (
              "mean, cov = kf_update(mean, cov, meas.z, meas.R, H)",
              "mean, cov = kf_update(mean, cov, meas.z, 0.1 * meas.R, H)", T_UKF),
     Mutation("UKF: the inlet gain left out of the outlet moisture", EST + "ukf_step.py",
-             "return y + sigmas[:, X_GAIN] * (y - y_ref) + sigmas[:, X_BIAS]",
+             "return y_ref + gain_response(sigmas[:, X_GAIN]) * (y - y_ref) + sigmas[:, X_BIAS]",
              "return y + sigmas[:, X_BIAS]", T_UKF),
     Mutation("UKF: the learned discrepancy not taken off the measurements", EST + "ukf_step.py",
              "values = [v - g[c] for c, v in zip(temps.channels, temps.values, strict=True)]",
