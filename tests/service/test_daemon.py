@@ -308,3 +308,52 @@ def test_the_daemon_with_every_output_imports_no_table_or_plot_library():
                        timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.strip() == "[]", r.stdout
+
+
+@pytest.mark.slow
+def test_daemon_publishes_the_advice_and_never_writes_to_the_plc(day, tmp_path):
+    """[advisor] enabled: a real daemon polling a real PLC server publishes one advice body
+    per estimate on softsensor/<unit>/advice (read by a raw Zenoh subscriber), and the PLC
+    sees no write."""
+    from softsensor.plantconfig import PARAMETER_NAMES, load_parameters, with_table
+
+    ident = tmp_path / "ident.json"
+    ident.write_text(json.dumps({"verdicts": {n: {"relative_se": 0.05} for n in PARAMETER_NAMES},
+                                 "correlation": [[float(i == j) for j in range(7)]
+                                                 for i in range(7)]}))
+    fixture = Path(__file__).resolve().parents[1] / "fixtures" / "independent_plant_params.toml"
+    cfg = with_table(load_parameters(str(fixture), load_plant_config()), "advisor",
+                     {"enabled": True, "identify": str(ident)})
+    settings = _settings(tmp_path, int(day.scans.index[0]))
+    advice: list = []
+    outcome: dict = {}
+
+    async def main() -> None:
+        feed = PlantFeed(day, loop=True)
+        tm = load_tagmap()
+        plc = PlcServer(tm, feed.next_values, port=0, period_s=10.0 / SCALE)
+        await plc.start()
+        daemon = Daemon(cfg, settings, tagmap=tm.with_endpoint("127.0.0.1", plc.port))
+        stop = asyncio.Event()
+        up: list[DaemonInfo] = []
+        task = asyncio.create_task(daemon.run(stop, ready=up.append))
+        try:
+            await until(lambda: up or task.done(), 20, "the daemon to start")
+            with open_session(port=None, connect=up[0].endpoints) as outside:
+                assert wait_for_peers(outside, timeout=5)
+                sub = outside.declare_subscriber(
+                    "softsensor/dryer1/advice",
+                    lambda s: advice.append(json.loads(s.payload.to_bytes())))
+                await until(lambda: len(advice) >= 2, 60, "two advice bodies")
+                sub.undeclare()
+        finally:
+            stop.set()
+            await asyncio.wait_for(task, 30)
+            await plc.stop()
+            outcome["writes"] = plc.write_requests
+
+    asyncio.run(asyncio.wait_for(main(), 150))
+    assert outcome["writes"] == 0
+    for body in advice:
+        assert isinstance(body["advised"], bool) and body["reason"]
+        assert "\n" not in body["reason"] and body["time_ns"] % WINDOW_NS == 0
