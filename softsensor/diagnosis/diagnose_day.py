@@ -367,9 +367,10 @@ def diagnose(config: PlantConfig, day: DayLike, *,
     normal : PlantNormal, optional
         The plant's own history days as judged against a normal that did not see them
         (:mod:`.plant_normal`): the probabilities are judged against it, with the prior of
-        the config's ``[diagnosis]`` (:mod:`.settings`). Without it, or with fewer history
-        days than ``[diagnosis]`` ``min_history_days``, the verdict says there is too little
-        history and no cause gets more than ``cap_without_history``.
+        the config's ``[diagnosis]`` (:mod:`softsensor.diagnosis.settings`). Without it,
+        or with fewer history days than ``[diagnosis]`` ``min_history_days``, the verdict
+        says there is too little history and no cause gets more than
+        ``cap_without_history``.
     progress : callable, optional
         Called with a short phase description as each phase starts (the verb prints them:
         a diagnosis takes minutes).
