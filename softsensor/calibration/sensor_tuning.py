@@ -1,7 +1,8 @@
 """What the sensor learns of its own plant from the history: its noise and its blend.
 
-The filter's noise model and the weighing of its sources (:mod:`softsensor.estimation
-.peer_blend`: the physics, the held lab, the lab regression) describe a plant: how fast its
+The filter's noise model and the weighing of its sources
+(:mod:`softsensor.estimation.peer_blend`: the physics, the held lab, the lab regression)
+describe a plant: how fast its
 inlet moisture wanders, how much of an air-temperature move its thermometers lag, how much the
 physics, the regression and the last lab are each worth at the next lab result. Shipped
 constants sized on one plant do not carry to another (the sister dryer: the regression beat a
