@@ -215,7 +215,10 @@ def test_diagnose_command_calibrates_on_cal_and_writes_the_report(cfg, tmp_path)
     # the verdict first, in plant language: which thermometer, how far, which way
     verdict = html[html.index('<p class="verdict">'):]
     verdict = verdict[:verdict.index("</p>")]
-    assert f"({rep['channel']}) reads" in verdict and "°C" in verdict, verdict
+    # (the loop's own thermometer is named with what the loop does: "(T_dryer_out), the one
+    # the outlet-temperature loop holds at its set point, reads 5.7 °C low", issue 48)
+    assert f"({rep['channel']})" in verdict and " reads " in verdict and "°C" in verdict, \
+        verdict
     assert ("high" if day.effect["sign"] > 0 else "low") in verdict, verdict
     # the calibrated parameters reproduce the report through --params
     out2 = tmp_path / "REPORT2.json"
