@@ -39,7 +39,7 @@ import itertools
 import math
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -342,12 +342,6 @@ def _noise_check(base: Sequence[DayRun], learned: Sequence[DayRun], s0: Estimato
     return check, "shipped: the learned noise scored the tuning days' labs no better"
 
 
-def learned_keys() -> tuple[str, ...]:
-    """Every ``[estimator]`` key PARAMS.toml's ``[sensor].values`` may set."""
-    names = {f.name for f in fields(EstimatorSettings)}
-    return tuple(k for k in NOISE_KEYS + BLEND_KEYS if k in names)
-
-
 __all__ = ["BLEND_KEYS", "NOISE_KEYS", "PRIOR_SD", "TUNING_DAYS", "SensorTuning",
-           "blend_candidates", "blend_errors", "fit_blend", "fit_noise", "learned_keys",
+           "blend_candidates", "blend_errors", "fit_blend", "fit_noise",
            "tune_deployed", "tune_sensor"]

@@ -67,8 +67,10 @@ def test_a_physics_that_is_off_loses_its_weight_to_the_hold_out_of_fold():
 def test_a_physics_that_holds_keeps_its_weight():
     days = [_day(s, 0.0) for s in range(4)]
     tuned, check, _ = fit_blend(days, SHIPPED)
+    # the physics publishes the truth, the labs carry 0.003 of noise: held out, the learned
+    # blend stays at that floor (0.0029), short of a blend leaning on the hold (0.0040)
     assert check["rmse_learned_held_out"] <= check["rmse_shipped"] * 1.05
-    assert tuned.peer_prior_physics >= 0.7 or tuned.peer_evidence > 0
+    assert check["rmse_learned_held_out"] < 0.0035
 
 
 def _score_days(truth: dict[str, float], width: float = 0.5):
